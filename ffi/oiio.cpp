@@ -1,0 +1,222 @@
+// The C++ half of reframe's OpenImageIO bridge: thin wrappers that turn OIIO's bool-and-geterror
+// failure style into std::runtime_error, which cxx catches at the boundary and hands to Rust as
+// an Err. Nothing here decides policy (formats, sRGB, dithering, atomic renames): that is all in
+// src/image/mod.rs. Usage, from Rust only:
+//
+//     let reader = bridge::ffi::open_reader("frame.exr")?;
+#include "reframe/ffi/oiio.h"
+
+#include <stdexcept>
+#include <string>
+
+#include "reframe/src/image/bridge.rs.h"
+
+namespace reframe {
+
+namespace {
+
+// OIIO keeps its global error message per thread, so this must run on the thread whose call
+// failed, right after the failure: i.e. inside the failing bridged function, never later.
+[[noreturn]] void throw_global_error(const std::string& context) {
+    std::string msg = OIIO::geterror();
+    if (msg.empty()) {
+        msg = "unknown OpenImageIO error";
+    }
+    throw std::runtime_error(context + ": " + msg);
+}
+
+[[noreturn]] void throw_output_error(OIIO::ImageOutput& out, const std::string& context) {
+    std::string msg = out.geterror();
+    if (msg.empty()) {
+        // Some writers report through the global channel instead of the object.
+        msg = OIIO::geterror();
+    }
+    if (msg.empty()) {
+        msg = "unknown OpenImageIO error";
+    }
+    throw std::runtime_error(context + ": " + msg);
+}
+
+[[noreturn]] void throw_input_error(OIIO::ImageInput& in, const std::string& context) {
+    std::string msg = in.geterror();
+    if (msg.empty()) {
+        msg = OIIO::geterror();
+    }
+    if (msg.empty()) {
+        msg = "unknown OpenImageIO error";
+    }
+    throw std::runtime_error(context + ": " + msg);
+}
+
+OIIO::TypeDesc to_typedesc(PixelType t) {
+    switch (t) {
+        case PixelType::U8: return OIIO::TypeDesc::UINT8;
+        case PixelType::Half: return OIIO::TypeDesc::HALF;
+        case PixelType::Float: return OIIO::TypeDesc::FLOAT;
+    }
+    throw std::runtime_error("invalid PixelType");
+}
+
+OIIO::ImageSpec make_spec(const ImageDesc& desc, size_t n_values,
+                          rust::Slice<const Attribute> attrs) {
+    const size_t nch = desc.channels.size();
+    if (desc.width == 0 || desc.height == 0 || nch == 0) {
+        throw std::runtime_error("image has no pixels or no channels");
+    }
+    if (size_t(desc.width) * size_t(desc.height) * nch != n_values) {
+        throw std::runtime_error("pixel buffer size does not match width * height * channels");
+    }
+    OIIO::ImageSpec spec(int(desc.width), int(desc.height), int(nch), to_typedesc(desc.store_as));
+    spec.channelnames.clear();
+    spec.alpha_channel = -1;
+    spec.z_channel = -1;
+    for (size_t c = 0; c < nch; ++c) {
+        std::string name(desc.channels[c]);
+        // The constructor guessed alpha from the channel count; with caller-chosen names the
+        // names are the only reliable signal (an "A" channel must not be premultiplied-treated
+        // when it is really, say, a sample count).
+        if (name == "A") {
+            spec.alpha_channel = int(c);
+        } else if (name == "Z") {
+            spec.z_channel = int(c);
+        }
+        spec.channelnames.push_back(std::move(name));
+    }
+    for (const Attribute& a : attrs) {
+        const std::string name(a.name);
+        switch (a.kind) {
+            case AttrKind::Int: spec.attribute(name, a.int_value); break;
+            case AttrKind::Float: spec.attribute(name, a.float_value); break;
+            case AttrKind::Text: spec.attribute(name, std::string(a.text)); break;
+            case AttrKind::Matrix: spec.attribute(name, OIIO::TypeMatrix44, a.matrix.data()); break;
+            default: throw std::runtime_error("attribute " + name + " has a kind that cannot be written");
+        }
+    }
+    return spec;
+}
+
+void write_pixels(const std::string& path, const OIIO::ImageSpec& spec, OIIO::TypeDesc in_type,
+                  const void* pixels) {
+    auto out = OIIO::ImageOutput::create(path);
+    if (!out) {
+        throw_global_error("cannot write " + path);
+    }
+    if (!out->open(path, spec)) {
+        throw_output_error(*out, "cannot open " + path + " for writing");
+    }
+    if (!out->write_image(in_type, pixels)) {
+        // Keep the writer's message before close() can overwrite it; the caller deletes the
+        // partial file.
+        std::string msg = out->geterror();
+        out->close();
+        throw std::runtime_error("cannot write pixels to " + path + ": " +
+                                 (msg.empty() ? std::string("unknown OpenImageIO error") : msg));
+    }
+    // Writers flush and compress on close, so a full disk typically shows up only here.
+    if (!out->close()) {
+        throw_output_error(*out, "cannot finish writing " + path);
+    }
+}
+
+}  // namespace
+
+rust::String oiio_version() {
+    const int v = OIIO::openimageio_version();
+    return rust::String(std::to_string(v / 10000) + "." + std::to_string(v / 100 % 100) + "." +
+                        std::to_string(v % 100));
+}
+
+void check_output_format(rust::Str path) {
+    const std::string p(path);
+    // create() only looks the writer up by extension; it neither opens nor creates the file.
+    auto out = OIIO::ImageOutput::create(p);
+    if (!out) {
+        throw_global_error("no image writer for " + p);
+    }
+}
+
+void write_f32(rust::Str path, const ImageDesc& desc, rust::Slice<const float> pixels,
+               rust::Slice<const Attribute> attrs) {
+    const OIIO::ImageSpec spec = make_spec(desc, pixels.size(), attrs);
+    write_pixels(std::string(path), spec, OIIO::TypeDesc::FLOAT, pixels.data());
+}
+
+void write_u8(rust::Str path, const ImageDesc& desc, rust::Slice<const uint8_t> pixels,
+              rust::Slice<const Attribute> attrs) {
+    const OIIO::ImageSpec spec = make_spec(desc, pixels.size(), attrs);
+    write_pixels(std::string(path), spec, OIIO::TypeDesc::UINT8, pixels.data());
+}
+
+ImageReader::ImageReader(std::unique_ptr<OIIO::ImageInput> in)
+    : in_(std::move(in)), spec_(in_->spec()) {}
+
+std::unique_ptr<ImageReader> open_reader(rust::Str path) {
+    const std::string p(path);
+    auto in = OIIO::ImageInput::open(p);
+    if (!in) {
+        throw_global_error("cannot read " + p);
+    }
+    const OIIO::ImageSpec& spec = in->spec();
+    if (spec.deep || spec.depth > 1 || spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0) {
+        throw std::runtime_error("cannot read " + p + ": not a flat 2D image");
+    }
+    return std::make_unique<ImageReader>(std::move(in));
+}
+
+ImageInfo ImageReader::info() const {
+    ImageInfo info;
+    info.width = uint32_t(spec_.width);
+    info.height = uint32_t(spec_.height);
+    for (int c = 0; c < spec_.nchannels; ++c) {
+        info.channels.push_back(rust::String::lossy(std::string(spec_.channel_name(c))));
+    }
+    info.format_name = rust::String::lossy(in_->format_name());
+    return info;
+}
+
+// Metadata from arbitrary files need not be UTF-8, and these functions are not allowed to throw,
+// hence the lossy conversions.
+rust::Vec<Attribute> ImageReader::attributes() const {
+    rust::Vec<Attribute> result;
+    for (const OIIO::ParamValue& p : spec_.extra_attribs) {
+        Attribute a;
+        a.name = rust::String::lossy(p.name().string());
+        a.int_value = 0;
+        a.float_value = 0.0f;
+        a.matrix.fill(0.0f);
+        const OIIO::TypeDesc t = p.type();
+        if (t == OIIO::TypeInt) {
+            a.kind = AttrKind::Int;
+            a.int_value = p.get_int();
+        } else if (t == OIIO::TypeFloat) {
+            a.kind = AttrKind::Float;
+            a.float_value = p.get_float();
+        } else if (t == OIIO::TypeString) {
+            a.kind = AttrKind::Text;
+            a.text = rust::String::lossy(p.get_string());
+        } else if (t == OIIO::TypeMatrix44) {
+            a.kind = AttrKind::Matrix;
+            const float* m = static_cast<const float*>(p.data());
+            for (int i = 0; i < 16; ++i) {
+                a.matrix[i] = m[i];
+            }
+        } else {
+            a.kind = AttrKind::Other;
+            a.text = rust::String::lossy(p.get_string());
+        }
+        result.push_back(std::move(a));
+    }
+    return result;
+}
+
+void ImageReader::read_f32(rust::Slice<float> out) {
+    const size_t n = size_t(spec_.width) * size_t(spec_.height) * size_t(spec_.nchannels);
+    if (out.size() != n) {
+        throw std::runtime_error("output buffer size does not match the image");
+    }
+    if (!in_->read_image(0, 0, 0, spec_.nchannels, OIIO::TypeDesc::FLOAT, out.data())) {
+        throw_input_error(*in_, "cannot read pixels");
+    }
+}
+
+}  // namespace reframe

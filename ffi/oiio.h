@@ -1,0 +1,45 @@
+// The C++ half of reframe's OpenImageIO bridge; the Rust half is `src/image/bridge.rs` and the
+// safe API on top is `src/image/mod.rs`. Usage, from Rust only:
+//
+//     bridge::ffi::write_f32("frame.exr", &desc, &pixels, &attrs)?;
+//
+// Functions that can fail throw std::runtime_error carrying OIIO's own message; they are declared
+// returning Result on the Rust side, so cxx turns the exception into an Err at the boundary.
+#pragma once
+
+#include <memory>
+
+#include <OpenImageIO/imageio.h>
+
+#include "rust/cxx.h"
+
+namespace reframe {
+
+// Shared types, defined by the cxx-generated header that oiio.cpp includes.
+struct Attribute;
+struct ImageDesc;
+struct ImageInfo;
+
+// Owns an open ImageInput. A class of its own (not a bare ImageInput) so that the Rust side sees
+// one opaque type with exactly the operations it needs.
+class ImageReader {
+public:
+    explicit ImageReader(std::unique_ptr<OIIO::ImageInput> in);
+    ImageInfo info() const;
+    rust::Vec<Attribute> attributes() const;
+    void read_f32(rust::Slice<float> out);
+
+private:
+    std::unique_ptr<OIIO::ImageInput> in_;
+    OIIO::ImageSpec spec_;
+};
+
+rust::String oiio_version();
+void check_output_format(rust::Str path);
+void write_f32(rust::Str path, const ImageDesc& desc, rust::Slice<const float> pixels,
+               rust::Slice<const Attribute> attrs);
+void write_u8(rust::Str path, const ImageDesc& desc, rust::Slice<const uint8_t> pixels,
+              rust::Slice<const Attribute> attrs);
+std::unique_ptr<ImageReader> open_reader(rust::Str path);
+
+}  // namespace reframe

@@ -1,0 +1,67 @@
+#!/usr/bin/env bash
+# One-time (and idempotent) set-up of everything reframe needs to build and run on Debian 12/13:
+#   - Debian packages: OpenImageIO (headers and library), libclang (bindgen), pkg-config, g++;
+#   - Embree 4: the system's libembree4.so.4 if there is one, otherwise the Embree 4.4.0 runtime
+#     shipped in the PyPI wheel embreex==4.4.0.post1 (pinned, sha256-checked), unpacked into .deps/.
+# Fast when everything is already there. Run as root (or with sudo) the first time.
+set -euo pipefail
+cd "$(dirname "$0")"
+
+EMBREE_WHEEL=embreex-4.4.0.post1-cp311-cp311-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl
+EMBREE_SHA256=2cd0f7d5c6342e6247e31f700761689cae7829454d8c6de0c41e62124a023e1f
+EMBREE_SONAME=libembree4-4aef3270.so.4
+DEPS=.deps/embree4
+
+say() { echo "setup: $*" >&2; }
+
+# --- Debian packages -------------------------------------------------------------------------
+pkgs=(libopenimageio-dev libclang-dev pkg-config g++ python3)
+missing=()
+for p in "${pkgs[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  say "installing Debian packages: ${missing[*]}"
+  SUDO=""
+  if [ "$(id -u)" -ne 0 ]; then
+    command -v sudo >/dev/null || { say "need root to install ${missing[*]}"; exit 1; }
+    SUDO=sudo
+  fi
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+# --- Embree 4 --------------------------------------------------------------------------------
+if ldconfig -p 2>/dev/null | grep -q 'libembree4\.so\.4 '; then
+  exit 0  # the system's Embree 4; build.rs finds it
+fi
+if [ -f "$DEPS/lib/.sha256" ] && [ "$(cat "$DEPS/lib/.sha256")" = "$EMBREE_SHA256" ] \
+   && [ -e "$DEPS/lib/$EMBREE_SONAME" ]; then
+  exit 0  # already unpacked
+fi
+say "fetching the Embree 4.4.0 runtime (PyPI wheel embreex==4.4.0.post1)"
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+if ! python3 -m pip --version >/dev/null 2>&1; then
+  say "installing pip"
+  DEBIAN_FRONTEND=noninteractive ${SUDO:-} apt-get install -y -qq --no-install-recommends python3-pip >/dev/null
+fi
+python3 -m pip download --quiet --no-deps --only-binary=:all: --python-version 3.11 \
+  --implementation cp --platform manylinux_2_28_x86_64 -d "$tmp" embreex==4.4.0.post1
+echo "$EMBREE_SHA256  $tmp/$EMBREE_WHEEL" | sha256sum --check --status \
+  || { say "sha256 mismatch for $EMBREE_WHEEL"; exit 1; }
+rm -rf "$DEPS" && mkdir -p "$DEPS/lib"
+python3 - "$tmp/$EMBREE_WHEEL" "$DEPS/lib" <<'PY'
+import sys, zipfile, os
+whl, dest = sys.argv[1], sys.argv[2]
+with zipfile.ZipFile(whl) as z:
+    for n in z.namelist():
+        if n.startswith("embreex.libs/") and not n.endswith("/"):
+            p = os.path.join(dest, os.path.basename(n))
+            with open(p, "wb") as f:
+                f.write(z.read(n))
+            os.chmod(p, 0o755)
+PY
+ln -sf "$EMBREE_SONAME" "$DEPS/lib/libembree4.so"
+echo "$EMBREE_SHA256" > "$DEPS/lib/.sha256"
+say "Embree 4 runtime in $DEPS/lib"

@@ -1,0 +1,640 @@
+//! The Embree 4 layer: the only module of reframe with `unsafe` code (besides the cxx bridge).
+//!
+//! It owns the Embree device and the committed scene (both released on `Drop`), turns Embree's
+//! errors into Rust errors through the device error callback, and enforces the Embree 4 calling
+//! invariants in one place so that no call site can get them wrong:
+//! 16-byte (single) and 64-byte (packet) aligned ray structs, `geomID` set to
+//! `RTC_INVALID_GEOMETRY_ID` before every intersect call, an explicit ray mask, and `tnear`/origin
+//! offsets against self-intersection (`Ray::spawn`, `Ray::between`).
+//!
+//! ```no_run
+//! use reframe::embree::{Device, Ray, TriangleScene};
+//! use glam::Vec3;
+//! let device = Device::new()?;
+//! let scene = TriangleScene::new(&device, &[Vec3::ZERO, Vec3::X, Vec3::Y], &[[0, 1, 2]])?;
+//! let hit = scene.intersect1(&Ray::new(Vec3::new(0.2, 0.2, 1.0), -Vec3::Z));
+//! assert_eq!(hit.unwrap().prim_id, 0);
+//! # anyhow::Ok(())
+//! ```
+//!
+//! ABI note: `embree4-sys` 0.0.12 generates its bindings from Embree 4.2 headers, while the
+//! runtime reframe ships is Embree 4.4, built with instance arrays. That build has an extra
+//! `instPrimID` field at the end of `RTCHit`/`RTCHit16` (and of `RTCRayQueryContext`), which the
+//! 4.2 layout lacks. So every ray-hit struct handed to Embree here carries trailing padding that
+//! absorbs that write, and the query context is left null so that Embree builds its own default.
+use anyhow::{anyhow, bail, Result};
+use embree4_sys as sys;
+use glam::Vec3;
+use std::ffi::{c_char, c_void, CStr};
+use std::ptr;
+use std::sync::Mutex;
+
+/// `RTC_INVALID_GEOMETRY_ID` (a `#define` that bindgen does not carry over).
+const INVALID_ID: u32 = u32::MAX;
+/// All of reframe's geometry lives in mask bit 0; rays test against every bit explicitly
+/// (Embree 4's default geometry mask is 1, and a zero ray mask would hit nothing).
+const RAY_MASK: u32 = u32::MAX;
+
+/// Where the error callback leaves Embree's messages until the wrapper reads them.
+struct ErrorSink(Mutex<Vec<String>>);
+
+unsafe extern "C" fn error_callback(user: *mut c_void, code: sys::RTCError, msg: *const c_char) {
+    // SAFETY: `user` is the `ErrorSink` boxed in `Device`, alive as long as the device is.
+    let sink = unsafe { &*(user as *const ErrorSink) };
+    let text = if msg.is_null() {
+        String::new()
+    } else {
+        // SAFETY: Embree passes a NUL-terminated string valid for the duration of the call.
+        unsafe { CStr::from_ptr(msg) }.to_string_lossy().into_owned()
+    };
+    if let Ok(mut v) = sink.0.lock() {
+        v.push(format!("Embree error {code:?}: {text}"));
+    }
+}
+
+/// An Embree device. Owns the handle and the error sink the callback writes to.
+pub struct Device {
+    raw: sys::RTCDevice,
+    errors: Box<ErrorSink>,
+}
+
+impl Device {
+    pub fn new() -> Result<Device> {
+        // SAFETY: a null config string asks for the defaults.
+        let raw = unsafe { sys::rtcNewDevice(ptr::null()) };
+        if raw.is_null() {
+            // SAFETY: the null device reports the error of the failed creation.
+            let code = unsafe { sys::rtcGetDeviceError(ptr::null_mut()) };
+            bail!("could not create the Embree device ({code:?})");
+        }
+        let errors = Box::new(ErrorSink(Mutex::new(Vec::new())));
+        let user = &*errors as *const ErrorSink as *mut c_void;
+        // SAFETY: the sink is boxed, so its address is stable, and it outlives the device.
+        unsafe { sys::rtcSetDeviceErrorFunction(raw, Some(error_callback), user) };
+        Ok(Device { raw, errors })
+    }
+
+    /// The runtime's version as a number, e.g. 40400 for Embree 4.4.0.
+    pub fn version(&self) -> i64 {
+        // SAFETY: valid device handle.
+        unsafe { sys::rtcGetDeviceProperty(self.raw, sys::RTCDeviceProperty::VERSION) as i64 }
+    }
+
+    /// Turn whatever the callback collected since the last check into an error.
+    fn check(&self, what: &str) -> Result<()> {
+        let mut v = self.errors.0.lock().map_err(|_| anyhow!("Embree error sink poisoned"))?;
+        if v.is_empty() {
+            return Ok(());
+        }
+        let msg = v.join("; ");
+        v.clear();
+        Err(anyhow!("{what}: {msg}"))
+    }
+}
+
+impl Drop for Device {
+    fn drop(&mut self) {
+        // SAFETY: the handle is valid and released once; scenes hold their own reference.
+        unsafe { sys::rtcReleaseDevice(self.raw) };
+    }
+}
+
+/// A ray: origin, unit direction, and the parametric interval `[tnear, tfar]`.
+#[derive(Clone, Copy, Debug)]
+pub struct Ray {
+    pub org: Vec3,
+    pub dir: Vec3,
+    pub tnear: f32,
+    pub tfar: f32,
+}
+
+/// Relative offset applied to origins on surfaces: Embree's watertight triangle test is accurate
+/// to a few ulps of the coordinates, and 64 ulps of the largest coordinate clears that.
+const SPAWN_EPS: f32 = 64.0 * f32::EPSILON;
+
+fn offset_origin(p: Vec3, ng: Vec3, toward: Vec3) -> Vec3 {
+    let scale = SPAWN_EPS * (1.0 + p.abs().max_element());
+    let n = if ng.dot(toward) >= 0.0 { ng } else { -ng };
+    p + n * scale
+}
+
+impl Ray {
+    pub fn new(org: Vec3, dir: Vec3) -> Ray {
+        Ray { org, dir, tnear: 0.0, tfar: f32::INFINITY }
+    }
+
+    /// A ray leaving surface point `p` (geometric normal `ng`) in direction `dir`, with the
+    /// origin pushed off the surface to the side `dir` goes to, so it cannot hit its own triangle.
+    pub fn spawn(p: Vec3, ng: Vec3, dir: Vec3) -> Ray {
+        Ray::new(offset_origin(p, ng, dir), dir)
+    }
+
+    /// A shadow/visibility ray between two points, each offset off its own surface (pass a zero
+    /// normal for a point that is not on a surface, e.g. a pinhole eye). The unit direction
+    /// points from `p0` to `p1`; `tfar` stops short of `p1`'s surface.
+    pub fn between(p0: Vec3, n0: Vec3, p1: Vec3, n1: Vec3) -> Ray {
+        let d = p1 - p0;
+        let o0 = offset_origin(p0, n0, d);
+        let o1 = offset_origin(p1, n1, -d);
+        let dd = o1 - o0;
+        let len = dd.length();
+        Ray { org: o0, dir: dd / len, tnear: 0.0, tfar: len * (1.0 - SPAWN_EPS) }
+    }
+}
+
+/// The minimal hit that the integrator builds shading data from (Mitsuba's preliminary
+/// intersection): distance, triangle, barycentrics, unnormalised geometric normal.
+#[derive(Clone, Copy, Debug)]
+pub struct Hit {
+    pub t: f32,
+    pub prim_id: u32,
+    pub u: f32,
+    pub v: f32,
+    pub ng: Vec3,
+}
+
+/// `RTCRayHit` plus room for the 4.4 runtime's `instPrimID` (see the module note).
+#[repr(C, align(16))]
+struct RayHit1 {
+    rh: sys::RTCRayHit,
+    _pad: [u32; 4],
+}
+
+/// `RTCRayHit16` plus room for the 4.4 runtime's `instPrimID[16]`.
+#[repr(C, align(64))]
+struct RayHit16 {
+    rh: sys::RTCRayHit16,
+    _pad: [u32; 16],
+}
+
+/// The packet's lane mask; Embree loads it as one 64-byte vector, so it must be aligned like one.
+#[repr(C, align(64))]
+#[derive(Clone, Copy)]
+struct Valid16([i32; 16]);
+
+impl std::ops::Deref for Valid16 {
+    type Target = [i32; 16];
+    fn deref(&self) -> &[i32; 16] {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for Valid16 {
+    fn deref_mut(&mut self) -> &mut [i32; 16] {
+        &mut self.0
+    }
+}
+
+/// Sixteen rays in structure-of-arrays form, for coherent batches (primary rays, and the
+/// visibility tests of reuse that all converge on one eye). Fill with `set`, leave unused lanes
+/// inactive; after `intersect16`/`occluded16` read the results per lane.
+pub struct Packet16 {
+    raw: Box<RayHit16>,
+    active: Valid16,
+    occluded: [bool; 16],
+}
+
+impl Default for Packet16 {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Packet16 {
+    pub fn new() -> Packet16 {
+        // SAFETY: RTCRayHit16 is plain old data; all-zero is a valid bit pattern.
+        let raw: Box<RayHit16> = Box::new(unsafe { std::mem::zeroed() });
+        Packet16 { raw, active: Valid16([0; 16]), occluded: [false; 16] }
+    }
+
+    /// Deactivate all lanes.
+    pub fn clear(&mut self) {
+        self.active = Valid16([0; 16]);
+    }
+
+    pub fn set(&mut self, lane: usize, ray: &Ray) {
+        let r = &mut self.raw.rh.ray;
+        r.org_x[lane] = ray.org.x;
+        r.org_y[lane] = ray.org.y;
+        r.org_z[lane] = ray.org.z;
+        r.dir_x[lane] = ray.dir.x;
+        r.dir_y[lane] = ray.dir.y;
+        r.dir_z[lane] = ray.dir.z;
+        r.tnear[lane] = ray.tnear;
+        r.tfar[lane] = ray.tfar;
+        r.time[lane] = 0.0;
+        r.mask[lane] = RAY_MASK;
+        r.id[lane] = lane as u32;
+        r.flags[lane] = 0;
+        self.raw.rh.hit.geomID[lane] = INVALID_ID;
+        self.raw.rh.hit.instID[0][lane] = INVALID_ID;
+        self.active[lane] = -1;
+    }
+
+    pub fn is_active(&self, lane: usize) -> bool {
+        self.active[lane] != 0
+    }
+
+    /// The hit of `lane` after `intersect16`.
+    pub fn hit(&self, lane: usize) -> Option<Hit> {
+        let h = &self.raw.rh.hit;
+        if self.active[lane] == 0 || h.geomID[lane] == INVALID_ID {
+            return None;
+        }
+        Some(Hit {
+            t: self.raw.rh.ray.tfar[lane],
+            prim_id: h.primID[lane],
+            u: h.u[lane],
+            v: h.v[lane],
+            ng: Vec3::new(h.Ng_x[lane], h.Ng_y[lane], h.Ng_z[lane]),
+        })
+    }
+
+    /// Whether `lane` was blocked, after `occluded16`.
+    pub fn occluded(&self, lane: usize) -> bool {
+        self.occluded[lane]
+    }
+}
+
+/// A committed, immutable Embree scene of one triangle mesh. Primitive IDs are the triangle
+/// indices of the mesh it was built from.
+pub struct TriangleScene {
+    raw: sys::RTCScene,
+    device: sys::RTCDevice,
+}
+
+// SAFETY: a committed Embree scene is read-only and Embree documents rtcIntersect*/rtcOccluded*
+// as thread-safe on it; `TriangleScene` exposes no way to modify it after `new` commits it.
+unsafe impl Send for TriangleScene {}
+unsafe impl Sync for TriangleScene {}
+
+impl TriangleScene {
+    pub fn new(device: &Device, vertices: &[Vec3], triangles: &[[u32; 3]]) -> Result<Self> {
+        if triangles.is_empty() {
+            bail!("the scene has no triangles");
+        }
+        let nv = vertices.len() as u32;
+        if let Some(t) = triangles.iter().find(|t| t.iter().any(|&i| i >= nv)) {
+            bail!("triangle {t:?} indexes past the {nv} vertices");
+        }
+        // SAFETY: every handle is checked before use; buffers are sized from the slices and
+        // filled before the geometry is committed; the scene retains the geometry, so our own
+        // reference is released right after attaching.
+        unsafe {
+            let geom = sys::rtcNewGeometry(device.raw, sys::RTCGeometryType::TRIANGLE);
+            device.check("creating the triangle geometry")?;
+            let vb = sys::rtcSetNewGeometryBuffer(
+                geom,
+                sys::RTCBufferType::VERTEX,
+                0,
+                sys::RTCFormat::FLOAT3,
+                12,
+                vertices.len(),
+            ) as *mut f32;
+            let ib = sys::rtcSetNewGeometryBuffer(
+                geom,
+                sys::RTCBufferType::INDEX,
+                0,
+                sys::RTCFormat::UINT3,
+                12,
+                triangles.len(),
+            ) as *mut u32;
+            if let Err(e) = device.check("allocating geometry buffers") {
+                sys::rtcReleaseGeometry(geom);
+                return Err(e);
+            }
+            let vs = std::slice::from_raw_parts_mut(vb, vertices.len() * 3);
+            for (i, v) in vertices.iter().enumerate() {
+                vs[3 * i..3 * i + 3].copy_from_slice(&v.to_array());
+            }
+            let is = std::slice::from_raw_parts_mut(ib, triangles.len() * 3);
+            for (i, t) in triangles.iter().enumerate() {
+                is[3 * i..3 * i + 3].copy_from_slice(t);
+            }
+            sys::rtcCommitGeometry(geom);
+            let scene = sys::rtcNewScene(device.raw);
+            sys::rtcSetSceneBuildQuality(scene, sys::RTCBuildQuality::HIGH);
+            sys::rtcAttachGeometry(scene, geom);
+            sys::rtcReleaseGeometry(geom);
+            sys::rtcCommitScene(scene);
+            sys::rtcRetainDevice(device.raw);
+            let s = TriangleScene { raw: scene, device: device.raw };
+            device.check("building the scene")?;
+            Ok(s)
+        }
+    }
+
+    fn intersect_args(coherent: bool) -> sys::RTCIntersectArguments {
+        sys::RTCIntersectArguments {
+            flags: if coherent {
+                sys::RTCRayQueryFlags::COHERENT
+            } else {
+                sys::RTCRayQueryFlags::INCOHERENT
+            },
+            feature_mask: sys::RTCFeatureFlags::RTC_FEATURE_FLAG_ALL,
+            context: ptr::null_mut(),
+            filter: None,
+            intersect: None,
+        }
+    }
+
+    fn occluded_args(coherent: bool) -> sys::RTCOccludedArguments {
+        sys::RTCOccludedArguments {
+            flags: if coherent {
+                sys::RTCRayQueryFlags::COHERENT
+            } else {
+                sys::RTCRayQueryFlags::INCOHERENT
+            },
+            feature_mask: sys::RTCFeatureFlags::RTC_FEATURE_FLAG_ALL,
+            context: ptr::null_mut(),
+            filter: None,
+            occluded: None,
+        }
+    }
+
+    fn raw_ray(ray: &Ray) -> sys::RTCRay {
+        sys::RTCRay {
+            org_x: ray.org.x,
+            org_y: ray.org.y,
+            org_z: ray.org.z,
+            tnear: ray.tnear,
+            dir_x: ray.dir.x,
+            dir_y: ray.dir.y,
+            dir_z: ray.dir.z,
+            time: 0.0,
+            tfar: ray.tfar,
+            mask: RAY_MASK,
+            id: 0,
+            flags: 0,
+        }
+    }
+
+    /// Closest hit along `ray`, if any.
+    pub fn intersect1(&self, ray: &Ray) -> Option<Hit> {
+        let mut rh = RayHit1 {
+            rh: sys::RTCRayHit {
+                ray: Self::raw_ray(ray),
+                hit: sys::RTCHit {
+                    Ng_x: 0.0,
+                    Ng_y: 0.0,
+                    Ng_z: 0.0,
+                    u: 0.0,
+                    v: 0.0,
+                    primID: INVALID_ID,
+                    geomID: INVALID_ID,
+                    instID: [INVALID_ID],
+                },
+            },
+            _pad: [INVALID_ID; 4],
+        };
+        let mut args = Self::intersect_args(false);
+        // SAFETY: committed scene; `rh` is 16-byte aligned with room for the 4.4 hit layout.
+        unsafe { sys::rtcIntersect1(self.raw, &mut rh.rh, &mut args) };
+        let h = &rh.rh.hit;
+        (h.geomID != INVALID_ID).then(|| Hit {
+            t: rh.rh.ray.tfar,
+            prim_id: h.primID,
+            u: h.u,
+            v: h.v,
+            ng: Vec3::new(h.Ng_x, h.Ng_y, h.Ng_z),
+        })
+    }
+
+    /// Whether anything blocks `ray` within `[tnear, tfar]`.
+    pub fn occluded1(&self, ray: &Ray) -> bool {
+        let mut r = Self::raw_ray(ray);
+        let mut args = Self::occluded_args(false);
+        // SAFETY: committed scene; RTCRay is 16-byte aligned by its own repr.
+        unsafe { sys::rtcOccluded1(self.raw, &mut r, &mut args) };
+        // Embree marks an occluded ray by setting tfar to -inf.
+        r.tfar == f32::NEG_INFINITY
+    }
+
+    /// Closest hits of the active lanes of a coherent packet.
+    pub fn intersect16(&self, p: &mut Packet16) {
+        let mut args = Self::intersect_args(true);
+        // SAFETY: the packet is 64-byte aligned with room for the 4.4 hit layout; geomID was
+        // reset in `set` for every active lane.
+        unsafe { sys::rtcIntersect16(p.active.as_ptr(), self.raw, &mut p.raw.rh, &mut args) };
+    }
+
+    /// Occlusion of the active lanes of a coherent packet; read with `Packet16::occluded`.
+    pub fn occluded16(&self, p: &mut Packet16) {
+        let mut args = Self::occluded_args(true);
+        // SAFETY: as in `intersect16`; occluded16 writes only the ray part (tfar).
+        unsafe { sys::rtcOccluded16(p.active.as_ptr(), self.raw, &mut p.raw.rh.ray, &mut args) };
+        for lane in 0..16 {
+            p.occluded[lane] = p.active[lane] != 0 && p.raw.rh.ray.tfar[lane] == f32::NEG_INFINITY;
+        }
+    }
+}
+
+impl Drop for TriangleScene {
+    fn drop(&mut self) {
+        // SAFETY: handles valid, each released once (the device reference was retained in `new`).
+        unsafe {
+            sys::rtcReleaseScene(self.raw);
+            sys::rtcReleaseDevice(self.device);
+        }
+    }
+}
+
+/// Set flush-to-zero and denormals-are-zero on the calling thread, as Embree asks of every thread
+/// that traces rays (its docs; with a non-TBB pool each worker must do it itself). Call it from
+/// rayon's `start_handler` and on the main thread.
+pub fn set_flush_denormals() {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let csr = mxcsr() | MXCSR_FTZ | MXCSR_DAZ;
+        // SAFETY: loads MXCSR with only the FTZ/DAZ bits changed; SSE is part of x86_64.
+        unsafe { std::arch::asm!("ldmxcsr [{}]", in(reg) &csr, options(nostack, readonly)) };
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+const MXCSR_FTZ: u32 = 1 << 15;
+#[cfg(target_arch = "x86_64")]
+const MXCSR_DAZ: u32 = 1 << 6;
+
+#[cfg(target_arch = "x86_64")]
+fn mxcsr() -> u32 {
+    let mut csr = 0u32;
+    // SAFETY: stores MXCSR into a local; no other effect.
+    unsafe { std::arch::asm!("stmxcsr [{}]", in(reg) &mut csr, options(nostack)) };
+    csr
+}
+
+/// Whether FTZ and DAZ are set on the calling thread (for tests).
+pub fn flush_denormals_enabled() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        mxcsr() & (MXCSR_FTZ | MXCSR_DAZ) == MXCSR_FTZ | MXCSR_DAZ
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::Sampler;
+
+    /// Möller–Trumbore, as the brute-force oracle.
+    fn brute(verts: &[Vec3], tris: &[[u32; 3]], ray: &Ray) -> Option<(u32, f32)> {
+        let mut best: Option<(u32, f32)> = None;
+        for (i, t) in tris.iter().enumerate() {
+            let (a, b, c) = (verts[t[0] as usize], verts[t[1] as usize], verts[t[2] as usize]);
+            let e1 = b - a;
+            let e2 = c - a;
+            let p = ray.dir.cross(e2);
+            let det = e1.dot(p);
+            if det.abs() < 1e-12 {
+                continue;
+            }
+            let inv = 1.0 / det;
+            let s = ray.org - a;
+            let u = s.dot(p) * inv;
+            if !(0.0..=1.0).contains(&u) {
+                continue;
+            }
+            let q = s.cross(e1);
+            let v = ray.dir.dot(q) * inv;
+            if v < 0.0 || u + v > 1.0 {
+                continue;
+            }
+            let tt = e2.dot(q) * inv;
+            if tt > ray.tnear && tt < ray.tfar && best.is_none_or(|(_, bt)| tt < bt) {
+                best = Some((i as u32, tt));
+            }
+        }
+        best
+    }
+
+    fn random_scene(n: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+        let mut s = Sampler::new(7, 0, 0, 0);
+        let mut verts = Vec::new();
+        let mut tris = Vec::new();
+        for i in 0..n {
+            let c = Vec3::new(s.next_1d(), s.next_1d(), s.next_1d()) * 4.0 - 2.0;
+            for _ in 0..3 {
+                verts.push(c + (Vec3::new(s.next_1d(), s.next_1d(), s.next_1d()) - 0.5) * 0.8);
+            }
+            tris.push([3 * i as u32, 3 * i as u32 + 1, 3 * i as u32 + 2]);
+        }
+        (verts, tris)
+    }
+
+    fn random_ray(s: &mut Sampler) -> Ray {
+        let o = Vec3::new(s.next_1d(), s.next_1d(), s.next_1d()) * 6.0 - 3.0;
+        let target = Vec3::new(s.next_1d(), s.next_1d(), s.next_1d()) * 3.0 - 1.5;
+        Ray::new(o, (target - o).normalize())
+    }
+
+    #[test]
+    fn version_is_embree4() {
+        let d = Device::new().unwrap();
+        assert!(d.version() >= 40000, "version {}", d.version());
+    }
+
+    #[test]
+    fn intersect1_and_occluded1_match_brute_force() {
+        let d = Device::new().unwrap();
+        let (verts, tris) = random_scene(300);
+        let scene = TriangleScene::new(&d, &verts, &tris).unwrap();
+        let mut s = Sampler::new(11, 0, 0, 0);
+        let (mut agree, mut hits, n) = (0, 0, 4000);
+        for _ in 0..n {
+            let ray = random_ray(&mut s);
+            let e = scene.intersect1(&ray);
+            let b = brute(&verts, &tris, &ray);
+            assert_eq!(scene.occluded1(&ray), e.is_some());
+            match (e, b) {
+                (Some(h), Some((p, t))) => {
+                    hits += 1;
+                    if h.prim_id == p {
+                        assert!((h.t - t).abs() < 1e-4 * (1.0 + t), "t {} vs {}", h.t, t);
+                        agree += 1;
+                    }
+                }
+                (None, None) => agree += 1,
+                _ => {}
+            }
+        }
+        // Rays grazing a shared edge may legitimately differ; anything more is a wrapper bug.
+        assert!(agree >= n - 4, "{agree} of {n} agree");
+        assert!(hits > n / 4, "too few hits ({hits}) to test anything");
+    }
+
+    #[test]
+    fn packets_match_single_rays() {
+        let d = Device::new().unwrap();
+        let (verts, tris) = random_scene(300);
+        let scene = TriangleScene::new(&d, &verts, &tris).unwrap();
+        let mut s = Sampler::new(12, 0, 0, 0);
+        let mut p = Packet16::new();
+        for round in 0..200 {
+            p.clear();
+            let rays: Vec<Ray> = (0..16).map(|_| random_ray(&mut s)).collect();
+            // Leave a lane inactive now and then: it must report nothing.
+            let skip = round % 17;
+            for (i, r) in rays.iter().enumerate() {
+                if i != skip {
+                    p.set(i, r);
+                }
+            }
+            scene.intersect16(&mut p);
+            for (i, r) in rays.iter().enumerate() {
+                let single = scene.intersect1(r);
+                if i == skip {
+                    assert!(p.hit(i).is_none());
+                    continue;
+                }
+                assert_eq!(p.hit(i).map(|h| h.prim_id), single.map(|h| h.prim_id));
+            }
+            p.clear();
+            for (i, r) in rays.iter().enumerate() {
+                if i != skip {
+                    p.set(i, r);
+                }
+            }
+            scene.occluded16(&mut p);
+            for (i, r) in rays.iter().enumerate() {
+                let expect = i != skip && scene.occluded1(r);
+                assert_eq!(p.occluded(i), expect);
+            }
+        }
+    }
+
+    #[test]
+    fn spawned_rays_do_not_hit_their_own_triangle() {
+        let d = Device::new().unwrap();
+        let verts = [Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 0.0, -1.0), Vec3::new(0.0, 0.0, 1.0)];
+        let scene = TriangleScene::new(&d, &verts, &[[0, 1, 2]]).unwrap();
+        let mut s = Sampler::new(3, 0, 0, 0);
+        for _ in 0..1000 {
+            let p = Vec3::new(s.next_1d() * 0.5 - 0.25, 0.0, s.next_1d() * 0.5 - 0.25);
+            let dir = Vec3::new(s.next_1d() - 0.5, 0.05 + s.next_1d(), s.next_1d() - 0.5).normalize();
+            assert!(scene.intersect1(&Ray::spawn(p, Vec3::Y, dir)).is_none());
+            assert!(scene.intersect1(&Ray::spawn(p, Vec3::Y, -dir)).is_none());
+        }
+    }
+
+    #[test]
+    fn bad_geometry_is_an_error() {
+        let d = Device::new().unwrap();
+        assert!(TriangleScene::new(&d, &[Vec3::ZERO], &[[0, 1, 2]]).is_err());
+        assert!(TriangleScene::new(&d, &[Vec3::ZERO], &[]).is_err());
+    }
+
+    #[test]
+    fn flush_denormals_sets_the_bits() {
+        std::thread::spawn(|| {
+            set_flush_denormals();
+            assert!(flush_denormals_enabled());
+        })
+        .join()
+        .unwrap();
+    }
+}

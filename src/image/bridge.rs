@@ -1,0 +1,91 @@
+//! The `cxx` declarations of the OpenImageIO bridge (`ffi/oiio.h`, `ffi/oiio.cpp`), private to
+//! [`crate::image`], which is the only safe public face of it:
+//!
+//! ```ignore
+//! let reader = bridge::ffi::open_reader("frame.exr")?;
+//! let info = reader.info();
+//! ```
+//!
+//! Every C++ function that can fail is declared returning `Result`: `cxx` then catches the
+//! `std::runtime_error` the C++ side throws (carrying OIIO's own message) and hands it over as an
+//! `Err`, so no C++ exception ever unwinds into Rust.
+
+#[cxx::bridge(namespace = "reframe")]
+pub(crate) mod ffi {
+    /// How a [`Attribute`] is stored in the file; only the matching value field is meaningful.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    enum AttrKind {
+        Int,
+        Float,
+        Text,
+        Matrix,
+        /// Read back only: a type the bridge does not model, rendered into `text` by OIIO.
+        Other,
+    }
+
+    /// One metadata attribute, in both directions. A flat struct rather than an enum with
+    /// payloads because `cxx` shared types cannot carry data in their enums.
+    #[derive(Debug, Clone)]
+    struct Attribute {
+        name: String,
+        kind: AttrKind,
+        int_value: i32,
+        float_value: f32,
+        text: String,
+        /// Imath / EXR layout: row-vector convention, row-major.
+        matrix: [f32; 16],
+    }
+
+    /// What the pixels are stored as in the file; the caller's data is always f32 or u8.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    enum PixelType {
+        U8,
+        Half,
+        Float,
+    }
+
+    #[derive(Debug, Clone)]
+    struct ImageDesc {
+        width: u32,
+        height: u32,
+        channels: Vec<String>,
+        store_as: PixelType,
+    }
+
+    #[derive(Debug, Clone)]
+    struct ImageInfo {
+        width: u32,
+        height: u32,
+        channels: Vec<String>,
+        format_name: String,
+    }
+
+    unsafe extern "C++" {
+        include!("reframe/ffi/oiio.h");
+
+        /// An open `OIIO::ImageInput`, positioned on its first subimage.
+        type ImageReader;
+
+        fn oiio_version() -> String;
+
+        /// Succeeds when OIIO has a writer for the file name's extension.
+        fn check_output_format(path: &str) -> Result<()>;
+
+        /// `pixels` is interleaved, row-major, top row first, `channels.len()` per pixel.
+        fn write_f32(
+            path: &str,
+            desc: &ImageDesc,
+            pixels: &[f32],
+            attrs: &[Attribute],
+        ) -> Result<()>;
+        fn write_u8(path: &str, desc: &ImageDesc, pixels: &[u8], attrs: &[Attribute])
+            -> Result<()>;
+
+        fn open_reader(path: &str) -> Result<UniquePtr<ImageReader>>;
+        fn info(self: &ImageReader) -> ImageInfo;
+        /// Every attribute of the first subimage's spec.
+        fn attributes(self: &ImageReader) -> Vec<Attribute>;
+        /// Converts to f32; `out` must hold exactly width * height * channels values.
+        fn read_f32(self: Pin<&mut ImageReader>, out: &mut [f32]) -> Result<()>;
+    }
+}

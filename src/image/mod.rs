@@ -1,0 +1,1120 @@
+//! Image files: reframe's rendered frames go out through OpenImageIO, and reference images come
+//! back in through it. Output names come from a frame-number pattern that is checked before any
+//! rendering starts, files are written atomically (a crash never leaves a half-written frame
+//! under the real name), EXR keeps every channel plus the render's metadata, and 8-bit formats get
+//! sRGB-encoded, deterministically dithered RGB.
+//!
+//! ```no_run
+//! use reframe::image::{write_image, Image, Metadata, OutputPattern, WriteOptions};
+//!
+//! let pattern = OutputPattern::parse("out/vase_####.exr")?;
+//! pattern.validate()?; // fail now, not after an hour of rendering
+//! let img = Image::new(640, 360, &["R", "G", "B"]);
+//! let meta = Metadata { method: "reuse".into(), spp: 64, ..Metadata::default() };
+//! write_image(&pattern.path(7), &img, &meta, &WriteOptions::default())?; // out/vase_0007.exr
+//! # Ok::<(), anyhow::Error>(())
+//! ```
+
+mod bridge;
+
+use std::fmt;
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use anyhow::{anyhow, bail, Result};
+use rayon::prelude::*;
+
+use bridge::ffi;
+
+/// A float image, interleaved channels, row-major, top row first.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image {
+    pub width: u32,
+    pub height: u32,
+    pub channels: Vec<String>,
+    pub data: Vec<f32>,
+}
+
+impl Image {
+    /// A black image with the given channel names.
+    pub fn new(width: u32, height: u32, channels: &[&str]) -> Self {
+        let n = width as usize * height as usize * channels.len();
+        Image {
+            width,
+            height,
+            channels: channels.iter().map(|c| c.to_string()).collect(),
+            data: vec![0.0; n],
+        }
+    }
+
+    pub fn channel_index(&self, name: &str) -> Option<usize> {
+        self.channels.iter().position(|c| c == name)
+    }
+
+    /// The `channels.len()` values of pixel (x, y).
+    pub fn pixel(&self, x: u32, y: u32) -> &[f32] {
+        let nch = self.channels.len();
+        let i = (y as usize * self.width as usize + x as usize) * nch;
+        &self.data[i..i + nch]
+    }
+
+    fn check(&self) -> Result<()> {
+        if self.width == 0 || self.height == 0 || self.channels.is_empty() {
+            bail!(
+                "image is empty ({}x{}, {} channels)",
+                self.width,
+                self.height,
+                self.channels.len()
+            );
+        }
+        let expected = self.width as usize * self.height as usize * self.channels.len();
+        if self.data.len() != expected {
+            bail!(
+                "image data holds {} values, but {}x{} with {} channels needs {expected}",
+                self.data.len(),
+                self.width,
+                self.height,
+                self.channels.len()
+            );
+        }
+        Ok(())
+    }
+}
+
+/// What a frame file records about how it was made.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Metadata {
+    pub method: String,
+    pub spp: u32,
+    pub window: u32,
+    pub seed: u64,
+    pub render_seconds: f64,
+    /// Imath/EXR layout (row-vector convention), written as EXR `worldToCamera`.
+    pub world_to_camera: [f32; 16],
+    /// Written as the standard EXR `worldToNDC`.
+    pub world_to_ndc: [f32; 16],
+    /// More string attributes, written as "reframe:<key>".
+    pub extra: Vec<(String, String)>,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct WriteOptions {
+    /// EXR pixels are half by default (ample for display-referred frames, half the disk);
+    /// float when true.
+    pub exr_float: bool,
+}
+
+/// Spec attribute names that OIIO's EXR writer translates into the standard EXR header
+/// attributes `worldToCamera` / `worldToNDC` (M44f), and which its EXR reader reports them as.
+/// The TIFF writer knows the same two names (as the Pixar matrix tags).
+const OIIO_WORLD_TO_CAMERA: &str = "worldtocamera";
+const OIIO_WORLD_TO_NDC: &str = "worldtoNDC";
+/// The names as they appear in the EXR header, which is what `read_metadata` reports.
+const EXR_WORLD_TO_CAMERA: &str = "worldToCamera";
+const EXR_WORLD_TO_NDC: &str = "worldToNDC";
+
+const PREFIX: &str = "reframe:";
+const BUILTIN_KEYS: [&str; 5] = ["method", "spp", "window", "seed", "render_seconds"];
+
+/// Largest finite half; larger values would become infinity in a half EXR.
+const HALF_MAX: f32 = 65504.0;
+
+/// How a file extension is written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum FileKind {
+    /// All channels, half or float, with all metadata.
+    Exr,
+    /// Float formats that only hold RGB (Radiance HDR, PFM).
+    FloatRgb,
+    /// Everything else: 8-bit sRGB RGB.
+    Ldr,
+}
+
+impl FileKind {
+    fn of(path: &Path) -> Result<Self> {
+        let ext = path.extension().and_then(|e| e.to_str()).ok_or_else(|| {
+            anyhow!(
+                "{} has no file extension to pick a format by",
+                path.display()
+            )
+        })?;
+        Ok(match ext.to_ascii_lowercase().as_str() {
+            "exr" | "sxr" | "mxr" => FileKind::Exr,
+            "hdr" | "rgbe" | "pfm" => FileKind::FloatRgb,
+            _ => FileKind::Ldr,
+        })
+    }
+}
+
+/// Output path pattern, e.g. "out/vase_####.exr": a run of '#' in the file name is the
+/// zero-padded frame number, and the extension picks the format.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct OutputPattern {
+    original: String,
+    prefix: String,
+    digits: usize,
+    suffix: String,
+}
+
+impl OutputPattern {
+    pub fn parse(s: &str) -> Result<Self> {
+        if s.trim().is_empty() {
+            bail!("output path is empty");
+        }
+        if s.ends_with('/') || s.ends_with(std::path::MAIN_SEPARATOR) {
+            bail!("output path {s:?} names a folder; add a file name such as frame_####.exr");
+        }
+        let name_start = s
+            .rfind(['/', std::path::MAIN_SEPARATOR])
+            .map_or(0, |i| i + 1);
+        let runs: Vec<(usize, usize)> = hash_runs(s);
+        if runs.len() > 1 {
+            bail!("output path {s:?} has more than one run of '#'; use one for the frame number");
+        }
+        if let Some(&(start, _)) = runs.first() {
+            if start < name_start {
+                bail!("output path {s:?} has '#' in a folder name; the frame number belongs in the file name");
+            }
+        }
+        let ext = Path::new(s)
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("");
+        if ext.is_empty() {
+            bail!(
+                "output path {s:?} has no file extension; the extension picks the format (e.g. .exr, .png)"
+            );
+        }
+        if ext.contains('#') {
+            bail!("output path {s:?}: the frame number must come before the extension");
+        }
+        let (prefix, digits, suffix) = match runs.first() {
+            Some(&(start, end)) => (&s[..start], end - start, &s[end..]),
+            None => (s, 0, ""),
+        };
+        Ok(OutputPattern {
+            original: s.to_string(),
+            prefix: prefix.to_string(),
+            digits,
+            suffix: suffix.to_string(),
+        })
+    }
+
+    /// Whether the pattern has a '#' run. Without one every frame gets the same name, which only
+    /// makes sense for a single-frame render; the caller knows whether that is the case.
+    pub fn has_frame_field(&self) -> bool {
+        self.digits > 0
+    }
+
+    /// The file name for `frame`: "####" with frame 7 gives "0007"; numbers wider than the run
+    /// keep all their digits.
+    pub fn path(&self, frame: u32) -> PathBuf {
+        if self.digits == 0 {
+            return PathBuf::from(&self.original);
+        }
+        let width = self.digits;
+        PathBuf::from(format!("{}{frame:0width$}{}", self.prefix, self.suffix))
+    }
+
+    /// Checks everything that could make a write fail later, so that it fails before any
+    /// rendering: OIIO can write the format, the folder exists (it is created if need be) and a
+    /// file can be created in it.
+    pub fn validate(&self) -> Result<()> {
+        let target = self.path(0);
+        let target_str = path_str(&target)?;
+        ffi::check_output_format(target_str)
+            .map_err(|e| anyhow!("cannot write {}: {}", self.original, e.what()))?;
+        let dir = parent_dir(&target);
+        fs::create_dir_all(&dir)
+            .map_err(|e| anyhow!("cannot create output folder {}: {e}", dir.display()))?;
+        let probe = dir.join(format!(
+            ".reframe-probe-{}-{}",
+            std::process::id(),
+            unique()
+        ));
+        fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&probe)
+            .map_err(|e| {
+                anyhow!(
+                    "cannot create files in output folder {}: {e}",
+                    dir.display()
+                )
+            })?;
+        fs::remove_file(&probe)
+            .map_err(|e| anyhow!("cannot delete probe file {}: {e}", probe.display()))?;
+        Ok(())
+    }
+
+    /// Whether frames are written as 8-bit sRGB (PNG, JPEG, TIFF, ...) rather than float.
+    pub fn is_ldr(&self) -> bool {
+        matches!(FileKind::of(&self.path(0)), Ok(FileKind::Ldr))
+    }
+}
+
+impl fmt::Display for OutputPattern {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.original)
+    }
+}
+
+/// Byte ranges of the runs of '#'.
+fn hash_runs(s: &str) -> Vec<(usize, usize)> {
+    let mut runs = Vec::new();
+    let mut start = None;
+    for (i, b) in s.bytes().enumerate() {
+        match (b == b'#', start) {
+            (true, None) => start = Some(i),
+            (false, Some(st)) => {
+                runs.push((st, i));
+                start = None;
+            }
+            _ => {}
+        }
+    }
+    if let Some(st) = start {
+        runs.push((st, s.len()));
+    }
+    runs
+}
+
+fn path_str(path: &Path) -> Result<&str> {
+    path.to_str().ok_or_else(|| {
+        anyhow!(
+            "path {} is not valid UTF-8, which OpenImageIO needs",
+            path.display()
+        )
+    })
+}
+
+fn parent_dir(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// Distinguishes temporary and probe files of concurrent writers within this process (the pid
+/// distinguishes processes).
+fn unique() -> u64 {
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    COUNTER.fetch_add(1, Ordering::Relaxed)
+}
+
+/// Deletes the temporary file on every way out of `write_image` except success.
+struct TempFile {
+    path: PathBuf,
+    keep: bool,
+}
+
+impl Drop for TempFile {
+    fn drop(&mut self) {
+        if !self.keep {
+            // It may never have been created; there is nothing useful to do on failure.
+            let _ = fs::remove_file(&self.path);
+        }
+    }
+}
+
+/// Writes `img` to `path` atomically: into a temporary file in the same folder, then renamed
+/// over the target. On any error no file is left behind (and an existing target is untouched).
+///
+/// EXR gets all channels (half, or float with `opts.exr_float`) and all of `meta`. 8-bit
+/// formats get the first three channels as R,G,B: clamped to [0,1], sRGB-encoded and dithered
+/// (see [`encode_srgb8`]). Formats keep what metadata they can; PNG keeps the scalar values
+/// as text.
+pub fn write_image(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOptions) -> Result<()> {
+    write_image_inner(path, img, meta, opts)
+        .map_err(|e| anyhow!("cannot write {}: {e}", path.display()))
+}
+
+fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOptions) -> Result<()> {
+    img.check()?;
+    let kind = FileKind::of(path)?;
+    let name = path
+        .file_name()
+        .and_then(|n| n.to_str())
+        .ok_or_else(|| anyhow!("not a file name"))?;
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+    // Same folder, so that the rename cannot cross file systems; extension kept, because OIIO
+    // picks the writer by it; leading dot, so that file browsers and globs skip it.
+    let tmp = TempFile {
+        path: parent_dir(path).join(format!(
+            ".{name}.tmp-{}-{}.{ext}",
+            std::process::id(),
+            unique()
+        )),
+        keep: false,
+    };
+    let tmp_str = path_str(&tmp.path)?;
+    let attrs = attributes(meta, kind)?;
+
+    match kind {
+        FileKind::Exr => {
+            let store_as = if opts.exr_float {
+                ffi::PixelType::Float
+            } else {
+                ffi::PixelType::Half
+            };
+            let desc = ffi::ImageDesc {
+                width: img.width,
+                height: img.height,
+                channels: img.channels.clone(),
+                store_as,
+            };
+            let needs_clamp = !opts.exr_float && img.data.iter().any(|v| v.abs() > HALF_MAX);
+            if needs_clamp {
+                let clamped: Vec<f32> = img
+                    .data
+                    .par_iter()
+                    .map(|v| v.clamp(-HALF_MAX, HALF_MAX))
+                    .collect();
+                ffi::write_f32(tmp_str, &desc, &clamped, &attrs)
+            } else {
+                ffi::write_f32(tmp_str, &desc, &img.data, &attrs)
+            }
+        }
+        FileKind::FloatRgb => {
+            let rgb = first_three(img)?;
+            let desc = rgb_desc(img, ffi::PixelType::Float);
+            ffi::write_f32(tmp_str, &desc, &rgb, &attrs)
+        }
+        FileKind::Ldr => {
+            let bytes = encode_srgb8(img)?;
+            let desc = rgb_desc(img, ffi::PixelType::U8);
+            ffi::write_u8(tmp_str, &desc, &bytes, &attrs)
+        }
+    }
+    .map_err(|e| anyhow!("{}", e.what()))?;
+
+    fs::rename(&tmp.path, path)
+        .map_err(|e| anyhow!("cannot move the finished file into place: {e}"))?;
+    let mut tmp = tmp;
+    tmp.keep = true;
+    Ok(())
+}
+
+fn rgb_desc(img: &Image, store_as: ffi::PixelType) -> ffi::ImageDesc {
+    ffi::ImageDesc {
+        width: img.width,
+        height: img.height,
+        channels: vec!["R".into(), "G".into(), "B".into()],
+        store_as,
+    }
+}
+
+fn require_rgb(img: &Image) -> Result<()> {
+    if img.channels.len() < 3 {
+        bail!(
+            "this format holds R,G,B, but the image has only {} channel(s) {:?}",
+            img.channels.len(),
+            img.channels
+        );
+    }
+    Ok(())
+}
+
+fn first_three(img: &Image) -> Result<Vec<f32>> {
+    require_rgb(img)?;
+    let nch = img.channels.len();
+    Ok(img
+        .data
+        .chunks_exact(nch)
+        .flat_map(|px| [px[0], px[1], px[2]])
+        .collect())
+}
+
+/// The first three channels of `img` as 8-bit sRGB, interleaved RGB: linear values clamped to
+/// [0,1], encoded with the exact piecewise sRGB curve, then quantised with a triangular dither
+/// of +-1 LSB. The dither hides banding in dark gradients; it comes from a hash of (x, y,
+/// channel) rather than a random generator, so the same image always gives the same bytes
+/// (frames can be compared and cached) and the pattern does not crawl between frames.
+/// Values that clamp to exactly black or white are not dithered: there is no gradient there to
+/// protect, and speckling flat black backgrounds would only cost file size.
+pub fn encode_srgb8(img: &Image) -> Result<Vec<u8>> {
+    img.check()?;
+    require_rgb(img)?;
+    let nch = img.channels.len();
+    let width = img.width as usize;
+    let mut out = vec![0u8; width * img.height as usize * 3];
+    out.par_chunks_mut(width * 3)
+        .zip(img.data.par_chunks(width * nch))
+        .enumerate()
+        .for_each(|(y, (out_row, in_row))| {
+            for (x, (o, px)) in out_row
+                .chunks_exact_mut(3)
+                .zip(in_row.chunks_exact(nch))
+                .enumerate()
+            {
+                for c in 0..3 {
+                    o[c] = quantize_srgb8(px[c], x as u32, y as u32, c as u32);
+                }
+            }
+        });
+    Ok(out)
+}
+
+fn quantize_srgb8(linear: f32, x: u32, y: u32, c: u32) -> u8 {
+    // `!(v > 0)` also catches NaN.
+    if !(linear > 0.0) {
+        return 0;
+    }
+    if linear >= 1.0 {
+        return 255;
+    }
+    let encoded = srgb_oetf(linear as f64);
+    let q = (encoded * 255.0 + triangular_dither(x, y, c)).round();
+    q.clamp(0.0, 255.0) as u8
+}
+
+/// The sRGB (IEC 61966-2-1) encoding curve, for linear values in [0,1].
+fn srgb_oetf(v: f64) -> f64 {
+    if v <= 0.0031308 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Triangular noise in (-1, 1): the difference of two uniforms taken from one hash.
+fn triangular_dither(x: u32, y: u32, c: u32) -> f64 {
+    let h = splitmix64(splitmix64(((y as u64) << 32) | x as u64) ^ c as u64);
+    let u1 = (h >> 40) as f64 / (1u64 << 24) as f64;
+    let u2 = ((h >> 16) & 0xff_ffff) as f64 / (1u64 << 24) as f64;
+    u1 - u2
+}
+
+fn splitmix64(x: u64) -> u64 {
+    let mut z = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+fn attr(name: &str, kind: ffi::AttrKind) -> ffi::Attribute {
+    ffi::Attribute {
+        name: name.to_string(),
+        kind,
+        int_value: 0,
+        float_value: 0.0,
+        text: String::new(),
+        matrix: [0.0; 16],
+    }
+}
+
+fn text_attr(name: &str, value: &str) -> ffi::Attribute {
+    ffi::Attribute {
+        text: value.to_string(),
+        ..attr(name, ffi::AttrKind::Text)
+    }
+}
+
+/// The attributes for `meta`. Outside EXR, numbers go as text: PNG keeps only text chunks, and
+/// the other 8-bit formats drop unknown attributes whatever their type.
+fn attributes(meta: &Metadata, kind: FileKind) -> Result<Vec<ffi::Attribute>> {
+    let typed = kind == FileKind::Exr;
+    let int = |key: &str, v: u32| -> Result<ffi::Attribute> {
+        let name = format!("{PREFIX}{key}");
+        if !typed {
+            return Ok(text_attr(&name, &v.to_string()));
+        }
+        let int_value = i32::try_from(v)
+            .map_err(|_| anyhow!("{key} = {v} does not fit the file's int attribute"))?;
+        Ok(ffi::Attribute {
+            int_value,
+            ..attr(&name, ffi::AttrKind::Int)
+        })
+    };
+    let seconds_name = format!("{PREFIX}render_seconds");
+    let seconds = if typed {
+        ffi::Attribute {
+            float_value: meta.render_seconds as f32,
+            ..attr(&seconds_name, ffi::AttrKind::Float)
+        }
+    } else {
+        text_attr(&seconds_name, &meta.render_seconds.to_string())
+    };
+    let mut attrs = vec![
+        text_attr(&format!("{PREFIX}method"), &meta.method),
+        int("spp", meta.spp)?,
+        int("window", meta.window)?,
+        // A u64 does not fit any integer attribute type EXR has.
+        text_attr(&format!("{PREFIX}seed"), &meta.seed.to_string()),
+        seconds,
+        ffi::Attribute {
+            matrix: meta.world_to_camera,
+            ..attr(OIIO_WORLD_TO_CAMERA, ffi::AttrKind::Matrix)
+        },
+        ffi::Attribute {
+            matrix: meta.world_to_ndc,
+            ..attr(OIIO_WORLD_TO_NDC, ffi::AttrKind::Matrix)
+        },
+    ];
+    for (i, (key, value)) in meta.extra.iter().enumerate() {
+        if key.is_empty() {
+            bail!("metadata key is empty");
+        }
+        if BUILTIN_KEYS.contains(&key.as_str()) || meta.extra[..i].iter().any(|(k, _)| k == key) {
+            bail!("metadata key {key:?} is given twice");
+        }
+        attrs.push(text_attr(&format!("{PREFIX}{key}"), value));
+    }
+    Ok(attrs)
+}
+
+/// Reads any file OIIO can read into float, all channels of its first subimage. 8-bit files
+/// come back as their code values / 255, not linearised.
+pub fn read_image(path: &Path) -> Result<Image> {
+    let read = || -> Result<Image> {
+        let mut reader = ffi::open_reader(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
+        let info = reader.info();
+        let mut data =
+            vec![0.0f32; info.width as usize * info.height as usize * info.channels.len()];
+        reader
+            .pin_mut()
+            .read_f32(&mut data)
+            .map_err(|e| anyhow!("{}", e.what()))?;
+        Ok(Image {
+            width: info.width,
+            height: info.height,
+            channels: info.channels,
+            data,
+        })
+    };
+    read().map_err(|e| anyhow!("cannot read {}: {e}", path.display()))
+}
+
+/// reframe's metadata as found in the file, as (name, value) pairs: the "reframe:*" attributes
+/// with their full names, and the camera matrices under their EXR names ("worldToCamera",
+/// "worldToNDC") as 16 space-separated numbers in file order. Numbers are formatted so that they
+/// parse back to the same value.
+pub fn read_metadata(path: &Path) -> Result<Vec<(String, String)>> {
+    let read = || -> Result<Vec<(String, String)>> {
+        let reader = ffi::open_reader(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
+        Ok(reader
+            .attributes()
+            .into_iter()
+            .filter_map(metadata_pair)
+            .collect())
+    };
+    read().map_err(|e| anyhow!("cannot read metadata of {}: {e}", path.display()))
+}
+
+fn metadata_pair(a: ffi::Attribute) -> Option<(String, String)> {
+    let name = if a.name.starts_with(PREFIX) {
+        a.name.clone()
+    } else if a.name.eq_ignore_ascii_case(OIIO_WORLD_TO_CAMERA) {
+        EXR_WORLD_TO_CAMERA.to_string()
+    } else if a.name.eq_ignore_ascii_case(OIIO_WORLD_TO_NDC) {
+        EXR_WORLD_TO_NDC.to_string()
+    } else {
+        return None;
+    };
+    let value = match a.kind {
+        ffi::AttrKind::Int => a.int_value.to_string(),
+        ffi::AttrKind::Float => a.float_value.to_string(),
+        ffi::AttrKind::Matrix => a
+            .matrix
+            .iter()
+            .map(|v| v.to_string())
+            .collect::<Vec<_>>()
+            .join(" "),
+        _ => a.text,
+    };
+    Some((name, value))
+}
+
+/// The version of the OpenImageIO library in use, e.g. "2.4.7".
+pub fn oiio_version() -> String {
+    ffi::oiio_version()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A deterministic spread of values, including negatives and values above 1.
+    fn test_image(width: u32, height: u32, channels: &[&str]) -> Image {
+        let mut img = Image::new(width, height, channels);
+        for (i, v) in img.data.iter_mut().enumerate() {
+            let h = splitmix64(i as u64);
+            *v = (h >> 40) as f32 / (1u64 << 24) as f32 * 8.0 - 1.0;
+        }
+        img
+    }
+
+    fn test_metadata() -> Metadata {
+        let mut w2c = [0.0f32; 16];
+        let mut w2n = [0.0f32; 16];
+        for i in 0..16 {
+            w2c[i] = i as f32 * 0.25 - 1.1;
+            w2n[i] = 1.0 / (i as f32 + 3.0);
+        }
+        Metadata {
+            method: "reuse".into(),
+            spp: 256,
+            window: 5,
+            seed: u64::MAX - 12,
+            render_seconds: 12.5,
+            world_to_camera: w2c,
+            world_to_ndc: w2n,
+            extra: vec![
+                ("scene".into(), "vase.toml".into()),
+                ("frame".into(), "7".into()),
+            ],
+        }
+    }
+
+    fn files_in(dir: &Path) -> Vec<String> {
+        let mut names: Vec<String> = fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        names
+    }
+
+    fn srgb_inverse(e: f64) -> f64 {
+        if e <= 0.04045 {
+            e / 12.92
+        } else {
+            ((e + 0.055) / 1.055).powf(2.4)
+        }
+    }
+
+    #[test]
+    fn exr_half_round_trip_within_half_precision() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("half.exr");
+        let mut img = test_image(13, 7, &["R", "G", "B", "A"]);
+        img.data[0] = 1.0e6; // beyond half range: clamped, not infinity
+        img.data[1] = -1.0e6;
+        write_image(&path, &img, &Metadata::default(), &WriteOptions::default()).unwrap();
+        let back = read_image(&path).unwrap();
+        assert_eq!((back.width, back.height), (13, 7));
+        assert_eq!(back.channels, img.channels);
+        assert_eq!(back.data[0], HALF_MAX);
+        assert_eq!(back.data[1], -HALF_MAX);
+        for (a, b) in img.data.iter().zip(&back.data).skip(2) {
+            // Half has an 11-bit significand: relative error at most 2^-11 after rounding,
+            // plus the absolute spacing of its subnormals.
+            assert!(
+                (a - b).abs() <= a.abs() * 2f32.powi(-11) + 6.0e-8,
+                "{a} -> {b}"
+            );
+        }
+        assert!(
+            img.data.iter().zip(&back.data).skip(2).any(|(a, b)| a != b),
+            "was not stored as half"
+        );
+    }
+
+    #[test]
+    fn exr_float_round_trip_is_exact() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("float.exr");
+        let img = test_image(9, 11, &["R", "G", "B"]);
+        write_image(
+            &path,
+            &img,
+            &Metadata::default(),
+            &WriteOptions { exr_float: true },
+        )
+        .unwrap();
+        assert_eq!(read_image(&path).unwrap(), img);
+    }
+
+    #[test]
+    fn extra_channels_keep_their_names() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("aov.exr");
+        let img = test_image(4, 3, &["R", "G", "B", "spp_eff"]);
+        write_image(
+            &path,
+            &img,
+            &Metadata::default(),
+            &WriteOptions { exr_float: true },
+        )
+        .unwrap();
+        let back = read_image(&path).unwrap();
+        assert_eq!(back.channels, ["R", "G", "B", "spp_eff"]);
+        assert_eq!(back, img);
+    }
+
+    #[test]
+    fn exr_metadata_round_trips_with_types() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("meta.exr");
+        let meta = test_metadata();
+        write_image(
+            &path,
+            &test_image(2, 2, &["R", "G", "B"]),
+            &meta,
+            &WriteOptions::default(),
+        )
+        .unwrap();
+
+        let got = read_metadata(&path).unwrap();
+        let get = |k: &str| {
+            got.iter()
+                .find(|(n, _)| n == k)
+                .unwrap_or_else(|| panic!("{k} missing from {got:?}"))
+                .1
+                .clone()
+        };
+        assert_eq!(get("reframe:method"), "reuse");
+        assert_eq!(get("reframe:spp"), "256");
+        assert_eq!(get("reframe:window"), "5");
+        assert_eq!(get("reframe:seed"), (u64::MAX - 12).to_string());
+        assert_eq!(get("reframe:render_seconds").parse::<f64>().unwrap(), 12.5);
+        assert_eq!(get("reframe:scene"), "vase.toml");
+        assert_eq!(get("reframe:frame"), "7");
+        let matrix =
+            |k: &str| -> Vec<f32> { get(k).split(' ').map(|v| v.parse().unwrap()).collect() };
+        assert_eq!(matrix("worldToCamera"), meta.world_to_camera);
+        assert_eq!(matrix("worldToNDC"), meta.world_to_ndc);
+
+        // The types and names matter to other tools, not just to our reader.
+        let attrs = ffi::open_reader(path.to_str().unwrap())
+            .unwrap()
+            .attributes();
+        let kind_of = |name: &str| attrs.iter().find(|a| a.name == name).map(|a| a.kind);
+        assert_eq!(kind_of("worldToCamera"), Some(ffi::AttrKind::Matrix));
+        assert_eq!(kind_of("worldToNDC"), Some(ffi::AttrKind::Matrix));
+        assert_eq!(kind_of("reframe:spp"), Some(ffi::AttrKind::Int));
+        assert_eq!(kind_of("reframe:window"), Some(ffi::AttrKind::Int));
+        assert_eq!(
+            kind_of("reframe:render_seconds"),
+            Some(ffi::AttrKind::Float)
+        );
+        assert_eq!(kind_of("reframe:seed"), Some(ffi::AttrKind::Text));
+        assert_eq!(kind_of("reframe:method"), Some(ffi::AttrKind::Text));
+    }
+
+    #[test]
+    fn exr_header_has_standard_matrix_attributes() {
+        // Read the raw header rather than trusting OIIO to read back what it wrote: the point is
+        // that other EXR readers find `worldToCamera` / `worldToNDC` of type m44f.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("hdr.exr");
+        let meta = test_metadata();
+        write_image(
+            &path,
+            &test_image(2, 2, &["R", "G", "B"]),
+            &meta,
+            &WriteOptions::default(),
+        )
+        .unwrap();
+        let bytes = fs::read(&path).unwrap();
+        let find = |name: &str| -> Vec<f32> {
+            let needle = [name.as_bytes(), b"\0m44f\0", &64i32.to_le_bytes()].concat();
+            let at = bytes
+                .windows(needle.len())
+                .position(|w| w == needle.as_slice())
+                .unwrap_or_else(|| panic!("no m44f attribute {name} in the EXR header"));
+            bytes[at + needle.len()..at + needle.len() + 64]
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+                .collect()
+        };
+        assert_eq!(find("worldToCamera"), meta.world_to_camera);
+        assert_eq!(find("worldToNDC"), meta.world_to_ndc);
+    }
+
+    #[test]
+    fn png_round_trip_of_srgb_values() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("grid.png");
+        // Linear values whose sRGB encoding lies exactly on the 8-bit grid: the dither may move
+        // them by at most one code.
+        let mut img = Image::new(64, 4, &["R", "G", "B", "A"]);
+        let mut expected = Vec::new();
+        for y in 0..4u32 {
+            for x in 0..64u32 {
+                let i = ((y * 64 + x) * 4) as usize;
+                for c in 0..3u32 {
+                    let code = (x * 4 + c + y) % 256;
+                    img.data[i + c as usize] = srgb_inverse(code as f64 / 255.0) as f32;
+                    expected.push(code as f32 / 255.0);
+                }
+                img.data[i + 3] = 0.25; // alpha is not written to 8-bit files
+            }
+        }
+        write_image(&path, &img, &test_metadata(), &WriteOptions::default()).unwrap();
+        let back = read_image(&path).unwrap();
+        assert_eq!(back.channels, ["R", "G", "B"]);
+        for (e, b) in expected.iter().zip(&back.data) {
+            assert!((e - b).abs() <= 1.0 / 255.0 + 1e-6, "{e} -> {b}");
+        }
+        assert!(
+            expected.iter().zip(&back.data).any(|(e, b)| e != b),
+            "no dither applied"
+        );
+
+        // Off-grid values: rounding plus +-1 LSB of dither stays within 1.5 codes.
+        let img = test_image(32, 32, &["R", "G", "B"]);
+        write_image(&path, &img, &Metadata::default(), &WriteOptions::default()).unwrap();
+        let back = read_image(&path).unwrap();
+        for (v, b) in img.data.iter().zip(&back.data) {
+            let e = srgb_oetf(v.clamp(0.0, 1.0) as f64) as f32;
+            assert!((e - b).abs() <= 1.5 / 255.0 + 1e-6, "{v} -> {b}");
+        }
+    }
+
+    #[test]
+    fn png_keeps_metadata_as_text() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("meta.png");
+        write_image(
+            &path,
+            &test_image(2, 2, &["R", "G", "B"]),
+            &test_metadata(),
+            &WriteOptions::default(),
+        )
+        .unwrap();
+        let got = read_metadata(&path).unwrap();
+        assert!(
+            got.contains(&("reframe:method".into(), "reuse".into())),
+            "{got:?}"
+        );
+        assert!(
+            got.contains(&("reframe:spp".into(), "256".into())),
+            "{got:?}"
+        );
+        assert!(
+            got.contains(&("reframe:scene".into(), "vase.toml".into())),
+            "{got:?}"
+        );
+    }
+
+    #[test]
+    fn ldr_bytes_are_deterministic() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = test_image(40, 30, &["R", "G", "B"]);
+        let a = encode_srgb8(&img).unwrap();
+        assert_eq!(a, encode_srgb8(&img).unwrap());
+        for ext in ["png", "tif"] {
+            let p1 = dir.path().join(format!("a.{ext}"));
+            let p2 = dir.path().join(format!("b.{ext}"));
+            write_image(&p1, &img, &test_metadata(), &WriteOptions::default()).unwrap();
+            write_image(&p2, &img, &test_metadata(), &WriteOptions::default()).unwrap();
+            assert_eq!(
+                fs::read(&p1).unwrap(),
+                fs::read(&p2).unwrap(),
+                "{ext} bytes differ"
+            );
+        }
+    }
+
+    #[test]
+    fn ldr_clips_and_leaves_black_and_white_undithered() {
+        let mut img = Image::new(16, 16, &["R", "G", "B"]);
+        for (i, v) in img.data.iter_mut().enumerate() {
+            *v = [0.0, -3.0, f32::NAN, 1.0, 7.0, f32::INFINITY][i % 6];
+        }
+        let bytes = encode_srgb8(&img).unwrap();
+        for (v, b) in img.data.iter().zip(&bytes) {
+            assert_eq!(*b, if *v >= 1.0 { 255 } else { 0 }, "{v}");
+        }
+    }
+
+    #[test]
+    fn ldr_needs_three_channels() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("gray.png");
+        let err = write_image(
+            &path,
+            &Image::new(2, 2, &["Y"]),
+            &Metadata::default(),
+            &WriteOptions::default(),
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("gray.png"), "{err}");
+        assert!(files_in(dir.path()).is_empty());
+    }
+
+    #[test]
+    fn write_to_uncreatable_folder_fails_and_leaves_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        // A regular file where a folder should be: fails even for root, unlike permissions.
+        let blocker = dir.path().join("blocker");
+        fs::write(&blocker, b"x").unwrap();
+        for name in ["f.exr", "f.png"] {
+            let path = blocker.join("sub").join(name);
+            let err = write_image(
+                &path,
+                &test_image(2, 2, &["R", "G", "B"]),
+                &test_metadata(),
+                &WriteOptions::default(),
+            )
+            .unwrap_err();
+            let msg = err.to_string();
+            assert!(msg.contains(path.to_str().unwrap()), "{msg}");
+            assert!(!msg.contains('\n'), "{msg}");
+            assert!(!path.exists());
+            let pattern = OutputPattern::parse(path.to_str().unwrap()).unwrap();
+            let err = pattern.validate().unwrap_err().to_string();
+            assert!(err.contains(blocker.to_str().unwrap()), "{err}");
+        }
+        assert_eq!(files_in(dir.path()), ["blocker"]);
+    }
+
+    #[test]
+    fn failed_rename_removes_the_temporary_file() {
+        let dir = tempfile::tempdir().unwrap();
+        // The target exists as a non-empty folder, so the final rename fails after OIIO succeeded.
+        let target = dir.path().join("taken.exr");
+        fs::create_dir(&target).unwrap();
+        fs::write(target.join("keep"), b"x").unwrap();
+        let err = write_image(
+            &target,
+            &test_image(2, 2, &["R", "G", "B"]),
+            &Metadata::default(),
+            &WriteOptions::default(),
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("taken.exr"), "{err}");
+        assert_eq!(files_in(dir.path()), ["taken.exr"]);
+        assert!(target.is_dir());
+    }
+
+    #[test]
+    fn successful_write_leaves_only_the_target() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = test_image(3, 3, &["R", "G", "B"]);
+        for name in ["a.exr", "b.png", "c.jpg", "d.tiff", "e.hdr"] {
+            write_image(
+                &dir.path().join(name),
+                &img,
+                &test_metadata(),
+                &WriteOptions::default(),
+            )
+            .unwrap();
+        }
+        // Overwriting an existing file goes through the same rename.
+        write_image(
+            &dir.path().join("a.exr"),
+            &img,
+            &test_metadata(),
+            &WriteOptions::default(),
+        )
+        .unwrap();
+        assert_eq!(
+            files_in(dir.path()),
+            ["a.exr", "b.png", "c.jpg", "d.tiff", "e.hdr"]
+        );
+        assert_eq!(
+            read_image(&dir.path().join("e.hdr")).unwrap().channels,
+            ["R", "G", "B"]
+        );
+    }
+
+    #[test]
+    fn validate_rejects_unknown_extension() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("frame_####.xyz");
+        let pattern = OutputPattern::parse(p.to_str().unwrap()).unwrap();
+        let err = pattern.validate().unwrap_err().to_string();
+        assert!(err.contains("frame_####.xyz"), "{err}");
+        assert!(!err.contains('\n'), "{err}");
+    }
+
+    #[test]
+    fn validate_creates_the_folder_and_leaves_no_probe() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("new/deeper/vase_####.exr");
+        OutputPattern::parse(p.to_str().unwrap())
+            .unwrap()
+            .validate()
+            .unwrap();
+        assert!(dir.path().join("new/deeper").is_dir());
+        assert!(files_in(&dir.path().join("new/deeper")).is_empty());
+    }
+
+    #[test]
+    fn pattern_padding_and_wide_numbers() {
+        let p = OutputPattern::parse("out/vase_####.exr").unwrap();
+        assert!(p.has_frame_field());
+        assert_eq!(p.path(7), PathBuf::from("out/vase_0007.exr"));
+        assert_eq!(p.path(0), PathBuf::from("out/vase_0000.exr"));
+        assert_eq!(p.to_string(), "out/vase_####.exr");
+        let p = OutputPattern::parse("f##.png").unwrap();
+        assert_eq!(p.path(12345), PathBuf::from("f12345.png"));
+        assert_eq!(p.path(3), PathBuf::from("f03.png"));
+        let p = OutputPattern::parse("still.png").unwrap();
+        assert!(!p.has_frame_field());
+        assert_eq!(p.path(9), PathBuf::from("still.png"));
+        assert!(OutputPattern::parse("####.exr").unwrap().path(1) == PathBuf::from("0001.exr"));
+    }
+
+    #[test]
+    fn pattern_errors() {
+        for bad in [
+            "",
+            "  ",
+            "out/",
+            "out/vase",
+            "out/vase_####",
+            "a_##_##.exr",
+            "out_##/x.exr",
+            "x.e##",
+            "out/.exr",
+        ] {
+            let err = OutputPattern::parse(bad);
+            assert!(err.is_err(), "{bad:?} was accepted");
+            assert!(!err.unwrap_err().to_string().contains('\n'));
+        }
+    }
+
+    #[test]
+    fn ldr_and_hdr_extensions() {
+        for (s, ldr) in [
+            ("a.png", true),
+            ("a.JPG", true),
+            ("a.jpeg", true),
+            ("a.tif", true),
+            ("a.tiff", true),
+            ("a.exr", false),
+            ("a.EXR", false),
+            ("a.hdr", false),
+        ] {
+            assert_eq!(OutputPattern::parse(s).unwrap().is_ldr(), ldr, "{s}");
+        }
+    }
+
+    #[test]
+    fn read_missing_file_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("missing.exr");
+        let err = read_image(&path).unwrap_err().to_string();
+        assert!(err.contains("missing.exr"), "{err}");
+        assert!(read_metadata(&path).is_err());
+    }
+
+    #[test]
+    fn metadata_keys_must_be_unique() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut meta = test_metadata();
+        meta.extra.push(("spp".into(), "1".into()));
+        let path = dir.path().join("dup.exr");
+        assert!(write_image(
+            &path,
+            &test_image(2, 2, &["R", "G", "B"]),
+            &meta,
+            &WriteOptions::default()
+        )
+        .is_err());
+        assert!(files_in(dir.path()).is_empty());
+    }
+
+    #[test]
+    fn version_is_reported() {
+        let v = oiio_version();
+        assert!(
+            v.split('.').count() == 3 && v.chars().next().unwrap().is_ascii_digit(),
+            "{v}"
+        );
+    }
+}

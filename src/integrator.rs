@@ -1,0 +1,316 @@
+//! The independent path tracer, split at the first hit so that frame reuse can consume it.
+//!
+//! `trace_first_hit` follows one camera sample to its primary hit `x` and gathers, once, all that
+//! the paper reuses across eyes (ESTIMATOR.md, "native sample"): the BSDF-sampled direction `w`
+//! with the radiance arriving along it, split into the emitter reached directly (`le_w`) and the
+//! rest of the random walk (`li_w`), and one light sample at `x`. `FirstHit::radiance` then
+//! shades that record for any eye: for the eye that generated it this is the ordinary path-traced
+//! estimate; the reuse methods evaluate it (or their own weights) for the other eyes.
+//!
+//! Direct light at every vertex combines next-event estimation and BSDF sampling with the
+//! balance heuristic (Veach 1997, eq. 9.13): a light sample contributes `f cos Le / (p_l + p_b)`,
+//! an emitter hit by the BSDF direction `f cos Le / (p_b + p_l)`, which is the form whose
+//! denominator the reuse estimator extends over the eyes of a group (ESTIMATOR.md, `Q_dir`).
+//! Paths end by Russian roulette after `RR_DEPTH` bounces, or at `max_depth`.
+use crate::bsdf::Material;
+use crate::embree::{Hit, Ray};
+use crate::sampling::Sampler;
+use crate::scene::{Scene, SurfacePoint};
+use glam::{Vec2, Vec3};
+
+/// Bounces before Russian roulette may end a path.
+const RR_DEPTH: u32 = 3;
+/// Sampler dimensions: 0-1 pixel position, 2-4 light sample at x, 5-7 BSDF sample at x, then
+/// `DIMS_PER_BOUNCE` per further vertex. Fixed offsets keep the first hit's numbers the same
+/// whatever the rest of the path used.
+const DIM_LIGHT: u64 = 2;
+const DIM_BSDF: u64 = 5;
+const DIM_PATH: u64 = 8;
+const DIMS_PER_BOUNCE: u64 = 8;
+
+/// Ray counts by kind, for statistics and the rays-per-second figures.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RayCounts {
+    pub primary: u64,
+    /// Continuation rays of the random walk (BSDF-sampled), including the one from the first hit.
+    pub path: u64,
+    /// Next-event estimation shadow rays.
+    pub shadow: u64,
+    /// Reuse visibility tests (hit to another eye).
+    pub visibility: u64,
+}
+
+/// What a worker counts while tracing: ray counts and, for the benchmark only, a log of the
+/// rays themselves (`true` = occlusion query) to replay against bare Embree calls.
+#[derive(Default)]
+pub struct Tally {
+    pub counts: RayCounts,
+    pub log: Option<Vec<(Ray, bool)>>,
+}
+
+impl Tally {
+    pub fn logging() -> Tally {
+        Tally { counts: RayCounts::default(), log: Some(Vec::new()) }
+    }
+
+    #[inline]
+    pub fn primary(&mut self, r: &Ray) {
+        self.counts.primary += 1;
+        if let Some(l) = &mut self.log {
+            l.push((*r, false));
+        }
+    }
+
+    #[inline]
+    pub fn path(&mut self, r: &Ray) {
+        self.counts.path += 1;
+        if let Some(l) = &mut self.log {
+            l.push((*r, false));
+        }
+    }
+
+    #[inline]
+    pub fn shadow(&mut self, r: &Ray) {
+        self.counts.shadow += 1;
+        if let Some(l) = &mut self.log {
+            l.push((*r, true));
+        }
+    }
+}
+
+impl RayCounts {
+    pub fn total(&self) -> u64 {
+        self.primary + self.path + self.shadow + self.visibility
+    }
+
+    pub fn add(&mut self, o: &RayCounts) {
+        self.primary += o.primary;
+        self.path += o.path;
+        self.shadow += o.shadow;
+        self.visibility += o.visibility;
+    }
+}
+
+/// One light sample at the first hit.
+#[derive(Clone, Copy, Debug)]
+pub struct FirstLight {
+    pub wi: Vec3,
+    /// Emitted radiance arriving along `wi`, zero if the light point is occluded.
+    pub le: Vec3,
+    /// Solid-angle density of light sampling, `p_l(wi | x)` (independent of the eye).
+    pub pdf: f32,
+}
+
+/// The primary hit of a camera sample and everything gathered there that does not depend on
+/// the eye (ESTIMATOR.md's native sample), plus the generating eye's BSDF density.
+#[derive(Clone, Copy, Debug)]
+pub struct FirstHit {
+    pub sp: SurfacePoint,
+    /// BSDF-sampled direction at `x`, drawn for the native eye; `None` if sampling failed.
+    pub w: Option<Vec3>,
+    /// `p(w | x, x->o_native)`.
+    pub pdf_w: f32,
+    /// Emission of the surface hit directly along `w` (unweighted), and `p_l(w | x)`.
+    pub le_w: Vec3,
+    pub pdf_light_w: f32,
+    /// Radiance reflected towards `x` by the surface hit along `w` (the rest of the walk).
+    pub li_w: Vec3,
+    pub light: Option<FirstLight>,
+}
+
+/// Shading normal on the side of `toward` (reflection is two-sided); `None` when `toward` sees
+/// the back of the geometric surface relative to `ns` in a way shading cannot resolve.
+#[inline]
+pub fn facing(sp: &SurfacePoint, toward: Vec3) -> (Vec3, Vec3) {
+    if sp.ng.dot(toward) >= 0.0 {
+        (sp.ng, sp.ns)
+    } else {
+        (-sp.ng, -sp.ns)
+    }
+}
+
+impl FirstHit {
+    /// Radiance leaving `x` towards eye position `eye`, estimated from this record with the
+    /// native eye's single-sample weights (eye `eye` must be the one that generated it for the
+    /// estimate to be the path tracer's; Havran-style reuse uses it for other eyes as is).
+    pub fn radiance(&self, scene: &Scene, eye: Vec3) -> Vec3 {
+        let sp = &self.sp;
+        let wo = (eye - sp.p).normalize();
+        let m = scene.material(sp);
+        let mut l = scene.emitted(sp, eye);
+        let (ng, ns) = facing(sp, wo);
+        if let Some(ls) = &self.light {
+            if ls.le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 {
+                let pb = m.pdf(ns, wo, ls.wi);
+                l += m.eval(ns, wo, ls.wi) * ns.dot(ls.wi).max(0.0) * ls.le / (ls.pdf + pb);
+            }
+        }
+        if let Some(w) = self.w {
+            if ng.dot(w) > 0.0 && self.pdf_w > 0.0 {
+                let fc = m.eval(ns, wo, w) * ns.dot(w).max(0.0);
+                l += fc * (self.le_w / (self.pdf_w + self.pdf_light_w) + self.li_w / self.pdf_w);
+            }
+        }
+        l
+    }
+}
+
+pub struct Integrator<'a> {
+    pub scene: &'a Scene,
+    pub max_depth: u32,
+}
+
+impl<'a> Integrator<'a> {
+    pub fn new(scene: &'a Scene, max_depth: u32) -> Self {
+        Integrator { scene, max_depth }
+    }
+
+    /// Sample a light from `sp` (normal pair facing `wo`) and return the MIS-weighted direct
+    /// contribution `f cos Le / (p_l + p_b)` at a path vertex, tracing one shadow ray.
+    fn direct(&self, sp: &SurfacePoint, m: &Material, wo: Vec3, s: &mut Sampler, t: &mut Tally) -> Vec3 {
+        let (ng, ns) = facing(sp, wo);
+        let u_sel = s.next_1d();
+        let u = s.next_2d();
+        let Some(ls) = self.scene.sample_light(sp.p, u_sel, u) else { return Vec3::ZERO };
+        if ls.le == Vec3::ZERO || ng.dot(ls.wi) <= 0.0 {
+            return Vec3::ZERO;
+        }
+        let f = m.eval(ns, wo, ls.wi);
+        if f == Vec3::ZERO {
+            return Vec3::ZERO;
+        }
+        let ray = Ray::between(sp.p, sp.ng, ls.p, ls.n);
+        t.shadow(&ray);
+        if self.scene.geometry.occluded1(&ray) {
+            return Vec3::ZERO;
+        }
+        let pb = m.pdf(ns, wo, ls.wi);
+        f * ns.dot(ls.wi) * ls.le / (ls.pdf + pb)
+    }
+
+    /// The camera sample through raster position `r` of eye `eye` along unit `dir`, up to and
+    /// including the first-hit record. `None` if the ray leaves the scene.
+    pub fn trace_first_hit(&self, eye: Vec3, dir: Vec3, s: &mut Sampler, t: &mut Tally) -> Option<FirstHit> {
+        let ray = Ray::new(eye, dir);
+        t.primary(&ray);
+        let hit = self.scene.geometry.intersect1(&ray)?;
+        Some(self.first_hit_at(&hit, eye, s, t))
+    }
+
+    /// Build the first-hit record for a primary hit already found (e.g. by a packet).
+    pub fn first_hit_at(&self, hit: &Hit, eye: Vec3, s: &mut Sampler, t: &mut Tally) -> FirstHit {
+        let scene = self.scene;
+        let sp = scene.surface(hit);
+        let m = *scene.material(&sp);
+        let wo = (eye - sp.p).normalize();
+        let (ng, ns) = facing(&sp, wo);
+        let mut rec = FirstHit { sp, w: None, pdf_w: 0.0, le_w: Vec3::ZERO, pdf_light_w: 0.0, li_w: Vec3::ZERO, light: None };
+        if !m.reflects() {
+            return rec;
+        }
+        // Light sample at x: stored with its visibility, not weighted (weights depend on eyes).
+        s.set_dimension(DIM_LIGHT);
+        let u_sel = s.next_1d();
+        let u = s.next_2d();
+        if let Some(ls) = scene.sample_light(sp.p, u_sel, u) {
+            let mut le = ls.le;
+            // A light behind the surface cannot contribute for any eye on this side; skip the ray.
+            if le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 {
+                let ray = Ray::between(sp.p, sp.ng, ls.p, ls.n);
+                t.shadow(&ray);
+                if scene.geometry.occluded1(&ray) {
+                    le = Vec3::ZERO;
+                }
+            } else {
+                le = Vec3::ZERO;
+            }
+            rec.light = Some(FirstLight { wi: ls.wi, le, pdf: ls.pdf });
+        }
+        // BSDF sample at x and the rest of the walk.
+        s.set_dimension(DIM_BSDF);
+        let u_lobe = s.next_1d();
+        let u = s.next_2d();
+        let Some(bs) = m.sample(ns, wo, u_lobe, u) else { return rec };
+        if ng.dot(bs.wi) <= 0.0 {
+            return rec;
+        }
+        rec.w = Some(bs.wi);
+        rec.pdf_w = bs.pdf;
+        let ray = Ray::spawn(sp.p, sp.ng, bs.wi);
+        t.path(&ray);
+        let Some(h2) = scene.geometry.intersect1(&ray) else { return rec };
+        let y = scene.surface(&h2);
+        rec.le_w = scene.emitted(&y, sp.p);
+        if rec.le_w != Vec3::ZERO {
+            rec.pdf_light_w = scene.light_pdf(sp.p, y.p, y.prim);
+        }
+        rec.li_w = self.reflected(y, -bs.wi, s, t);
+        rec
+    }
+
+    /// Radiance reflected at `first` along `wo_first` (unit, pointing away from the surface),
+    /// excluding `first`'s own emission: the random walk from the second vertex on.
+    fn reflected(&self, first: SurfacePoint, wo_first: Vec3, s: &mut Sampler, t: &mut Tally) -> Vec3 {
+        let scene = self.scene;
+        let mut l = Vec3::ZERO;
+        let mut beta = Vec3::ONE;
+        let mut sp = first;
+        let mut wo = wo_first;
+        // Depth counts bounces: the first hit is bounce 1, `sp` here is bounce 2.
+        let mut depth = 2;
+        loop {
+            if depth > self.max_depth {
+                break;
+            }
+            let m = *scene.material(&sp);
+            if !m.reflects() {
+                break;
+            }
+            s.set_dimension(DIM_PATH + DIMS_PER_BOUNCE * (depth - 2) as u64);
+            l += beta * self.direct(&sp, &m, wo, s, t);
+            let (ng, ns) = facing(&sp, wo);
+            let u_lobe = s.next_1d();
+            let u = s.next_2d();
+            let Some(bs) = m.sample(ns, wo, u_lobe, u) else { break };
+            if ng.dot(bs.wi) <= 0.0 {
+                break;
+            }
+            beta *= bs.f * ns.dot(bs.wi) / bs.pdf;
+            let ray = Ray::spawn(sp.p, sp.ng, bs.wi);
+            t.path(&ray);
+            let Some(h) = scene.geometry.intersect1(&ray) else { break };
+            let next = scene.surface(&h);
+            let le = scene.emitted(&next, sp.p);
+            if le != Vec3::ZERO {
+                // Balance heuristic: beta already holds f cos / p_b, so weight p_b / (p_b + p_l).
+                let pl = scene.light_pdf(sp.p, next.p, next.prim);
+                l += beta * le * (bs.pdf / (bs.pdf + pl));
+            }
+            if depth >= RR_DEPTH {
+                let q = beta.max_element().min(0.95);
+                if s.next_1d() >= q {
+                    break;
+                }
+                beta /= q;
+            }
+            sp = next;
+            wo = -bs.wi;
+            depth += 1;
+        }
+        l
+    }
+
+    /// One full path-traced sample through raster position `r` of camera `cam`.
+    pub fn sample_pixel(
+        &self,
+        cam: &crate::camera::Camera,
+        r: Vec2,
+        s: &mut Sampler,
+        t: &mut Tally,
+    ) -> Vec3 {
+        match self.trace_first_hit(cam.eye, cam.direction(r), s, t) {
+            Some(fh) => fh.radiance(self.scene, cam.eye),
+            None => Vec3::ZERO,
+        }
+    }
+}

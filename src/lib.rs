@@ -1,0 +1,17 @@
+//! reframe: a CPU renderer for camera animations that reuses each frame's primary hits in its
+//! neighbouring frames ("Reusing frames in camera animation", Méndez-Feliu, Sbert,
+//! Szirmay-Kalos 2006), measured against an independent path tracer.
+//!
+//! The architecture, one concept per module: `camera`, `scene` (loading, materials, lights),
+//! `bsdf`, `sampling`, `embree` (the only unsafe module besides the image bridge), `image` (film
+//! output through OpenImageIO), `integrator` (the independent tracer and its first-hit record),
+//! `render` (the driver: frame loop, tiles, progress, files) and `bench`.
+pub mod bench;
+pub mod bsdf;
+pub mod camera;
+pub mod embree;
+pub mod image;
+pub mod integrator;
+pub mod render;
+pub mod sampling;
+pub mod scene;

@@ -1,0 +1,195 @@
+//! The `reframe` command line.
+//!
+//! ```text
+//! reframe render [SCENE] --method independent --spp 8 --frames 0-47 --res 320x240 \
+//!     --out out/vase_####.exr --seed 0 --threads 0 --stats stats.json
+//! reframe bench [SCENE] --json bench.json
+//! ```
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand};
+use reframe::embree::Device;
+use reframe::render::{self, Method, RenderOptions};
+use reframe::scene::Scene;
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(name = "reframe", version, about = "Render camera animations, reusing frames (Méndez-Feliu et al. 2006)")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render frames of an animation.
+    Render(RenderArgs),
+    /// Measure the tracer's rays per second against bare Embree calls on the same rays.
+    Bench(BenchArgs),
+}
+
+#[derive(clap::Args)]
+struct RenderArgs {
+    /// Scene TOML file, or a shipped scene: vase (default), cornell, furnace.
+    scene: Option<String>,
+    #[arg(long, value_enum, default_value_t = Method::Independent)]
+    method: Method,
+    /// Samples per pixel.
+    #[arg(long, default_value_t = 8)]
+    spp: u32,
+    /// Frames to render, 0-based and inclusive: "A-B" or "A" (default: all).
+    #[arg(long, value_parser = parse_frames)]
+    frames: Option<(u32, u32)>,
+    /// Resolution "WxH" (default: the scene's).
+    #[arg(long, value_parser = parse_res)]
+    res: Option<(u32, u32)>,
+    /// Output pattern; '####' is the zero-padded frame number, the extension picks the format
+    /// (exr: linear half float; png, jpg, tif: 8-bit sRGB). Default: out/<scene>_####.exr
+    #[arg(long)]
+    out: Option<String>,
+    /// Write EXR pixels as 32-bit float instead of half.
+    #[arg(long)]
+    exr_float: bool,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Worker threads (0: one per core).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+    /// Maximum path length in bounces.
+    #[arg(long, default_value_t = 16)]
+    max_depth: u32,
+    /// Write render statistics as JSON.
+    #[arg(long)]
+    stats: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct BenchArgs {
+    /// Scene TOML file or shipped scene (default: vase).
+    scene: Option<String>,
+    #[arg(long, default_value_t = 4)]
+    spp: u32,
+    /// Resolution "WxH" (default: the scene's).
+    #[arg(long, value_parser = parse_res)]
+    res: Option<(u32, u32)>,
+    /// Frame to measure (default: the middle one).
+    #[arg(long)]
+    frame: Option<u32>,
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+    /// Write the figures as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+fn parse_frames(s: &str) -> Result<(u32, u32), String> {
+    let err = || format!("'{s}': expected A-B or A (0-based frame numbers)");
+    let (a, b) = match s.split_once('-') {
+        Some((a, b)) => (a.trim().parse().map_err(|_| err())?, b.trim().parse().map_err(|_| err())?),
+        None => {
+            let a = s.trim().parse().map_err(|_| err())?;
+            (a, a)
+        }
+    };
+    if a > b {
+        return Err(format!("'{s}': the first frame is after the last"));
+    }
+    Ok((a, b))
+}
+
+fn parse_res(s: &str) -> Result<(u32, u32), String> {
+    let err = || format!("'{s}': expected WxH, e.g. 320x240");
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(err)?;
+    let (w, h): (u32, u32) = (w.trim().parse().map_err(|_| err())?, h.trim().parse().map_err(|_| err())?);
+    if w == 0 || h == 0 {
+        return Err(format!("'{s}': width and height must be positive"));
+    }
+    Ok((w, h))
+}
+
+fn main() {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if !e.use_stderr() => e.exit(), // --help, --version
+        Err(e) => {
+            // Keep usage errors to one line too; `--help` has the rest.
+            let text = e.render().to_string();
+            eprintln!("{} (see --help)", text.lines().next().unwrap_or("invalid arguments"));
+            std::process::exit(2);
+        }
+    };
+    if let Err(e) = run(cli) {
+        // One line: the chain of contexts, outermost first.
+        let msg = format!("{e:#}").replace('\n', " ");
+        eprintln!("error: {msg}");
+        std::process::exit(1);
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Render(a) => {
+            let scene_name = a.scene.unwrap_or_else(|| "vase".into());
+            let device = Device::new()?;
+            let scene = Scene::load(&scene_name, &device)?;
+            let out = a.out.unwrap_or_else(|| format!("out/{}_####.exr", scene.name));
+            let opts = RenderOptions {
+                method: a.method,
+                spp: a.spp,
+                frames: a.frames.map(|(x, y)| x..=y),
+                resolution: a.res,
+                out,
+                seed: a.seed,
+                threads: a.threads,
+                max_depth: a.max_depth,
+                exr_float: a.exr_float,
+                stats: a.stats.clone(),
+                progress: true,
+            };
+            if opts.max_depth == 0 {
+                bail!("--max-depth 0: paths need at least one bounce");
+            }
+            let stats = render::render(&scene, &opts)?;
+            let first = stats.outputs.first().context("no frame written")?;
+            eprintln!(
+                "rendered {} frame(s) of '{}' ({}x{}, {} spp, {}) in {:.1} s, {:.2} Mrays/s, peak memory {} MB",
+                stats.frames,
+                scene.name,
+                stats.width,
+                stats.height,
+                stats.spp,
+                stats.method.name(),
+                stats.seconds,
+                stats.rays_per_second / 1e6,
+                stats.peak_rss_bytes / 1_000_000
+            );
+            if stats.nonfinite_pixels > 0 {
+                eprintln!("warning: {} pixels are NaN or infinite", stats.nonfinite_pixels);
+            }
+            let last = stats.outputs.last().unwrap();
+            if first == last {
+                println!("wrote {first}");
+            } else {
+                println!("wrote {first} .. {last}");
+            }
+            if let Some(p) = &a.stats {
+                println!("stats in {}", p.display());
+            }
+            Ok(())
+        }
+        Command::Bench(a) => {
+            let scene_name = a.scene.unwrap_or_else(|| "vase".into());
+            let device = Device::new()?;
+            let scene = Scene::load(&scene_name, &device)?;
+            if let Some(p) = &a.json {
+                render::check_stats_path(p)?;
+            }
+            let report = reframe::bench::run(&scene, a.spp, a.res, a.frame, a.threads)?;
+            println!("{}", report.table());
+            if let Some(p) = &a.json {
+                render::write_json(p, &report)?;
+                println!("figures in {}", p.display());
+            }
+            Ok(())
+        }
+    }
+}

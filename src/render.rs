@@ -1,0 +1,364 @@
+//! The render driver: owns the frame loop, the rayon tiles, the progress bar, the statistics and
+//! every file that is written. Integrators only estimate (Mitsuba's `SamplingIntegrator::render`
+//! against the CLI's `film->write`).
+//!
+//! Determinism: pixels are independent (their random numbers are keyed by seed, frame, pixel and
+//! sample), each tile's pixels are summed in sample order, and tiles are placed into the frame by
+//! index, so the frames are bitwise identical for any thread count.
+//!
+//! ```no_run
+//! use reframe::render::{render, Method, RenderOptions};
+//! use reframe::{embree::Device, scene::Scene};
+//! let device = Device::new()?;
+//! let scene = Scene::load("furnace", &device)?;
+//! let opts = RenderOptions { out: "out/furnace_####.exr".into(), ..RenderOptions::default() };
+//! let stats = render(&scene, &opts)?;
+//! println!("{} rays", stats.rays_total());
+//! # anyhow::Ok(())
+//! ```
+use crate::camera::Camera;
+use crate::image::{write_image, Image, Metadata, OutputPattern, WriteOptions};
+use crate::integrator::{Integrator, RayCounts, Tally};
+use crate::sampling::Sampler;
+use crate::scene::Scene;
+use anyhow::{bail, Context, Result};
+use glam::{Vec2, Vec3};
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::ops::RangeInclusive;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Rendering methods, registered in one place: a new method is one file and one line here.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// Independent path tracing of every frame (the baseline).
+    Independent,
+}
+
+impl Method {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Method::Independent => "independent",
+        }
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct RenderOptions {
+    pub method: Method,
+    pub spp: u32,
+    /// Inclusive frame range; `None` renders all of the scene's frames.
+    pub frames: Option<RangeInclusive<u32>>,
+    /// Resolution override; `None` keeps the scene's.
+    pub resolution: Option<(u32, u32)>,
+    pub out: String,
+    pub seed: u64,
+    /// Worker threads; 0 = one per core.
+    pub threads: usize,
+    pub max_depth: u32,
+    pub exr_float: bool,
+    pub stats: Option<PathBuf>,
+    /// Draw a progress bar (only ever on a terminal).
+    pub progress: bool,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        RenderOptions {
+            method: Method::Independent,
+            spp: 8,
+            frames: None,
+            resolution: None,
+            out: "out/frame_####.exr".into(),
+            seed: 0,
+            threads: 0,
+            max_depth: 16,
+            exr_float: false,
+            stats: None,
+            progress: true,
+        }
+    }
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct RayStats {
+    pub primary: u64,
+    pub path: u64,
+    pub shadow: u64,
+}
+
+/// What `--stats` writes (keys are a contract with users' scripts: add, never rename).
+#[derive(Clone, Debug, Serialize)]
+pub struct RenderStats {
+    pub method: Method,
+    pub scene: String,
+    pub width: u32,
+    pub height: u32,
+    pub frames: u32,
+    pub first_frame: u32,
+    pub last_frame: u32,
+    pub spp: u32,
+    pub seed: u64,
+    pub threads: usize,
+    pub seconds: f64,
+    pub rays: RayStats,
+    pub rays_per_second: f64,
+    pub peak_rss_bytes: u64,
+    pub nonfinite_pixels: u64,
+    pub outputs: Vec<String>,
+    #[serde(skip)]
+    pub ray_counts: RayCounts,
+}
+
+impl RenderStats {
+    pub fn rays_total(&self) -> u64 {
+        self.ray_counts.total()
+    }
+}
+
+/// Peak resident set size of this process (Linux `VmHWM`), 0 where unavailable.
+pub fn peak_rss_bytes() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|kb| kb.parse::<u64>().ok())
+        })
+        .map_or(0, |kb| kb * 1024)
+}
+
+/// A rayon pool whose workers set FTZ/DAZ, as Embree asks of every tracing thread.
+pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .start_handler(|_| crate::embree::set_flush_denormals())
+        .build()
+        .context("creating the worker threads")
+}
+
+pub const TILE: u32 = 16;
+
+/// The tiles of a `w` x `h` image as (x0, y0, x1, y1), row by row.
+pub fn tiles(w: u32, h: u32) -> Vec<(u32, u32, u32, u32)> {
+    let mut v = Vec::new();
+    for y0 in (0..h).step_by(TILE as usize) {
+        for x0 in (0..w).step_by(TILE as usize) {
+            v.push((x0, y0, (x0 + TILE).min(w), (y0 + TILE).min(h)));
+        }
+    }
+    v
+}
+
+/// Validated frame range and resolution for a scene and options.
+pub fn frame_plan(scene: &Scene, opts: &RenderOptions) -> Result<(RangeInclusive<u32>, u32, u32)> {
+    let last = scene.frames - 1;
+    let range = opts.frames.clone().unwrap_or(0..=last);
+    if range.start() > range.end() || *range.end() > last {
+        bail!(
+            "--frames {}-{}: the scene '{}' has frames 0-{last}",
+            range.start(),
+            range.end(),
+            scene.name
+        );
+    }
+    let (w, h) = opts.resolution.unwrap_or((scene.width, scene.height));
+    if w == 0 || h == 0 {
+        bail!("--res {w}x{h}: width and height must be positive");
+    }
+    if opts.spp == 0 {
+        bail!("--spp 0: at least one sample per pixel is needed");
+    }
+    Ok((range, w, h))
+}
+
+/// Check the output pattern before anything is traced: a long render must not fail at its end.
+pub fn check_output(pattern: &str, frames: &RangeInclusive<u32>) -> Result<OutputPattern> {
+    let out = OutputPattern::parse(pattern)?;
+    if frames.start() != frames.end() && !out.has_frame_field() {
+        bail!("--out {pattern}: several frames need a frame number field such as '####' in the name");
+    }
+    out.validate()?;
+    Ok(out)
+}
+
+pub fn progress_bar(enabled: bool, len: u64, what: &str) -> ProgressBar {
+    if !enabled {
+        return ProgressBar::hidden();
+    }
+    // indicatif draws only when stderr is a terminal, so scripts and logs stay quiet.
+    let pb = ProgressBar::new(len);
+    pb.set_style(
+        ProgressStyle::with_template(&format!(
+            "{{spinner}} [{{elapsed_precise}}] {{bar:30}} {{pos}}/{{len}} {what} {{msg}} ETA {{eta}}"
+        ))
+        .expect("valid template"),
+    );
+    pb
+}
+
+/// A rendered frame: linear RGB pixels, ray counts, and (benchmark only) each tile's rays.
+pub struct FrameResult {
+    pub pixels: Vec<Vec3>,
+    pub counts: RayCounts,
+    pub ray_logs: Vec<Vec<(crate::embree::Ray, bool)>>,
+}
+
+/// Render one frame with the independent path tracer.
+pub fn render_frame_independent(
+    integrator: &Integrator,
+    cam: &Camera,
+    frame: u32,
+    spp: u32,
+    seed: u64,
+    log_rays: bool,
+    on_tile: &(dyn Fn(&RayCounts) + Sync),
+) -> FrameResult {
+    let (w, h) = (cam.width, cam.height);
+    let tiles = tiles(w, h);
+    let results: Vec<(Vec<Vec3>, Tally)> = tiles
+        .par_iter()
+        .map(|&(x0, y0, x1, y1)| {
+            let mut t = if log_rays { Tally::logging() } else { Tally::default() };
+            let mut px = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let pixel = y * w + x;
+                    let mut sum = Vec3::ZERO;
+                    for s in 0..spp {
+                        let mut sampler = Sampler::new(seed, frame, pixel, s);
+                        let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
+                        sum += integrator.sample_pixel(cam, r, &mut sampler, &mut t);
+                    }
+                    px.push(sum / spp as f32);
+                }
+            }
+            on_tile(&t.counts);
+            (px, t)
+        })
+        .collect();
+    let mut pixels = vec![Vec3::ZERO; (w * h) as usize];
+    let mut counts = RayCounts::default();
+    let mut ray_logs = Vec::new();
+    for (&(x0, y0, x1, _), (px, t)) in tiles.iter().zip(results) {
+        let tw = (x1 - x0) as usize;
+        for (i, p) in px.iter().enumerate() {
+            let (tx, ty) = ((i % tw) as u32, (i / tw) as u32);
+            pixels[((y0 + ty) * w + x0 + tx) as usize] = *p;
+        }
+        counts.add(&t.counts);
+        ray_logs.extend(t.log);
+    }
+    FrameResult { pixels, counts, ray_logs }
+}
+
+pub fn to_image(w: u32, h: u32, px: &[Vec3]) -> Image {
+    Image {
+        width: w,
+        height: h,
+        channels: vec!["R".into(), "G".into(), "B".into()],
+        data: px.iter().flat_map(|p| p.to_array()).collect(),
+    }
+}
+
+/// Render the frames of `opts` and write them; returns the statistics (also written to
+/// `opts.stats` if set).
+pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
+    let (range, w, h) = frame_plan(scene, opts)?;
+    let out = check_output(&opts.out, &range)?;
+    if let Some(p) = &opts.stats {
+        check_stats_path(p)?;
+    }
+    let pool = thread_pool(opts.threads)?;
+    crate::embree::set_flush_denormals();
+    let integrator = Integrator::new(scene, opts.max_depth);
+    let n_frames = range.end() - range.start() + 1;
+    let tiles_per_frame = tiles(w, h).len() as u64;
+    let pb = progress_bar(opts.progress, n_frames as u64 * tiles_per_frame, "tiles");
+    let start = Instant::now();
+    let total_rays = std::sync::atomic::AtomicU64::new(0);
+    let mut counts = RayCounts::default();
+    let mut nonfinite = 0u64;
+    let mut outputs = Vec::new();
+    for (done, frame) in range.clone().enumerate() {
+        let cam = scene.camera(frame, w, h);
+        let frame_start = Instant::now();
+        let on_tile = |c: &RayCounts| {
+            let total = total_rays.fetch_add(c.total(), std::sync::atomic::Ordering::Relaxed) + c.total();
+            let secs = start.elapsed().as_secs_f64().max(1e-9);
+            pb.set_message(format!("| frame {}/{n_frames} | {:.2} Mrays/s", done + 1, total as f64 / secs / 1e6));
+            pb.inc(1);
+        };
+        let FrameResult { pixels: px, counts: c, .. } = pool.install(|| match opts.method {
+            Method::Independent => {
+                render_frame_independent(&integrator, &cam, frame, opts.spp, opts.seed, false, &on_tile)
+            }
+        });
+        counts.add(&c);
+        nonfinite += px.iter().filter(|p| !p.is_finite()).count() as u64;
+        let path = out.path(frame);
+        let meta = Metadata {
+            method: opts.method.name().into(),
+            spp: opts.spp,
+            window: 1,
+            seed: opts.seed,
+            render_seconds: frame_start.elapsed().as_secs_f64(),
+            world_to_camera: cam.world_to_camera().to_cols_array(),
+            world_to_ndc: cam.world_to_ndc().to_cols_array(),
+            extra: vec![("scene".into(), scene.name.clone()), ("frame".into(), frame.to_string())],
+        };
+        write_image(&path, &to_image(w, h, &px), &meta, &WriteOptions { exr_float: opts.exr_float })
+            .with_context(|| format!("writing frame {frame}"))?;
+        outputs.push(path.display().to_string());
+    }
+    pb.finish_and_clear();
+    let seconds = start.elapsed().as_secs_f64();
+    let stats = RenderStats {
+        method: opts.method,
+        scene: scene.name.clone(),
+        width: w,
+        height: h,
+        frames: n_frames,
+        first_frame: *range.start(),
+        last_frame: *range.end(),
+        spp: opts.spp,
+        seed: opts.seed,
+        threads: pool.current_num_threads(),
+        seconds,
+        rays: RayStats { primary: counts.primary, path: counts.path, shadow: counts.shadow },
+        rays_per_second: counts.total() as f64 / seconds.max(1e-9),
+        peak_rss_bytes: peak_rss_bytes(),
+        nonfinite_pixels: nonfinite,
+        outputs,
+        ray_counts: counts,
+    };
+    if let Some(p) = &opts.stats {
+        write_json(p, &stats)?;
+    }
+    Ok(stats)
+}
+
+/// The stats file's folder must exist and be writable before the render starts.
+pub fn check_stats_path(p: &std::path::Path) -> Result<()> {
+    let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+    if !dir.is_dir() {
+        bail!("--stats {}: folder {} does not exist", p.display(), dir.display());
+    }
+    let probe = dir.join(format!(".reframe-probe-{}", std::process::id()));
+    std::fs::write(&probe, b"").with_context(|| format!("--stats {}: folder is not writable", p.display()))?;
+    let _ = std::fs::remove_file(probe);
+    Ok(())
+}
+
+/// Write JSON atomically (temporary name, then rename).
+pub fn write_json<T: Serialize>(p: &std::path::Path, v: &T) -> Result<()> {
+    let tmp = p.with_extension(format!("json.tmp-{}", std::process::id()));
+    let text = serde_json::to_string_pretty(v)?;
+    std::fs::write(&tmp, text + "\n").with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, p).with_context(|| format!("renaming {} to {}", tmp.display(), p.display()))?;
+    Ok(())
+}

@@ -1,0 +1,111 @@
+//! End-to-end checks of the independent path tracer: the analytic furnace, determinism across
+//! thread counts, and what a render leaves on disk (frames, metadata, statistics).
+use reframe::embree::Device;
+use reframe::integrator::Integrator;
+use reframe::render::{render, render_frame_independent, thread_pool, RenderOptions};
+use reframe::scene::Scene;
+use std::process::Command;
+
+/// Inside a closed sphere of albedo 0.5 and emission 0.5 the radiance is 1 everywhere
+/// (L = Le + rho L). The mean of the image must be 1 within a tight tolerance, and so must every
+/// 8x8 block (a wrong light pdf or MIS weight shifts some directions more than others).
+#[test]
+fn furnace_is_one() {
+    let device = Device::new().unwrap();
+    let scene = Scene::load("furnace", &device).unwrap();
+    let integ = Integrator::new(&scene, 64);
+    let pool = thread_pool(0).unwrap();
+    let cam = scene.camera(0, 64, 64);
+    let f = pool.install(|| render_frame_independent(&integ, &cam, 0, 64, 3, false, &|_| {}));
+    let n = f.pixels.len() as f64;
+    let mean: f64 = f.pixels.iter().map(|p| p.x as f64).sum::<f64>() / n;
+    assert!((mean - 1.0).abs() < 0.005, "furnace mean {mean}");
+    for p in &f.pixels {
+        assert!((p.x - p.y).abs() < 1e-6 && (p.x - p.z).abs() < 1e-6, "grey in, grey out");
+    }
+    for by in 0..8 {
+        for bx in 0..8 {
+            let mut s = 0.0f64;
+            for y in 0..8 {
+                for x in 0..8 {
+                    s += f.pixels[(by * 8 + y) * 64 + bx * 8 + x].x as f64;
+                }
+            }
+            let m = s / 64.0;
+            assert!((m - 1.0).abs() < 0.04, "block ({bx},{by}) mean {m}");
+        }
+    }
+}
+
+#[test]
+fn frames_are_identical_for_any_thread_count() {
+    let device = Device::new().unwrap();
+    let scene = Scene::load("vase", &device).unwrap();
+    let integ = Integrator::new(&scene, 16);
+    let cam = scene.camera(10, 96, 72);
+    let one = thread_pool(1).unwrap().install(|| render_frame_independent(&integ, &cam, 10, 4, 9, false, &|_| {}));
+    let three = thread_pool(3).unwrap().install(|| render_frame_independent(&integ, &cam, 10, 4, 9, false, &|_| {}));
+    assert!(one.pixels.iter().zip(&three.pixels).all(|(a, b)| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits)));
+    assert_eq!(one.counts, three.counts);
+    let other_seed = thread_pool(2).unwrap().install(|| render_frame_independent(&integ, &cam, 10, 4, 10, false, &|_| {}));
+    assert!(one.pixels != other_seed.pixels, "the seed must change the noise");
+}
+
+#[test]
+fn render_writes_frames_metadata_and_stats() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let device = Device::new().unwrap();
+    let scene = Scene::load("cornell", &device).unwrap();
+    let opts = RenderOptions {
+        spp: 2,
+        frames: Some(3..=4),
+        resolution: Some((40, 30)),
+        out: d.join("c_####.exr").display().to_string(),
+        stats: Some(d.join("stats.json")),
+        progress: false,
+        ..RenderOptions::default()
+    };
+    let stats = render(&scene, &opts).unwrap();
+    assert_eq!(stats.frames, 2);
+    assert_eq!(stats.nonfinite_pixels, 0);
+    let img = reframe::image::read_image(&d.join("c_0003.exr")).unwrap();
+    assert_eq!((img.width, img.height), (40, 30));
+    assert!(img.data.iter().any(|&v| v > 0.0), "black frame");
+    assert!(d.join("c_0004.exr").exists() && !d.join("c_0002.exr").exists());
+    let meta = reframe::image::read_metadata(&d.join("c_0004.exr")).unwrap();
+    let get = |k: &str| meta.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone());
+    assert_eq!(get("reframe:method").as_deref(), Some("independent"));
+    assert_eq!(get("reframe:spp").as_deref(), Some("2"));
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(d.join("stats.json")).unwrap()).unwrap();
+    for key in ["method", "width", "height", "frames", "spp", "seconds", "rays", "peak_rss_bytes", "nonfinite_pixels"] {
+        assert!(json.get(key).is_some(), "stats lack '{key}'");
+    }
+    for kind in ["primary", "path", "shadow"] {
+        assert!(json["rays"][kind].as_u64().unwrap() > 0, "no {kind} rays");
+    }
+    assert_eq!(json["rays"]["primary"].as_u64(), Some(2 * 40 * 30 * 2));
+    // Nothing but the frames and the stats: no temporary files.
+    let mut names: Vec<String> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into()).collect();
+    names.sort();
+    assert_eq!(names, ["c_0003.exr", "c_0004.exr", "stats.json"]);
+}
+
+/// The command line end to end, as a user runs it: same command, same bytes, any thread count.
+#[test]
+fn cli_is_deterministic() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for t in ["1", "2"] {
+        let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
+            .args(["render", "vase", "--frames", "5", "--res", "48x36", "--spp", "2", "--exr-float", "--threads", t])
+            .arg("--out")
+            .arg(d.join(format!("t{t}_####.exr")))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let a = reframe::image::read_image(&d.join("t1_0005.exr")).unwrap();
+    let b = reframe::image::read_image(&d.join("t2_0005.exr")).unwrap();
+    assert_eq!(a.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), b.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+}
