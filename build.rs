@@ -21,9 +21,14 @@ fn link_embree() {
         candidates.push(dir.into());
     }
     candidates.extend(
-        ["/usr/lib/x86_64-linux-gnu", "/usr/lib64", "/usr/lib", "/usr/local/lib"]
-            .iter()
-            .map(PathBuf::from),
+        [
+            "/usr/lib/x86_64-linux-gnu",
+            "/usr/lib64",
+            "/usr/lib",
+            "/usr/local/lib",
+        ]
+        .iter()
+        .map(PathBuf::from),
     );
     candidates.push(local);
     let found = candidates.iter().find(|d| d.join("libembree4.so").exists());
@@ -53,7 +58,10 @@ fn build_oiio_bridge() {
     let cflags = pkg_config(&["--cflags", "OpenImageIO"]);
     let libs = pkg_config(&["--libs", "OpenImageIO"]);
     let mut build = cxx_build::bridge("src/image/bridge.rs");
-    build.file("ffi/oiio.cpp").std("c++17").flag_if_supported("-Wno-deprecated-declarations");
+    build
+        .file("ffi/oiio.cpp")
+        .std("c++17")
+        .flag_if_supported("-Wno-deprecated-declarations");
     for f in cflags.split_whitespace() {
         if let Some(inc) = f.strip_prefix("-I") {
             build.include(inc);
@@ -74,9 +82,10 @@ fn build_oiio_bridge() {
 }
 
 fn pkg_config(args: &[&str]) -> String {
-    let out = Command::new("pkg-config").args(args).output().unwrap_or_else(|e| {
-        panic!("pkg-config not runnable ({e}); run ./setup.sh first")
-    });
+    let out = Command::new("pkg-config")
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("pkg-config not runnable ({e}); run ./setup.sh first"));
     if !out.status.success() {
         panic!(
             "pkg-config {:?} failed: {}. OpenImageIO missing? Run ./setup.sh first.",

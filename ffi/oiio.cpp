@@ -15,6 +15,9 @@ namespace reframe {
 
 namespace {
 
+// Messages carry no path of their own: the Rust caller prefixes the path the user asked for, and
+// OIIO's messages already name the file actually opened (e.g. the temporary one).
+//
 // OIIO keeps its global error message per thread, so this must run on the thread whose call
 // failed, right after the failure: i.e. inside the failing bridged function, never later.
 [[noreturn]] void throw_global_error(const std::string& context) {
@@ -89,7 +92,9 @@ OIIO::ImageSpec make_spec(const ImageDesc& desc, size_t n_values,
             case AttrKind::Float: spec.attribute(name, a.float_value); break;
             case AttrKind::Text: spec.attribute(name, std::string(a.text)); break;
             case AttrKind::Matrix: spec.attribute(name, OIIO::TypeMatrix44, a.matrix.data()); break;
-            default: throw std::runtime_error("attribute " + name + " has a kind that cannot be written");
+            default:
+                throw std::runtime_error("attribute " + name +
+                                         " has a kind that cannot be written");
         }
     }
     return spec;
@@ -99,22 +104,22 @@ void write_pixels(const std::string& path, const OIIO::ImageSpec& spec, OIIO::Ty
                   const void* pixels) {
     auto out = OIIO::ImageOutput::create(path);
     if (!out) {
-        throw_global_error("cannot write " + path);
+        throw_global_error("no image writer");
     }
     if (!out->open(path, spec)) {
-        throw_output_error(*out, "cannot open " + path + " for writing");
+        throw_output_error(*out, "cannot open for writing");
     }
     if (!out->write_image(in_type, pixels)) {
         // Keep the writer's message before close() can overwrite it; the caller deletes the
         // partial file.
         std::string msg = out->geterror();
         out->close();
-        throw std::runtime_error("cannot write pixels to " + path + ": " +
+        throw std::runtime_error("cannot write pixels: " +
                                  (msg.empty() ? std::string("unknown OpenImageIO error") : msg));
     }
     // Writers flush and compress on close, so a full disk typically shows up only here.
     if (!out->close()) {
-        throw_output_error(*out, "cannot finish writing " + path);
+        throw_output_error(*out, "cannot finish writing");
     }
 }
 
@@ -131,7 +136,7 @@ void check_output_format(rust::Str path) {
     // create() only looks the writer up by extension; it neither opens nor creates the file.
     auto out = OIIO::ImageOutput::create(p);
     if (!out) {
-        throw_global_error("no image writer for " + p);
+        throw_global_error("no image writer");
     }
 }
 
@@ -154,11 +159,11 @@ std::unique_ptr<ImageReader> open_reader(rust::Str path) {
     const std::string p(path);
     auto in = OIIO::ImageInput::open(p);
     if (!in) {
-        throw_global_error("cannot read " + p);
+        throw_global_error("cannot open");
     }
     const OIIO::ImageSpec& spec = in->spec();
     if (spec.deep || spec.depth > 1 || spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0) {
-        throw std::runtime_error("cannot read " + p + ": not a flat 2D image");
+        throw std::runtime_error("not a flat 2D image");
     }
     return std::make_unique<ImageReader>(std::move(in));
 }

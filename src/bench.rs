@@ -69,11 +69,20 @@ impl BenchReport {
     }
 }
 
-pub fn run(scene: &Scene, spp: u32, res: Option<(u32, u32)>, frame: Option<u32>, threads: usize) -> Result<BenchReport> {
+pub fn run(
+    scene: &Scene,
+    spp: u32,
+    res: Option<(u32, u32)>,
+    frame: Option<u32>,
+    threads: usize,
+) -> Result<BenchReport> {
     let (w, h) = res.unwrap_or((scene.width, scene.height));
     let frame = frame.unwrap_or(scene.frames / 2);
     if frame >= scene.frames {
-        bail!("--frame {frame}: the scene has frames 0-{}", scene.frames - 1);
+        bail!(
+            "--frame {frame}: the scene has frames 0-{}",
+            scene.frames - 1
+        );
     }
     if spp == 0 {
         bail!("--spp 0: at least one sample per pixel is needed");
@@ -86,9 +95,11 @@ pub fn run(scene: &Scene, spp: u32, res: Option<(u32, u32)>, frame: Option<u32>,
     // Warm caches and the allocator, then time.
     pool.install(|| render_frame_independent(&integrator, &cam, frame, 1, seed, false, &none));
     let t0 = Instant::now();
-    let timed = pool.install(|| render_frame_independent(&integrator, &cam, frame, spp, seed, false, &none));
+    let timed = pool
+        .install(|| render_frame_independent(&integrator, &cam, frame, spp, seed, false, &none));
     let render_seconds = t0.elapsed().as_secs_f64();
-    let logged = pool.install(|| render_frame_independent(&integrator, &cam, frame, spp, seed, true, &none));
+    let logged =
+        pool.install(|| render_frame_independent(&integrator, &cam, frame, spp, seed, true, &none));
     debug_assert_eq!(logged.counts, timed.counts);
     let geometry = &scene.geometry;
     let t1 = Instant::now();
@@ -99,7 +110,11 @@ pub fn run(scene: &Scene, spp: u32, res: Option<(u32, u32)>, frame: Option<u32>,
             .map(|log| {
                 let mut hits = 0u64;
                 for (ray, occlusion) in log {
-                    let hit = if *occlusion { geometry.occluded1(ray) } else { geometry.intersect1(ray).is_some() };
+                    let hit = if *occlusion {
+                        geometry.occluded1(ray)
+                    } else {
+                        geometry.intersect1(ray).is_some()
+                    };
                     hits += hit as u64;
                 }
                 hits
@@ -119,7 +134,11 @@ pub fn run(scene: &Scene, spp: u32, res: Option<(u32, u32)>, frame: Option<u32>,
         spp,
         threads: pool.current_num_threads(),
         render_seconds,
-        rays: RayStats { primary: c.primary, path: c.path, shadow: c.shadow },
+        rays: RayStats {
+            primary: c.primary,
+            path: c.path,
+            shadow: c.shadow,
+        },
         render_rays_per_second: render_rate,
         bare_seconds,
         bare_rays_per_second: bare_rate,

@@ -84,6 +84,27 @@ impl Material {
         f
     }
 
+    /// `eval` and `pdf` together, sharing the lobe's `cos^n` (one `powf` instead of two).
+    #[inline]
+    pub fn eval_pdf(&self, n: Vec3, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
+        let cos_i = n.dot(wi);
+        if cos_i <= 0.0 || n.dot(wo) <= 0.0 {
+            return (Vec3::ZERO, 0.0);
+        }
+        let q = self.diffuse_weight();
+        let mut f = self.kd * FRAC_1_PI;
+        let mut p = q * cos_i * FRAC_1_PI;
+        if self.ks.max_element() > 0.0 {
+            let cos_a = reflect(wo, n).dot(wi);
+            if cos_a > 0.0 {
+                let c = cos_a.powf(self.ns) / (2.0 * PI);
+                f += self.ks * ((self.ns + 2.0) * c);
+                p += (1.0 - q) * (self.ns + 1.0) * c;
+            }
+        }
+        (f, p)
+    }
+
     /// Density of `sample` (solid angle) of returning `wi`, for outgoing `wo`.
     #[inline]
     pub fn pdf(&self, n: Vec3, wo: Vec3, wi: Vec3) -> f32 {
@@ -107,8 +128,8 @@ impl Material {
         if n.dot(wi) <= 0.0 {
             return None;
         }
-        let pdf = self.pdf(n, wo, wi);
-        (pdf > 0.0).then(|| BsdfSample { wi, f: self.eval(n, wo, wi), pdf })
+        let (f, pdf) = self.eval_pdf(n, wo, wi);
+        (pdf > 0.0).then_some(BsdfSample { wi, f, pdf })
     }
 
     /// The raw direction drawn by `sample`, possibly below the surface (for the chi-square test).
@@ -150,7 +171,9 @@ mod tests {
         let mut observed = vec![0f64; NT * NP];
         let mut s = Sampler::new(seed, 0, 0, 0);
         for _ in 0..N {
-            let wi = m.sample_direction(n, wo, s.next_1d(), s.next_2d()).normalize();
+            let wi = m
+                .sample_direction(n, wo, s.next_1d(), s.next_2d())
+                .normalize();
             let ct = ((wi.z.clamp(-1.0, 1.0) + 1.0) * 0.5 * NT as f32) as usize;
             let phi = wi.y.atan2(wi.x).rem_euclid(2.0 * PI);
             let cp = (phi / (2.0 * PI) * NP as f32) as usize;
@@ -164,11 +187,15 @@ mod tests {
                 let mut acc = 0.0;
                 for a in 0..SUB {
                     for b in 0..SUB {
-                        let z = -1.0 + 2.0 * (it as f64 + (a as f64 + 0.5) / SUB as f64) / NT as f64;
-                        let phi = 2.0 * std::f64::consts::PI * (ip as f64 + (b as f64 + 0.5) / SUB as f64)
+                        let z =
+                            -1.0 + 2.0 * (it as f64 + (a as f64 + 0.5) / SUB as f64) / NT as f64;
+                        let phi = 2.0
+                            * std::f64::consts::PI
+                            * (ip as f64 + (b as f64 + 0.5) / SUB as f64)
                             / NP as f64;
                         let r = (1.0 - z * z).max(0.0).sqrt();
-                        let wi = Vec3::new((r * phi.cos()) as f32, (r * phi.sin()) as f32, z as f32);
+                        let wi =
+                            Vec3::new((r * phi.cos()) as f32, (r * phi.sin()) as f32, z as f32);
                         acc += full_pdf(m, n, wo, wi);
                     }
                 }
@@ -177,7 +204,11 @@ mod tests {
             }
         }
         let total_expected: f64 = expected.iter().sum();
-        assert!((total_expected / N as f64 - 1.0).abs() < 0.01, "pdf integrates to {}", total_expected / N as f64);
+        assert!(
+            (total_expected / N as f64 - 1.0).abs() < 0.01,
+            "pdf integrates to {}",
+            total_expected / N as f64
+        );
         // Pool sparse cells (sorted by expectation) until each pooled cell expects >= 5.
         let mut idx: Vec<usize> = (0..NT * NP).collect();
         idx.sort_by(|&a, &b| expected[a].partial_cmp(&expected[b]).unwrap());
@@ -205,7 +236,10 @@ mod tests {
         let dist = ChiSquared::new((dof - 1) as f64).unwrap();
         let p_value = 1.0 - dist.cdf(chi2);
         let alpha = 1.0 - (1.0f64 - 0.01).powf(1.0 / trials as f64); // Sidak
-        assert!(p_value > alpha, "chi2 {chi2:.1} dof {dof} p {p_value:.2e} < {alpha:.2e} for {m:?} wo {wo}");
+        assert!(
+            p_value > alpha,
+            "chi2 {chi2:.1} dof {dof} p {p_value:.2e} < {alpha:.2e} for {m:?} wo {wo}"
+        );
     }
 
     fn wo_at(theta_deg: f32) -> Vec3 {
@@ -215,7 +249,10 @@ mod tests {
 
     #[test]
     fn lambert_sampling_matches_pdf() {
-        let m = Material { kd: Vec3::splat(0.8), ..Default::default() };
+        let m = Material {
+            kd: Vec3::splat(0.8),
+            ..Default::default()
+        };
         chi2_test(&m, wo_at(30.0), 1, 1);
     }
 
@@ -223,10 +260,19 @@ mod tests {
     fn phong_sampling_matches_pdf() {
         let cases = [(10.0, 0.0), (30.0, 45.0), (200.0, 70.0)];
         for (i, &(ns, theta)) in cases.iter().enumerate() {
-            let m = Material { ks: Vec3::splat(0.9), ns, ..Default::default() };
+            let m = Material {
+                ks: Vec3::splat(0.9),
+                ns,
+                ..Default::default()
+            };
             chi2_test(&m, wo_at(theta), cases.len() as u32 + 1, 10 + i as u64);
         }
-        let mix = Material { kd: Vec3::new(0.3, 0.2, 0.1), ks: Vec3::splat(0.5), ns: 20.0, ..Default::default() };
+        let mix = Material {
+            kd: Vec3::new(0.3, 0.2, 0.1),
+            ks: Vec3::splat(0.5),
+            ns: 20.0,
+            ..Default::default()
+        };
         chi2_test(&mix, wo_at(50.0), cases.len() as u32 + 1, 20);
     }
 
@@ -246,11 +292,18 @@ mod tests {
     #[test]
     fn energy_checks() {
         // Lambert: f cos / pdf is exactly kd for every sample.
-        let d = Material { kd: Vec3::new(0.2, 0.5, 0.7), ..Default::default() };
+        let d = Material {
+            kd: Vec3::new(0.2, 0.5, 0.7),
+            ..Default::default()
+        };
         assert!((albedo(&d, wo_at(40.0), 10_000) - d.kd).abs().max_element() < 1e-5);
         // Phong at normal incidence: albedo is exactly ks (the (n+2)/(2 pi) normalisation).
         for ns in [1.0, 10.0, 100.0, 1000.0] {
-            let p = Material { ks: Vec3::splat(0.8), ns, ..Default::default() };
+            let p = Material {
+                ks: Vec3::splat(0.8),
+                ns,
+                ..Default::default()
+            };
             let a = albedo(&p, Vec3::Z, 200_000);
             assert!((a.x - 0.8).abs() < 0.01, "ns {ns}: albedo {a}");
             // At oblique angles part of the lobe falls below the horizon: never more than ks.
@@ -260,19 +313,33 @@ mod tests {
             }
         }
         // A mixture with kd + ks = 1 conserves energy.
-        let m = Material { kd: Vec3::splat(0.4), ks: Vec3::splat(0.6), ns: 30.0, ..Default::default() };
+        let m = Material {
+            kd: Vec3::splat(0.4),
+            ks: Vec3::splat(0.6),
+            ns: 30.0,
+            ..Default::default()
+        };
         let a = albedo(&m, wo_at(20.0), 200_000);
         assert!(a.max_element() <= 1.0 + 0.01, "{a}");
     }
 
     #[test]
     fn pdf_and_eval_agree_with_sample() {
-        let m = Material { kd: Vec3::splat(0.3), ks: Vec3::splat(0.6), ns: 50.0, ..Default::default() };
+        let m = Material {
+            kd: Vec3::splat(0.3),
+            ks: Vec3::splat(0.6),
+            ns: 50.0,
+            ..Default::default()
+        };
         let mut s = Sampler::new(4, 0, 0, 0);
         let wo = wo_at(35.0);
         for _ in 0..10_000 {
             if let Some(bs) = m.sample(Vec3::Z, wo, s.next_1d(), s.next_2d()) {
                 assert!((bs.pdf - m.pdf(Vec3::Z, wo, bs.wi)).abs() <= 1e-5 * bs.pdf.max(1.0));
+                assert!(
+                    (bs.f - m.eval(Vec3::Z, wo, bs.wi)).abs().max_element()
+                        <= 1e-5 * bs.f.max_element().max(1.0)
+                );
                 assert!(bs.f.is_finite() && bs.pdf.is_finite() && bs.pdf > 0.0);
             }
         }

@@ -74,8 +74,12 @@ impl Camera {
         }
         let sx = c.dot(self.right) / (z * self.tan_half_fov * self.aspect);
         let sy = c.dot(self.up) / (z * self.tan_half_fov);
-        let r = Vec2::new((sx + 1.0) * 0.5 * self.width as f32, (1.0 - sy) * 0.5 * self.height as f32);
-        (r.x >= 0.0 && r.y >= 0.0 && r.x < self.width as f32 && r.y < self.height as f32).then_some(r)
+        let r = Vec2::new(
+            (sx + 1.0) * 0.5 * self.width as f32,
+            (1.0 - sy) * 0.5 * self.height as f32,
+        );
+        (r.x >= 0.0 && r.y >= 0.0 && r.x < self.width as f32 && r.y < self.height as f32)
+            .then_some(r)
     }
 
     /// Film area at focal distance 1 (`A_m`).
@@ -109,7 +113,12 @@ impl Camera {
             Vec4::new(self.right.x, self.up.x, self.forward.x, 0.0),
             Vec4::new(self.right.y, self.up.y, self.forward.y, 0.0),
             Vec4::new(self.right.z, self.up.z, self.forward.z, 0.0),
-            Vec4::new(-self.right.dot(e), -self.up.dot(e), -self.forward.dot(e), 1.0),
+            Vec4::new(
+                -self.right.dot(e),
+                -self.up.dot(e),
+                -self.forward.dot(e),
+                1.0,
+            ),
         )
     }
 
@@ -139,7 +148,9 @@ impl CameraPath {
         let ks = &self.keyframes;
         let i = ks.partition_point(|k| k.frame <= frame).saturating_sub(1);
         let a = &ks[i];
-        let Some(b) = ks.get(i + 1) else { return Keyframe { frame, ..a.clone() } };
+        let Some(b) = ks.get(i + 1) else {
+            return Keyframe { frame, ..a.clone() };
+        };
         let t = (frame - a.frame) as f32 / (b.frame - a.frame) as f32;
         Keyframe {
             frame,
@@ -186,7 +197,10 @@ mod tests {
         assert!(cs.z > 0.0 && cs.x < 0.0 && cs.y < 0.0, "{cs}");
         let ndc = c.world_to_ndc() * p.extend(1.0);
         let ndc = Vec2::new(ndc.x / ndc.w, ndc.y / ndc.w);
-        assert!((ndc - Vec2::new(20.0 / 80.0, 45.0 / 60.0)).length() < 1e-4, "{ndc}");
+        assert!(
+            (ndc - Vec2::new(20.0 / 80.0, 45.0 / 60.0)).length() < 1e-4,
+            "{ndc}"
+        );
     }
 
     /// The Jacobian is the ratio of film area to surface area: a small patch facing the eye at
@@ -210,14 +224,33 @@ mod tests {
         let e2 = p2 - p0;
         let area_film = (e1.x * e2.y - e1.y * e2.x).abs();
         let j = c.jacobian(x, n);
-        assert!((area_film / (h * h) / j - 1.0).abs() < 0.01, "{} vs {}", area_film / (h * h), j);
+        assert!(
+            (area_film / (h * h) / j - 1.0).abs() < 0.01,
+            "{} vs {}",
+            area_film / (h * h),
+            j
+        );
     }
 
     #[test]
     fn path_interpolates() {
-        let k0 = Keyframe { frame: 0, position: Vec3::ZERO, look_at: Vec3::Z, up: Vec3::Y, fov: 40.0 };
-        let k1 = Keyframe { frame: 10, position: Vec3::X, look_at: Vec3::Z, up: Vec3::Y, fov: 20.0 };
-        let p = CameraPath { keyframes: vec![k0, k1] };
+        let k0 = Keyframe {
+            frame: 0,
+            position: Vec3::ZERO,
+            look_at: Vec3::Z,
+            up: Vec3::Y,
+            fov: 40.0,
+        };
+        let k1 = Keyframe {
+            frame: 10,
+            position: Vec3::X,
+            look_at: Vec3::Z,
+            up: Vec3::Y,
+            fov: 20.0,
+        };
+        let p = CameraPath {
+            keyframes: vec![k0, k1],
+        };
         let m = p.at(5);
         assert!((m.position.x - 0.5).abs() < 1e-6 && (m.fov - 30.0).abs() < 1e-5);
         assert_eq!(p.at(10).position, Vec3::X);

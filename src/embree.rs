@@ -45,7 +45,9 @@ unsafe extern "C" fn error_callback(user: *mut c_void, code: sys::RTCError, msg:
         String::new()
     } else {
         // SAFETY: Embree passes a NUL-terminated string valid for the duration of the call.
-        unsafe { CStr::from_ptr(msg) }.to_string_lossy().into_owned()
+        unsafe { CStr::from_ptr(msg) }
+            .to_string_lossy()
+            .into_owned()
     };
     if let Ok(mut v) = sink.0.lock() {
         v.push(format!("Embree error {code:?}: {text}"));
@@ -82,7 +84,11 @@ impl Device {
 
     /// Turn whatever the callback collected since the last check into an error.
     fn check(&self, what: &str) -> Result<()> {
-        let mut v = self.errors.0.lock().map_err(|_| anyhow!("Embree error sink poisoned"))?;
+        let mut v = self
+            .errors
+            .0
+            .lock()
+            .map_err(|_| anyhow!("Embree error sink poisoned"))?;
         if v.is_empty() {
             return Ok(());
         }
@@ -120,7 +126,12 @@ fn offset_origin(p: Vec3, ng: Vec3, toward: Vec3) -> Vec3 {
 
 impl Ray {
     pub fn new(org: Vec3, dir: Vec3) -> Ray {
-        Ray { org, dir, tnear: 0.0, tfar: f32::INFINITY }
+        Ray {
+            org,
+            dir,
+            tnear: 0.0,
+            tfar: f32::INFINITY,
+        }
     }
 
     /// A ray leaving surface point `p` (geometric normal `ng`) in direction `dir`, with the
@@ -138,7 +149,12 @@ impl Ray {
         let o1 = offset_origin(p1, n1, -d);
         let dd = o1 - o0;
         let len = dd.length();
-        Ray { org: o0, dir: dd / len, tnear: 0.0, tfar: len * (1.0 - SPAWN_EPS) }
+        Ray {
+            org: o0,
+            dir: dd / len,
+            tnear: 0.0,
+            tfar: len * (1.0 - SPAWN_EPS),
+        }
     }
 }
 
@@ -204,7 +220,11 @@ impl Packet16 {
     pub fn new() -> Packet16 {
         // SAFETY: RTCRayHit16 is plain old data; all-zero is a valid bit pattern.
         let raw: Box<RayHit16> = Box::new(unsafe { std::mem::zeroed() });
-        Packet16 { raw, active: Valid16([0; 16]), occluded: [false; 16] }
+        Packet16 {
+            raw,
+            active: Valid16([0; 16]),
+            occluded: [false; 16],
+        }
     }
 
     /// Deactivate all lanes.
@@ -318,7 +338,10 @@ impl TriangleScene {
             sys::rtcReleaseGeometry(geom);
             sys::rtcCommitScene(scene);
             sys::rtcRetainDevice(device.raw);
-            let s = TriangleScene { raw: scene, device: device.raw };
+            let s = TriangleScene {
+                raw: scene,
+                device: device.raw,
+            };
             device.check("building the scene")?;
             Ok(s)
         }
@@ -485,7 +508,11 @@ mod tests {
     fn brute(verts: &[Vec3], tris: &[[u32; 3]], ray: &Ray) -> Option<(u32, f32)> {
         let mut best: Option<(u32, f32)> = None;
         for (i, t) in tris.iter().enumerate() {
-            let (a, b, c) = (verts[t[0] as usize], verts[t[1] as usize], verts[t[2] as usize]);
+            let (a, b, c) = (
+                verts[t[0] as usize],
+                verts[t[1] as usize],
+                verts[t[2] as usize],
+            );
             let e1 = b - a;
             let e2 = c - a;
             let p = ray.dir.cross(e2);
@@ -610,12 +637,17 @@ mod tests {
     #[test]
     fn spawned_rays_do_not_hit_their_own_triangle() {
         let d = Device::new().unwrap();
-        let verts = [Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 0.0, -1.0), Vec3::new(0.0, 0.0, 1.0)];
+        let verts = [
+            Vec3::new(-1.0, 0.0, -1.0),
+            Vec3::new(1.0, 0.0, -1.0),
+            Vec3::new(0.0, 0.0, 1.0),
+        ];
         let scene = TriangleScene::new(&d, &verts, &[[0, 1, 2]]).unwrap();
         let mut s = Sampler::new(3, 0, 0, 0);
         for _ in 0..1000 {
             let p = Vec3::new(s.next_1d() * 0.5 - 0.25, 0.0, s.next_1d() * 0.5 - 0.25);
-            let dir = Vec3::new(s.next_1d() - 0.5, 0.05 + s.next_1d(), s.next_1d() - 0.5).normalize();
+            let dir =
+                Vec3::new(s.next_1d() - 0.5, 0.05 + s.next_1d(), s.next_1d() - 0.5).normalize();
             assert!(scene.intersect1(&Ray::spawn(p, Vec3::Y, dir)).is_none());
             assert!(scene.intersect1(&Ray::spawn(p, Vec3::Y, -dir)).is_none());
         }

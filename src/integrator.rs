@@ -50,7 +50,10 @@ pub struct Tally {
 
 impl Tally {
     pub fn logging() -> Tally {
-        Tally { counts: RayCounts::default(), log: Some(Vec::new()) }
+        Tally {
+            counts: RayCounts::default(),
+            log: Some(Vec::new()),
+        }
     }
 
     #[inline]
@@ -108,8 +111,9 @@ pub struct FirstHit {
     pub sp: SurfacePoint,
     /// BSDF-sampled direction at `x`, drawn for the native eye; `None` if sampling failed.
     pub w: Option<Vec3>,
-    /// `p(w | x, x->o_native)`.
+    /// `p(w | x, x->o_native)` and the BSDF value for the native eye, `f(x->o_native, w)`.
     pub pdf_w: f32,
+    pub f_w: Vec3,
     /// Emission of the surface hit directly along `w` (unweighted), and `p_l(w | x)`.
     pub le_w: Vec3,
     pub pdf_light_w: f32,
@@ -141,8 +145,8 @@ impl FirstHit {
         let (ng, ns) = facing(sp, wo);
         if let Some(ls) = &self.light {
             if ls.le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 {
-                let pb = m.pdf(ns, wo, ls.wi);
-                l += m.eval(ns, wo, ls.wi) * ns.dot(ls.wi).max(0.0) * ls.le / (ls.pdf + pb);
+                let (f, pb) = m.eval_pdf(ns, wo, ls.wi);
+                l += f * ns.dot(ls.wi).max(0.0) * ls.le / (ls.pdf + pb);
             }
         }
         if let Some(w) = self.w {
@@ -167,15 +171,24 @@ impl<'a> Integrator<'a> {
 
     /// Sample a light from `sp` (normal pair facing `wo`) and return the MIS-weighted direct
     /// contribution `f cos Le / (p_l + p_b)` at a path vertex, tracing one shadow ray.
-    fn direct(&self, sp: &SurfacePoint, m: &Material, wo: Vec3, s: &mut Sampler, t: &mut Tally) -> Vec3 {
+    fn direct(
+        &self,
+        sp: &SurfacePoint,
+        m: &Material,
+        wo: Vec3,
+        s: &mut Sampler,
+        t: &mut Tally,
+    ) -> Vec3 {
         let (ng, ns) = facing(sp, wo);
         let u_sel = s.next_1d();
         let u = s.next_2d();
-        let Some(ls) = self.scene.sample_light(sp.p, u_sel, u) else { return Vec3::ZERO };
+        let Some(ls) = self.scene.sample_light(sp.p, u_sel, u) else {
+            return Vec3::ZERO;
+        };
         if ls.le == Vec3::ZERO || ng.dot(ls.wi) <= 0.0 {
             return Vec3::ZERO;
         }
-        let f = m.eval(ns, wo, ls.wi);
+        let (f, pb) = m.eval_pdf(ns, wo, ls.wi);
         if f == Vec3::ZERO {
             return Vec3::ZERO;
         }
@@ -184,13 +197,18 @@ impl<'a> Integrator<'a> {
         if self.scene.geometry.occluded1(&ray) {
             return Vec3::ZERO;
         }
-        let pb = m.pdf(ns, wo, ls.wi);
         f * ns.dot(ls.wi) * ls.le / (ls.pdf + pb)
     }
 
     /// The camera sample through raster position `r` of eye `eye` along unit `dir`, up to and
     /// including the first-hit record. `None` if the ray leaves the scene.
-    pub fn trace_first_hit(&self, eye: Vec3, dir: Vec3, s: &mut Sampler, t: &mut Tally) -> Option<FirstHit> {
+    pub fn trace_first_hit(
+        &self,
+        eye: Vec3,
+        dir: Vec3,
+        s: &mut Sampler,
+        t: &mut Tally,
+    ) -> Option<FirstHit> {
         let ray = Ray::new(eye, dir);
         t.primary(&ray);
         let hit = self.scene.geometry.intersect1(&ray)?;
@@ -204,7 +222,16 @@ impl<'a> Integrator<'a> {
         let m = *scene.material(&sp);
         let wo = (eye - sp.p).normalize();
         let (ng, ns) = facing(&sp, wo);
-        let mut rec = FirstHit { sp, w: None, pdf_w: 0.0, le_w: Vec3::ZERO, pdf_light_w: 0.0, li_w: Vec3::ZERO, light: None };
+        let mut rec = FirstHit {
+            sp,
+            w: None,
+            pdf_w: 0.0,
+            f_w: Vec3::ZERO,
+            le_w: Vec3::ZERO,
+            pdf_light_w: 0.0,
+            li_w: Vec3::ZERO,
+            light: None,
+        };
         if !m.reflects() {
             return rec;
         }
@@ -224,21 +251,30 @@ impl<'a> Integrator<'a> {
             } else {
                 le = Vec3::ZERO;
             }
-            rec.light = Some(FirstLight { wi: ls.wi, le, pdf: ls.pdf });
+            rec.light = Some(FirstLight {
+                wi: ls.wi,
+                le,
+                pdf: ls.pdf,
+            });
         }
         // BSDF sample at x and the rest of the walk.
         s.set_dimension(DIM_BSDF);
         let u_lobe = s.next_1d();
         let u = s.next_2d();
-        let Some(bs) = m.sample(ns, wo, u_lobe, u) else { return rec };
+        let Some(bs) = m.sample(ns, wo, u_lobe, u) else {
+            return rec;
+        };
         if ng.dot(bs.wi) <= 0.0 {
             return rec;
         }
         rec.w = Some(bs.wi);
         rec.pdf_w = bs.pdf;
+        rec.f_w = bs.f;
         let ray = Ray::spawn(sp.p, sp.ng, bs.wi);
         t.path(&ray);
-        let Some(h2) = scene.geometry.intersect1(&ray) else { return rec };
+        let Some(h2) = scene.geometry.intersect1(&ray) else {
+            return rec;
+        };
         let y = scene.surface(&h2);
         rec.le_w = scene.emitted(&y, sp.p);
         if rec.le_w != Vec3::ZERO {
@@ -250,7 +286,13 @@ impl<'a> Integrator<'a> {
 
     /// Radiance reflected at `first` along `wo_first` (unit, pointing away from the surface),
     /// excluding `first`'s own emission: the random walk from the second vertex on.
-    fn reflected(&self, first: SurfacePoint, wo_first: Vec3, s: &mut Sampler, t: &mut Tally) -> Vec3 {
+    fn reflected(
+        &self,
+        first: SurfacePoint,
+        wo_first: Vec3,
+        s: &mut Sampler,
+        t: &mut Tally,
+    ) -> Vec3 {
         let scene = self.scene;
         let mut l = Vec3::ZERO;
         let mut beta = Vec3::ONE;
@@ -271,14 +313,18 @@ impl<'a> Integrator<'a> {
             let (ng, ns) = facing(&sp, wo);
             let u_lobe = s.next_1d();
             let u = s.next_2d();
-            let Some(bs) = m.sample(ns, wo, u_lobe, u) else { break };
+            let Some(bs) = m.sample(ns, wo, u_lobe, u) else {
+                break;
+            };
             if ng.dot(bs.wi) <= 0.0 {
                 break;
             }
             beta *= bs.f * ns.dot(bs.wi) / bs.pdf;
             let ray = Ray::spawn(sp.p, sp.ng, bs.wi);
             t.path(&ray);
-            let Some(h) = scene.geometry.intersect1(&ray) else { break };
+            let Some(h) = scene.geometry.intersect1(&ray) else {
+                break;
+            };
             let next = scene.surface(&h);
             let le = scene.emitted(&next, sp.p);
             if le != Vec3::ZERO {

@@ -13,7 +13,11 @@ use reframe::scene::Scene;
 use std::path::PathBuf;
 
 #[derive(Parser)]
-#[command(name = "reframe", version, about = "Render camera animations, reusing frames (Méndez-Feliu et al. 2006)")]
+#[command(
+    name = "reframe",
+    version,
+    about = "Render camera animations, reusing frames (Méndez-Feliu et al. 2006)"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -84,7 +88,10 @@ struct BenchArgs {
 fn parse_frames(s: &str) -> Result<(u32, u32), String> {
     let err = || format!("'{s}': expected A-B or A (0-based frame numbers)");
     let (a, b) = match s.split_once('-') {
-        Some((a, b)) => (a.trim().parse().map_err(|_| err())?, b.trim().parse().map_err(|_| err())?),
+        Some((a, b)) => (
+            a.trim().parse().map_err(|_| err())?,
+            b.trim().parse().map_err(|_| err())?,
+        ),
         None => {
             let a = s.trim().parse().map_err(|_| err())?;
             (a, a)
@@ -99,7 +106,10 @@ fn parse_frames(s: &str) -> Result<(u32, u32), String> {
 fn parse_res(s: &str) -> Result<(u32, u32), String> {
     let err = || format!("'{s}': expected WxH, e.g. 320x240");
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(err)?;
-    let (w, h): (u32, u32) = (w.trim().parse().map_err(|_| err())?, h.trim().parse().map_err(|_| err())?);
+    let (w, h): (u32, u32) = (
+        w.trim().parse().map_err(|_| err())?,
+        h.trim().parse().map_err(|_| err())?,
+    );
     if w == 0 || h == 0 {
         return Err(format!("'{s}': width and height must be positive"));
     }
@@ -113,7 +123,10 @@ fn main() {
         Err(e) => {
             // Keep usage errors to one line too; `--help` has the rest.
             let text = e.render().to_string();
-            eprintln!("{} (see --help)", text.lines().next().unwrap_or("invalid arguments"));
+            eprintln!(
+                "{} (see --help)",
+                text.lines().next().unwrap_or("invalid arguments")
+            );
             std::process::exit(2);
         }
     };
@@ -131,7 +144,9 @@ fn run(cli: Cli) -> Result<()> {
             let scene_name = a.scene.unwrap_or_else(|| "vase".into());
             let device = Device::new()?;
             let scene = Scene::load(&scene_name, &device)?;
-            let out = a.out.unwrap_or_else(|| format!("out/{}_####.exr", scene.name));
+            let out = a
+                .out
+                .unwrap_or_else(|| format!("out/{}_####.exr", scene.name));
             let opts = RenderOptions {
                 method: a.method,
                 spp: a.spp,
@@ -163,7 +178,10 @@ fn run(cli: Cli) -> Result<()> {
                 stats.peak_rss_bytes / 1_000_000
             );
             if stats.nonfinite_pixels > 0 {
-                eprintln!("warning: {} pixels are NaN or infinite", stats.nonfinite_pixels);
+                eprintln!(
+                    "warning: {} pixels are NaN or infinite",
+                    stats.nonfinite_pixels
+                );
             }
             let last = stats.outputs.last().unwrap();
             if first == last {

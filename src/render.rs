@@ -180,7 +180,9 @@ pub fn frame_plan(scene: &Scene, opts: &RenderOptions) -> Result<(RangeInclusive
 pub fn check_output(pattern: &str, frames: &RangeInclusive<u32>) -> Result<OutputPattern> {
     let out = OutputPattern::parse(pattern)?;
     if frames.start() != frames.end() && !out.has_frame_field() {
-        bail!("--out {pattern}: several frames need a frame number field such as '####' in the name");
+        bail!(
+            "--out {pattern}: several frames need a frame number field such as '####' in the name"
+        );
     }
     out.validate()?;
     Ok(out)
@@ -223,7 +225,11 @@ pub fn render_frame_independent(
     let results: Vec<(Vec<Vec3>, Tally)> = tiles
         .par_iter()
         .map(|&(x0, y0, x1, y1)| {
-            let mut t = if log_rays { Tally::logging() } else { Tally::default() };
+            let mut t = if log_rays {
+                Tally::logging()
+            } else {
+                Tally::default()
+            };
             let mut px = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
             for y in y0..y1 {
                 for x in x0..x1 {
@@ -253,7 +259,11 @@ pub fn render_frame_independent(
         counts.add(&t.counts);
         ray_logs.extend(t.log);
     }
-    FrameResult { pixels, counts, ray_logs }
+    FrameResult {
+        pixels,
+        counts,
+        ray_logs,
+    }
 }
 
 pub fn to_image(w: u32, h: u32, px: &[Vec3]) -> Image {
@@ -288,15 +298,30 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         let cam = scene.camera(frame, w, h);
         let frame_start = Instant::now();
         let on_tile = |c: &RayCounts| {
-            let total = total_rays.fetch_add(c.total(), std::sync::atomic::Ordering::Relaxed) + c.total();
+            let total =
+                total_rays.fetch_add(c.total(), std::sync::atomic::Ordering::Relaxed) + c.total();
             let secs = start.elapsed().as_secs_f64().max(1e-9);
-            pb.set_message(format!("| frame {}/{n_frames} | {:.2} Mrays/s", done + 1, total as f64 / secs / 1e6));
+            pb.set_message(format!(
+                "| frame {}/{n_frames} | {:.2} Mrays/s",
+                done + 1,
+                total as f64 / secs / 1e6
+            ));
             pb.inc(1);
         };
-        let FrameResult { pixels: px, counts: c, .. } = pool.install(|| match opts.method {
-            Method::Independent => {
-                render_frame_independent(&integrator, &cam, frame, opts.spp, opts.seed, false, &on_tile)
-            }
+        let FrameResult {
+            pixels: px,
+            counts: c,
+            ..
+        } = pool.install(|| match opts.method {
+            Method::Independent => render_frame_independent(
+                &integrator,
+                &cam,
+                frame,
+                opts.spp,
+                opts.seed,
+                false,
+                &on_tile,
+            ),
         });
         counts.add(&c);
         nonfinite += px.iter().filter(|p| !p.is_finite()).count() as u64;
@@ -309,10 +334,20 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
             render_seconds: frame_start.elapsed().as_secs_f64(),
             world_to_camera: cam.world_to_camera().to_cols_array(),
             world_to_ndc: cam.world_to_ndc().to_cols_array(),
-            extra: vec![("scene".into(), scene.name.clone()), ("frame".into(), frame.to_string())],
+            extra: vec![
+                ("scene".into(), scene.name.clone()),
+                ("frame".into(), frame.to_string()),
+            ],
         };
-        write_image(&path, &to_image(w, h, &px), &meta, &WriteOptions { exr_float: opts.exr_float })
-            .with_context(|| format!("writing frame {frame}"))?;
+        write_image(
+            &path,
+            &to_image(w, h, &px),
+            &meta,
+            &WriteOptions {
+                exr_float: opts.exr_float,
+            },
+        )
+        .with_context(|| format!("writing frame {frame}"))?;
         outputs.push(path.display().to_string());
     }
     pb.finish_and_clear();
@@ -329,7 +364,11 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         seed: opts.seed,
         threads: pool.current_num_threads(),
         seconds,
-        rays: RayStats { primary: counts.primary, path: counts.path, shadow: counts.shadow },
+        rays: RayStats {
+            primary: counts.primary,
+            path: counts.path,
+            shadow: counts.shadow,
+        },
         rays_per_second: counts.total() as f64 / seconds.max(1e-9),
         peak_rss_bytes: peak_rss_bytes(),
         nonfinite_pixels: nonfinite,
@@ -344,12 +383,20 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
 
 /// The stats file's folder must exist and be writable before the render starts.
 pub fn check_stats_path(p: &std::path::Path) -> Result<()> {
-    let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+    let dir = p
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
     if !dir.is_dir() {
-        bail!("--stats {}: folder {} does not exist", p.display(), dir.display());
+        bail!(
+            "--stats {}: folder {} does not exist",
+            p.display(),
+            dir.display()
+        );
     }
     let probe = dir.join(format!(".reframe-probe-{}", std::process::id()));
-    std::fs::write(&probe, b"").with_context(|| format!("--stats {}: folder is not writable", p.display()))?;
+    std::fs::write(&probe, b"")
+        .with_context(|| format!("--stats {}: folder is not writable", p.display()))?;
     let _ = std::fs::remove_file(probe);
     Ok(())
 }
@@ -359,6 +406,7 @@ pub fn write_json<T: Serialize>(p: &std::path::Path, v: &T) -> Result<()> {
     let tmp = p.with_extension(format!("json.tmp-{}", std::process::id()));
     let text = serde_json::to_string_pretty(v)?;
     std::fs::write(&tmp, text + "\n").with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, p).with_context(|| format!("renaming {} to {}", tmp.display(), p.display()))?;
+    std::fs::rename(&tmp, p)
+        .with_context(|| format!("renaming {} to {}", tmp.display(), p.display()))?;
     Ok(())
 }

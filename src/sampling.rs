@@ -132,10 +132,22 @@ mod tests {
         for b in bins {
             assert!((b as f32 - 10_000.0).abs() < 500.0, "{bins:?}");
         }
-        assert_ne!(Sampler::new(1, 0, 0, 0).next_1d(), Sampler::new(1, 1, 0, 0).next_1d());
-        assert_ne!(Sampler::new(1, 0, 0, 0).next_1d(), Sampler::new(1, 0, 1, 0).next_1d());
-        assert_ne!(Sampler::new(1, 0, 0, 0).next_1d(), Sampler::new(1, 0, 0, 1).next_1d());
-        assert_ne!(Sampler::new(1, 0, 0, 0).next_1d(), Sampler::new(2, 0, 0, 0).next_1d());
+        assert_ne!(
+            Sampler::new(1, 0, 0, 0).next_1d(),
+            Sampler::new(1, 1, 0, 0).next_1d()
+        );
+        assert_ne!(
+            Sampler::new(1, 0, 0, 0).next_1d(),
+            Sampler::new(1, 0, 1, 0).next_1d()
+        );
+        assert_ne!(
+            Sampler::new(1, 0, 0, 0).next_1d(),
+            Sampler::new(1, 0, 0, 1).next_1d()
+        );
+        assert_ne!(
+            Sampler::new(1, 0, 0, 0).next_1d(),
+            Sampler::new(2, 0, 0, 0).next_1d()
+        );
     }
 
     #[test]
@@ -161,6 +173,8 @@ mod tests {
             mean.1 += b2 as f64;
         }
         // The centroid has barycentrics (1/3, 1/3).
-        assert!((mean.0 / 1e5 - 1.0 / 3.0).abs() < 0.005 && (mean.1 / 1e5 - 1.0 / 3.0).abs() < 0.005);
+        assert!(
+            (mean.0 / 1e5 - 1.0 / 3.0).abs() < 0.005 && (mean.1 / 1e5 - 1.0 / 3.0).abs() < 0.005
+        );
     }
 }

@@ -144,7 +144,9 @@ impl Scene {
     pub fn load(name_or_path: &str, device: &Device) -> Result<Scene> {
         let p = Path::new(name_or_path);
         let source = if p.is_file() {
-            Source::Files { toml: p.to_path_buf() }
+            Source::Files {
+                toml: p.to_path_buf(),
+            }
         } else if let Some(i) = BUILTIN.iter().position(|b| b.0 == name_or_path) {
             Source::Builtin(i)
         } else {
@@ -156,9 +158,13 @@ impl Scene {
         let (label, toml_text) = match &source {
             Source::Files { toml } => (
                 toml.display().to_string(),
-                std::fs::read_to_string(toml).with_context(|| format!("{}: cannot read", toml.display()))?,
+                std::fs::read_to_string(toml)
+                    .with_context(|| format!("{}: cannot read", toml.display()))?,
             ),
-            Source::Builtin(i) => (format!("{} (built in)", BUILTIN[*i].0), BUILTIN[*i].1.to_string()),
+            Source::Builtin(i) => (
+                format!("{} (built in)", BUILTIN[*i].0),
+                BUILTIN[*i].1.to_string(),
+            ),
         };
         let file: SceneFile = toml::from_str(&toml_text).map_err(|e| {
             // toml's message spans several lines (a snippet of the file); keep it to one line.
@@ -172,7 +178,10 @@ impl Scene {
             }
         })?;
         let name = match &source {
-            Source::Files { toml } => toml.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default(),
+            Source::Files { toml } => toml
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default(),
             Source::Builtin(i) => BUILTIN[*i].0.to_string(),
         };
         let (width, height, path) = check_camera(&label, &file)?;
@@ -182,9 +191,17 @@ impl Scene {
                 let obj = dir.join(&file.obj);
                 let text = std::fs::read(&obj)
                     .with_context(|| format!("{label}: obj '{}': cannot read", obj.display()))?;
-                (obj.display().to_string(), text, Some(obj.parent().unwrap_or(&dir).to_path_buf()))
+                (
+                    obj.display().to_string(),
+                    text,
+                    Some(obj.parent().unwrap_or(&dir).to_path_buf()),
+                )
             }
-            Source::Builtin(i) => (format!("{} (built in)", file.obj), BUILTIN[*i].2.as_bytes().to_vec(), None),
+            Source::Builtin(i) => (
+                format!("{} (built in)", file.obj),
+                BUILTIN[*i].2.as_bytes().to_vec(),
+                None,
+            ),
         };
         let builtin_mtl = match &source {
             Source::Builtin(i) => Some(BUILTIN[*i].3),
@@ -234,7 +251,9 @@ impl Scene {
         let ns = if self.normals.is_empty() {
             ng
         } else {
-            let n = self.normals[i0 as usize] * b0 + self.normals[i1 as usize] * b1 + self.normals[i2 as usize] * b2;
+            let n = self.normals[i0 as usize] * b0
+                + self.normals[i1 as usize] * b1
+                + self.normals[i2 as usize] * b2;
             let n = n.normalize_or_zero();
             if n == Vec3::ZERO {
                 ng
@@ -244,7 +263,13 @@ impl Scene {
                 n
             }
         };
-        SurfacePoint { p, ng, ns, prim, material: self.tri_material[prim as usize] }
+        SurfacePoint {
+            p,
+            ng,
+            ns,
+            prim,
+            material: self.tri_material[prim as usize],
+        }
     }
 
     pub fn material(&self, sp: &SurfacePoint) -> &Material {
@@ -284,9 +309,20 @@ impl Scene {
         if cos_l.abs() <= 1e-7 {
             return None;
         }
-        let le = if cos_l > 0.0 { self.materials[self.tri_material[tri] as usize].ke } else { Vec3::ZERO };
+        let le = if cos_l > 0.0 {
+            self.materials[self.tri_material[tri] as usize].ke
+        } else {
+            Vec3::ZERO
+        };
         let pdf = l.pdf_area[tri] * dist2 / cos_l.abs();
-        Some(LightSample { p, n, wi, dist, le, pdf })
+        Some(LightSample {
+            p,
+            n,
+            wi,
+            dist,
+            le,
+            pdf,
+        })
     }
 
     /// Solid-angle density with which `sample_light` from `x` picks the point `y` on triangle
@@ -333,7 +369,11 @@ impl Lights {
             pdf_area[t] = ((p as f64 / total) / mesh.tri_area[t] as f64) as f32;
         }
         *cdf.last_mut().unwrap() = 1.0;
-        Ok(Some(Lights { tris, cdf, pdf_area }))
+        Ok(Some(Lights {
+            tris,
+            cdf,
+            pdf_area,
+        }))
     }
 }
 
@@ -349,7 +389,10 @@ fn check_camera(label: &str, f: &SceneFile) -> Result<(u32, u32, CameraPath)> {
         bail!("{label}: no [[keyframe]]: the camera path needs at least one");
     }
     if f.keyframe[0].frame != 0 {
-        bail!("{label}: keyframe 1: the first keyframe must be at frame 0, not {}", f.keyframe[0].frame);
+        bail!(
+            "{label}: keyframe 1: the first keyframe must be at frame 0, not {}",
+            f.keyframe[0].frame
+        );
     }
     let mut keys = Vec::new();
     for (i, k) in f.keyframe.iter().enumerate() {
@@ -360,7 +403,11 @@ fn check_camera(label: &str, f: &SceneFile) -> Result<(u32, u32, CameraPath)> {
         if k.frame >= f.frames {
             bail!("{at}: frame is past the last frame ({})", f.frames - 1);
         }
-        for (key, v) in [("position", k.position), ("look_at", k.look_at), ("up", k.up)] {
+        for (key, v) in [
+            ("position", k.position),
+            ("look_at", k.look_at),
+            ("up", k.up),
+        ] {
             if !v.iter().all(|c| c.is_finite()) {
                 bail!("{at}: {key} {v:?} is not finite");
             }
@@ -385,7 +432,10 @@ fn check_camera(label: &str, f: &SceneFile) -> Result<(u32, u32, CameraPath)> {
             bail!("{label}: frame {frame}: look_at coincides with position");
         }
         if view.normalize().cross(k.up).length() <= 1e-4 {
-            bail!("{label}: frame {frame}: up {} is parallel to the view direction", k.up);
+            bail!(
+                "{label}: frame {frame}: up {} is parallel to the view direction",
+                k.up
+            );
         }
     }
     Ok((w, h, path))
@@ -403,7 +453,11 @@ fn check_mtl(text: &str) -> Result<()> {
         };
         let nums: Vec<&str> = words.collect();
         if nums.len() < want || nums[..want].iter().any(|w| w.parse::<f32>().is_err()) {
-            let shape = if want == 3 { format!("'{key} r g b'") } else { format!("'{key} value'") };
+            let shape = if want == 3 {
+                format!("'{key} r g b'")
+            } else {
+                format!("'{key} value'")
+            };
             bail!("line {}: '{}': expected {shape}", i + 1, line.trim());
         }
     }
@@ -422,8 +476,18 @@ struct Mesh {
     material_names: Vec<String>,
 }
 
-fn load_obj(label: &str, text: &[u8], mtl_dir: Option<&Path>, builtin_mtl: Option<&str>) -> Result<Mesh> {
-    let opts = tobj::LoadOptions { triangulate: true, single_index: true, ignore_points: true, ignore_lines: true };
+fn load_obj(
+    label: &str,
+    text: &[u8],
+    mtl_dir: Option<&Path>,
+    builtin_mtl: Option<&str>,
+) -> Result<Mesh> {
+    let opts = tobj::LoadOptions {
+        triangulate: true,
+        single_index: true,
+        ignore_points: true,
+        ignore_lines: true,
+    };
     let mtl_error: std::cell::RefCell<Option<String>> = Default::default();
     let mut reader = std::io::BufReader::new(text);
     let (models, materials) = tobj::load_obj_buf(&mut reader, &opts, |p| {
@@ -475,7 +539,10 @@ fn load_obj(label: &str, text: &[u8], mtl_dir: Option<&Path>, builtin_mtl: Optio
             bail!("{at}: Ns {ns} must be finite and non-negative");
         }
         if (kd + ks).max_element() > 1.0 + 1e-6 {
-            bail!("{at}: Kd + Ks = {} exceeds 1 (the Phong model must conserve energy)", kd + ks);
+            bail!(
+                "{at}: Kd + Ks = {} exceeds 1 (the Phong model must conserve energy)",
+                kd + ks
+            );
         }
         mats.push(Material { kd, ks, ns, ke });
         names.push(m.name.clone());
@@ -502,7 +569,11 @@ fn load_obj(label: &str, text: &[u8], mtl_dir: Option<&Path>, builtin_mtl: Optio
         for (i, c) in m.positions.chunks_exact(3).enumerate() {
             let v = Vec3::new(c[0], c[1], c[2]);
             if !v.is_finite() {
-                bail!("{label}: object '{}': vertex {} is not finite ({v})", model.name, i + 1);
+                bail!(
+                    "{label}: object '{}': vertex {} is not finite ({v})",
+                    model.name,
+                    i + 1
+                );
             }
             mesh.positions.push(v);
         }
@@ -510,14 +581,21 @@ fn load_obj(label: &str, text: &[u8], mtl_dir: Option<&Path>, builtin_mtl: Optio
             for (i, c) in m.normals.chunks_exact(3).enumerate() {
                 let n = Vec3::new(c[0], c[1], c[2]);
                 if !n.is_finite() || n.length() < 1e-12 {
-                    bail!("{label}: object '{}': normal {} is zero or not finite ({n})", model.name, i + 1);
+                    bail!(
+                        "{label}: object '{}': normal {} is zero or not finite ({n})",
+                        model.name,
+                        i + 1
+                    );
                 }
                 mesh.normals.push(n.normalize());
             }
         }
         let mat = match m.material_id {
             Some(id) if id < mats.len() => id as u32,
-            Some(id) => bail!("{label}: object '{}': material index {id} out of range", model.name),
+            Some(id) => bail!(
+                "{label}: object '{}': material index {id} out of range",
+                model.name
+            ),
             None => {
                 need_default = true;
                 default_material
@@ -526,7 +604,10 @@ fn load_obj(label: &str, text: &[u8], mtl_dir: Option<&Path>, builtin_mtl: Optio
         for t in m.indices.chunks_exact(3) {
             face += 1;
             if let Some(&bad) = t.iter().find(|&&i| i as usize >= nv) {
-                bail!("{label}: face {face}: vertex index {} out of range (1..{nv})", bad as usize + 1);
+                bail!(
+                    "{label}: face {face}: vertex index {} out of range (1..{nv})",
+                    bad as usize + 1
+                );
             }
             let tri = [base + t[0], base + t[1], base + t[2]];
             let (a, b, c) = (
@@ -537,8 +618,11 @@ fn load_obj(label: &str, text: &[u8], mtl_dir: Option<&Path>, builtin_mtl: Optio
             let cr = (b - a).cross(c - a);
             let len = cr.length();
             let scale = (b - a).length_squared().max((c - a).length_squared());
-            if !(len > 1e-7 * scale) || len == 0.0 {
-                bail!("{label}: face {face} (object '{}'): zero-area triangle", model.name);
+            if len.is_nan() || len <= 1e-7 * scale {
+                bail!(
+                    "{label}: face {face} (object '{}'): zero-area triangle",
+                    model.name
+                );
             }
             mesh.triangles.push(tri);
             mesh.tri_material.push(mat);
@@ -551,7 +635,10 @@ fn load_obj(label: &str, text: &[u8], mtl_dir: Option<&Path>, builtin_mtl: Optio
     }
     if need_default {
         eprintln!("warning: {label}: faces without a material get a grey diffuse one (Kd 0.5)");
-        mats.push(Material { kd: Vec3::splat(0.5), ..Default::default() });
+        mats.push(Material {
+            kd: Vec3::splat(0.5),
+            ..Default::default()
+        });
         names.push("default".into());
     }
     mesh.materials = mats;
@@ -576,7 +663,8 @@ mod tests {
     fn light_pdf_matches_sampling() {
         let d = Device::new().unwrap();
         let s = Scene::load("cornell", &d).unwrap();
-        let x = Vec3::new(0.0, 0.5, 0.0) + s.positions.iter().copied().sum::<Vec3>() / s.positions.len() as f32;
+        let x = Vec3::new(0.0, 0.5, 0.0)
+            + s.positions.iter().copied().sum::<Vec3>() / s.positions.len() as f32;
         let mut sm = crate::sampling::Sampler::new(1, 0, 0, 0);
         for _ in 0..100 {
             let ls = s.sample_light(x, sm.next_1d(), sm.next_2d()).unwrap();

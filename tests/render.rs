@@ -21,7 +21,10 @@ fn furnace_is_one() {
     let mean: f64 = f.pixels.iter().map(|p| p.x as f64).sum::<f64>() / n;
     assert!((mean - 1.0).abs() < 0.005, "furnace mean {mean}");
     for p in &f.pixels {
-        assert!((p.x - p.y).abs() < 1e-6 && (p.x - p.z).abs() < 1e-6, "grey in, grey out");
+        assert!(
+            (p.x - p.y).abs() < 1e-6 && (p.x - p.z).abs() < 1e-6,
+            "grey in, grey out"
+        );
     }
     for by in 0..8 {
         for bx in 0..8 {
@@ -43,12 +46,25 @@ fn frames_are_identical_for_any_thread_count() {
     let scene = Scene::load("vase", &device).unwrap();
     let integ = Integrator::new(&scene, 16);
     let cam = scene.camera(10, 96, 72);
-    let one = thread_pool(1).unwrap().install(|| render_frame_independent(&integ, &cam, 10, 4, 9, false, &|_| {}));
-    let three = thread_pool(3).unwrap().install(|| render_frame_independent(&integ, &cam, 10, 4, 9, false, &|_| {}));
-    assert!(one.pixels.iter().zip(&three.pixels).all(|(a, b)| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits)));
+    let one = thread_pool(1)
+        .unwrap()
+        .install(|| render_frame_independent(&integ, &cam, 10, 4, 9, false, &|_| {}));
+    let three = thread_pool(3)
+        .unwrap()
+        .install(|| render_frame_independent(&integ, &cam, 10, 4, 9, false, &|_| {}));
+    assert!(one
+        .pixels
+        .iter()
+        .zip(&three.pixels)
+        .all(|(a, b)| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits)));
     assert_eq!(one.counts, three.counts);
-    let other_seed = thread_pool(2).unwrap().install(|| render_frame_independent(&integ, &cam, 10, 4, 10, false, &|_| {}));
-    assert!(one.pixels != other_seed.pixels, "the seed must change the noise");
+    let other_seed = thread_pool(2)
+        .unwrap()
+        .install(|| render_frame_independent(&integ, &cam, 10, 4, 10, false, &|_| {}));
+    assert!(
+        one.pixels != other_seed.pixels,
+        "the seed must change the noise"
+    );
 }
 
 #[test]
@@ -77,8 +93,19 @@ fn render_writes_frames_metadata_and_stats() {
     let get = |k: &str| meta.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone());
     assert_eq!(get("reframe:method").as_deref(), Some("independent"));
     assert_eq!(get("reframe:spp").as_deref(), Some("2"));
-    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(d.join("stats.json")).unwrap()).unwrap();
-    for key in ["method", "width", "height", "frames", "spp", "seconds", "rays", "peak_rss_bytes", "nonfinite_pixels"] {
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("stats.json")).unwrap()).unwrap();
+    for key in [
+        "method",
+        "width",
+        "height",
+        "frames",
+        "spp",
+        "seconds",
+        "rays",
+        "peak_rss_bytes",
+        "nonfinite_pixels",
+    ] {
         assert!(json.get(key).is_some(), "stats lack '{key}'");
     }
     for kind in ["primary", "path", "shadow"] {
@@ -86,7 +113,10 @@ fn render_writes_frames_metadata_and_stats() {
     }
     assert_eq!(json["rays"]["primary"].as_u64(), Some(2 * 40 * 30 * 2));
     // Nothing but the frames and the stats: no temporary files.
-    let mut names: Vec<String> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into()).collect();
+    let mut names: Vec<String> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into())
+        .collect();
     names.sort();
     assert_eq!(names, ["c_0003.exr", "c_0004.exr", "stats.json"]);
 }
@@ -98,7 +128,19 @@ fn cli_is_deterministic() {
     let d = dir.path();
     for t in ["1", "2"] {
         let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
-            .args(["render", "vase", "--frames", "5", "--res", "48x36", "--spp", "2", "--exr-float", "--threads", t])
+            .args([
+                "render",
+                "vase",
+                "--frames",
+                "5",
+                "--res",
+                "48x36",
+                "--spp",
+                "2",
+                "--exr-float",
+                "--threads",
+                t,
+            ])
             .arg("--out")
             .arg(d.join(format!("t{t}_####.exr")))
             .output()
@@ -107,5 +149,8 @@ fn cli_is_deterministic() {
     }
     let a = reframe::image::read_image(&d.join("t1_0005.exr")).unwrap();
     let b = reframe::image::read_image(&d.join("t2_0005.exr")).unwrap();
-    assert_eq!(a.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), b.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+    assert_eq!(
+        a.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+        b.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+    );
 }

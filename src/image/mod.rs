@@ -52,7 +52,7 @@ impl Image {
         self.channels.iter().position(|c| c == name)
     }
 
-    /// The `channels.len()` values of pixel (x, y).
+    /// The `channels.len()` values of pixel (x, y); panics outside the image.
     pub fn pixel(&self, x: u32, y: u32) -> &[f32] {
         let nch = self.channels.len();
         let i = (y as usize * self.width as usize + x as usize) * nch;
@@ -94,23 +94,24 @@ pub struct Metadata {
     pub world_to_camera: [f32; 16],
     /// Written as the standard EXR `worldToNDC`.
     pub world_to_ndc: [f32; 16],
-    /// More string attributes, written as "reframe:<key>".
+    /// More string attributes, written as `"reframe:<key>"`.
     pub extra: Vec<(String, String)>,
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct WriteOptions {
-    /// EXR pixels are half by default (ample for display-referred frames, half the disk);
+    /// EXR pixels are half by default (plenty for final frames, at half the disk space);
     /// float when true.
     pub exr_float: bool,
 }
 
 /// Spec attribute names that OIIO's EXR writer translates into the standard EXR header
-/// attributes `worldToCamera` / `worldToNDC` (M44f), and which its EXR reader reports them as.
-/// The TIFF writer knows the same two names (as the Pixar matrix tags).
+/// attributes `worldToCamera` / `worldToNDC` (m44f). Not "worldtoscreen": that one becomes EXR
+/// `worldToScreen`. The TIFF writer stores `worldtocamera` (as a Pixar tag) and drops the other.
 const OIIO_WORLD_TO_CAMERA: &str = "worldtocamera";
 const OIIO_WORLD_TO_NDC: &str = "worldtoNDC";
-/// The names as they appear in the EXR header, which is what `read_metadata` reports.
+/// The names as they appear in the EXR header; OIIO's EXR reader reports these, and so does
+/// `read_metadata` whatever the format.
 const EXR_WORLD_TO_CAMERA: &str = "worldToCamera";
 const EXR_WORLD_TO_NDC: &str = "worldToNDC";
 
@@ -174,7 +175,10 @@ impl OutputPattern {
         }
         if let Some(&(start, _)) = runs.first() {
             if start < name_start {
-                bail!("output path {s:?} has '#' in a folder name; the frame number belongs in the file name");
+                bail!(
+                    "output path {s:?} has '#' in a folder name; the frame number belongs in \
+                     the file name"
+                );
             }
         }
         let ext = Path::new(s)
@@ -183,7 +187,8 @@ impl OutputPattern {
             .unwrap_or("");
         if ext.is_empty() {
             bail!(
-                "output path {s:?} has no file extension; the extension picks the format (e.g. .exr, .png)"
+                "output path {s:?} has no file extension; the extension picks the format \
+                 (e.g. .exr, .png)"
             );
         }
         if ext.contains('#') {
@@ -322,9 +327,11 @@ impl Drop for TempFile {
 /// over the target. On any error no file is left behind (and an existing target is untouched).
 ///
 /// EXR gets all channels (half, or float with `opts.exr_float`) and all of `meta`. 8-bit
-/// formats get the first three channels as R,G,B: clamped to [0,1], sRGB-encoded and dithered
-/// (see [`encode_srgb8`]). Formats keep what metadata they can; PNG keeps the scalar values
-/// as text.
+/// formats get the first three channels as R,G,B: clamped to \[0, 1\], sRGB-encoded and dithered
+/// (see [`encode_srgb8`]). Radiance HDR and PFM get the first three channels as float.
+/// Formats keep what metadata they can: PNG keeps the scalar values as text, TIFF keeps
+/// `worldtocamera`, JPEG keeps none. PNG and JPEG bytes depend only on the inputs; TIFF and EXR
+/// also carry the time of writing (OIIO adds `DateTime` / `capDate`).
 pub fn write_image(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOptions) -> Result<()> {
     write_image_inner(path, img, meta, opts)
         .map_err(|e| anyhow!("cannot write {}: {e}", path.display()))
@@ -340,7 +347,7 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
     // Same folder, so that the rename cannot cross file systems; extension kept, because OIIO
     // picks the writer by it; leading dot, so that file browsers and globs skip it.
-    let tmp = TempFile {
+    let mut tmp = TempFile {
         path: parent_dir(path).join(format!(
             ".{name}.tmp-{}-{}.{ext}",
             std::process::id(),
@@ -349,7 +356,11 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
         keep: false,
     };
     let tmp_str = path_str(&tmp.path)?;
-    let attrs = attributes(meta, kind)?;
+    let mut attrs = attributes(meta, kind)?;
+    if kind == FileKind::Ldr {
+        // Lets PNG record the encoding (sRGB chunk), so viewers need not guess.
+        attrs.push(text_attr("oiio:ColorSpace", "sRGB"));
+    }
 
     match kind {
         FileKind::Exr => {
@@ -391,7 +402,6 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
 
     fs::rename(&tmp.path, path)
         .map_err(|e| anyhow!("cannot move the finished file into place: {e}"))?;
-    let mut tmp = tmp;
     tmp.keep = true;
     Ok(())
 }
@@ -427,7 +437,7 @@ fn first_three(img: &Image) -> Result<Vec<f32>> {
 }
 
 /// The first three channels of `img` as 8-bit sRGB, interleaved RGB: linear values clamped to
-/// [0,1], encoded with the exact piecewise sRGB curve, then quantised with a triangular dither
+/// \[0, 1\], encoded with the exact piecewise sRGB curve, then quantised with a triangular dither
 /// of +-1 LSB. The dither hides banding in dark gradients; it comes from a hash of (x, y,
 /// channel) rather than a random generator, so the same image always gives the same bytes
 /// (frames can be compared and cached) and the pattern does not crawl between frames.
@@ -457,8 +467,7 @@ pub fn encode_srgb8(img: &Image) -> Result<Vec<u8>> {
 }
 
 fn quantize_srgb8(linear: f32, x: u32, y: u32, c: u32) -> u8 {
-    // `!(v > 0)` also catches NaN.
-    if !(linear > 0.0) {
+    if linear.is_nan() || linear <= 0.0 {
         return 0;
     }
     if linear >= 1.0 {
@@ -469,7 +478,7 @@ fn quantize_srgb8(linear: f32, x: u32, y: u32, c: u32) -> u8 {
     q.clamp(0.0, 255.0) as u8
 }
 
-/// The sRGB (IEC 61966-2-1) encoding curve, for linear values in [0,1].
+/// The sRGB (IEC 61966-2-1) encoding curve, for linear values in \[0, 1\].
 fn srgb_oetf(v: f64) -> f64 {
     if v <= 0.0031308 {
         12.92 * v
@@ -565,7 +574,9 @@ fn attributes(meta: &Metadata, kind: FileKind) -> Result<Vec<ffi::Attribute>> {
 }
 
 /// Reads any file OIIO can read into float, all channels of its first subimage. 8-bit files
-/// come back as their code values / 255, not linearised.
+/// come back as their code values / 255, not linearised. Channels come in the order OIIO
+/// reports them, which for EXR is R, G, B, A first and then the others alphabetically (EXR
+/// itself stores channels sorted by name), so look channels up by name.
 pub fn read_image(path: &Path) -> Result<Image> {
     let read = || -> Result<Image> {
         let mut reader = ffi::open_reader(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
@@ -728,6 +739,30 @@ mod tests {
 
     #[test]
     fn extra_channels_keep_their_names() {
+        // Written in an order that EXR's name-sorted storage does not preserve.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("odd.exr");
+        let img = test_image(2, 2, &["spp_eff", "B", "R", "G", "Z"]);
+        write_image(
+            &path,
+            &img,
+            &Metadata::default(),
+            &WriteOptions { exr_float: true },
+        )
+        .unwrap();
+        let back = read_image(&path).unwrap();
+        let mut names = back.channels.clone();
+        names.sort();
+        assert_eq!(names, ["B", "G", "R", "Z", "spp_eff"]);
+        for (c, name) in img.channels.iter().enumerate() {
+            let bc = back.channel_index(name).unwrap();
+            for y in 0..2 {
+                for x in 0..2 {
+                    assert_eq!(img.pixel(x, y)[c], back.pixel(x, y)[bc], "{name}");
+                }
+            }
+        }
+
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("aov.exr");
         let img = test_image(4, 3, &["R", "G", "B", "spp_eff"]);
@@ -895,17 +930,30 @@ mod tests {
         let img = test_image(40, 30, &["R", "G", "B"]);
         let a = encode_srgb8(&img).unwrap();
         assert_eq!(a, encode_srgb8(&img).unwrap());
-        for ext in ["png", "tif"] {
+        for ext in ["png", "jpg", "tif"] {
             let p1 = dir.path().join(format!("a.{ext}"));
             let p2 = dir.path().join(format!("b.{ext}"));
             write_image(&p1, &img, &test_metadata(), &WriteOptions::default()).unwrap();
             write_image(&p2, &img, &test_metadata(), &WriteOptions::default()).unwrap();
-            assert_eq!(
-                fs::read(&p1).unwrap(),
-                fs::read(&p2).unwrap(),
-                "{ext} bytes differ"
-            );
+            if ext == "tif" {
+                // TIFF carries the time of writing, so only the pixels can be compared.
+                assert_eq!(read_image(&p1).unwrap(), read_image(&p2).unwrap());
+            } else {
+                assert_eq!(
+                    fs::read(&p1).unwrap(),
+                    fs::read(&p2).unwrap(),
+                    "{ext} bytes differ"
+                );
+            }
         }
+        // The PNG holds exactly the encoded bytes.
+        let back = read_image(&dir.path().join("a.png")).unwrap();
+        let codes: Vec<u8> = back
+            .data
+            .iter()
+            .map(|v| (v * 255.0).round() as u8)
+            .collect();
+        assert_eq!(codes, a);
     }
 
     #[test]
@@ -1046,7 +1094,10 @@ mod tests {
         let p = OutputPattern::parse("still.png").unwrap();
         assert!(!p.has_frame_field());
         assert_eq!(p.path(9), PathBuf::from("still.png"));
-        assert!(OutputPattern::parse("####.exr").unwrap().path(1) == PathBuf::from("0001.exr"));
+        assert_eq!(
+            OutputPattern::parse("####.exr").unwrap().path(1),
+            PathBuf::from("0001.exr")
+        );
     }
 
     #[test]
