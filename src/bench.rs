@@ -138,6 +138,7 @@ pub fn run(
             primary: c.primary,
             path: c.path,
             shadow: c.shadow,
+            visibility: 0,
         },
         render_rays_per_second: render_rate,
         bare_seconds,

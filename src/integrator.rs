@@ -109,6 +109,8 @@ pub struct FirstLight {
 #[derive(Clone, Copy, Debug)]
 pub struct FirstHit {
     pub sp: SurfacePoint,
+    /// Unit direction from `x` to the native eye.
+    pub wo: Vec3,
     /// BSDF-sampled direction at `x`, drawn for the native eye; `None` if sampling failed.
     pub w: Option<Vec3>,
     /// `p(w | x, x->o_native)` and the BSDF value for the native eye, `f(x->o_native, w)`.
@@ -135,17 +137,21 @@ pub fn facing(sp: &SurfacePoint, toward: Vec3) -> (Vec3, Vec3) {
 
 impl FirstHit {
     /// Radiance leaving `x` towards eye position `eye`, estimated from this record with the
-    /// native eye's single-sample weights (eye `eye` must be the one that generated it for the
-    /// estimate to be the path tracer's; Havran-style reuse uses it for other eyes as is).
+    /// native eye's densities (estimator (7) of the paper): for the native eye it is the path
+    /// tracer's estimate; for another eye it is what Havran et al. reuse, the BSDF re-evaluated
+    /// for the new view but divided by the pdfs the native eye sampled with.
     pub fn radiance(&self, scene: &Scene, eye: Vec3) -> Vec3 {
         let sp = &self.sp;
         let wo = (eye - sp.p).normalize();
         let m = scene.material(sp);
         let mut l = scene.emitted(sp, eye);
         let (ng, ns) = facing(sp, wo);
+        // Densities belong to the native eye's hemisphere and lobe.
+        let (ng_n, ns_n) = facing(sp, self.wo);
         if let Some(ls) = &self.light {
-            if ls.le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 {
-                let (f, pb) = m.eval_pdf(ns, wo, ls.wi);
+            if ls.le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 && ng_n.dot(ls.wi) > 0.0 {
+                let f = m.eval(ns, wo, ls.wi);
+                let pb = m.pdf(ns_n, self.wo, ls.wi);
                 l += f * ns.dot(ls.wi).max(0.0) * ls.le / (ls.pdf + pb);
             }
         }
@@ -224,6 +230,7 @@ impl<'a> Integrator<'a> {
         let (ng, ns) = facing(&sp, wo);
         let mut rec = FirstHit {
             sp,
+            wo,
             w: None,
             pdf_w: 0.0,
             f_w: Vec3::ZERO,

@@ -13,5 +13,6 @@ pub mod embree;
 pub mod image;
 pub mod integrator;
 pub mod render;
+pub mod reuse;
 pub mod sampling;
 pub mod scene;

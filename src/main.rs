@@ -37,9 +37,19 @@ struct RenderArgs {
     scene: Option<String>,
     #[arg(long, value_enum, default_value_t = Method::Independent)]
     method: Method,
-    /// Samples per pixel.
+    /// Samples per pixel (for reuse methods: native samples per pixel per group pass).
     #[arg(long, default_value_t = 8)]
     spp: u32,
+    /// Frames per reuse group, n_f = 2n+1 (reuse methods only).
+    #[arg(long, default_value_t = 1)]
+    window: u32,
+    /// How reuse visibility tests are traced: 16-wide coherent packets or single rays.
+    #[arg(long, value_enum, default_value_t = Visibility::Packet)]
+    visibility: Visibility,
+    /// Write extra EXR channels per frame: `spp_eff` (samples that landed per pixel) and
+    /// `lost_reuse` (share of attempted reuses lost).
+    #[arg(long)]
+    aov: bool,
     /// Frames to render, 0-based and inclusive: "A-B" or "A" (default: all).
     #[arg(long, value_parser = parse_frames)]
     frames: Option<(u32, u32)>,
@@ -64,6 +74,12 @@ struct RenderArgs {
     /// Write render statistics as JSON.
     #[arg(long)]
     stats: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum Visibility {
+    Packet,
+    Single,
 }
 
 #[derive(clap::Args)]
@@ -150,6 +166,9 @@ fn run(cli: Cli) -> Result<()> {
             let opts = RenderOptions {
                 method: a.method,
                 spp: a.spp,
+                window: a.window,
+                packets: matches!(a.visibility, Visibility::Packet),
+                aov: a.aov,
                 frames: a.frames.map(|(x, y)| x..=y),
                 resolution: a.res,
                 out,
@@ -165,14 +184,24 @@ fn run(cli: Cli) -> Result<()> {
             }
             let stats = render::render(&scene, &opts)?;
             let first = stats.outputs.first().context("no frame written")?;
+            let how = if stats.method.reuses() {
+                format!(
+                    "{}, window {}, {:.1} effective spp, {:.1}% reuses lost",
+                    stats.method.name(),
+                    stats.window,
+                    stats.mean_effective_spp,
+                    100.0 * stats.lost_reuse_fraction
+                )
+            } else {
+                stats.method.name().to_string()
+            };
             eprintln!(
-                "rendered {} frame(s) of '{}' ({}x{}, {} spp, {}) in {:.1} s, {:.2} Mrays/s, peak memory {} MB",
+                "rendered {} frame(s) of '{}' ({}x{}, {} spp, {how}) in {:.1} s, {:.2} Mrays/s, peak memory {} MB",
                 stats.frames,
                 scene.name,
                 stats.width,
                 stats.height,
                 stats.spp,
-                stats.method.name(),
                 stats.seconds,
                 stats.rays_per_second / 1e6,
                 stats.peak_rss_bytes / 1_000_000

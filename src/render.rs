@@ -36,13 +36,26 @@ use std::time::Instant;
 pub enum Method {
     /// Independent path tracing of every frame (the baseline).
     Independent,
+    /// Havran et al. 2003: reused samples averaged unweighted (biased on glossy surfaces).
+    Havran,
+    /// The paper's MIS reuse (eq. 13-15 with approximation (10)).
+    Mis,
+    /// Balance heuristic over the group's eyes with exact area densities (ESTIMATOR.md).
+    MisExact,
 }
 
 impl Method {
     pub fn name(&self) -> &'static str {
         match self {
             Method::Independent => "independent",
+            Method::Havran => "havran",
+            Method::Mis => "mis",
+            Method::MisExact => "mis-exact",
         }
+    }
+
+    pub fn reuses(&self) -> bool {
+        *self != Method::Independent
     }
 }
 
@@ -50,6 +63,12 @@ impl Method {
 pub struct RenderOptions {
     pub method: Method,
     pub spp: u32,
+    /// Frames per reuse group (n_f = 2n+1); 1 for the independent tracer.
+    pub window: u32,
+    /// Visibility tests of reuse in 16-wide packets (else single rays).
+    pub packets: bool,
+    /// Write extra EXR channels: effective sample count and share of lost reuses per pixel.
+    pub aov: bool,
     /// Inclusive frame range; `None` renders all of the scene's frames.
     pub frames: Option<RangeInclusive<u32>>,
     /// Resolution override; `None` keeps the scene's.
@@ -70,6 +89,9 @@ impl Default for RenderOptions {
         RenderOptions {
             method: Method::Independent,
             spp: 8,
+            window: 1,
+            packets: true,
+            aov: false,
             frames: None,
             resolution: None,
             out: "out/frame_####.exr".into(),
@@ -88,6 +110,16 @@ pub struct RayStats {
     pub primary: u64,
     pub path: u64,
     pub shadow: u64,
+    /// Reuse visibility tests (hit to another eye).
+    pub visibility: u64,
+}
+
+/// Reuse figures of one frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameReuse {
+    pub frame: u32,
+    pub mean_effective_spp: f64,
+    pub lost_reuse_fraction: f64,
 }
 
 /// What `--stats` writes (keys are a contract with users' scripts: add, never rename).
@@ -101,6 +133,7 @@ pub struct RenderStats {
     pub first_frame: u32,
     pub last_frame: u32,
     pub spp: u32,
+    pub window: u32,
     pub seed: u64,
     pub threads: usize,
     pub seconds: f64,
@@ -108,6 +141,13 @@ pub struct RenderStats {
     pub rays_per_second: f64,
     pub peak_rss_bytes: u64,
     pub nonfinite_pixels: u64,
+    /// Reuse contributions that came out NaN/Inf and were dropped (should be 0).
+    pub nonfinite_samples: u64,
+    /// Native plus reused samples that landed, per pixel, averaged over frames.
+    pub mean_effective_spp: f64,
+    /// Share of attempted reuses lost to occlusion or to falling off the target film.
+    pub lost_reuse_fraction: f64,
+    pub per_frame: Vec<FrameReuse>,
     pub outputs: Vec<String>,
     #[serde(skip)]
     pub ray_counts: RayCounts,
@@ -172,6 +212,16 @@ pub fn frame_plan(scene: &Scene, opts: &RenderOptions) -> Result<(RangeInclusive
     }
     if opts.spp == 0 {
         bail!("--spp 0: at least one sample per pixel is needed");
+    }
+    let n = range.end() - range.start() + 1;
+    if opts.window % 2 == 0 {
+        bail!("--window {}: a group is n_f = 2n+1 frames, so the window must be odd", opts.window);
+    }
+    if opts.window > n {
+        bail!("--window {}: larger than the {n} frames rendered", opts.window);
+    }
+    if opts.method == Method::Independent && opts.window != 1 {
+        bail!("--window {}: only the reuse methods (havran, mis, mis-exact) take a window", opts.window);
     }
     Ok((range, w, h))
 }
@@ -275,6 +325,49 @@ pub fn to_image(w: u32, h: u32, px: &[Vec3]) -> Image {
     }
 }
 
+/// Writes finished frames (atomically, with metadata) and remembers what it wrote.
+pub struct FrameSink<'a> {
+    pub scene: &'a Scene,
+    pub opts: &'a RenderOptions,
+    pub out: OutputPattern,
+    pub outputs: Vec<String>,
+    pub nonfinite_pixels: u64,
+}
+
+impl FrameSink<'_> {
+    /// Write frame `frame`: RGB plus optional extra channels (name, one value per pixel).
+    pub fn emit(&mut self, frame: u32, cam: &Camera, px: &[Vec3], extra: &[(&str, Vec<f32>)], seconds: f64) -> Result<()> {
+        let (w, h) = (cam.width, cam.height);
+        self.nonfinite_pixels += px.iter().filter(|p| !p.is_finite()).count() as u64;
+        let mut img = to_image(w, h, px);
+        if !extra.is_empty() {
+            let nc = 3 + extra.len();
+            let mut data = Vec::with_capacity(px.len() * nc);
+            for (i, p) in px.iter().enumerate() {
+                data.extend(p.to_array());
+                data.extend(extra.iter().map(|(_, v)| v[i]));
+            }
+            img.channels.extend(extra.iter().map(|(n, _)| n.to_string()));
+            img.data = data;
+        }
+        let path = self.out.path(frame);
+        let meta = Metadata {
+            method: self.opts.method.name().into(),
+            spp: self.opts.spp,
+            window: self.opts.window,
+            seed: self.opts.seed,
+            render_seconds: seconds,
+            world_to_camera: cam.world_to_camera().to_cols_array(),
+            world_to_ndc: cam.world_to_ndc().to_cols_array(),
+            extra: vec![("scene".into(), self.scene.name.clone()), ("frame".into(), frame.to_string())],
+        };
+        write_image(&path, &img, &meta, &WriteOptions { exr_float: self.opts.exr_float })
+            .with_context(|| format!("writing frame {frame}"))?;
+        self.outputs.push(path.display().to_string());
+        Ok(())
+    }
+}
+
 /// Render the frames of `opts` and write them; returns the statistics (also written to
 /// `opts.stats` if set).
 pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
@@ -287,70 +380,38 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     crate::embree::set_flush_denormals();
     let integrator = Integrator::new(scene, opts.max_depth);
     let n_frames = range.end() - range.start() + 1;
-    let tiles_per_frame = tiles(w, h).len() as u64;
-    let pb = progress_bar(opts.progress, n_frames as u64 * tiles_per_frame, "tiles");
+    let mut sink = FrameSink { scene, opts, out, outputs: Vec::new(), nonfinite_pixels: 0 };
     let start = Instant::now();
-    let total_rays = std::sync::atomic::AtomicU64::new(0);
     let mut counts = RayCounts::default();
-    let mut nonfinite = 0u64;
-    let mut outputs = Vec::new();
-    for (done, frame) in range.clone().enumerate() {
-        let cam = scene.camera(frame, w, h);
-        let frame_start = Instant::now();
-        let on_tile = |c: &RayCounts| {
-            let total =
-                total_rays.fetch_add(c.total(), std::sync::atomic::Ordering::Relaxed) + c.total();
-            let secs = start.elapsed().as_secs_f64().max(1e-9);
-            pb.set_message(format!(
-                "| frame {}/{n_frames} | {:.2} Mrays/s",
-                done + 1,
-                total as f64 / secs / 1e6
-            ));
-            pb.inc(1);
-        };
-        let FrameResult {
-            pixels: px,
-            counts: c,
-            ..
-        } = pool.install(|| match opts.method {
-            Method::Independent => render_frame_independent(
-                &integrator,
-                &cam,
-                frame,
-                opts.spp,
-                opts.seed,
-                false,
-                &on_tile,
-            ),
-        });
-        counts.add(&c);
-        nonfinite += px.iter().filter(|p| !p.is_finite()).count() as u64;
-        let path = out.path(frame);
-        let meta = Metadata {
-            method: opts.method.name().into(),
-            spp: opts.spp,
-            window: 1,
-            seed: opts.seed,
-            render_seconds: frame_start.elapsed().as_secs_f64(),
-            world_to_camera: cam.world_to_camera().to_cols_array(),
-            world_to_ndc: cam.world_to_ndc().to_cols_array(),
-            extra: vec![
-                ("scene".into(), scene.name.clone()),
-                ("frame".into(), frame.to_string()),
-            ],
-        };
-        write_image(
-            &path,
-            &to_image(w, h, &px),
-            &meta,
-            &WriteOptions {
-                exr_float: opts.exr_float,
-            },
-        )
-        .with_context(|| format!("writing frame {frame}"))?;
-        outputs.push(path.display().to_string());
+    let mut reuse_stats = None;
+    match opts.method {
+        Method::Independent => {
+            let tiles_per_frame = tiles(w, h).len() as u64;
+            let pb = progress_bar(opts.progress, n_frames as u64 * tiles_per_frame, "tiles");
+            let total_rays = std::sync::atomic::AtomicU64::new(0);
+            for (done, frame) in range.clone().enumerate() {
+                let cam = scene.camera(frame, w, h);
+                let frame_start = Instant::now();
+                let on_tile = |c: &RayCounts| {
+                    let total = total_rays.fetch_add(c.total(), std::sync::atomic::Ordering::Relaxed) + c.total();
+                    let secs = start.elapsed().as_secs_f64().max(1e-9);
+                    pb.set_message(format!("| frame {}/{n_frames} | {:.2} Mrays/s", done + 1, total as f64 / secs / 1e6));
+                    pb.inc(1);
+                };
+                let f = pool.install(|| {
+                    render_frame_independent(&integrator, &cam, frame, opts.spp, opts.seed, false, &on_tile)
+                });
+                counts.add(&f.counts);
+                sink.emit(frame, &cam, &f.pixels, &[], frame_start.elapsed().as_secs_f64())?;
+            }
+            pb.finish_and_clear();
+        }
+        Method::Havran | Method::Mis | Method::MisExact => {
+            let r = pool.install(|| crate::reuse::render_reuse(&integrator, opts, range.clone(), w, h, &mut sink))?;
+            counts = r.counts;
+            reuse_stats = Some(r);
+        }
     }
-    pb.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
     let stats = RenderStats {
         method: opts.method,
@@ -361,6 +422,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         first_frame: *range.start(),
         last_frame: *range.end(),
         spp: opts.spp,
+        window: opts.window,
         seed: opts.seed,
         threads: pool.current_num_threads(),
         seconds,
@@ -368,11 +430,16 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
             primary: counts.primary,
             path: counts.path,
             shadow: counts.shadow,
+            visibility: counts.visibility,
         },
         rays_per_second: counts.total() as f64 / seconds.max(1e-9),
         peak_rss_bytes: peak_rss_bytes(),
-        nonfinite_pixels: nonfinite,
-        outputs,
+        nonfinite_pixels: sink.nonfinite_pixels,
+        nonfinite_samples: reuse_stats.as_ref().map_or(0, |r| r.nonfinite_samples),
+        mean_effective_spp: reuse_stats.as_ref().map_or(opts.spp as f64, |r| r.mean_effective_spp),
+        lost_reuse_fraction: reuse_stats.as_ref().map_or(0.0, |r| r.lost_reuse_fraction),
+        per_frame: reuse_stats.map(|r| r.per_frame).unwrap_or_default(),
+        outputs: sink.outputs,
         ray_counts: counts,
     };
     if let Some(p) = &opts.stats {

@@ -1,0 +1,456 @@
+//! Frame reuse (Méndez-Feliu, Sbert, Szirmay-Kalos 2006; the estimators in ESTIMATOR.md).
+//!
+//! Schedule (the paper's Sec. 4.1): a group is `n_f = --window` consecutive frames; every frame of
+//! the group shoots `n_r = --spp` native samples per pixel, and every native primary hit is
+//! reused in every other frame of the group after one visibility test towards that frame's eye.
+//! Groups slide one frame at a time; a frame's estimate is the mean of the estimates of the
+//! groups it belongs to. A frame leaves memory, written, as soon as no later group contains it.
+//!
+//! Methods, for a native sample `s = (x, w)` of eye `m` landing in pixel `i` of frame `j`:
+//! - `havran`: the own-eye estimate (7) with the native densities, averaged by count per pixel;
+//! - `mis`: eq. 15: `f_j cos L / (n_r sum_{visible m'} p(w | x, x->o_m'))` (approximation (10)
+//!   makes every eye's area density equal, so they cancel and only pdfs remain);
+//! - `mis-exact`: `(J_j / A_pix,j) f_j cos L / sum_{m'} D_m'(x) p(w | x, x->o_m')` with
+//!   `D_m' = n_r J_m'(x) vis inside / A_pix,m'` (ESTIMATOR.md), which is unbiased.
+//! The light sample and the emitter reached along `w` use `p + p_l` in the denominators and the
+//! self-emission of `x` divides by `sum D_m'` (ESTIMATOR.md, `Q_dir`).
+//!
+//! Streaming and determinism: contributions are splatted as they are made into per-frame
+//! accumulators in 2^-24 fixed point (`AtomicI64`): integer addition is associative, so the frames
+//! are bitwise identical for any thread count, and memory grows with width x height x n_f.
+//! Visibility tests for a tile of hits towards one eye all converge on that eye and go through
+//! `rtcOccluded16` packets (`--visibility packet`, the default) or single rays.
+use crate::camera::Camera;
+use crate::embree::{Packet16, Ray};
+use crate::integrator::{facing, FirstHit, Integrator, RayCounts, Tally};
+use crate::render::{progress_bar, tiles, FrameReuse, FrameSink, Method, RenderOptions};
+use crate::sampling::Sampler;
+use anyhow::Result;
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+use std::collections::VecDeque;
+use std::ops::RangeInclusive;
+use std::sync::atomic::{AtomicI64, AtomicU32, AtomicU64, Ordering::Relaxed};
+use std::time::Instant;
+
+/// Fixed-point scale of the accumulators: 2^24 steps per unit of radiance.
+const FIXED: f64 = (1u64 << 24) as f64;
+
+/// The running sums of one frame over all the groups that contain it.
+struct FrameAccum {
+    frame: u32,
+    cam: Camera,
+    sum: Vec<AtomicI64>,
+    /// Samples that landed per pixel (native and reused).
+    landed: Vec<AtomicU32>,
+    /// Attempted reuses into this frame, and those lost (occluded or off the film), per pixel.
+    tried: Vec<AtomicU32>,
+    lost: Vec<AtomicU32>,
+    /// Attempted reuses into this frame that fell outside its film (or behind the eye).
+    off_film: AtomicU64,
+    groups: u32,
+    started: Instant,
+}
+
+impl FrameAccum {
+    fn new(frame: u32, cam: Camera) -> FrameAccum {
+        let p = (cam.width * cam.height) as usize;
+        let zeros32 = |n| (0..n).map(|_| AtomicU32::new(0)).collect::<Vec<_>>();
+        FrameAccum {
+            frame,
+            sum: (0..3 * p).map(|_| AtomicI64::new(0)).collect(),
+            landed: zeros32(p),
+            tried: zeros32(p),
+            lost: zeros32(p),
+            cam,
+            off_film: AtomicU64::new(0),
+            groups: 0,
+            started: Instant::now(),
+        }
+    }
+
+    /// Add `v` to pixel `i`; false (and nothing added) if `v` is not finite.
+    #[inline]
+    fn splat(&self, i: usize, v: Vec3) -> bool {
+        if !v.is_finite() {
+            return false;
+        }
+        for c in 0..3 {
+            self.sum[3 * i + c].fetch_add((v[c] as f64 * FIXED).round() as i64, Relaxed);
+        }
+        true
+    }
+}
+
+/// What `render_reuse` reports besides the frames.
+pub struct ReuseStats {
+    pub counts: RayCounts,
+    pub nonfinite_samples: u64,
+    pub mean_effective_spp: f64,
+    pub lost_reuse_fraction: f64,
+    pub per_frame: Vec<FrameReuse>,
+}
+
+/// Per hit and target eye: raster position in the target (if on its film and visible).
+type Landing = Option<Vec2>;
+
+/// The per-eye quantities of one native hit that every method's weights are built from.
+struct EyeTerms {
+    /// Unit direction from x to the eye.
+    wo: Vec3,
+    /// `J_k / A_pix,k` (film density in pixels per unit area at x), or 0 where eye k cannot see x.
+    j_over_a: f32,
+}
+
+/// MIS denominators of one native sample over the eyes of its group (ESTIMATOR.md, `Q`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Denominators {
+    /// `sum_k D_k p_k(w)`: indirect radiance along w.
+    pub ind: f32,
+    /// `sum_k D_k (p_k(w) + p_l(w))`: the emitter reached along w.
+    pub dir_w: f32,
+    /// `sum_k D_k (p_k(w_l) + p_l(w_l))`: the light sample.
+    pub dir_l: f32,
+    /// `sum_k D_k`: self-emission.
+    pub emit: f32,
+}
+
+/// `D_k(x)` for each eye (0 where it cannot see x), for the exact (`exact`) or the paper's
+/// (approximation (10): every visible eye's density equal to `n_r`) weights.
+fn densities(eyes: &[EyeTerms], spp: u32, exact: bool) -> impl Iterator<Item = f32> + '_ {
+    eyes.iter().map(move |e| {
+        if e.j_over_a <= 0.0 {
+            0.0
+        } else if exact {
+            spp as f32 * e.j_over_a
+        } else {
+            spp as f32
+        }
+    })
+}
+
+/// The denominators for `fh` given each eye's terms.
+pub fn denominators(integrator: &Integrator, fh: &FirstHit, eyes_wo: &[(Vec3, f32)], spp: u32, exact: bool) -> Denominators {
+    let eyes: Vec<EyeTerms> = eyes_wo.iter().map(|&(wo, j_over_a)| EyeTerms { wo, j_over_a }).collect();
+    denominators_of(integrator, fh, &eyes, spp, exact)
+}
+
+fn denominators_of(integrator: &Integrator, fh: &FirstHit, eyes: &[EyeTerms], spp: u32, exact: bool) -> Denominators {
+    let m = integrator.scene.material(&fh.sp);
+    let mut q = Denominators::default();
+    for (e, d) in eyes.iter().zip(densities(eyes, spp, exact)) {
+        if d == 0.0 {
+            continue;
+        }
+        let (ng, ns) = facing(&fh.sp, e.wo);
+        // The density eye k samples w with: its lobe, on its side of the surface.
+        let pdf_k = |w: Vec3| if ng.dot(w) > 0.0 { m.pdf(ns, e.wo, w) } else { 0.0 };
+        q.emit += d;
+        if let Some(w) = fh.w {
+            let p = pdf_k(w);
+            q.ind += d * p;
+            q.dir_w += d * (p + fh.pdf_light_w);
+        }
+        if let Some(l) = &fh.light {
+            q.dir_l += d * (pdf_k(l.wi) + l.pdf);
+        }
+    }
+    q
+}
+
+/// Contribution of native sample `fh` to the pixel it lands in of the eye at `eye` (unit
+/// direction `wo`), with pixel-density factor `scale` (`J_j / A_pix,j`, or 1 for the paper's).
+fn mis_contribution(integrator: &Integrator, fh: &FirstHit, eye: Vec3, wo: Vec3, scale: f32, q: &Denominators) -> Vec3 {
+    let scene = integrator.scene;
+    let sp = &fh.sp;
+    let m = scene.material(sp);
+    let (ng, ns) = facing(sp, wo);
+    let mut l = Vec3::ZERO;
+    if q.emit > 0.0 {
+        l += scene.emitted(sp, eye) / q.emit;
+    }
+    if let Some(ls) = &fh.light {
+        if ls.le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 && q.dir_l > 0.0 {
+            l += m.eval(ns, wo, ls.wi) * ns.dot(ls.wi) * ls.le / q.dir_l;
+        }
+    }
+    if let Some(w) = fh.w {
+        if ng.dot(w) > 0.0 {
+            let fc = m.eval(ns, wo, w) * ns.dot(w);
+            if q.dir_w > 0.0 {
+                l += fc * fh.le_w / q.dir_w;
+            }
+            if q.ind > 0.0 {
+                l += fc * fh.li_w / q.ind;
+            }
+        }
+    }
+    l * scale
+}
+
+/// Render `range` with a reuse method, writing each frame through `sink` as soon as it is final.
+pub fn render_reuse(
+    integrator: &Integrator,
+    opts: &RenderOptions,
+    range: RangeInclusive<u32>,
+    w: u32,
+    h: u32,
+    sink: &mut FrameSink,
+) -> Result<ReuseStats> {
+    let scene = integrator.scene;
+    let n_f = opts.window;
+    let (first, last) = (*range.start(), *range.end());
+    let last_group = last + 1 - n_f;
+    let n_groups = last_group - first + 1;
+    let pb = progress_bar(opts.progress, n_groups as u64, "groups");
+    let mut active: VecDeque<FrameAccum> = VecDeque::new();
+    let mut counts = RayCounts::default();
+    let nonfinite = AtomicU64::new(0);
+    let mut per_frame = Vec::new();
+    let (mut tried_total, mut lost_total) = (0u64, 0u64);
+    let tile_list = tiles(w, h);
+    let mut written = 0;
+    for g0 in first..=last_group {
+        // The group's frames: keep those still active, add the new ones.
+        while active.back().map_or(true, |a| a.frame < g0 + n_f - 1) {
+            let f = active.back().map_or(g0, |a| a.frame + 1);
+            active.push_back(FrameAccum::new(f, scene.camera(f, w, h)));
+        }
+        let group: Vec<&FrameAccum> = active.iter().filter(|a| a.frame >= g0 && a.frame < g0 + n_f).collect();
+        debug_assert_eq!(group.len(), n_f as usize);
+        let work: Vec<(usize, usize)> = (0..group.len()).flat_map(|m| (0..tile_list.len()).map(move |t| (m, t))).collect();
+        let group_counts: RayCounts = work
+            .par_iter()
+            .map(|&(m, t)| {
+                let mut tally = Tally::default();
+                let bad = shade_tile(integrator, opts, &group, m, tile_list[t], g0, &mut tally);
+                nonfinite.fetch_add(bad, Relaxed);
+                tally.counts
+            })
+            .reduce(RayCounts::default, |mut a, b| {
+                a.add(&b);
+                a
+            });
+        counts.add(&group_counts);
+        for a in active.iter_mut().filter(|a| a.frame >= g0 && a.frame < g0 + n_f) {
+            a.groups += 1;
+        }
+        // Frames no later group contains: g0 itself, or every remaining one after the last group.
+        while active.front().is_some_and(|a| a.frame == g0 || g0 == last_group) {
+            let a = active.pop_front().unwrap();
+            let mut fr = finish_frame(&a, opts.method);
+            // Reuses that fell off the film are charged to the frame, not to a pixel.
+            let off = a.off_film.load(Relaxed);
+            fr.tried += off;
+            fr.lost += off;
+            tried_total += fr.tried;
+            lost_total += fr.lost;
+            let n_px = (w * h) as f64;
+            per_frame.push(FrameReuse {
+                frame: a.frame,
+                mean_effective_spp: fr.landed as f64 / n_px,
+                lost_reuse_fraction: if fr.tried > 0 { fr.lost as f64 / fr.tried as f64 } else { 0.0 },
+            });
+            let extra: Vec<(&str, Vec<f32>)> = if opts.aov { vec![("spp_eff", fr.spp_eff), ("lost_reuse", fr.lost_share)] } else { vec![] };
+            sink.emit(a.frame, &a.cam, &fr.pixels, &extra, a.started.elapsed().as_secs_f64())?;
+            written += 1;
+        }
+        pb.set_message(format!("| {written} frames written"));
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let frames = (last - first + 1) as f64;
+    Ok(ReuseStats {
+        counts,
+        nonfinite_samples: nonfinite.into_inner(),
+        mean_effective_spp: per_frame.iter().map(|f| f.mean_effective_spp).sum::<f64>() / frames,
+        lost_reuse_fraction: if tried_total > 0 { lost_total as f64 / tried_total as f64 } else { 0.0 },
+        per_frame,
+    })
+}
+
+struct Finished {
+    pixels: Vec<Vec3>,
+    spp_eff: Vec<f32>,
+    lost_share: Vec<f32>,
+    landed: u64,
+    tried: u64,
+    lost: u64,
+}
+
+/// The frame's final pixels: the mean over its groups (sum methods), or over everything that
+/// landed (Havran's unweighted average).
+fn finish_frame(a: &FrameAccum, method: Method) -> Finished {
+    let n = a.landed.len();
+    let mut pixels = Vec::with_capacity(n);
+    let mut spp_eff = Vec::with_capacity(n);
+    let mut lost_share = Vec::with_capacity(n);
+    let (mut landed, mut tried, mut lost) = (0u64, 0u64, 0u64);
+    for i in 0..n {
+        let s = Vec3::new(
+            (a.sum[3 * i].load(Relaxed) as f64 / FIXED) as f32,
+            (a.sum[3 * i + 1].load(Relaxed) as f64 / FIXED) as f32,
+            (a.sum[3 * i + 2].load(Relaxed) as f64 / FIXED) as f32,
+        );
+        let c = a.landed[i].load(Relaxed);
+        let (t, l) = (a.tried[i].load(Relaxed), a.lost[i].load(Relaxed));
+        pixels.push(match method {
+            Method::Havran => {
+                if c > 0 {
+                    s / c as f32
+                } else {
+                    Vec3::ZERO
+                }
+            }
+            _ => s / a.groups as f32,
+        });
+        spp_eff.push(c as f32);
+        lost_share.push(if t > 0 { l as f32 / t as f32 } else { 0.0 });
+        landed += c as u64;
+        tried += t as u64;
+        lost += l as u64;
+    }
+    Finished { pixels, spp_eff, lost_share, landed, tried, lost }
+}
+
+/// Trace the native samples of one tile of frame `group[m]` and splat every reuse of them into
+/// the group's frames. Returns the number of non-finite contributions dropped.
+fn shade_tile(
+    integrator: &Integrator,
+    opts: &RenderOptions,
+    group: &[&FrameAccum],
+    m: usize,
+    (x0, y0, x1, y1): (u32, u32, u32, u32),
+    g0: u32,
+    tally: &mut Tally,
+) -> u64 {
+    let native = group[m];
+    let cam_m = &native.cam;
+    let w = cam_m.width;
+    let spp = opts.spp;
+    let mut hits: Vec<(u32, FirstHit)> = Vec::new();
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let pixel = y * w + x;
+            native.landed[pixel as usize].fetch_add(spp, Relaxed);
+            for s in 0..spp {
+                // Sample index: the frame's position in the group keeps each group's samples of a
+                // frame independent; with one frame per group this is the independent tracer's.
+                let mut sampler = Sampler::new(opts.seed, native.frame, pixel, (native.frame - g0) * spp + s);
+                let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
+                if let Some(fh) = integrator.trace_first_hit(cam_m.eye, cam_m.direction(r), &mut sampler, tally) {
+                    hits.push((pixel, fh));
+                }
+            }
+        }
+    }
+    // Where each hit lands in each eye of the group (None: occluded or off the film).
+    let n_f = group.len();
+    let mut land: Vec<Landing> = vec![None; hits.len() * n_f];
+    for (k, acc) in group.iter().enumerate() {
+        if k == m {
+            for (hi, (pixel, _)) in hits.iter().enumerate() {
+                land[hi * n_f + k] = Some(Vec2::new((pixel % w) as f32 + 0.5, (pixel / w) as f32 + 0.5));
+            }
+            continue;
+        }
+        visibility(integrator, &acc.cam, &hits, k, n_f, opts.packets, &mut land, tally);
+    }
+    let exact = opts.method == Method::MisExact;
+    let mut bad = 0u64;
+    let mut eyes: Vec<EyeTerms> = Vec::with_capacity(n_f);
+    for (hi, (_, fh)) in hits.iter().enumerate() {
+        let x = fh.sp.p;
+        eyes.clear();
+        for (k, acc) in group.iter().enumerate() {
+            let wo = (acc.cam.eye - x).normalize();
+            let j_over_a = if land[hi * n_f + k].is_some() { acc.cam.jacobian(x, fh.sp.ng) / acc.cam.pixel_area() } else { 0.0 };
+            eyes.push(EyeTerms { wo, j_over_a });
+        }
+        let q = if opts.method == Method::Havran { Denominators::default() } else { denominators_of(integrator, fh, &eyes, spp, exact) };
+        for (k, acc) in group.iter().enumerate() {
+            let Some(r) = land[hi * n_f + k] else {
+                if k != m {
+                    match r_pixel(acc, x) {
+                        Some(i) => {
+                            acc.tried[i].fetch_add(1, Relaxed);
+                            acc.lost[i].fetch_add(1, Relaxed);
+                        }
+                        None => {
+                            acc.off_film.fetch_add(1, Relaxed);
+                        }
+                    }
+                }
+                continue;
+            };
+            let i = (r.y as u32 * acc.cam.width + r.x as u32) as usize;
+            if k != m {
+                acc.tried[i].fetch_add(1, Relaxed);
+                acc.landed[i].fetch_add(1, Relaxed);
+            }
+            let e = &eyes[k];
+            let v = match opts.method {
+                Method::Havran => fh.radiance(integrator.scene, acc.cam.eye),
+                _ => mis_contribution(integrator, fh, acc.cam.eye, e.wo, if exact { e.j_over_a } else { 1.0 }, &q),
+            };
+            if !acc.splat(i, v) {
+                bad += 1;
+            }
+        }
+    }
+    bad
+}
+
+/// The pixel a lost reuse would have landed in, if it falls on the film at all (lost to
+/// occlusion); reuses off the film are charged to no pixel.
+fn r_pixel(acc: &FrameAccum, x: Vec3) -> Option<usize> {
+    acc.cam.project(x).map(|r| (r.y as u32 * acc.cam.width + r.x as u32) as usize)
+}
+
+/// Fill `land[hi * n_f + k]` for eye `k`: project every hit, test visibility from the eye.
+#[allow(clippy::too_many_arguments)]
+fn visibility(
+    integrator: &Integrator,
+    cam: &Camera,
+    hits: &[(u32, FirstHit)],
+    k: usize,
+    n_f: usize,
+    packets: bool,
+    land: &mut [Landing],
+    tally: &mut Tally,
+) {
+    let geometry = &integrator.scene.geometry;
+    let mut packet = Packet16::new();
+    let mut lanes: [usize; 16] = [0; 16];
+    let mut n = 0;
+    let flush = |packet: &mut Packet16, lanes: &[usize], n: usize, land: &mut [Landing]| {
+        geometry.occluded16(packet);
+        for (lane, &hi) in lanes.iter().enumerate().take(n) {
+            if packet.occluded(lane) {
+                land[hi * n_f + k] = None;
+            }
+        }
+        packet.clear();
+    };
+    for (hi, (_, fh)) in hits.iter().enumerate() {
+        let Some(r) = cam.project(fh.sp.p) else { continue };
+        land[hi * n_f + k] = Some(r);
+        // From the eye towards the hit: the rays of a tile converge on the eye (coherent).
+        let ray = Ray::between(cam.eye, Vec3::ZERO, fh.sp.p, fh.sp.ng);
+        tally.counts.visibility += 1;
+        if packets {
+            packet.set(n, &ray);
+            lanes[n] = hi;
+            n += 1;
+            if n == 16 {
+                flush(&mut packet, &lanes, n, land);
+                n = 0;
+            }
+        } else if geometry.occluded1(&ray) {
+            land[hi * n_f + k] = None;
+        }
+    }
+    if packets && n > 0 {
+        flush(&mut packet, &lanes, n, land);
+    }
+}
