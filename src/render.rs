@@ -215,13 +215,22 @@ pub fn frame_plan(scene: &Scene, opts: &RenderOptions) -> Result<(RangeInclusive
     }
     let n = range.end() - range.start() + 1;
     if opts.window % 2 == 0 {
-        bail!("--window {}: a group is n_f = 2n+1 frames, so the window must be odd", opts.window);
+        bail!(
+            "--window {}: a group is n_f = 2n+1 frames, so the window must be odd",
+            opts.window
+        );
     }
     if opts.window > n {
-        bail!("--window {}: larger than the {n} frames rendered", opts.window);
+        bail!(
+            "--window {}: larger than the {n} frames rendered",
+            opts.window
+        );
     }
     if opts.method == Method::Independent && opts.window != 1 {
-        bail!("--window {}: only the reuse methods (havran, mis, mis-exact) take a window", opts.window);
+        bail!(
+            "--window {}: only the reuse methods (havran, mis, mis-exact) take a window",
+            opts.window
+        );
     }
     Ok((range, w, h))
 }
@@ -336,7 +345,14 @@ pub struct FrameSink<'a> {
 
 impl FrameSink<'_> {
     /// Write frame `frame`: RGB plus optional extra channels (name, one value per pixel).
-    pub fn emit(&mut self, frame: u32, cam: &Camera, px: &[Vec3], extra: &[(&str, Vec<f32>)], seconds: f64) -> Result<()> {
+    pub fn emit(
+        &mut self,
+        frame: u32,
+        cam: &Camera,
+        px: &[Vec3],
+        extra: &[(&str, Vec<f32>)],
+        seconds: f64,
+    ) -> Result<()> {
         let (w, h) = (cam.width, cam.height);
         self.nonfinite_pixels += px.iter().filter(|p| !p.is_finite()).count() as u64;
         let mut img = to_image(w, h, px);
@@ -347,7 +363,8 @@ impl FrameSink<'_> {
                 data.extend(p.to_array());
                 data.extend(extra.iter().map(|(_, v)| v[i]));
             }
-            img.channels.extend(extra.iter().map(|(n, _)| n.to_string()));
+            img.channels
+                .extend(extra.iter().map(|(n, _)| n.to_string()));
             img.data = data;
         }
         let path = self.out.path(frame);
@@ -359,10 +376,20 @@ impl FrameSink<'_> {
             render_seconds: seconds,
             world_to_camera: cam.world_to_camera().to_cols_array(),
             world_to_ndc: cam.world_to_ndc().to_cols_array(),
-            extra: vec![("scene".into(), self.scene.name.clone()), ("frame".into(), frame.to_string())],
+            extra: vec![
+                ("scene".into(), self.scene.name.clone()),
+                ("frame".into(), frame.to_string()),
+            ],
         };
-        write_image(&path, &img, &meta, &WriteOptions { exr_float: self.opts.exr_float })
-            .with_context(|| format!("writing frame {frame}"))?;
+        write_image(
+            &path,
+            &img,
+            &meta,
+            &WriteOptions {
+                exr_float: self.opts.exr_float,
+            },
+        )
+        .with_context(|| format!("writing frame {frame}"))?;
         self.outputs.push(path.display().to_string());
         Ok(())
     }
@@ -380,7 +407,13 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     crate::embree::set_flush_denormals();
     let integrator = Integrator::new(scene, opts.max_depth);
     let n_frames = range.end() - range.start() + 1;
-    let mut sink = FrameSink { scene, opts, out, outputs: Vec::new(), nonfinite_pixels: 0 };
+    let mut sink = FrameSink {
+        scene,
+        opts,
+        out,
+        outputs: Vec::new(),
+        nonfinite_pixels: 0,
+    };
     let start = Instant::now();
     let mut counts = RayCounts::default();
     let mut reuse_stats = None;
@@ -393,21 +426,47 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
                 let cam = scene.camera(frame, w, h);
                 let frame_start = Instant::now();
                 let on_tile = |c: &RayCounts| {
-                    let total = total_rays.fetch_add(c.total(), std::sync::atomic::Ordering::Relaxed) + c.total();
+                    let total = total_rays
+                        .fetch_add(c.total(), std::sync::atomic::Ordering::Relaxed)
+                        + c.total();
                     let secs = start.elapsed().as_secs_f64().max(1e-9);
-                    pb.set_message(format!("| frame {}/{n_frames} | {:.2} Mrays/s", done + 1, total as f64 / secs / 1e6));
+                    pb.set_message(format!(
+                        "| frame {}/{n_frames} | {:.2} Mrays/s",
+                        done + 1,
+                        total as f64 / secs / 1e6
+                    ));
                     pb.inc(1);
                 };
                 let f = pool.install(|| {
-                    render_frame_independent(&integrator, &cam, frame, opts.spp, opts.seed, false, &on_tile)
+                    render_frame_independent(
+                        &integrator,
+                        &cam,
+                        frame,
+                        opts.spp,
+                        opts.seed,
+                        false,
+                        &on_tile,
+                    )
                 });
                 counts.add(&f.counts);
-                sink.emit(frame, &cam, &f.pixels, &[], frame_start.elapsed().as_secs_f64())?;
+                sink.emit(
+                    frame,
+                    &cam,
+                    &f.pixels,
+                    &[],
+                    frame_start.elapsed().as_secs_f64(),
+                )?;
             }
             pb.finish_and_clear();
         }
         Method::Havran | Method::Mis | Method::MisExact => {
-            let r = pool.install(|| crate::reuse::render_reuse(&integrator, opts, range.clone(), w, h, &mut sink))?;
+            let mut emit =
+                |f: u32, cam: &Camera, px: &[Vec3], extra: &[(&str, Vec<f32>)], secs: f64| {
+                    sink.emit(f, cam, px, extra, secs)
+                };
+            let r = pool.install(|| {
+                crate::reuse::render_reuse(&integrator, opts, range.clone(), w, h, &mut emit)
+            })?;
             counts = r.counts;
             reuse_stats = Some(r);
         }
@@ -436,7 +495,9 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         peak_rss_bytes: peak_rss_bytes(),
         nonfinite_pixels: sink.nonfinite_pixels,
         nonfinite_samples: reuse_stats.as_ref().map_or(0, |r| r.nonfinite_samples),
-        mean_effective_spp: reuse_stats.as_ref().map_or(opts.spp as f64, |r| r.mean_effective_spp),
+        mean_effective_spp: reuse_stats
+            .as_ref()
+            .map_or(opts.spp as f64, |r| r.mean_effective_spp),
         lost_reuse_fraction: reuse_stats.as_ref().map_or(0.0, |r| r.lost_reuse_fraction),
         per_frame: reuse_stats.map(|r| r.per_frame).unwrap_or_default(),
         outputs: sink.outputs,

@@ -23,7 +23,7 @@
 use crate::camera::Camera;
 use crate::embree::{Packet16, Ray};
 use crate::integrator::{facing, FirstHit, Integrator, RayCounts, Tally};
-use crate::render::{progress_bar, tiles, FrameReuse, FrameSink, Method, RenderOptions};
+use crate::render::{progress_bar, tiles, FrameReuse, Method, RenderOptions};
 use crate::sampling::Sampler;
 use anyhow::Result;
 use glam::{Vec2, Vec3};
@@ -130,12 +130,27 @@ fn densities(eyes: &[EyeTerms], spp: u32, exact: bool) -> impl Iterator<Item = f
 }
 
 /// The denominators for `fh` given each eye's terms.
-pub fn denominators(integrator: &Integrator, fh: &FirstHit, eyes_wo: &[(Vec3, f32)], spp: u32, exact: bool) -> Denominators {
-    let eyes: Vec<EyeTerms> = eyes_wo.iter().map(|&(wo, j_over_a)| EyeTerms { wo, j_over_a }).collect();
+pub fn denominators(
+    integrator: &Integrator,
+    fh: &FirstHit,
+    eyes_wo: &[(Vec3, f32)],
+    spp: u32,
+    exact: bool,
+) -> Denominators {
+    let eyes: Vec<EyeTerms> = eyes_wo
+        .iter()
+        .map(|&(wo, j_over_a)| EyeTerms { wo, j_over_a })
+        .collect();
     denominators_of(integrator, fh, &eyes, spp, exact)
 }
 
-fn denominators_of(integrator: &Integrator, fh: &FirstHit, eyes: &[EyeTerms], spp: u32, exact: bool) -> Denominators {
+fn denominators_of(
+    integrator: &Integrator,
+    fh: &FirstHit,
+    eyes: &[EyeTerms],
+    spp: u32,
+    exact: bool,
+) -> Denominators {
     let m = integrator.scene.material(&fh.sp);
     let mut q = Denominators::default();
     for (e, d) in eyes.iter().zip(densities(eyes, spp, exact)) {
@@ -144,7 +159,13 @@ fn denominators_of(integrator: &Integrator, fh: &FirstHit, eyes: &[EyeTerms], sp
         }
         let (ng, ns) = facing(&fh.sp, e.wo);
         // The density eye k samples w with: its lobe, on its side of the surface.
-        let pdf_k = |w: Vec3| if ng.dot(w) > 0.0 { m.pdf(ns, e.wo, w) } else { 0.0 };
+        let pdf_k = |w: Vec3| {
+            if ng.dot(w) > 0.0 {
+                m.pdf(ns, e.wo, w)
+            } else {
+                0.0
+            }
+        };
         q.emit += d;
         if let Some(w) = fh.w {
             let p = pdf_k(w);
@@ -160,7 +181,14 @@ fn denominators_of(integrator: &Integrator, fh: &FirstHit, eyes: &[EyeTerms], sp
 
 /// Contribution of native sample `fh` to the pixel it lands in of the eye at `eye` (unit
 /// direction `wo`), with pixel-density factor `scale` (`J_j / A_pix,j`, or 1 for the paper's).
-fn mis_contribution(integrator: &Integrator, fh: &FirstHit, eye: Vec3, wo: Vec3, scale: f32, q: &Denominators) -> Vec3 {
+fn mis_contribution(
+    integrator: &Integrator,
+    fh: &FirstHit,
+    eye: Vec3,
+    wo: Vec3,
+    scale: f32,
+    q: &Denominators,
+) -> Vec3 {
     let scene = integrator.scene;
     let sp = &fh.sp;
     let m = scene.material(sp);
@@ -188,14 +216,17 @@ fn mis_contribution(integrator: &Integrator, fh: &FirstHit, eye: Vec3, wo: Vec3,
     l * scale
 }
 
-/// Render `range` with a reuse method, writing each frame through `sink` as soon as it is final.
+/// A finished frame as `render_reuse` hands it out: (frame, camera, pixels, extra channels, seconds).
+pub type Emit<'e> = dyn FnMut(u32, &Camera, &[Vec3], &[(&str, Vec<f32>)], f64) -> Result<()> + 'e;
+
+/// Render `range` with a reuse method, handing each frame to `emit` as soon as it is final.
 pub fn render_reuse(
     integrator: &Integrator,
     opts: &RenderOptions,
     range: RangeInclusive<u32>,
     w: u32,
     h: u32,
-    sink: &mut FrameSink,
+    emit: &mut Emit,
 ) -> Result<ReuseStats> {
     let scene = integrator.scene;
     let n_f = opts.window;
@@ -216,9 +247,14 @@ pub fn render_reuse(
             let f = active.back().map_or(g0, |a| a.frame + 1);
             active.push_back(FrameAccum::new(f, scene.camera(f, w, h)));
         }
-        let group: Vec<&FrameAccum> = active.iter().filter(|a| a.frame >= g0 && a.frame < g0 + n_f).collect();
+        let group: Vec<&FrameAccum> = active
+            .iter()
+            .filter(|a| a.frame >= g0 && a.frame < g0 + n_f)
+            .collect();
         debug_assert_eq!(group.len(), n_f as usize);
-        let work: Vec<(usize, usize)> = (0..group.len()).flat_map(|m| (0..tile_list.len()).map(move |t| (m, t))).collect();
+        let work: Vec<(usize, usize)> = (0..group.len())
+            .flat_map(|m| (0..tile_list.len()).map(move |t| (m, t)))
+            .collect();
         let group_counts: RayCounts = work
             .par_iter()
             .map(|&(m, t)| {
@@ -232,11 +268,17 @@ pub fn render_reuse(
                 a
             });
         counts.add(&group_counts);
-        for a in active.iter_mut().filter(|a| a.frame >= g0 && a.frame < g0 + n_f) {
+        for a in active
+            .iter_mut()
+            .filter(|a| a.frame >= g0 && a.frame < g0 + n_f)
+        {
             a.groups += 1;
         }
         // Frames no later group contains: g0 itself, or every remaining one after the last group.
-        while active.front().is_some_and(|a| a.frame == g0 || g0 == last_group) {
+        while active
+            .front()
+            .is_some_and(|a| a.frame == g0 || g0 == last_group)
+        {
             let a = active.pop_front().unwrap();
             let mut fr = finish_frame(&a, opts.method);
             // Reuses that fell off the film are charged to the frame, not to a pixel.
@@ -249,10 +291,24 @@ pub fn render_reuse(
             per_frame.push(FrameReuse {
                 frame: a.frame,
                 mean_effective_spp: fr.landed as f64 / n_px,
-                lost_reuse_fraction: if fr.tried > 0 { fr.lost as f64 / fr.tried as f64 } else { 0.0 },
+                lost_reuse_fraction: if fr.tried > 0 {
+                    fr.lost as f64 / fr.tried as f64
+                } else {
+                    0.0
+                },
             });
-            let extra: Vec<(&str, Vec<f32>)> = if opts.aov { vec![("spp_eff", fr.spp_eff), ("lost_reuse", fr.lost_share)] } else { vec![] };
-            sink.emit(a.frame, &a.cam, &fr.pixels, &extra, a.started.elapsed().as_secs_f64())?;
+            let extra: Vec<(&str, Vec<f32>)> = if opts.aov {
+                vec![("spp_eff", fr.spp_eff), ("lost_reuse", fr.lost_share)]
+            } else {
+                vec![]
+            };
+            emit(
+                a.frame,
+                &a.cam,
+                &fr.pixels,
+                &extra,
+                a.started.elapsed().as_secs_f64(),
+            )?;
             written += 1;
         }
         pb.set_message(format!("| {written} frames written"));
@@ -264,7 +320,11 @@ pub fn render_reuse(
         counts,
         nonfinite_samples: nonfinite.into_inner(),
         mean_effective_spp: per_frame.iter().map(|f| f.mean_effective_spp).sum::<f64>() / frames,
-        lost_reuse_fraction: if tried_total > 0 { lost_total as f64 / tried_total as f64 } else { 0.0 },
+        lost_reuse_fraction: if tried_total > 0 {
+            lost_total as f64 / tried_total as f64
+        } else {
+            0.0
+        },
         per_frame,
     })
 }
@@ -310,7 +370,14 @@ fn finish_frame(a: &FrameAccum, method: Method) -> Finished {
         tried += t as u64;
         lost += l as u64;
     }
-    Finished { pixels, spp_eff, lost_share, landed, tried, lost }
+    Finished {
+        pixels,
+        spp_eff,
+        lost_share,
+        landed,
+        tried,
+        lost,
+    }
 }
 
 /// Trace the native samples of one tile of frame `group[m]` and splat every reuse of them into
@@ -336,9 +403,16 @@ fn shade_tile(
             for s in 0..spp {
                 // Sample index: the frame's position in the group keeps each group's samples of a
                 // frame independent; with one frame per group this is the independent tracer's.
-                let mut sampler = Sampler::new(opts.seed, native.frame, pixel, (native.frame - g0) * spp + s);
+                let mut sampler = Sampler::new(
+                    opts.seed,
+                    native.frame,
+                    pixel,
+                    (native.frame - g0) * spp + s,
+                );
                 let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
-                if let Some(fh) = integrator.trace_first_hit(cam_m.eye, cam_m.direction(r), &mut sampler, tally) {
+                if let Some(fh) =
+                    integrator.trace_first_hit(cam_m.eye, cam_m.direction(r), &mut sampler, tally)
+                {
                     hits.push((pixel, fh));
                 }
             }
@@ -350,11 +424,23 @@ fn shade_tile(
     for (k, acc) in group.iter().enumerate() {
         if k == m {
             for (hi, (pixel, _)) in hits.iter().enumerate() {
-                land[hi * n_f + k] = Some(Vec2::new((pixel % w) as f32 + 0.5, (pixel / w) as f32 + 0.5));
+                land[hi * n_f + k] = Some(Vec2::new(
+                    (pixel % w) as f32 + 0.5,
+                    (pixel / w) as f32 + 0.5,
+                ));
             }
             continue;
         }
-        visibility(integrator, &acc.cam, &hits, k, n_f, opts.packets, &mut land, tally);
+        visibility(
+            integrator,
+            &acc.cam,
+            &hits,
+            k,
+            n_f,
+            opts.packets,
+            &mut land,
+            tally,
+        );
     }
     let exact = opts.method == Method::MisExact;
     let mut bad = 0u64;
@@ -364,10 +450,18 @@ fn shade_tile(
         eyes.clear();
         for (k, acc) in group.iter().enumerate() {
             let wo = (acc.cam.eye - x).normalize();
-            let j_over_a = if land[hi * n_f + k].is_some() { acc.cam.jacobian(x, fh.sp.ng) / acc.cam.pixel_area() } else { 0.0 };
+            let j_over_a = if land[hi * n_f + k].is_some() {
+                acc.cam.jacobian(x, fh.sp.ng) / acc.cam.pixel_area()
+            } else {
+                0.0
+            };
             eyes.push(EyeTerms { wo, j_over_a });
         }
-        let q = if opts.method == Method::Havran { Denominators::default() } else { denominators_of(integrator, fh, &eyes, spp, exact) };
+        let q = if opts.method == Method::Havran {
+            Denominators::default()
+        } else {
+            denominators_of(integrator, fh, &eyes, spp, exact)
+        };
         for (k, acc) in group.iter().enumerate() {
             let Some(r) = land[hi * n_f + k] else {
                 if k != m {
@@ -391,7 +485,14 @@ fn shade_tile(
             let e = &eyes[k];
             let v = match opts.method {
                 Method::Havran => fh.radiance(integrator.scene, acc.cam.eye),
-                _ => mis_contribution(integrator, fh, acc.cam.eye, e.wo, if exact { e.j_over_a } else { 1.0 }, &q),
+                _ => mis_contribution(
+                    integrator,
+                    fh,
+                    acc.cam.eye,
+                    e.wo,
+                    if exact { e.j_over_a } else { 1.0 },
+                    &q,
+                ),
             };
             if !acc.splat(i, v) {
                 bad += 1;
@@ -404,7 +505,9 @@ fn shade_tile(
 /// The pixel a lost reuse would have landed in, if it falls on the film at all (lost to
 /// occlusion); reuses off the film are charged to no pixel.
 fn r_pixel(acc: &FrameAccum, x: Vec3) -> Option<usize> {
-    acc.cam.project(x).map(|r| (r.y as u32 * acc.cam.width + r.x as u32) as usize)
+    acc.cam
+        .project(x)
+        .map(|r| (r.y as u32 * acc.cam.width + r.x as u32) as usize)
 }
 
 /// Fill `land[hi * n_f + k]` for eye `k`: project every hit, test visibility from the eye.
@@ -433,7 +536,9 @@ fn visibility(
         packet.clear();
     };
     for (hi, (_, fh)) in hits.iter().enumerate() {
-        let Some(r) = cam.project(fh.sp.p) else { continue };
+        let Some(r) = cam.project(fh.sp.p) else {
+            continue;
+        };
         land[hi * n_f + k] = Some(r);
         // From the eye towards the hit: the rays of a tile converge on the eye (coherent).
         let ray = Ray::between(cam.eye, Vec3::ZERO, fh.sp.p, fh.sp.ng);

@@ -1,0 +1,314 @@
+//! Statistical and structural tests of frame reuse (ESTIMATOR.md): window 1 is the independent
+//! tracer, the MIS weights of a sample's eyes sum to one, `mis-exact` is unbiased on a glossy
+//! scene with occlusion and a zooming camera while Havran's reuse is caught biased, and on a
+//! diffuse scene without occlusion all reuse methods agree.
+use glam::Vec3;
+use reframe::camera::Camera;
+use reframe::embree::Device;
+use reframe::integrator::Integrator;
+use reframe::render::{render_frame_independent, thread_pool, Method, RenderOptions};
+use reframe::reuse::{denominators, render_reuse};
+use reframe::sampling::Sampler;
+use reframe::scene::Scene;
+use std::collections::BTreeMap;
+
+/// Render frames `a..=b` with a reuse method in memory: frame -> pixels.
+fn reuse_frames(
+    integ: &Integrator,
+    method: Method,
+    window: u32,
+    spp: u32,
+    seed: u64,
+    a: u32,
+    b: u32,
+    w: u32,
+    h: u32,
+) -> BTreeMap<u32, Vec<Vec3>> {
+    let opts = RenderOptions {
+        method,
+        window,
+        spp,
+        seed,
+        progress: false,
+        ..RenderOptions::default()
+    };
+    let mut frames = BTreeMap::new();
+    let mut emit = |f: u32, _: &Camera, px: &[Vec3], _: &[(&str, Vec<f32>)], _: f64| {
+        frames.insert(f, px.to_vec());
+        Ok(())
+    };
+    let stats = render_reuse(integ, &opts, a..=b, w, h, &mut emit).unwrap();
+    assert_eq!(stats.nonfinite_samples, 0, "non-finite contributions");
+    for px in frames.values() {
+        assert!(px.iter().all(|p| p.is_finite()), "non-finite pixel");
+    }
+    frames
+}
+
+#[test]
+fn window_one_is_the_independent_tracer() {
+    let device = Device::new().unwrap();
+    let scene = Scene::load("vase", &device).unwrap();
+    let integ = Integrator::new(&scene, 16);
+    let pool = thread_pool(0).unwrap();
+    let (w, h) = (48, 36);
+    for method in [Method::MisExact, Method::Mis, Method::Havran] {
+        let reuse = pool.install(|| reuse_frames(&integ, method, 1, 3, 5, 30, 31, w, h));
+        for f in 30..=31 {
+            let ind = pool.install(|| {
+                render_frame_independent(&integ, &scene.camera(f, w, h), f, 3, 5, false, &|_| {})
+            });
+            for (a, b) in reuse[&f].iter().zip(&ind.pixels) {
+                let tol = 1e-5 + 1e-5 * b.abs().max_element();
+                assert!(
+                    (*a - *b).abs().max_element() <= tol,
+                    "{method:?} frame {f}: {a} vs {b}"
+                );
+            }
+        }
+    }
+}
+
+/// Each eye's weight as the generating technique, computed from its own Jacobian and pdf, must
+/// sum to one with the denominator the estimator uses.
+#[test]
+fn mis_weights_sum_to_one() {
+    let device = Device::new().unwrap();
+    let scene = Scene::load("vase", &device).unwrap();
+    let integ = Integrator::new(&scene, 16);
+    let (w, h) = (64, 48);
+    let eyes: Vec<Camera> = (20..27).map(|f| scene.camera(f, w, h)).collect();
+    let spp = 2;
+    let mut tested = 0;
+    let mut t = reframe::integrator::Tally::default();
+    for i in 0..4000u32 {
+        let mut s = Sampler::new(1, 23, i, 0);
+        let cam = &eyes[3];
+        let r = glam::Vec2::new(s.next_1d() * w as f32, s.next_1d() * h as f32);
+        let Some(fh) = integ.trace_first_hit(cam.eye, cam.direction(r), &mut s, &mut t) else {
+            continue;
+        };
+        let Some(wdir) = fh.w else { continue };
+        // Pretend every eye that has x on its film sees it (visibility is a 0/1 factor of D).
+        let terms: Vec<(Vec3, f32)> = eyes
+            .iter()
+            .map(|e| {
+                let wo = (e.eye - fh.sp.p).normalize();
+                let j = if e.project(fh.sp.p).is_some() {
+                    e.jacobian(fh.sp.p, fh.sp.ng) / e.pixel_area()
+                } else {
+                    0.0
+                };
+                (wo, j)
+            })
+            .collect();
+        let m = scene.material(&fh.sp);
+        for exact in [true, false] {
+            let q = denominators(&integ, &fh, &terms, spp, exact);
+            let mut sum = 0.0f64;
+            for &(wo, j) in &terms {
+                if j == 0.0 {
+                    continue;
+                }
+                let (ng, ns) = reframe::integrator::facing(&fh.sp, wo);
+                let p = if ng.dot(wdir) > 0.0 {
+                    m.pdf(ns, wo, wdir)
+                } else {
+                    0.0
+                };
+                let d = if exact { spp as f32 * j } else { spp as f32 };
+                sum += (d * p) as f64 / q.ind as f64;
+            }
+            assert!((sum - 1.0).abs() < 1e-5, "weights sum to {sum}");
+        }
+        tested += 1;
+    }
+    assert!(tested > 1000, "only {tested} samples tested");
+}
+
+struct Moments {
+    mean: Vec<f64>,
+    var_of_mean: Vec<f64>,
+}
+
+/// Per-block luminance over `k` independent renders: block mean and the variance of that mean.
+fn block_moments(renders: &[Vec<Vec3>], w: usize, h: usize, b: usize) -> Moments {
+    let (bw, bh) = (w / b, h / b);
+    let k = renders.len() as f64;
+    let mut sums = vec![0.0f64; bw * bh];
+    let mut sq = vec![0.0f64; bw * bh];
+    for r in renders {
+        let mut blk = vec![0.0f64; bw * bh];
+        for y in 0..bh * b {
+            for x in 0..bw * b {
+                let p = r[y * w + x];
+                blk[(y / b) * bw + x / b] +=
+                    (0.2126 * p.x + 0.7152 * p.y + 0.0722 * p.z) as f64 / (b * b) as f64;
+            }
+        }
+        for i in 0..blk.len() {
+            sums[i] += blk[i];
+            sq[i] += blk[i] * blk[i];
+        }
+    }
+    let mean: Vec<f64> = sums.iter().map(|s| s / k).collect();
+    let var_of_mean = sq
+        .iter()
+        .zip(&mean)
+        .map(|(q, m)| ((q / k - m * m) * k / (k - 1.0)).max(0.0) / k)
+        .collect();
+    Moments { mean, var_of_mean }
+}
+
+/// Fraction of blocks whose z-score against the reference passes at alpha 0.01, Sidak-corrected.
+fn z_pass_fraction(test: &Moments, reference: &Moments) -> (f64, f64) {
+    let n = test.mean.len() as f64;
+    let alpha = 1.0 - (1.0f64 - 0.01).powf(1.0 / n);
+    // Two-sided normal quantile for alpha by bisection on erfc.
+    let z_crit = {
+        let (mut lo, mut hi) = (0.0f64, 10.0f64);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if libm_erfc(mid / std::f64::consts::SQRT_2) > alpha {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        lo
+    };
+    let mut pass = 0;
+    let mut worst = 0.0f64;
+    for i in 0..test.mean.len() {
+        let var = test.var_of_mean[i] + reference.var_of_mean[i];
+        let z = if var > 0.0 {
+            (test.mean[i] - reference.mean[i]).abs() / var.sqrt()
+        } else {
+            0.0
+        };
+        worst = worst.max(z);
+        if z <= z_crit {
+            pass += 1;
+        }
+    }
+    (pass as f64 / n, worst)
+}
+
+fn libm_erfc(x: f64) -> f64 {
+    statrs::function::erf::erfc(x)
+}
+
+/// The vase moves in and zooms (fov 55 -> 30 over the animation), the ball occludes part of
+/// the vase from some eyes, and the vase is glossy: every source of bias of the approximate
+/// methods is present. K independent mis-exact renders must match a high-sample independent
+/// reference block by block; Havran's reuse must not.
+#[test]
+fn mis_exact_is_unbiased_and_havran_is_not() {
+    let device = Device::new().unwrap();
+    let scene = Scene::load("vase", &device).unwrap();
+    let integ = Integrator::new(&scene, 8);
+    let pool = thread_pool(0).unwrap();
+    let (w, h, b) = (64, 48, 4);
+    let (a, z, target) = (32, 40, 36); // window 9 around frame 36: eyes far apart, strong zoom
+    let k = 128;
+    let reference: Vec<Vec<Vec3>> = (0..k)
+        .map(|s| {
+            pool.install(|| {
+                render_frame_independent(
+                    &integ,
+                    &scene.camera(target, w, h),
+                    target,
+                    16,
+                    1000 + s,
+                    false,
+                    &|_| {},
+                )
+                .pixels
+            })
+        })
+        .collect();
+    let reference = block_moments(&reference, w as usize, h as usize, b);
+    let run = |method: Method| {
+        let renders: Vec<Vec<Vec3>> = (0..k)
+            .map(|s| {
+                pool.install(|| {
+                    reuse_frames(&integ, method, 9, 2, s, a, z, w, h)
+                        .remove(&target)
+                        .unwrap()
+                })
+            })
+            .collect();
+        block_moments(&renders, w as usize, h as usize, b)
+    };
+    let (exact_pass, exact_worst) = z_pass_fraction(&run(Method::MisExact), &reference);
+    let (havran_pass, havran_worst) = z_pass_fraction(&run(Method::Havran), &reference);
+    let (mis_pass, mis_worst) = z_pass_fraction(&run(Method::Mis), &reference);
+    eprintln!(
+        "mis (approximation (10)): {:.1}% of blocks pass (worst z {mis_worst:.1})",
+        100.0 * mis_pass
+    );
+    eprintln!("mis-exact: {:.1}% of blocks pass (worst z {exact_worst:.1}); havran: {:.1}% (worst z {havran_worst:.1})", 100.0 * exact_pass, 100.0 * havran_pass);
+    assert!(
+        exact_pass >= 0.99,
+        "mis-exact fails the z-test on {:.1}% of blocks",
+        100.0 * (1.0 - exact_pass)
+    );
+    assert!(
+        havran_pass < 0.99,
+        "the z-test did not detect Havran's bias: it has no power"
+    );
+}
+
+/// A diffuse box without occluders, camera drifting a little: all reuse methods estimate the
+/// same image within their noise.
+#[test]
+fn reuse_methods_agree_on_diffuse_scene_without_occlusion() {
+    let device = Device::new().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("box.obj"),
+        "mtllib box.mtl\nv -1 0 -1\nv 1 0 -1\nv 1 2 -1\nv -1 2 -1\nv -1 0 1\nv 1 0 1\nv 1 2 1\nv -1 2 1\n\
+         v -0.3 1.99 -0.3\nv 0.3 1.99 -0.3\nv 0.3 1.99 0.3\nv -0.3 1.99 0.3\n\
+         usemtl white\nf 1 2 6 5\nf 4 8 7 3\nf 1 4 3 2\nusemtl red\nf 1 5 8 4\nusemtl green\nf 2 3 7 6\n\
+         usemtl light\nf 9 10 11 12\n",
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("box.mtl"),
+        "newmtl white\nKd 0.7 0.7 0.7\nnewmtl red\nKd 0.6 0.1 0.1\nnewmtl green\nKd 0.1 0.5 0.1\nnewmtl light\nKd 0 0 0\nKe 10 10 10\n",
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("box.toml"),
+        "obj = \"box.obj\"\nframes = 9\nresolution = [32, 32]\n\
+         [[keyframe]]\nframe = 0\nposition = [-0.15, 1.0, 3.0]\nlook_at = [0.0, 1.0, 0.0]\nup = [0.0, 1.0, 0.0]\nfov = 40.0\n\
+         [[keyframe]]\nframe = 8\nposition = [0.15, 1.0, 3.0]\nlook_at = [0.0, 1.0, 0.0]\nup = [0.0, 1.0, 0.0]\nfov = 40.0\n",
+    )
+    .unwrap();
+    let scene = Scene::load(d.join("box.toml").to_str().unwrap(), &device).unwrap();
+    let integ = Integrator::new(&scene, 8);
+    let pool = thread_pool(0).unwrap();
+    let k = 32;
+    let run = |method: Method| {
+        let renders: Vec<Vec<Vec3>> = (0..k)
+            .map(|s| {
+                pool.install(|| {
+                    reuse_frames(&integ, method, 5, 2, 7 + s, 2, 6, 32, 32)
+                        .remove(&4)
+                        .unwrap()
+                })
+            })
+            .collect();
+        block_moments(&renders, 32, 32, 4)
+    };
+    let exact = run(Method::MisExact);
+    for method in [Method::Mis, Method::Havran] {
+        let (pass, worst) = z_pass_fraction(&run(method), &exact);
+        assert!(
+            pass >= 0.99,
+            "{method:?} disagrees with mis-exact on {:.1}% of blocks (worst z {worst:.1})",
+            100.0 * (1.0 - pass)
+        );
+    }
+}
