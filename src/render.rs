@@ -214,7 +214,7 @@ pub fn frame_plan(scene: &Scene, opts: &RenderOptions) -> Result<(RangeInclusive
         bail!("--spp 0: at least one sample per pixel is needed");
     }
     let n = range.end() - range.start() + 1;
-    if opts.window % 2 == 0 {
+    if opts.window.is_multiple_of(2) {
         bail!(
             "--window {}: a group is n_f = 2n+1 frames, so the window must be odd",
             opts.window

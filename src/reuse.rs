@@ -12,6 +12,7 @@
 //!   makes every eye's area density equal, so they cancel and only pdfs remain);
 //! - `mis-exact`: `(J_j / A_pix,j) f_j cos L / sum_{m'} D_m'(x) p(w | x, x->o_m')` with
 //!   `D_m' = n_r J_m'(x) vis inside / A_pix,m'` (ESTIMATOR.md), which is unbiased.
+//!
 //! The light sample and the emitter reached along `w` use `p + p_l` in the denominators and the
 //! self-emission of `x` divides by `sum D_m'` (ESTIMATOR.md, `Q_dir`).
 //!
@@ -43,27 +44,28 @@ struct FrameAccum {
     sum: Vec<AtomicI64>,
     /// Samples that landed per pixel (native and reused).
     landed: Vec<AtomicU32>,
-    /// Attempted reuses into this frame, and those lost (occluded or off the film), per pixel.
-    tried: Vec<AtomicU32>,
-    lost: Vec<AtomicU32>,
-    /// Attempted reuses into this frame that fell outside its film (or behind the eye).
-    off_film: AtomicU64,
+    /// Attempted and lost reuses into this frame per pixel, kept only for `--aov` (8 bytes a
+    /// pixel that the statistics alone do not need).
+    per_pixel_loss: Option<(Vec<AtomicU32>, Vec<AtomicU32>)>,
+    /// Attempted reuses into this frame, and those lost (occluded, or off the film).
+    tried: AtomicU64,
+    lost: AtomicU64,
     groups: u32,
     started: Instant,
 }
 
 impl FrameAccum {
-    fn new(frame: u32, cam: Camera) -> FrameAccum {
+    fn new(frame: u32, cam: Camera, aov: bool) -> FrameAccum {
         let p = (cam.width * cam.height) as usize;
         let zeros32 = |n| (0..n).map(|_| AtomicU32::new(0)).collect::<Vec<_>>();
         FrameAccum {
             frame,
             sum: (0..3 * p).map(|_| AtomicI64::new(0)).collect(),
             landed: zeros32(p),
-            tried: zeros32(p),
-            lost: zeros32(p),
+            per_pixel_loss: aov.then(|| (zeros32(p), zeros32(p))),
             cam,
-            off_film: AtomicU64::new(0),
+            tried: AtomicU64::new(0),
+            lost: AtomicU64::new(0),
             groups: 0,
             started: Instant::now(),
         }
@@ -243,9 +245,9 @@ pub fn render_reuse(
     let mut written = 0;
     for g0 in first..=last_group {
         // The group's frames: keep those still active, add the new ones.
-        while active.back().map_or(true, |a| a.frame < g0 + n_f - 1) {
+        while active.back().is_none_or(|a| a.frame < g0 + n_f - 1) {
             let f = active.back().map_or(g0, |a| a.frame + 1);
-            active.push_back(FrameAccum::new(f, scene.camera(f, w, h)));
+            active.push_back(FrameAccum::new(f, scene.camera(f, w, h), opts.aov));
         }
         let group: Vec<&FrameAccum> = active
             .iter()
@@ -280,27 +282,22 @@ pub fn render_reuse(
             .is_some_and(|a| a.frame == g0 || g0 == last_group)
         {
             let a = active.pop_front().unwrap();
-            let mut fr = finish_frame(&a, opts.method);
-            // Reuses that fell off the film are charged to the frame, not to a pixel.
-            let off = a.off_film.load(Relaxed);
-            fr.tried += off;
-            fr.lost += off;
+            let fr = finish_frame(&a, opts.method);
             tried_total += fr.tried;
             lost_total += fr.lost;
             let n_px = (w * h) as f64;
             per_frame.push(FrameReuse {
                 frame: a.frame,
-                mean_effective_spp: fr.landed as f64 / n_px,
+                mean_effective_spp: fr.spp_eff.iter().map(|&c| c as f64).sum::<f64>() / n_px,
                 lost_reuse_fraction: if fr.tried > 0 {
                     fr.lost as f64 / fr.tried as f64
                 } else {
                     0.0
                 },
             });
-            let extra: Vec<(&str, Vec<f32>)> = if opts.aov {
-                vec![("spp_eff", fr.spp_eff), ("lost_reuse", fr.lost_share)]
-            } else {
-                vec![]
+            let extra: Vec<(&str, Vec<f32>)> = match fr.lost_share {
+                Some(lost) => vec![("spp_eff", fr.spp_eff), ("lost_reuse", lost)],
+                None => vec![],
             };
             emit(
                 a.frame,
@@ -332,8 +329,7 @@ pub fn render_reuse(
 struct Finished {
     pixels: Vec<Vec3>,
     spp_eff: Vec<f32>,
-    lost_share: Vec<f32>,
-    landed: u64,
+    lost_share: Option<Vec<f32>>,
     tried: u64,
     lost: u64,
 }
@@ -344,8 +340,6 @@ fn finish_frame(a: &FrameAccum, method: Method) -> Finished {
     let n = a.landed.len();
     let mut pixels = Vec::with_capacity(n);
     let mut spp_eff = Vec::with_capacity(n);
-    let mut lost_share = Vec::with_capacity(n);
-    let (mut landed, mut tried, mut lost) = (0u64, 0u64, 0u64);
     for i in 0..n {
         let s = Vec3::new(
             (a.sum[3 * i].load(Relaxed) as f64 / FIXED) as f32,
@@ -353,30 +347,33 @@ fn finish_frame(a: &FrameAccum, method: Method) -> Finished {
             (a.sum[3 * i + 2].load(Relaxed) as f64 / FIXED) as f32,
         );
         let c = a.landed[i].load(Relaxed);
-        let (t, l) = (a.tried[i].load(Relaxed), a.lost[i].load(Relaxed));
         pixels.push(match method {
-            Method::Havran => {
-                if c > 0 {
-                    s / c as f32
-                } else {
-                    Vec3::ZERO
-                }
-            }
+            Method::Havran if c > 0 => s / c as f32,
+            Method::Havran => Vec3::ZERO,
             _ => s / a.groups as f32,
         });
         spp_eff.push(c as f32);
-        lost_share.push(if t > 0 { l as f32 / t as f32 } else { 0.0 });
-        landed += c as u64;
-        tried += t as u64;
-        lost += l as u64;
     }
+    let lost_share = a.per_pixel_loss.as_ref().map(|(tried, lost)| {
+        tried
+            .iter()
+            .zip(lost)
+            .map(|(t, l)| {
+                let t = t.load(Relaxed);
+                if t > 0 {
+                    l.load(Relaxed) as f32 / t as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    });
     Finished {
         pixels,
         spp_eff,
         lost_share,
-        landed,
-        tried,
-        lost,
+        tried: a.tried.load(Relaxed),
+        lost: a.lost.load(Relaxed),
     }
 }
 
@@ -444,6 +441,8 @@ fn shade_tile(
     }
     let exact = opts.method == Method::MisExact;
     let mut bad = 0u64;
+    // Reuse bookkeeping summed locally and added once per tile: (tried, lost) per target eye.
+    let mut loss = vec![(0u64, 0u64); n_f];
     let mut eyes: Vec<EyeTerms> = Vec::with_capacity(n_f);
     for (hi, (_, fh)) in hits.iter().enumerate() {
         let x = fh.sp.p;
@@ -465,22 +464,23 @@ fn shade_tile(
         for (k, acc) in group.iter().enumerate() {
             let Some(r) = land[hi * n_f + k] else {
                 if k != m {
-                    match r_pixel(acc, x) {
-                        Some(i) => {
-                            acc.tried[i].fetch_add(1, Relaxed);
-                            acc.lost[i].fetch_add(1, Relaxed);
-                        }
-                        None => {
-                            acc.off_film.fetch_add(1, Relaxed);
-                        }
+                    loss[k].0 += 1;
+                    loss[k].1 += 1;
+                    // Only reuses lost to occlusion fall on a pixel of the target.
+                    if let (Some((tried, lost)), Some(i)) = (&acc.per_pixel_loss, r_pixel(acc, x)) {
+                        tried[i].fetch_add(1, Relaxed);
+                        lost[i].fetch_add(1, Relaxed);
                     }
                 }
                 continue;
             };
             let i = (r.y as u32 * acc.cam.width + r.x as u32) as usize;
             if k != m {
-                acc.tried[i].fetch_add(1, Relaxed);
+                loss[k].0 += 1;
                 acc.landed[i].fetch_add(1, Relaxed);
+                if let Some((tried, _)) = &acc.per_pixel_loss {
+                    tried[i].fetch_add(1, Relaxed);
+                }
             }
             let e = &eyes[k];
             let v = match opts.method {
@@ -499,11 +499,15 @@ fn shade_tile(
             }
         }
     }
+    for (acc, (t, l)) in group.iter().zip(loss) {
+        acc.tried.fetch_add(t, Relaxed);
+        acc.lost.fetch_add(l, Relaxed);
+    }
     bad
 }
 
 /// The pixel a lost reuse would have landed in, if it falls on the film at all (lost to
-/// occlusion); reuses off the film are charged to no pixel.
+/// occlusion); reuses off the film are charged to the frame only.
 fn r_pixel(acc: &FrameAccum, x: Vec3) -> Option<usize> {
     acc.cam
         .project(x)

@@ -194,6 +194,22 @@ fn bad_inputs_fail_cleanly() {
     let mut c = case("frames out of range", "--frames");
     c.args = vec!["--frames".into(), "0-5".into()];
     cases.push(c);
+    let mut c = case("even window", "odd");
+    c.args = vec![
+        "--method".into(),
+        "mis-exact".into(),
+        "--window".into(),
+        "2".into(),
+    ];
+    cases.push(c);
+    let mut c = case("window larger than the frames", "larger than");
+    c.args = vec![
+        "--method".into(),
+        "mis".into(),
+        "--window".into(),
+        "5".into(),
+    ];
+    cases.push(c);
     let mut c = case("energy not conserved", "exceeds 1");
     c.mtl = MTL.replace("Kd 0.5 0.5 0.5", "Kd 0.8 0.8 0.8\nKs 0.5 0.5 0.5");
     cases.push(c);

@@ -154,3 +154,61 @@ fn cli_is_deterministic() {
         b.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
     );
 }
+
+/// A reuse render through the CLI: bitwise identical for 1 and 2 threads, the reuse statistics
+/// and the AOV channels are there.
+#[test]
+fn reuse_cli_stats_aov_and_determinism() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for t in ["1", "2"] {
+        let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
+            .args([
+                "render",
+                "vase",
+                "--method",
+                "mis-exact",
+                "--window",
+                "3",
+                "--frames",
+                "10-14",
+                "--res",
+                "40x30",
+                "--spp",
+                "1",
+            ])
+            .args(["--exr-float", "--aov", "--threads", t, "--stats"])
+            .arg(d.join(format!("s{t}.json")))
+            .arg("--out")
+            .arg(d.join(format!("t{t}_####.exr")))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    for f in 10..=14 {
+        let a = reframe::image::read_image(&d.join(format!("t1_{f:04}.exr"))).unwrap();
+        let b = reframe::image::read_image(&d.join(format!("t2_{f:04}.exr"))).unwrap();
+        assert_eq!(
+            a.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            b.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        );
+        for c in ["spp_eff", "lost_reuse"] {
+            assert!(
+                a.channels.iter().any(|n| n == c),
+                "frame {f} lacks channel {c}: {:?}",
+                a.channels
+            );
+        }
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("s1.json")).unwrap()).unwrap();
+    assert_eq!(json["window"].as_u64(), Some(3));
+    assert!(json["rays"]["visibility"].as_u64().unwrap() > 0);
+    assert_eq!(json["nonfinite_pixels"].as_u64(), Some(0));
+    // Middle frames belong to 3 groups of 3 frames, each shooting 1 spp: up to 9 samples land.
+    let spp = json["mean_effective_spp"].as_f64().unwrap();
+    assert!(spp > 3.0 && spp <= 9.0, "mean_effective_spp {spp}");
+    let lost = json["lost_reuse_fraction"].as_f64().unwrap();
+    assert!((0.0..0.5).contains(&lost), "lost_reuse_fraction {lost}");
+    assert_eq!(json["per_frame"].as_array().unwrap().len(), 5);
+}

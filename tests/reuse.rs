@@ -13,6 +13,7 @@ use reframe::scene::Scene;
 use std::collections::BTreeMap;
 
 /// Render frames `a..=b` with a reuse method in memory: frame -> pixels.
+#[allow(clippy::too_many_arguments)]
 fn reuse_frames(
     integ: &Integrator,
     method: Method,
