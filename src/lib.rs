@@ -4,7 +4,7 @@
 //!
 //! The architecture, one concept per module: `camera`, `scene` (loading, materials, lights),
 //! `bsdf`, `sampling`, `embree` (the only unsafe module besides the image bridge), `image` (film
-//! output through OpenImageIO), `integrator` (the independent tracer and its first-hit record),
+//! output through OpenImageIO), `integrator` (the independent tracer and its first-hit record), `reuse` (the frame-reuse methods),
 //! `render` (the driver: frame loop, tiles, progress, files) and `bench`.
 pub mod bench;
 pub mod bsdf;
