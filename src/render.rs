@@ -522,11 +522,7 @@ pub fn check_stats_path(p: &std::path::Path) -> Result<()> {
             dir.display()
         );
     }
-    let probe = dir.join(format!(".reframe-probe-{}", std::process::id()));
-    std::fs::write(&probe, b"")
-        .with_context(|| format!("--stats {}: folder is not writable", p.display()))?;
-    let _ = std::fs::remove_file(probe);
-    Ok(())
+    crate::image::check_writable_dir(dir).with_context(|| format!("--stats {}", p.display()))
 }
 
 /// Write JSON atomically (temporary name, then rename).

@@ -233,24 +233,7 @@ impl OutputPattern {
         let dir = parent_dir(&target);
         fs::create_dir_all(&dir)
             .map_err(|e| anyhow!("cannot create output folder {}: {e}", dir.display()))?;
-        let probe = dir.join(format!(
-            ".reframe-probe-{}-{}",
-            std::process::id(),
-            unique()
-        ));
-        fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&probe)
-            .map_err(|e| {
-                anyhow!(
-                    "cannot create files in output folder {}: {e}",
-                    dir.display()
-                )
-            })?;
-        fs::remove_file(&probe)
-            .map_err(|e| anyhow!("cannot delete probe file {}: {e}", probe.display()))?;
-        Ok(())
+        check_writable_dir(&dir)
     }
 
     /// Whether frames are written as 8-bit sRGB (PNG, JPEG, TIFF, ...) rather than float.
@@ -299,6 +282,23 @@ fn parent_dir(path: &Path) -> PathBuf {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     }
+}
+
+/// Fail unless a file can be created (and removed) in `dir`: creates and deletes a probe file.
+pub fn check_writable_dir(dir: &Path) -> Result<()> {
+    let probe = dir.join(format!(
+        ".reframe-probe-{}-{}",
+        std::process::id(),
+        unique()
+    ));
+    fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+        .map_err(|e| anyhow!("cannot create files in folder {}: {e}", dir.display()))?;
+    fs::remove_file(&probe)
+        .map_err(|e| anyhow!("cannot delete probe file {}: {e}", probe.display()))?;
+    Ok(())
 }
 
 /// Distinguishes temporary and probe files of concurrent writers within this process (the pid
