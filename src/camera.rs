@@ -82,6 +82,13 @@ impl Camera {
             .then_some(r)
     }
 
+    /// Index (row-major) of the pixel `x` projects into, if it is on the film.
+    #[inline]
+    pub fn pixel_of(&self, x: Vec3) -> Option<u32> {
+        self.project(x)
+            .map(|r| r.y as u32 * self.width + r.x as u32)
+    }
+
     /// Film area at focal distance 1 (`A_m`).
     pub fn film_area(&self) -> f32 {
         4.0 * self.tan_half_fov * self.tan_half_fov * self.aspect

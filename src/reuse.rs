@@ -93,15 +93,15 @@ pub struct ReuseStats {
     pub per_frame: Vec<FrameReuse>,
 }
 
-/// Per hit and target eye: raster position in the target (if on its film and visible).
-type Landing = Option<Vec2>;
+/// Per hit and target eye: the pixel it lands in (if on the target's film and visible).
+type Landing = Option<u32>;
 
 /// The per-eye quantities of one native hit that every method's weights are built from.
-struct EyeTerms {
+pub struct EyeTerms {
     /// Unit direction from x to the eye.
-    wo: Vec3,
+    pub wo: Vec3,
     /// `J_k / A_pix,k` (film density in pixels per unit area at x), or 0 where eye k cannot see x.
-    j_over_a: f32,
+    pub j_over_a: f32,
 }
 
 /// MIS denominators of one native sample over the eyes of its group (ESTIMATOR.md, `Q`).
@@ -133,20 +133,6 @@ fn densities(eyes: &[EyeTerms], spp: u32, exact: bool) -> impl Iterator<Item = f
 
 /// The denominators for `fh` given each eye's terms.
 pub fn denominators(
-    integrator: &Integrator,
-    fh: &FirstHit,
-    eyes_wo: &[(Vec3, f32)],
-    spp: u32,
-    exact: bool,
-) -> Denominators {
-    let eyes: Vec<EyeTerms> = eyes_wo
-        .iter()
-        .map(|&(wo, j_over_a)| EyeTerms { wo, j_over_a })
-        .collect();
-    denominators_of(integrator, fh, &eyes, spp, exact)
-}
-
-fn denominators_of(
     integrator: &Integrator,
     fh: &FirstHit,
     eyes: &[EyeTerms],
@@ -421,10 +407,7 @@ fn shade_tile(
     for (k, acc) in group.iter().enumerate() {
         if k == m {
             for (hi, (pixel, _)) in hits.iter().enumerate() {
-                land[hi * n_f + k] = Some(Vec2::new(
-                    (pixel % w) as f32 + 0.5,
-                    (pixel / w) as f32 + 0.5,
-                ));
+                land[hi * n_f + k] = Some(*pixel);
             }
             continue;
         }
@@ -459,22 +442,24 @@ fn shade_tile(
         let q = if opts.method == Method::Havran {
             Denominators::default()
         } else {
-            denominators_of(integrator, fh, &eyes, spp, exact)
+            denominators(integrator, fh, &eyes, spp, exact)
         };
         for (k, acc) in group.iter().enumerate() {
-            let Some(r) = land[hi * n_f + k] else {
+            let Some(i) = land[hi * n_f + k] else {
                 if k != m {
                     loss[k].0 += 1;
                     loss[k].1 += 1;
                     // Only reuses lost to occlusion fall on a pixel of the target.
-                    if let (Some((tried, lost)), Some(i)) = (&acc.per_pixel_loss, r_pixel(acc, x)) {
-                        tried[i].fetch_add(1, Relaxed);
-                        lost[i].fetch_add(1, Relaxed);
+                    if let (Some((tried, lost)), Some(i)) =
+                        (&acc.per_pixel_loss, acc.cam.pixel_of(x))
+                    {
+                        tried[i as usize].fetch_add(1, Relaxed);
+                        lost[i as usize].fetch_add(1, Relaxed);
                     }
                 }
                 continue;
             };
-            let i = (r.y as u32 * acc.cam.width + r.x as u32) as usize;
+            let i = i as usize;
             if k != m {
                 loss[k].0 += 1;
                 acc.landed[i].fetch_add(1, Relaxed);
@@ -506,14 +491,6 @@ fn shade_tile(
     bad
 }
 
-/// The pixel a lost reuse would have landed in, if it falls on the film at all (lost to
-/// occlusion); reuses off the film are charged to the frame only.
-fn r_pixel(acc: &FrameAccum, x: Vec3) -> Option<usize> {
-    acc.cam
-        .project(x)
-        .map(|r| (r.y as u32 * acc.cam.width + r.x as u32) as usize)
-}
-
 /// Fill `land[hi * n_f + k]` for eye `k`: project every hit, test visibility from the eye.
 #[allow(clippy::too_many_arguments)]
 fn visibility(
@@ -540,10 +517,10 @@ fn visibility(
         packet.clear();
     };
     for (hi, (_, fh)) in hits.iter().enumerate() {
-        let Some(r) = cam.project(fh.sp.p) else {
+        let Some(i) = cam.pixel_of(fh.sp.p) else {
             continue;
         };
-        land[hi * n_f + k] = Some(r);
+        land[hi * n_f + k] = Some(i);
         // From the eye towards the hit: the rays of a tile converge on the eye (coherent).
         let ray = Ray::between(cam.eye, Vec3::ZERO, fh.sp.p, fh.sp.ng);
         tally.counts.visibility += 1;

@@ -7,7 +7,7 @@ use reframe::camera::Camera;
 use reframe::embree::Device;
 use reframe::integrator::Integrator;
 use reframe::render::{render_frame_independent, thread_pool, Method, RenderOptions};
-use reframe::reuse::{denominators, render_reuse};
+use reframe::reuse::{denominators, render_reuse, EyeTerms};
 use reframe::sampling::Sampler;
 use reframe::scene::Scene;
 use std::collections::BTreeMap;
@@ -91,7 +91,7 @@ fn mis_weights_sum_to_one() {
         };
         let Some(wdir) = fh.w else { continue };
         // Pretend every eye that has x on its film sees it (visibility is a 0/1 factor of D).
-        let terms: Vec<(Vec3, f32)> = eyes
+        let terms: Vec<EyeTerms> = eyes
             .iter()
             .map(|e| {
                 let wo = (e.eye - fh.sp.p).normalize();
@@ -100,14 +100,14 @@ fn mis_weights_sum_to_one() {
                 } else {
                     0.0
                 };
-                (wo, j)
+                EyeTerms { wo, j_over_a: j }
             })
             .collect();
         let m = scene.material(&fh.sp);
         for exact in [true, false] {
             let q = denominators(&integ, &fh, &terms, spp, exact);
             let mut sum = 0.0f64;
-            for &(wo, j) in &terms {
+            for &EyeTerms { wo, j_over_a: j } in &terms {
                 if j == 0.0 {
                     continue;
                 }
