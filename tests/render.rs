@@ -121,37 +121,49 @@ fn render_writes_frames_metadata_and_stats() {
     assert_eq!(names, ["c_0003.exr", "c_0004.exr", "stats.json"]);
 }
 
-/// The command line end to end, as a user runs it: same command, same bytes, any thread count.
-#[test]
-fn cli_is_deterministic() {
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
+/// Run `reframe render ARGS --threads T --out DIR/tT_####.exr` for 1 and 2 threads (extra
+/// `{t}` in an argument is replaced by the thread count), then assert that frames `frames` are
+/// bitwise identical between the two runs. Returns the 1-thread frames.
+fn render_with_1_and_2_threads(
+    d: &std::path::Path,
+    args: &[&str],
+    frames: std::ops::RangeInclusive<u32>,
+) -> Vec<reframe::image::Image> {
     for t in ["1", "2"] {
         let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
-            .args([
-                "render",
-                "vase",
-                "--frames",
-                "5",
-                "--res",
-                "48x36",
-                "--spp",
-                "2",
-                "--exr-float",
-                "--threads",
-                t,
-            ])
-            .arg("--out")
+            .arg("render")
+            .args(args.iter().map(|a| {
+                a.replace("{t}", t)
+                    .replace("{dir}", &d.display().to_string())
+            }))
+            .args(["--exr-float", "--threads", t, "--out"])
             .arg(d.join(format!("t{t}_####.exr")))
             .output()
             .unwrap();
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     }
-    let a = reframe::image::read_image(&d.join("t1_0005.exr")).unwrap();
-    let b = reframe::image::read_image(&d.join("t2_0005.exr")).unwrap();
-    assert_eq!(
-        a.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-        b.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+    frames
+        .map(|f| {
+            let a = reframe::image::read_image(&d.join(format!("t1_{f:04}.exr"))).unwrap();
+            let b = reframe::image::read_image(&d.join(format!("t2_{f:04}.exr"))).unwrap();
+            assert_eq!(
+                a.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                b.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                "frame {f} differs between 1 and 2 threads"
+            );
+            a
+        })
+        .collect()
+}
+
+/// The command line end to end, as a user runs it: same command, same bytes, any thread count.
+#[test]
+fn cli_is_deterministic() {
+    let dir = tempfile::tempdir().unwrap();
+    render_with_1_and_2_threads(
+        dir.path(),
+        &["vase", "--frames", "5", "--res", "48x36", "--spp", "2"],
+        5..=5,
     );
 }
 
@@ -161,37 +173,24 @@ fn cli_is_deterministic() {
 fn reuse_cli_stats_aov_and_determinism() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    for t in ["1", "2"] {
-        let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
-            .args([
-                "render",
-                "vase",
-                "--method",
-                "mis-exact",
-                "--window",
-                "3",
-                "--frames",
-                "10-14",
-                "--res",
-                "40x30",
-                "--spp",
-                "1",
-            ])
-            .args(["--exr-float", "--aov", "--threads", t, "--stats"])
-            .arg(d.join(format!("s{t}.json")))
-            .arg("--out")
-            .arg(d.join(format!("t{t}_####.exr")))
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    }
-    for f in 10..=14 {
-        let a = reframe::image::read_image(&d.join(format!("t1_{f:04}.exr"))).unwrap();
-        let b = reframe::image::read_image(&d.join(format!("t2_{f:04}.exr"))).unwrap();
-        assert_eq!(
-            a.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-            b.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
-        );
+    let args = [
+        "vase",
+        "--method",
+        "mis-exact",
+        "--window",
+        "3",
+        "--frames",
+        "10-14",
+        "--res",
+        "40x30",
+        "--spp",
+        "1",
+        "--aov",
+        "--stats",
+        "{dir}/s{t}.json",
+    ];
+    let frames = render_with_1_and_2_threads(d, &args, 10..=14);
+    for (f, a) in (10..=14).zip(&frames) {
         for c in ["spp_eff", "lost_reuse"] {
             assert!(
                 a.channels.iter().any(|n| n == c),
