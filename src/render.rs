@@ -140,6 +140,10 @@ pub struct RenderStats {
     pub rays: RayStats,
     pub rays_per_second: f64,
     pub peak_rss_bytes: u64,
+    /// Resident memory when the render began: the shared libraries (Debian's OpenImageIO and its
+    /// dependencies alone are about 120 MB) and the scene. `peak_rss_bytes` minus this is what
+    /// the render itself needed.
+    pub startup_rss_bytes: u64,
     pub nonfinite_pixels: u64,
     /// Reuse contributions that came out NaN/Inf and were dropped (should be 0).
     pub nonfinite_samples: u64,
@@ -161,11 +165,20 @@ impl RenderStats {
 
 /// Peak resident set size of this process (Linux `VmHWM`), 0 where unavailable.
 pub fn peak_rss_bytes() -> u64 {
+    proc_status_bytes("VmHWM:")
+}
+
+/// Resident set size of this process now (Linux `VmRSS`), 0 where unavailable.
+pub fn rss_bytes() -> u64 {
+    proc_status_bytes("VmRSS:")
+}
+
+fn proc_status_bytes(key: &str) -> u64 {
     std::fs::read_to_string("/proc/self/status")
         .ok()
         .and_then(|s| {
             s.lines()
-                .find(|l| l.starts_with("VmHWM:"))
+                .find(|l| l.starts_with(key))
                 .and_then(|l| l.split_whitespace().nth(1))
                 .and_then(|kb| kb.parse::<u64>().ok())
         })
@@ -398,6 +411,7 @@ impl FrameSink<'_> {
 /// Render the frames of `opts` and write them; returns the statistics (also written to
 /// `opts.stats` if set).
 pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
+    let startup_rss_bytes = rss_bytes();
     let (range, w, h) = frame_plan(scene, opts)?;
     let out = check_output(&opts.out, &range)?;
     if let Some(p) = &opts.stats {
@@ -493,6 +507,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         },
         rays_per_second: counts.total() as f64 / seconds.max(1e-9),
         peak_rss_bytes: peak_rss_bytes(),
+        startup_rss_bytes,
         nonfinite_pixels: sink.nonfinite_pixels,
         nonfinite_samples: reuse_stats.as_ref().map_or(0, |r| r.nonfinite_samples),
         mean_effective_spp: reuse_stats

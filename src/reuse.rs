@@ -17,37 +17,91 @@
 //! self-emission of `x` divides by `sum D_m'` (ESTIMATOR.md, `Q_dir`).
 //!
 //! Streaming and determinism: contributions are splatted as they are made into per-frame
-//! accumulators in 2^-24 fixed point (`AtomicI64`): integer addition is associative, so the frames
-//! are bitwise identical for any thread count, and memory grows with width x height x n_f.
+//! accumulators in 32-bit fixed point with stochastic rounding (`FixedSums`): integer addition is
+//! associative, so the frames are bitwise identical for any thread count, and memory grows with
+//! width x height x n_f: 12 bytes per pixel per frame in flight (16 for Havran, 24 with `--aov`).
 //! Visibility tests for a tile of hits towards one eye all converge on that eye and go through
 //! `rtcOccluded16` packets (`--visibility packet`, the default) or single rays.
 use crate::camera::Camera;
 use crate::embree::{Packet16, Ray};
 use crate::integrator::{facing, FirstHit, Integrator, RayCounts, Tally};
 use crate::render::{progress_bar, tiles, FrameReuse, Method, RenderOptions};
-use crate::sampling::Sampler;
+use crate::sampling::{mix64, Sampler};
 use anyhow::Result;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
+use std::collections::HashMap;
 use std::collections::VecDeque;
 use std::ops::RangeInclusive;
-use std::sync::atomic::{AtomicI64, AtomicU32, AtomicU64, Ordering::Relaxed};
+use std::sync::atomic::{AtomicI32, AtomicU32, AtomicU64, Ordering::Relaxed};
+use std::sync::Mutex;
 use std::time::Instant;
 
-/// Fixed-point scale of the accumulators: 2^24 steps per unit of radiance.
-const FIXED: f64 = (1u64 << 24) as f64;
+/// Fixed-point scale of the accumulators: 2^20 steps per unit of (pre-scaled) radiance.
+const FIXED: f64 = (1u64 << 20) as f64;
+
+/// Per-pixel RGB sums in 32-bit fixed point, the most compact form whose additions are
+/// associative (so the frames are bitwise identical for any thread count).
+///
+/// A value is quantised by stochastic rounding, `floor(v 2^20 + u)` with a hashed `u` in [0, 1):
+/// its expectation is exactly `v 2^20`, so splats far below one step (high sample counts, dark
+/// pixels) are not rounded away and the estimator stays unbiased. The 32-bit cells wrap; every
+/// wrap is recorded as a carry of 2^32 in a side table, so the true sum is `cell + carry` exactly
+/// and independent of the order of additions. Carries need a pixel's pre-scaled sum past 2048,
+/// which the per-method pre-scaling (`FrameAccum::unit`) keeps rare.
+struct FixedSums {
+    cells: Vec<AtomicI32>,
+    carry: Mutex<HashMap<usize, i64>>,
+}
+
+impl FixedSums {
+    fn new(n: usize) -> FixedSums {
+        FixedSums {
+            cells: (0..n).map(|_| AtomicI32::new(0)).collect(),
+            carry: Mutex::new(HashMap::new()),
+        }
+    }
+
+    /// Add the already quantised `q` to cell `i`.
+    #[inline]
+    fn add(&self, i: usize, q: i64) {
+        // |q| beyond 2^31 (a single splat over 2048) goes to the carry table whole.
+        let Ok(q32) = i32::try_from(q) else {
+            *self.carry.lock().unwrap().entry(i).or_default() += q;
+            return;
+        };
+        let old = self.cells[i].fetch_add(q32, Relaxed);
+        if old.overflowing_add(q32).1 {
+            let wrap = if q32 > 0 { 1i64 << 32 } else { -(1i64 << 32) };
+            *self.carry.lock().unwrap().entry(i).or_default() += wrap;
+        }
+    }
+
+    /// The exact sum of cell `i`, back in units.
+    fn get(&self, i: usize, carry: &HashMap<usize, i64>) -> f64 {
+        let c = carry.get(&i).copied().unwrap_or(0);
+        (self.cells[i].load(Relaxed) as i64 + c) as f64 / FIXED
+    }
+}
 
 /// The running sums of one frame over all the groups that contain it.
 struct FrameAccum {
     frame: u32,
     cam: Camera,
-    sum: Vec<AtomicI64>,
-    /// Samples that landed per pixel (native and reused).
-    landed: Vec<AtomicU32>,
-    /// Attempted and lost reuses into this frame per pixel, kept only for `--aov` (8 bytes a
-    /// pixel that the statistics alone do not need).
+    /// RGB per pixel, in units of `unit` radiance.
+    sum: FixedSums,
+    /// What one unit of `sum` is worth: 1 for the weighted methods (their contributions are
+    /// already divided by the sample count), `n_r n_f` for Havran's, whose contributions are
+    /// whole radiance samples divided by the count only at the end.
+    unit: f32,
+    /// Samples that landed per pixel (native and reused); kept only where a pixel needs it
+    /// (Havran's average, or the `--aov` channel): 4 bytes a pixel the statistics do not need.
+    landed: Option<Vec<AtomicU32>>,
+    /// Attempted and lost reuses into this frame per pixel, kept only for `--aov`.
     per_pixel_loss: Option<(Vec<AtomicU32>, Vec<AtomicU32>)>,
-    /// Attempted reuses into this frame, and those lost (occluded, or off the film).
+    /// Samples that landed in the whole frame, attempted reuses, and those lost (occluded, or off
+    /// the film).
+    landed_total: AtomicU64,
     tried: AtomicU64,
     lost: AtomicU64,
     groups: u32,
@@ -55,15 +109,22 @@ struct FrameAccum {
 }
 
 impl FrameAccum {
-    fn new(frame: u32, cam: Camera, aov: bool) -> FrameAccum {
+    fn new(frame: u32, cam: Camera, opts: &RenderOptions) -> FrameAccum {
         let p = (cam.width * cam.height) as usize;
         let zeros32 = |n| (0..n).map(|_| AtomicU32::new(0)).collect::<Vec<_>>();
+        let havran = opts.method == Method::Havran;
         FrameAccum {
             frame,
-            sum: (0..3 * p).map(|_| AtomicI64::new(0)).collect(),
-            landed: zeros32(p),
-            per_pixel_loss: aov.then(|| (zeros32(p), zeros32(p))),
+            sum: FixedSums::new(3 * p),
+            unit: if havran {
+                (opts.spp * opts.window) as f32
+            } else {
+                1.0
+            },
+            landed: (havran || opts.aov).then(|| zeros32(p)),
+            per_pixel_loss: opts.aov.then(|| (zeros32(p), zeros32(p))),
             cam,
+            landed_total: AtomicU64::new(0),
             tried: AtomicU64::new(0),
             lost: AtomicU64::new(0),
             groups: 0,
@@ -71,16 +132,29 @@ impl FrameAccum {
         }
     }
 
-    /// Add `v` to pixel `i`; false (and nothing added) if `v` is not finite.
+    /// Add `v` to pixel `i`, rounding stochastically with the bits of `dither`; false (and
+    /// nothing added) if `v` is not finite.
     #[inline]
-    fn splat(&self, i: usize, v: Vec3) -> bool {
+    fn splat(&self, i: usize, v: Vec3, dither: u64) -> bool {
         if !v.is_finite() {
             return false;
         }
+        let v = v / self.unit;
         for c in 0..3 {
-            self.sum[3 * i + c].fetch_add((v[c] as f64 * FIXED).round() as i64, Relaxed);
+            // 21 bits of the hash per channel: u in [0, 1).
+            let u = ((dither >> (21 * c)) & 0x1f_ffff) as f64 / (1u64 << 21) as f64;
+            self.sum
+                .add(3 * i + c, (v[c] as f64 * FIXED + u).floor() as i64);
         }
         true
+    }
+
+    /// Count `n` samples landing in pixel `i`.
+    #[inline]
+    fn land(&self, i: usize, n: u32) {
+        if let Some(landed) = &self.landed {
+            landed[i].fetch_add(n, Relaxed);
+        }
     }
 }
 
@@ -233,7 +307,7 @@ pub fn render_reuse(
         // The group's frames: keep those still active, add the new ones.
         while active.back().is_none_or(|a| a.frame < g0 + n_f - 1) {
             let f = active.back().map_or(g0, |a| a.frame + 1);
-            active.push_back(FrameAccum::new(f, scene.camera(f, w, h), opts.aov));
+            active.push_back(FrameAccum::new(f, scene.camera(f, w, h), opts));
         }
         let group: Vec<&FrameAccum> = active
             .iter()
@@ -274,16 +348,16 @@ pub fn render_reuse(
             let n_px = (w * h) as f64;
             per_frame.push(FrameReuse {
                 frame: a.frame,
-                mean_effective_spp: fr.spp_eff.iter().map(|&c| c as f64).sum::<f64>() / n_px,
+                mean_effective_spp: a.landed_total.load(Relaxed) as f64 / n_px,
                 lost_reuse_fraction: if fr.tried > 0 {
                     fr.lost as f64 / fr.tried as f64
                 } else {
                     0.0
                 },
             });
-            let extra: Vec<(&str, Vec<f32>)> = match fr.lost_share {
-                Some(lost) => vec![("spp_eff", fr.spp_eff), ("lost_reuse", lost)],
-                None => vec![],
+            let extra: Vec<(&str, Vec<f32>)> = match (fr.spp_eff, fr.lost_share) {
+                (Some(spp_eff), Some(lost)) => vec![("spp_eff", spp_eff), ("lost_reuse", lost)],
+                _ => vec![],
             };
             emit(
                 a.frame,
@@ -314,7 +388,7 @@ pub fn render_reuse(
 
 struct Finished {
     pixels: Vec<Vec3>,
-    spp_eff: Vec<f32>,
+    spp_eff: Option<Vec<f32>>,
     lost_share: Option<Vec<f32>>,
     tried: u64,
     lost: u64,
@@ -323,23 +397,27 @@ struct Finished {
 /// The frame's final pixels: the mean over its groups (sum methods), or over everything that
 /// landed (Havran's unweighted average).
 fn finish_frame(a: &FrameAccum, method: Method) -> Finished {
-    let n = a.landed.len();
-    let mut pixels = Vec::with_capacity(n);
-    let mut spp_eff = Vec::with_capacity(n);
-    for i in 0..n {
-        let s = Vec3::new(
-            (a.sum[3 * i].load(Relaxed) as f64 / FIXED) as f32,
-            (a.sum[3 * i + 1].load(Relaxed) as f64 / FIXED) as f32,
-            (a.sum[3 * i + 2].load(Relaxed) as f64 / FIXED) as f32,
-        );
-        let c = a.landed[i].load(Relaxed);
-        pixels.push(match method {
-            Method::Havran if c > 0 => s / c as f32,
-            Method::Havran => Vec3::ZERO,
-            _ => s / a.groups as f32,
-        });
-        spp_eff.push(c as f32);
-    }
+    let n = (a.cam.width * a.cam.height) as usize;
+    let carry = std::mem::take(&mut *a.sum.carry.lock().unwrap());
+    let landed = |i: usize| a.landed.as_ref().map_or(0, |l| l[i].load(Relaxed));
+    let pixels = (0..n)
+        .map(|i| {
+            let s = Vec3::new(
+                a.sum.get(3 * i, &carry) as f32,
+                a.sum.get(3 * i + 1, &carry) as f32,
+                a.sum.get(3 * i + 2, &carry) as f32,
+            ) * a.unit;
+            match method {
+                Method::Havran if landed(i) > 0 => s / landed(i) as f32,
+                Method::Havran => Vec3::ZERO,
+                _ => s / a.groups as f32,
+            }
+        })
+        .collect();
+    let spp_eff = a
+        .landed
+        .as_ref()
+        .map(|l| l.iter().map(|c| c.load(Relaxed) as f32).collect());
     let lost_share = a.per_pixel_loss.as_ref().map(|(tried, lost)| {
         tried
             .iter()
@@ -378,25 +456,22 @@ fn shade_tile(
     let cam_m = &native.cam;
     let w = cam_m.width;
     let spp = opts.spp;
-    let mut hits: Vec<(u32, FirstHit)> = Vec::new();
+    // (pixel, sample index, hit) of every native sample that hit something.
+    let mut hits: Vec<(u32, u32, FirstHit)> = Vec::new();
     for y in y0..y1 {
         for x in x0..x1 {
             let pixel = y * w + x;
-            native.landed[pixel as usize].fetch_add(spp, Relaxed);
+            native.land(pixel as usize, spp);
             for s in 0..spp {
                 // Sample index: the frame's position in the group keeps each group's samples of a
                 // frame independent; with one frame per group this is the independent tracer's.
-                let mut sampler = Sampler::new(
-                    opts.seed,
-                    native.frame,
-                    pixel,
-                    (native.frame - g0) * spp + s,
-                );
+                let index = (native.frame - g0) * spp + s;
+                let mut sampler = Sampler::new(opts.seed, native.frame, pixel, index);
                 let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                 if let Some(fh) =
                     integrator.trace_first_hit(cam_m.eye, cam_m.direction(r), &mut sampler, tally)
                 {
-                    hits.push((pixel, fh));
+                    hits.push((pixel, index, fh));
                 }
             }
         }
@@ -406,7 +481,7 @@ fn shade_tile(
     let mut land: Vec<Landing> = vec![None; hits.len() * n_f];
     for (k, acc) in group.iter().enumerate() {
         if k == m {
-            for (hi, (pixel, _)) in hits.iter().enumerate() {
+            for (hi, (pixel, _, _)) in hits.iter().enumerate() {
                 land[hi * n_f + k] = Some(*pixel);
             }
             continue;
@@ -426,8 +501,10 @@ fn shade_tile(
     let mut bad = 0u64;
     // Reuse bookkeeping summed locally and added once per tile: (tried, lost) per target eye.
     let mut loss = vec![(0u64, 0u64); n_f];
+    let mut landed = vec![0u64; n_f];
+    landed[m] = (spp * (x1 - x0) * (y1 - y0)) as u64;
     let mut eyes: Vec<EyeTerms> = Vec::with_capacity(n_f);
-    for (hi, (_, fh)) in hits.iter().enumerate() {
+    for (hi, (pixel, index, fh)) in hits.iter().enumerate() {
         let x = fh.sp.p;
         eyes.clear();
         for (k, acc) in group.iter().enumerate() {
@@ -462,7 +539,8 @@ fn shade_tile(
             let i = i as usize;
             if k != m {
                 loss[k].0 += 1;
-                acc.landed[i].fetch_add(1, Relaxed);
+                landed[k] += 1;
+                acc.land(i, 1);
                 if let Some((tried, _)) = &acc.per_pixel_loss {
                     tried[i].fetch_add(1, Relaxed);
                 }
@@ -479,12 +557,18 @@ fn shade_tile(
                     &q,
                 ),
             };
-            if !acc.splat(i, v) {
+            // The rounding dither: a hash of the native sample and the target frame.
+            let dither = mix64(
+                mix64(opts.seed ^ ((native.frame as u64) << 32 | *pixel as u64))
+                    ^ ((*index as u64) << 32 | acc.frame as u64),
+            );
+            if !acc.splat(i, v, dither) {
                 bad += 1;
             }
         }
     }
-    for (acc, (t, l)) in group.iter().zip(loss) {
+    for ((acc, (t, l)), n) in group.iter().zip(loss).zip(landed) {
+        acc.landed_total.fetch_add(n, Relaxed);
         acc.tried.fetch_add(t, Relaxed);
         acc.lost.fetch_add(l, Relaxed);
     }
@@ -496,7 +580,7 @@ fn shade_tile(
 fn visibility(
     integrator: &Integrator,
     cam: &Camera,
-    hits: &[(u32, FirstHit)],
+    hits: &[(u32, u32, FirstHit)],
     k: usize,
     n_f: usize,
     packets: bool,
@@ -516,7 +600,7 @@ fn visibility(
         }
         packet.clear();
     };
-    for (hi, (_, fh)) in hits.iter().enumerate() {
+    for (hi, (_, _, fh)) in hits.iter().enumerate() {
         let Some(i) = cam.pixel_of(fh.sp.p) else {
             continue;
         };
@@ -538,5 +622,68 @@ fn visibility(
     }
     if packets && n > 0 {
         flush(&mut packet, &lanes, n, land);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn total(s: &FixedSums, i: usize) -> f64 {
+        s.get(i, &s.carry.lock().unwrap())
+    }
+
+    #[test]
+    fn fixed_sums_carry_wraps_exactly_in_any_order() {
+        // Splats that wrap the 32-bit cell many times, in two orders, and one single splat beyond
+        // 2^31 steps: the totals are exact and equal.
+        let values: Vec<i64> = (0..4000).map(|k| 900_000_000 + 7919 * k).collect();
+        let exact: i64 = values.iter().sum::<i64>() + (3i64 << 40);
+        let (a, b) = (FixedSums::new(1), FixedSums::new(1));
+        for &q in &values {
+            a.add(0, q);
+        }
+        a.add(0, 3i64 << 40);
+        b.add(0, 3i64 << 40);
+        for &q in values.iter().rev() {
+            b.add(0, q);
+        }
+        assert_eq!(total(&a, 0), exact as f64 / FIXED);
+        assert_eq!(total(&a, 0), total(&b, 0));
+    }
+
+    #[test]
+    fn stochastic_rounding_keeps_splats_below_one_step() {
+        // 10^6 splats of 0.3 steps each: rounding to nearest would give 0; the dithered sum
+        // matches the exact sum within a few standard deviations (each splat's rounding error
+        // has variance 0.3 * 0.7 steps^2).
+        let key = crate::camera::Keyframe {
+            frame: 0,
+            position: Vec3::Z,
+            look_at: Vec3::ZERO,
+            up: Vec3::Y,
+            fov: 40.0,
+        };
+        let cam = Camera::new(&key, 1, 1);
+        let opts = RenderOptions {
+            method: Method::MisExact,
+            ..RenderOptions::default()
+        };
+        let acc = FrameAccum::new(0, cam, &opts);
+        let v = 0.3 / FIXED as f32;
+        let n = 1_000_000u64;
+        for k in 0..n {
+            assert!(acc.splat(0, Vec3::splat(v), mix64(k)));
+        }
+        let exact = n as f64 * v as f64;
+        let sigma = (n as f64 * 0.21).sqrt() / FIXED;
+        for c in 0..3 {
+            let got = total(&acc.sum, c);
+            assert!(
+                (got - exact).abs() < 5.0 * sigma,
+                "channel {c}: {got} vs {exact}"
+            );
+        }
+        assert!(!acc.splat(0, Vec3::new(f32::NAN, 0.0, 0.0), 0));
     }
 }
