@@ -1,27 +1,100 @@
-//! `reframe bench`: the independent tracer's rays per second against bare Embree calls on the
-//! same rays.
+//! `reframe bench`: the costs of the paper's model (eq. 16), measured on a scene, the speed-up it
+//! predicts against the one measured, and the renderer's ray rate against bare Embree calls.
 //!
-//! The frame is rendered twice with the same seed: once timed, once logging every ray it traces
-//! (origin, direction, interval, and whether it is an occlusion query). The log is then replayed
-//! through `rtcIntersect1`/`rtcOccluded1` alone on the same tiles and threads, so the bare rate is
-//! measured on exactly the rays the renderer traced. Their ratio is the share of the machine's
-//! ray-tracing throughput that survives shading, sampling and bookkeeping.
+//! Every cost is CPU time of one core per item: the wall time of a pass over a whole frame on the
+//! worker pool, times the number of workers, over the number of items.
+//! - `c_e`: one eye ray: the camera sample, `rtcIntersect1`, the surface record at the hit.
+//! - `c_l`: the illumination at the hit, the rest of a path-traced sample (light sample and shadow
+//!   ray, BSDF sample, the walk from the second vertex on): the independent tracer's time per
+//!   sample minus `c_e`.
+//! - `c_v_single`, `c_v_packet`: one reuse visibility test (projection into the eye, the ray from
+//!   the eye to the hit), through `rtcOccluded1` or 16-wide coherent `rtcOccluded16` packets, on
+//!   the middle frame's primary hits towards the eyes of the frames up to 4 away.
+//!
+//! The speed-up (eq. 16, `n_f (c_e + c_l) / ((c_e + c_l) + (n_f - 1) c_v)`) is measured the way
+//! the paper derives it: one group of `n_f` frames around the middle of the animation rendered
+//! with `mis-exact` at `n_r` native samples, against the independent tracer on the same frames at
+//! `n_f n_r` samples per pixel (the same number of samples per pixel, were no reuse lost). The
+//! measured time of a reuse run also pays for what the model leaves out (projecting into every
+//! eye, the Jacobians and BRDFs of the weights, the splats), reported per reuse as `c_reuse`.
+//!
+//! The ray rate: the frame is rendered twice with the same seed, once timed and once logging every
+//! ray it traces; the log is replayed through `rtcIntersect1`/`rtcOccluded1` alone on the same
+//! tiles and threads, so the bare rate is measured on exactly the rays the renderer traced.
 //!
 //! ```no_run
 //! use reframe::{bench, embree::Device, scene::Scene};
 //! let device = Device::new()?;
-//! let report = bench::run(&Scene::load("vase", &device)?, 4, None, None, 0)?;
+//! let opts = bench::BenchOptions { windows: vec![3, 7], ..Default::default() };
+//! let report = bench::run(&Scene::load("vase", &device)?, &opts)?;
 //! println!("{}", report.table());
 //! # anyhow::Ok(())
 //! ```
-use crate::integrator::{Integrator, RayCounts};
-use crate::render::{render_frame_independent, thread_pool, RayStats};
+use crate::camera::Camera;
+use crate::embree::Ray;
+use crate::integrator::{Integrator, RayCounts, Tally};
+use crate::render::{
+    render_frame_independent, thread_pool, tiles, Method, RayStats, RenderOptions,
+};
+use crate::reuse::{render_reuse, visibility, Landing, NativeHit};
+use crate::sampling::Sampler;
 use crate::scene::Scene;
 use anyhow::{bail, Result};
+use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use serde::Serialize;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
 use std::time::Instant;
 
+/// What to measure.
+#[derive(Clone, Debug)]
+pub struct BenchOptions {
+    /// Samples per pixel of the cost and ray-rate passes.
+    pub spp: u32,
+    /// Resolution override; `None` keeps the scene's.
+    pub res: Option<(u32, u32)>,
+    /// Frame of the cost and ray-rate passes; `None` = the middle one.
+    pub frame: Option<u32>,
+    /// Worker threads; 0 = one per core.
+    pub threads: usize,
+    /// Native samples per pixel `n_r` of the speed-up runs.
+    pub speedup_spp: u32,
+    /// Group sizes `n_f` of the speed-up runs (those longer than the animation are skipped).
+    pub windows: Vec<u32>,
+    pub seed: u64,
+}
+
+impl Default for BenchOptions {
+    fn default() -> Self {
+        BenchOptions {
+            spp: 4,
+            res: None,
+            frame: None,
+            threads: 0,
+            speedup_spp: 1,
+            windows: vec![3, 7, 17, 33],
+            seed: 1,
+        }
+    }
+}
+
+/// One speed-up measurement: a group of `window` frames.
+#[derive(Clone, Debug, Serialize)]
+pub struct SpeedupRun {
+    pub window: u32,
+    pub first_frame: u32,
+    pub last_frame: u32,
+    /// The independent tracer on the group's frames at `window * speedup_spp` samples per pixel.
+    pub independent_seconds: f64,
+    /// `mis-exact` over the group at `speedup_spp` native samples per pixel.
+    pub reuse_seconds: f64,
+    pub visibility_tests: u64,
+    pub lost_reuse_fraction: f64,
+}
+
+/// What `reframe bench --json` writes (keys are a contract with users' scripts: add, never
+/// rename). Costs are nanoseconds of one core; speed-up maps are keyed by `n_f`.
 #[derive(Debug, Serialize)]
 pub struct BenchReport {
     pub scene: String,
@@ -30,6 +103,22 @@ pub struct BenchReport {
     pub frame: u32,
     pub spp: u32,
     pub threads: usize,
+    pub cost_unit: &'static str,
+    pub c_e: f64,
+    pub c_l: f64,
+    pub c_v_single: f64,
+    pub c_v_packet: f64,
+    /// Eq. 16 with `c_v_packet` (the default visibility mode).
+    pub predicted_speedup: BTreeMap<String, f64>,
+    /// Independent time over reuse time at the same samples per pixel.
+    pub measured_speedup: BTreeMap<String, f64>,
+    /// Per reuse, everything a reuse costs (visibility test, weights, splat), from the measured
+    /// reuse time: `(t_reuse / native samples - (c_e + c_l)) / (n_f - 1)`.
+    pub c_reuse: BTreeMap<String, f64>,
+    /// Share of the reuse run's time spent in visibility tests (`tests * c_v_packet / time`).
+    pub visibility_share: BTreeMap<String, f64>,
+    pub speedup_spp: u32,
+    pub speedup_runs: Vec<SpeedupRun>,
     pub render_seconds: f64,
     pub rays: RayStats,
     pub render_rays_per_second: f64,
@@ -39,71 +128,197 @@ pub struct BenchReport {
     pub ratio: f64,
 }
 
+/// Eq. 16: the speed-up of reusing `n_f` frames over independent rendering at the same number of
+/// samples per pixel.
+pub fn predicted_speedup(n_f: u32, c_e: f64, c_l: f64, c_v: f64) -> f64 {
+    let n = n_f as f64;
+    n * (c_e + c_l) / ((c_e + c_l) + (n - 1.0) * c_v)
+}
+
 impl BenchReport {
     pub fn table(&self) -> String {
+        let mut t = String::new();
         let total = self.rays.primary + self.rays.path + self.rays.shadow;
-        format!(
-            "scene {} {}x{} frame {} spp {} threads {}\n\
-             rays: {} primary, {} path, {} shadow ({} total)\n\
-             {:<28}{:>10.3} s {:>10.2} Mrays/s\n\
-             {:<28}{:>10.3} s {:>10.2} Mrays/s\n\
-             renderer / bare Embree: {:.1}%",
-            self.scene,
-            self.width,
-            self.height,
-            self.frame,
-            self.spp,
-            self.threads,
-            self.rays.primary,
-            self.rays.path,
-            self.rays.shadow,
-            total,
+        let _ = writeln!(
+            t,
+            "scene {} {}x{} frame {} spp {} threads {}",
+            self.scene, self.width, self.height, self.frame, self.spp, self.threads
+        );
+        let _ = writeln!(t, "costs, ns of one core:");
+        let _ = writeln!(t, "  c_e  eye ray                 {:>9.1}", self.c_e);
+        let _ = writeln!(t, "  c_l  illumination at the hit {:>9.1}", self.c_l);
+        let _ = writeln!(t, "  c_v  visibility, single ray  {:>9.1}", self.c_v_single);
+        let _ = writeln!(t, "  c_v  visibility, packet      {:>9.1}", self.c_v_packet);
+        let _ = writeln!(
+            t,
+            "speed-up at equal samples per pixel ({} native spp, mis-exact):",
+            self.speedup_spp
+        );
+        let _ = writeln!(
+            t,
+            "  {:>4} {:>10} {:>10} {:>8} {:>10} {:>10} {:>7}",
+            "n_f", "predicted", "measured", "c_reuse", "indep. s", "reuse s", "vis."
+        );
+        for r in &self.speedup_runs {
+            let k = r.window.to_string();
+            let _ = writeln!(
+                t,
+                "  {:>4} {:>10.2} {:>10.2} {:>8.1} {:>10.2} {:>10.2} {:>6.1}%",
+                r.window,
+                self.predicted_speedup[&k],
+                self.measured_speedup[&k],
+                self.c_reuse[&k],
+                r.independent_seconds,
+                r.reuse_seconds,
+                100.0 * self.visibility_share[&k]
+            );
+        }
+        let _ = writeln!(
+            t,
+            "rays: {} primary, {} path, {} shadow ({} total)",
+            self.rays.primary, self.rays.path, self.rays.shadow, total
+        );
+        let _ = writeln!(
+            t,
+            "  {:<28}{:>10.3} s {:>10.2} Mrays/s",
             "independent path tracer",
             self.render_seconds,
-            self.render_rays_per_second / 1e6,
+            self.render_rays_per_second / 1e6
+        );
+        let _ = writeln!(
+            t,
+            "  {:<28}{:>10.3} s {:>10.2} Mrays/s",
             "bare rtcIntersect1/Occluded1",
             self.bare_seconds,
-            self.bare_rays_per_second / 1e6,
-            self.ratio * 100.0
-        )
+            self.bare_rays_per_second / 1e6
+        );
+        let _ = write!(t, "renderer / bare Embree: {:.1}%", self.ratio * 100.0);
+        t
     }
 }
 
-pub fn run(
-    scene: &Scene,
-    spp: u32,
-    res: Option<(u32, u32)>,
-    frame: Option<u32>,
-    threads: usize,
-) -> Result<BenchReport> {
-    let (w, h) = res.unwrap_or((scene.width, scene.height));
-    let frame = frame.unwrap_or(scene.frames / 2);
+/// Nanoseconds of one core per item, from the wall time of a pass on `threads` workers.
+fn per_core_ns(seconds: f64, threads: usize, items: u64) -> f64 {
+    seconds * threads as f64 / items.max(1) as f64 * 1e9
+}
+
+pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
+    let (w, h) = opts.res.unwrap_or((scene.width, scene.height));
+    let frame = opts.frame.unwrap_or(scene.frames / 2);
     if frame >= scene.frames {
         bail!(
             "--frame {frame}: the scene has frames 0-{}",
             scene.frames - 1
         );
     }
-    if spp == 0 {
+    if opts.spp == 0 || opts.speedup_spp == 0 {
         bail!("--spp 0: at least one sample per pixel is needed");
     }
-    let pool = thread_pool(threads)?;
+    if let Some(&n) = opts.windows.iter().find(|&&n| n < 3 || n % 2 == 0) {
+        bail!("window {n}: a reuse group is an odd number of frames, at least 3");
+    }
+    let pool = thread_pool(opts.threads)?;
+    let threads = pool.current_num_threads();
     let integrator = Integrator::new(scene, 16);
     let cam = scene.camera(frame, w, h);
-    let seed = 1;
+    let (spp, seed) = (opts.spp, opts.seed);
     let none = |_: &RayCounts| {};
-    // Warm caches and the allocator, then time.
+    let samples = (w * h * spp) as u64;
+
+    // Warm caches and the allocator, then time the independent tracer: c_e + c_l.
     pool.install(|| render_frame_independent(&integrator, &cam, frame, 1, seed, false, &none));
     let t0 = Instant::now();
     let timed = pool
         .install(|| render_frame_independent(&integrator, &cam, frame, spp, seed, false, &none));
     let render_seconds = t0.elapsed().as_secs_f64();
+    let c_el = per_core_ns(render_seconds, threads, samples);
+
+    // c_e: the same camera samples, the eye ray and its surface record only.
+    let t0 = Instant::now();
+    let found: u64 = pool.install(|| eye_rays(scene, &cam, frame, spp, seed));
+    let c_e = per_core_ns(t0.elapsed().as_secs_f64(), threads, samples);
+    std::hint::black_box(found);
+
+    // c_v: the frame's primary hits (one per pixel) tested against the eyes up to 4 frames away.
+    let hits: Vec<Vec<NativeHit>> = pool.install(|| first_hits(&integrator, &cam, frame, seed));
+    let eyes: Vec<Camera> = (frame.saturating_sub(4)..=(frame + 4).min(scene.frames - 1))
+        .filter(|&f| f != frame)
+        .map(|f| scene.camera(f, w, h))
+        .collect();
+    let mut c_v = [0.0; 2];
+    for (slot, packets) in [false, true].into_iter().enumerate() {
+        let t0 = Instant::now();
+        let tests: u64 = pool.install(|| visibility_pass(&integrator, &hits, &eyes, packets));
+        c_v[slot] = per_core_ns(t0.elapsed().as_secs_f64(), threads, tests);
+    }
+    let [c_v_single, c_v_packet] = c_v;
+
+    // The speed-up runs.
+    let mut runs = Vec::new();
+    let mut report_maps: [BTreeMap<String, f64>; 4] = Default::default();
+    for &n_f in opts.windows.iter().filter(|&&n| n <= scene.frames) {
+        let first = (frame.saturating_sub(n_f / 2)).min(scene.frames - n_f);
+        let last = first + n_f - 1;
+        let ropts = RenderOptions {
+            method: Method::MisExact,
+            spp: opts.speedup_spp,
+            window: n_f,
+            seed,
+            progress: false,
+            ..RenderOptions::default()
+        };
+        let t0 = Instant::now();
+        let stats = pool.install(|| {
+            render_reuse(
+                &integrator,
+                &ropts,
+                first..=last,
+                w,
+                h,
+                &mut |_, _, _, _, _| Ok(()),
+            )
+        })?;
+        let reuse_seconds = t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        for f in first..=last {
+            let cam = scene.camera(f, w, h);
+            let spp = n_f * opts.speedup_spp;
+            pool.install(|| {
+                render_frame_independent(&integrator, &cam, f, spp, seed, false, &none)
+            });
+        }
+        let independent_seconds = t0.elapsed().as_secs_f64();
+        let native = (w * h * opts.speedup_spp * n_f) as u64;
+        let per_native = per_core_ns(reuse_seconds, threads, native);
+        let key = n_f.to_string();
+        let [pred, meas, c_reuse, vis_share] = &mut report_maps;
+        pred.insert(
+            key.clone(),
+            predicted_speedup(n_f, c_e, c_el - c_e, c_v_packet),
+        );
+        meas.insert(key.clone(), independent_seconds / reuse_seconds);
+        c_reuse.insert(key.clone(), (per_native - c_el) / (n_f - 1) as f64);
+        let vis_ns = stats.counts.visibility as f64 * c_v_packet;
+        vis_share.insert(key, vis_ns / (reuse_seconds * threads as f64 * 1e9));
+        runs.push(SpeedupRun {
+            window: n_f,
+            first_frame: first,
+            last_frame: last,
+            independent_seconds,
+            reuse_seconds,
+            visibility_tests: stats.counts.visibility,
+            lost_reuse_fraction: stats.lost_reuse_fraction,
+        });
+    }
+    let [predicted_speedup, measured_speedup, c_reuse, visibility_share] = report_maps;
+
+    // The ray rate against bare Embree on the same rays.
     let logged =
         pool.install(|| render_frame_independent(&integrator, &cam, frame, spp, seed, true, &none));
     debug_assert_eq!(logged.counts, timed.counts);
     let geometry = &scene.geometry;
     let t1 = Instant::now();
-    let hits: u64 = pool.install(|| {
+    let hit_count: u64 = pool.install(|| {
         logged
             .ray_logs
             .par_iter()
@@ -122,7 +337,7 @@ pub fn run(
             .sum()
     });
     let bare_seconds = t1.elapsed().as_secs_f64();
-    std::hint::black_box(hits);
+    std::hint::black_box(hit_count);
     let c = timed.counts;
     let render_rate = c.total() as f64 / render_seconds;
     let bare_rate = logged.ray_logs.iter().map(|l| l.len()).sum::<usize>() as f64 / bare_seconds;
@@ -132,7 +347,18 @@ pub fn run(
         height: h,
         frame,
         spp,
-        threads: pool.current_num_threads(),
+        threads,
+        cost_unit: "ns of one core per item",
+        c_e,
+        c_l: c_el - c_e,
+        c_v_single,
+        c_v_packet,
+        predicted_speedup,
+        measured_speedup,
+        c_reuse,
+        visibility_share,
+        speedup_spp: opts.speedup_spp,
+        speedup_runs: runs,
         render_seconds,
         rays: RayStats {
             primary: c.primary,
@@ -145,4 +371,90 @@ pub fn run(
         bare_rays_per_second: bare_rate,
         ratio: render_rate / bare_rate,
     })
+}
+
+/// The eye rays of the independent tracer's samples, traced to their surface records only.
+/// Returns how many hit (so that nothing is optimised away).
+fn eye_rays(scene: &Scene, cam: &Camera, frame: u32, spp: u32, seed: u64) -> u64 {
+    tiles(cam.width, cam.height)
+        .par_iter()
+        .map(|&(x0, y0, x1, y1)| {
+            let mut found = 0u64;
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let pixel = y * cam.width + x;
+                    for s in 0..spp {
+                        let mut sampler = Sampler::new(seed, frame, pixel, s);
+                        let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
+                        let ray = Ray::new(cam.eye, cam.direction(r));
+                        if let Some(hit) = scene.geometry.intersect1(&ray) {
+                            let sp = scene.surface(&hit);
+                            found += (sp.p != Vec3::ZERO) as u64;
+                        }
+                    }
+                }
+            }
+            found
+        })
+        .sum()
+}
+
+/// One primary hit per pixel, per tile, as the reuse methods record them.
+fn first_hits(integrator: &Integrator, cam: &Camera, frame: u32, seed: u64) -> Vec<Vec<NativeHit>> {
+    tiles(cam.width, cam.height)
+        .par_iter()
+        .map(|&(x0, y0, x1, y1)| {
+            let mut t = Tally::default();
+            let mut hits = Vec::new();
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let pixel = y * cam.width + x;
+                    let mut sampler = Sampler::new(seed, frame, pixel, 0);
+                    let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
+                    let dir = cam.direction(r);
+                    if let Some(fh) = integrator.trace_first_hit(cam.eye, dir, &mut sampler, &mut t)
+                    {
+                        hits.push((pixel, 0, fh));
+                    }
+                }
+            }
+            hits
+        })
+        .collect()
+}
+
+/// Every tile's hits tested against every eye; returns the number of tests traced.
+fn visibility_pass(
+    integrator: &Integrator,
+    hits: &[Vec<NativeHit>],
+    eyes: &[Camera],
+    packets: bool,
+) -> u64 {
+    hits.par_iter()
+        .map(|tile| {
+            let mut t = Tally::default();
+            let mut land: Vec<Landing> = vec![None; tile.len()];
+            for eye in eyes {
+                visibility(integrator, eye, tile, 0, 1, packets, &mut land, &mut t);
+            }
+            std::hint::black_box(&land);
+            t.counts.visibility
+        })
+        .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn eq16_limits() {
+        // One frame: no reuse, no speed-up; free visibility: n_f; the limit (c_e + c_l) / c_v.
+        assert_eq!(predicted_speedup(1, 10.0, 90.0, 5.0), 1.0);
+        assert_eq!(predicted_speedup(7, 10.0, 90.0, 0.0), 7.0);
+        let far = predicted_speedup(1_000_001, 10.0, 90.0, 5.0);
+        assert!((far - 20.0).abs() < 1e-3, "{far}");
+        // The paper's n_f = 3 with c_v = (c_e + c_l) / 10: 3 * 100 / (100 + 20) = 2.5.
+        assert!((predicted_speedup(3, 10.0, 90.0, 10.0) - 2.5).abs() < 1e-12);
+    }
 }

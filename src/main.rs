@@ -86,8 +86,15 @@ enum Visibility {
 struct BenchArgs {
     /// Scene TOML file or shipped scene (default: vase).
     scene: Option<String>,
+    /// Samples per pixel of the cost and ray-rate passes.
     #[arg(long, default_value_t = 4)]
     spp: u32,
+    /// Native samples per pixel n_r of the speed-up runs.
+    #[arg(long, default_value_t = 1)]
+    speedup_spp: u32,
+    /// Group sizes n_f of the speed-up runs, comma-separated (longer than the animation: skipped).
+    #[arg(long, value_delimiter = ',', default_values_t = [3, 7, 17, 33])]
+    windows: Vec<u32>,
     /// Resolution "WxH" (default: the scene's).
     #[arg(long, value_parser = parse_res)]
     res: Option<(u32, u32)>,
@@ -230,7 +237,16 @@ fn run(cli: Cli) -> Result<()> {
             if let Some(p) = &a.json {
                 render::check_stats_path(p)?;
             }
-            let report = reframe::bench::run(&scene, a.spp, a.res, a.frame, a.threads)?;
+            let opts = reframe::bench::BenchOptions {
+                spp: a.spp,
+                res: a.res,
+                frame: a.frame,
+                threads: a.threads,
+                speedup_spp: a.speedup_spp,
+                windows: a.windows,
+                ..Default::default()
+            };
+            let report = reframe::bench::run(&scene, &opts)?;
             println!("{}", report.table());
             if let Some(p) = &a.json {
                 render::write_json(p, &report)?;

@@ -168,7 +168,10 @@ pub struct ReuseStats {
 }
 
 /// Per hit and target eye: the pixel it lands in (if on the target's film and visible).
-type Landing = Option<u32>;
+pub type Landing = Option<u32>;
+
+/// A native sample that hit something: (pixel, sample index, first-hit record).
+pub type NativeHit = (u32, u32, FirstHit);
 
 /// The per-eye quantities of one native hit that every method's weights are built from.
 pub struct EyeTerms {
@@ -457,7 +460,7 @@ fn shade_tile(
     let w = cam_m.width;
     let spp = opts.spp;
     // (pixel, sample index, hit) of every native sample that hit something.
-    let mut hits: Vec<(u32, u32, FirstHit)> = Vec::new();
+    let mut hits: Vec<NativeHit> = Vec::new();
     for y in y0..y1 {
         for x in x0..x1 {
             let pixel = y * w + x;
@@ -577,10 +580,10 @@ fn shade_tile(
 
 /// Fill `land[hi * n_f + k]` for eye `k`: project every hit, test visibility from the eye.
 #[allow(clippy::too_many_arguments)]
-fn visibility(
+pub fn visibility(
     integrator: &Integrator,
     cam: &Camera,
-    hits: &[(u32, u32, FirstHit)],
+    hits: &[NativeHit],
     k: usize,
     n_f: usize,
     packets: bool,
