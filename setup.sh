@@ -15,7 +15,7 @@ DEPS=.deps/embree4
 say() { echo "setup: $*" >&2; }
 
 # --- Debian packages -------------------------------------------------------------------------
-pkgs=(libopenimageio-dev libclang-dev pkg-config g++ python3)
+pkgs=(libopenimageio-dev libclang-dev pkg-config g++ python3 fonts-dejavu-core)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" || missing+=("$p")

@@ -197,6 +197,65 @@ impl BenchReport {
     }
 }
 
+/// The cost model's terms, nanoseconds of one core per item.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Costs {
+    pub c_e: f64,
+    pub c_l: f64,
+    pub c_v_single: f64,
+    pub c_v_packet: f64,
+}
+
+/// Measure `c_e`, `c_l` and `c_v` on frame `frame` seen by `cam` (see the module note). Also
+/// returns the timed independent render and its wall time.
+pub fn measure_costs(
+    scene: &Scene,
+    integrator: &Integrator,
+    pool: &rayon::ThreadPool,
+    cam: &Camera,
+    frame: u32,
+    spp: u32,
+    seed: u64,
+) -> (Costs, crate::render::FrameResult, f64) {
+    let threads = pool.current_num_threads();
+    let (w, h) = (cam.width, cam.height);
+    let none = |_: &RayCounts| {};
+    let samples = (w * h * spp) as u64;
+    // Warm caches and the allocator, then time the independent tracer: c_e + c_l.
+    pool.install(|| render_frame_independent(integrator, cam, frame, 1, seed, false, &none));
+    let t0 = Instant::now();
+    let timed =
+        pool.install(|| render_frame_independent(integrator, cam, frame, spp, seed, false, &none));
+    let render_seconds = t0.elapsed().as_secs_f64();
+    let c_el = per_core_ns(render_seconds, threads, samples);
+
+    // c_e: the same camera samples, the eye ray and its surface record only.
+    let t0 = Instant::now();
+    let found: u64 = pool.install(|| eye_rays(scene, cam, frame, spp, seed));
+    let c_e = per_core_ns(t0.elapsed().as_secs_f64(), threads, samples);
+    std::hint::black_box(found);
+
+    // c_v: the frame's primary hits (one per pixel) tested against the eyes up to 4 frames away.
+    let hits: Vec<Vec<NativeHit>> = pool.install(|| first_hits(integrator, cam, frame, seed));
+    let eyes: Vec<Camera> = (frame.saturating_sub(4)..=(frame + 4).min(scene.frames - 1))
+        .filter(|&f| f != frame)
+        .map(|f| scene.camera(f, w, h))
+        .collect();
+    let mut c_v = [0.0; 2];
+    for (slot, packets) in [false, true].into_iter().enumerate() {
+        let t0 = Instant::now();
+        let tests: u64 = pool.install(|| visibility_pass(integrator, &hits, &eyes, packets));
+        c_v[slot] = per_core_ns(t0.elapsed().as_secs_f64(), threads, tests);
+    }
+    let costs = Costs {
+        c_e,
+        c_l: c_el - c_e,
+        c_v_single: c_v[0],
+        c_v_packet: c_v[1],
+    };
+    (costs, timed, render_seconds)
+}
+
 /// Nanoseconds of one core per item, from the wall time of a pass on `threads` workers.
 fn per_core_ns(seconds: f64, threads: usize, items: u64) -> f64 {
     seconds * threads as f64 / items.max(1) as f64 * 1e9
@@ -223,35 +282,16 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     let cam = scene.camera(frame, w, h);
     let (spp, seed) = (opts.spp, opts.seed);
     let none = |_: &RayCounts| {};
-    let samples = (w * h * spp) as u64;
 
-    // Warm caches and the allocator, then time the independent tracer: c_e + c_l.
-    pool.install(|| render_frame_independent(&integrator, &cam, frame, 1, seed, false, &none));
-    let t0 = Instant::now();
-    let timed = pool
-        .install(|| render_frame_independent(&integrator, &cam, frame, spp, seed, false, &none));
-    let render_seconds = t0.elapsed().as_secs_f64();
-    let c_el = per_core_ns(render_seconds, threads, samples);
-
-    // c_e: the same camera samples, the eye ray and its surface record only.
-    let t0 = Instant::now();
-    let found: u64 = pool.install(|| eye_rays(scene, &cam, frame, spp, seed));
-    let c_e = per_core_ns(t0.elapsed().as_secs_f64(), threads, samples);
-    std::hint::black_box(found);
-
-    // c_v: the frame's primary hits (one per pixel) tested against the eyes up to 4 frames away.
-    let hits: Vec<Vec<NativeHit>> = pool.install(|| first_hits(&integrator, &cam, frame, seed));
-    let eyes: Vec<Camera> = (frame.saturating_sub(4)..=(frame + 4).min(scene.frames - 1))
-        .filter(|&f| f != frame)
-        .map(|f| scene.camera(f, w, h))
-        .collect();
-    let mut c_v = [0.0; 2];
-    for (slot, packets) in [false, true].into_iter().enumerate() {
-        let t0 = Instant::now();
-        let tests: u64 = pool.install(|| visibility_pass(&integrator, &hits, &eyes, packets));
-        c_v[slot] = per_core_ns(t0.elapsed().as_secs_f64(), threads, tests);
-    }
-    let [c_v_single, c_v_packet] = c_v;
+    let (costs, timed, render_seconds) =
+        measure_costs(scene, &integrator, &pool, &cam, frame, spp, seed);
+    let Costs {
+        c_e,
+        c_l,
+        c_v_single,
+        c_v_packet,
+    } = costs;
+    let c_el = c_e + c_l;
 
     // The speed-up runs.
     let mut runs = Vec::new();
@@ -350,7 +390,7 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
         threads,
         cost_unit: "ns of one core per item",
         c_e,
-        c_l: c_el - c_e,
+        c_l,
         c_v_single,
         c_v_packet,
         predicted_speedup,

@@ -5,10 +5,13 @@
 //! The architecture, one concept per module: `camera`, `scene` (loading, materials, lights),
 //! `bsdf`, `sampling`, `embree` (the only unsafe module besides the image bridge), `image` (film
 //! output through OpenImageIO), `integrator` (the independent tracer and its first-hit record), `reuse` (the frame-reuse methods),
-//! `render` (the driver: frame loop, tiles, progress, files) and `bench`.
+//! `render` (the driver: frame loop, tiles, progress, files), `bench` (the cost model's terms),
+//! `compare` (reference, errors, flicker, equal-error speed-ups) and `chart` (SVG and PNG charts).
 pub mod bench;
 pub mod bsdf;
 pub mod camera;
+pub mod chart;
+pub mod compare;
 pub mod embree;
 pub mod image;
 pub mod integrator;

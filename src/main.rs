@@ -4,9 +4,12 @@
 //! reframe render [SCENE] --method independent --spp 8 --frames 0-47 --res 320x240 \
 //!     --out out/vase_####.exr --seed 0 --threads 0 --stats stats.json
 //! reframe bench [SCENE] --json bench.json
+//! reframe reference [SCENE] --frames 15-31 --reference-spp 256
+//! reframe compare [SCENE] --out out/compare
 //! ```
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
+use reframe::compare;
 use reframe::embree::Device;
 use reframe::render::{self, Method, RenderOptions};
 use reframe::scene::Scene;
@@ -27,8 +30,71 @@ struct Cli {
 enum Command {
     /// Render frames of an animation.
     Render(RenderArgs),
-    /// Measure the tracer's rays per second against bare Embree calls on the same rays.
+    /// Measure the cost model's c_e, c_l, c_v, the speed-up eq. 16 predicts against the one
+    /// measured, and the tracer's rays per second against bare Embree calls on the same rays.
     Bench(BenchArgs),
+    /// Render (or find in the cache) the high-sample reference frames that compare measures against.
+    Reference(ReferenceArgs),
+    /// Render every method at a ladder of budgets, measure error, time and flicker against the
+    /// reference, and chart them.
+    Compare(CompareArgs),
+}
+
+#[derive(clap::Args)]
+struct ReferenceArgs {
+    /// Scene TOML file or shipped scene (default: vase).
+    scene: Option<String>,
+    /// Frames, "A-B" (default: 17 around the middle of the animation).
+    #[arg(long, value_parser = parse_frames)]
+    frames: Option<(u32, u32)>,
+    /// Resolution "WxH" (default: the scene's).
+    #[arg(long, value_parser = parse_res)]
+    res: Option<(u32, u32)>,
+    /// Samples per pixel of the reference (a multiple of 8: it is 8 passes, for its variance).
+    #[arg(long, default_value_t = 256)]
+    reference_spp: u32,
+    /// Folder of cached references.
+    #[arg(long, default_value = "out/reference-cache")]
+    cache: PathBuf,
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+}
+
+#[derive(clap::Args)]
+struct CompareArgs {
+    #[command(flatten)]
+    reference: ReferenceArgs,
+    /// Folder for compare.json, compare.csv and the charts (PNG and SVG).
+    #[arg(long, default_value = "out/compare")]
+    out: PathBuf,
+    /// Methods to compare, comma-separated.
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Method::Independent, Method::Havran, Method::Mis, Method::MisExact])]
+    methods: Vec<Method>,
+    /// Samples per pixel of the independent runs, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1, 2, 4, 8, 16])]
+    budgets: Vec<u32>,
+    /// Native samples per pixel of the reuse runs, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1, 2])]
+    reuse_budgets: Vec<u32>,
+    /// Frames per group n_f of the reuse runs, comma-separated (odd; longer than the frames:
+    /// skipped).
+    #[arg(long, value_delimiter = ',', default_values_t = [3, 7, 17])]
+    windows: Vec<u32>,
+    /// Crop of the equal-time strip, "X,Y,W,H" in pixels (default: a centred square of half
+    /// the height).
+    #[arg(long, value_parser = parse_crop)]
+    crop: Option<[u32; 4]>,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+fn parse_crop(s: &str) -> Result<[u32; 4], String> {
+    let v: Vec<u32> = s
+        .split(',')
+        .map(|p| p.trim().parse())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("'{s}': expected X,Y,W,H in pixels"))?;
+    <[u32; 4]>::try_from(v).map_err(|_| format!("'{s}': expected X,Y,W,H in pixels"))
 }
 
 #[derive(clap::Args)]
@@ -252,6 +318,65 @@ fn run(cli: Cli) -> Result<()> {
                 render::write_json(p, &report)?;
                 println!("figures in {}", p.display());
             }
+            Ok(())
+        }
+        Command::Reference(a) => {
+            let device = Device::new()?;
+            let scene = Scene::load(a.scene.as_deref().unwrap_or("vase"), &device)?;
+            let range = match a.frames {
+                Some((x, y)) => x..=y,
+                None => compare::default_frames(&scene),
+            };
+            if *range.end() >= scene.frames {
+                bail!(
+                    "--frames {}-{}: the scene '{}' has frames 0-{}",
+                    range.start(),
+                    range.end(),
+                    scene.name,
+                    scene.frames - 1
+                );
+            }
+            let res = a.res.unwrap_or((scene.width, scene.height));
+            let pool = render::thread_pool(a.threads)?;
+            reframe::embree::set_flush_denormals();
+            let r = compare::reference(&scene, range, res, a.reference_spp, &a.cache, &pool, true)?;
+            let how = if r.cached {
+                "cached".to_string()
+            } else {
+                format!("rendered in {:.1} s", r.seconds)
+            };
+            println!(
+                "reference of '{}' ({}x{}, {} spp) in {} ({how})",
+                scene.name,
+                res.0,
+                res.1,
+                r.spp,
+                r.dir.display()
+            );
+            Ok(())
+        }
+        Command::Compare(a) => {
+            let device = Device::new()?;
+            let r = a.reference;
+            let scene = Scene::load(r.scene.as_deref().unwrap_or("vase"), &device)?;
+            let opts = compare::CompareOptions {
+                frames: r.frames.map(|(x, y)| x..=y),
+                res: r.res,
+                methods: a.methods,
+                budgets: a.budgets,
+                reuse_budgets: a.reuse_budgets,
+                windows: a.windows,
+                reference_spp: r.reference_spp,
+                cache: r.cache,
+                out: a.out,
+                threads: r.threads,
+                seed: a.seed,
+                crop: a.crop,
+                progress: true,
+            };
+            let report = compare::compare(&scene, &opts)?;
+            println!("{}", compare::summary(&report));
+            println!("results in {}", opts.out.display());
             Ok(())
         }
     }

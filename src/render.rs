@@ -542,10 +542,18 @@ pub fn check_stats_path(p: &std::path::Path) -> Result<()> {
 
 /// Write JSON atomically (temporary name, then rename).
 pub fn write_json<T: Serialize>(p: &std::path::Path, v: &T) -> Result<()> {
-    let tmp = p.with_extension(format!("json.tmp-{}", std::process::id()));
     let text = serde_json::to_string_pretty(v)?;
-    std::fs::write(&tmp, text + "\n").with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, p)
-        .with_context(|| format!("renaming {} to {}", tmp.display(), p.display()))?;
-    Ok(())
+    write_atomic(p, (text + "\n").as_bytes())
+}
+
+/// Write a file atomically: a temporary name in the same folder, then a rename.
+pub fn write_atomic(p: &std::path::Path, bytes: &[u8]) -> Result<()> {
+    let mut name = p.file_name().unwrap_or_default().to_os_string();
+    name.push(format!(".tmp-{}", std::process::id()));
+    let tmp = p.with_file_name(name);
+    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, p).with_context(|| {
+        let _ = std::fs::remove_file(&tmp);
+        format!("renaming {} to {}", tmp.display(), p.display())
+    })
 }

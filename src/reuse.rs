@@ -8,8 +8,13 @@
 //!
 //! Methods, for a native sample `s = (x, w)` of eye `m` landing in pixel `i` of frame `j`:
 //! - `havran`: the own-eye estimate (7) with the native densities, averaged by count per pixel;
-//! - `mis`: eq. 15: `f_j cos L / (n_r sum_{visible m'} p(w | x, x->o_m'))` (approximation (10)
-//!   makes every eye's area density equal, so they cancel and only pdfs remain);
+//! - `mis`: eq. 15, `f_j cos L / (n_r sum_{visible m'} p(w | x, x->o_m'))` (approximation (10)
+//!   makes every visible eye's area density `n_r`, so only pdfs remain), averaged by count per
+//!   pixel as the paper does ("for every pixel we keep the final color and the number of samples
+//!   ... and average every result", Sec. 4.2). With `n_v` eyes seeing `x`, `n_r n_v` samples
+//!   are expected per pixel, so the value splatted per sample is `n_r n_v` times eq. 15, the
+//!   balance-heuristic estimate `f_j cos L / mean_{visible m'} p`, and the pixel divides by the
+//!   count that landed. On diffuse surfaces this is Havran's average (eq. 14);
 //! - `mis-exact`: `(J_j / A_pix,j) f_j cos L / sum_{m'} D_m'(x) p(w | x, x->o_m')` with
 //!   `D_m' = n_r J_m'(x) vis inside / A_pix,m'` (ESTIMATOR.md), which is unbiased.
 //!
@@ -19,7 +24,8 @@
 //! Streaming and determinism: contributions are splatted as they are made into per-frame
 //! accumulators in 32-bit fixed point with stochastic rounding (`FixedSums`): integer addition is
 //! associative, so the frames are bitwise identical for any thread count, and memory grows with
-//! width x height x n_f: 12 bytes per pixel per frame in flight (16 for Havran, 24 with `--aov`).
+//! width x height x n_f: 12 bytes per pixel per frame in flight (16 for the methods that average
+//! by count, 24 with `--aov`).
 //! Visibility tests for a tile of hits towards one eye all converge on that eye and go through
 //! `rtcOccluded16` packets (`--visibility packet`, the default) or single rays.
 use crate::camera::Camera;
@@ -90,12 +96,12 @@ struct FrameAccum {
     cam: Camera,
     /// RGB per pixel, in units of `unit` radiance.
     sum: FixedSums,
-    /// What one unit of `sum` is worth: 1 for the weighted methods (their contributions are
-    /// already divided by the sample count), `n_r n_f` for Havran's, whose contributions are
-    /// whole radiance samples divided by the count only at the end.
+    /// What one unit of `sum` is worth: 1 for `mis-exact` (its contributions are already divided
+    /// by the expected sample count), `n_r n_f` for the methods that average by count, whose
+    /// contributions are whole radiance estimates divided by the count only at the end.
     unit: f32,
     /// Samples that landed per pixel (native and reused); kept only where a pixel needs it
-    /// (Havran's average, or the `--aov` channel): 4 bytes a pixel the statistics do not need.
+    /// (averages by count, or the `--aov` channel): 4 bytes a pixel the statistics do not need.
     landed: Option<Vec<AtomicU32>>,
     /// Attempted and lost reuses into this frame per pixel, kept only for `--aov`.
     per_pixel_loss: Option<(Vec<AtomicU32>, Vec<AtomicU32>)>,
@@ -112,7 +118,7 @@ impl FrameAccum {
     fn new(frame: u32, cam: Camera, opts: &RenderOptions) -> FrameAccum {
         let p = (cam.width * cam.height) as usize;
         let zeros32 = |n| (0..n).map(|_| AtomicU32::new(0)).collect::<Vec<_>>();
-        let havran = opts.method == Method::Havran;
+        let havran = by_count(opts.method);
         FrameAccum {
             frame,
             sum: FixedSums::new(3 * p),
@@ -397,8 +403,14 @@ struct Finished {
     lost: u64,
 }
 
-/// The frame's final pixels: the mean over its groups (sum methods), or over everything that
-/// landed (Havran's unweighted average).
+/// Whether `method` divides each pixel by the count of samples that landed in it (Havran's and
+/// the paper's), rather than by the expected count built into its weights (`mis-exact`).
+fn by_count(method: Method) -> bool {
+    matches!(method, Method::Havran | Method::Mis)
+}
+
+/// The frame's final pixels: the mean over its groups (`mis-exact`), or over everything that
+/// landed (the methods that average by count).
 fn finish_frame(a: &FrameAccum, method: Method) -> Finished {
     let n = (a.cam.width * a.cam.height) as usize;
     let carry = std::mem::take(&mut *a.sum.carry.lock().unwrap());
@@ -410,10 +422,12 @@ fn finish_frame(a: &FrameAccum, method: Method) -> Finished {
                 a.sum.get(3 * i + 1, &carry) as f32,
                 a.sum.get(3 * i + 2, &carry) as f32,
             ) * a.unit;
-            match method {
-                Method::Havran if landed(i) > 0 => s / landed(i) as f32,
-                Method::Havran => Vec3::ZERO,
-                _ => s / a.groups as f32,
+            if !by_count(method) {
+                s / a.groups as f32
+            } else if landed(i) > 0 {
+                s / landed(i) as f32
+            } else {
+                Vec3::ZERO
             }
         })
         .collect();
@@ -524,6 +538,9 @@ fn shade_tile(
         } else {
             denominators(integrator, fh, &eyes, spp, exact)
         };
+        // The paper's count average: `n_r n_v` times eq. 15 (see the module note).
+        let visible = eyes.iter().filter(|e| e.j_over_a > 0.0).count();
+        let paper_scale = (spp as usize * visible) as f32;
         for (k, acc) in group.iter().enumerate() {
             let Some(i) = land[hi * n_f + k] else {
                 if k != m {
@@ -556,7 +573,7 @@ fn shade_tile(
                     fh,
                     acc.cam.eye,
                     e.wo,
-                    if exact { e.j_over_a } else { 1.0 },
+                    if exact { e.j_over_a } else { paper_scale },
                     &q,
                 ),
             };

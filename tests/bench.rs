@@ -51,3 +51,117 @@ fn bench_writes_the_cost_model_figures() {
     }
     assert!(b["predicted_speedup"].get("17").is_none());
 }
+
+#[test]
+fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
+    let dir = tempfile::tempdir().unwrap();
+    let (out, cache) = (dir.path().join("cmp"), dir.path().join("cache"));
+    let args = |extra: &[&str]| {
+        let mut a = vec![
+            "compare",
+            "cornell",
+            "--res",
+            "40x40",
+            "--frames",
+            "2-6",
+            "--budgets",
+            "1,8",
+            "--reuse-budgets",
+            "1",
+            "--windows",
+            "3,5",
+            "--reference-spp",
+            "64",
+            "--out",
+            out.to_str().unwrap(),
+            "--cache",
+            cache.to_str().unwrap(),
+        ];
+        a.extend_from_slice(extra);
+        a.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    let run = |a: Vec<String>| reframe(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    run(args(&[]));
+    let c = json(&out.join("compare.json"));
+    assert_eq!(c["reference"]["cached"], false);
+    let runs = c["runs"].as_array().unwrap();
+    // independent x2, then 3 reuse methods x 2 windows x 1 budget.
+    assert_eq!(runs.len(), 2 + 3 * 2);
+    for r in runs {
+        for key in [
+            "method", "window", "spp", "seconds", "rmse", "relmse", "flicker",
+        ] {
+            assert!(!r[key].is_null(), "run without {key}: {r}");
+        }
+        assert_eq!(r["per_frame"].as_array().unwrap().len(), 5);
+    }
+    // Eight times the samples: clearly lower error and flicker (variance falls 8-fold).
+    let (one, eight) = (&runs[0], &runs[1]);
+    assert!(eight["relmse"].as_f64().unwrap() < 0.5 * one["relmse"].as_f64().unwrap());
+    assert!(eight["flicker"].as_f64().unwrap() < one["flicker"].as_f64().unwrap());
+    assert!(c["equal_error_speedup"]["mis-exact"]["3"].as_f64().unwrap() > 0.0);
+    assert!(c["relmse_formula"].as_str().unwrap().contains("R^2 + 0.01"));
+    for f in [
+        "compare.csv",
+        "error_vs_time.png",
+        "error_vs_time.svg",
+        "speedup_vs_nf.png",
+        "speedup_vs_nf.svg",
+        "flicker.png",
+        "flicker.svg",
+        "crops.png",
+        "crops.svg",
+    ] {
+        let p = out.join(f);
+        assert!(
+            std::fs::metadata(&p)
+                .map(|m| m.len() > 100)
+                .unwrap_or(false),
+            "{f}"
+        );
+    }
+    let csv = std::fs::read_to_string(out.join("compare.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + runs.len());
+    // Second time: the reference comes from the cache, and `reframe reference` finds it too.
+    run(args(&["--methods", "independent"]));
+    assert_eq!(json(&out.join("compare.json"))["reference"]["cached"], true);
+    let o = reframe(&[
+        "reference",
+        "cornell",
+        "--res",
+        "40x40",
+        "--frames",
+        "2-6",
+        "--reference-spp",
+        "64",
+        "--cache",
+        cache.to_str().unwrap(),
+    ]);
+    assert!(String::from_utf8_lossy(&o.stdout).contains("(cached)"));
+    assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 1);
+}
+
+#[test]
+fn compare_rejects_bad_settings_before_rendering() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("cmp");
+    for (args, needle) in [
+        (vec!["--reference-spp", "12"], "multiple of 8"),
+        (vec!["--windows", "4"], "odd"),
+        (vec!["--frames", "0-99"], "frames 0-23"),
+        (vec!["--crop", "30,30,20,20"], "not inside"),
+        (vec!["--budgets", "0"], "at least one"),
+    ] {
+        let mut a = vec!["compare", "cornell", "--res", "40x40", "--out"];
+        a.push(out.to_str().unwrap());
+        a.extend(args);
+        let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
+            .args(&a)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{a:?} succeeded");
+        assert!(err.contains(needle), "{a:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{a:?}: {err}");
+    }
+}
