@@ -53,6 +53,41 @@ fn escape(s: &str) -> String {
         .replace('>', "&gt;")
 }
 
+/// The chart's title, centred over a plot area `pw` wide.
+fn title(s: &mut String, pw: f64, text: &str) {
+    let _ = writeln!(
+        s,
+        "<text x=\"{}\" y=\"26\" {FONT} font-size=\"16\" text-anchor=\"middle\">{}</text>",
+        LEFT + pw / 2.0,
+        escape(text)
+    );
+}
+
+/// A horizontal grid line at height `y` across a plot area `pw` wide, labelled on the left.
+fn y_gridline(s: &mut String, y: f64, pw: f64, label: &str) {
+    let _ = writeln!(
+        s,
+        "<line x1=\"{LEFT}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"#ddd\"/>\
+         <text x=\"{:.1}\" y=\"{:.1}\" {FONT} font-size=\"11\" text-anchor=\"end\">{label}</text>",
+        LEFT + pw,
+        LEFT - 6.0,
+        y + 4.0
+    );
+}
+
+/// The frame of a `pw` x `ph` plot area and the rotated y-axis label beside it.
+fn frame(s: &mut String, pw: f64, ph: f64, y_label: &str) {
+    let _ = writeln!(
+        s,
+        "<rect x=\"{LEFT}\" y=\"{TOP}\" width=\"{pw}\" height=\"{ph}\" fill=\"none\" stroke=\"#333\"/>\n\
+         <text x=\"18\" y=\"{:.1}\" {FONT} font-size=\"13\" text-anchor=\"middle\" \
+         transform=\"rotate(-90 18 {:.1})\">{}</text>",
+        TOP + ph / 2.0,
+        TOP + ph / 2.0,
+        escape(y_label)
+    );
+}
+
 /// Tick positions (in data units) and labels for an axis spanning `lo..hi`.
 fn ticks(lo: f64, hi: f64, log: bool) -> Vec<(f64, String)> {
     if log {
@@ -152,12 +187,7 @@ impl LineChart {
         let px = |v: f64| LEFT + pw * map(v, x0, x1, self.log_x);
         let py = |v: f64| TOP + ph * (1.0 - map(v, y0, y1, self.log_y));
         let mut s = header(W, H);
-        let _ = writeln!(
-            s,
-            "<text x=\"{}\" y=\"26\" {FONT} font-size=\"16\" text-anchor=\"middle\">{}</text>",
-            LEFT + pw / 2.0,
-            escape(&self.title)
-        );
+        title(&mut s, pw, &self.title);
         // Grid and ticks.
         for (v, label) in ticks(x0, x1, self.log_x) {
             let x = px(v);
@@ -170,28 +200,15 @@ impl LineChart {
             );
         }
         for (v, label) in ticks(y0, y1, self.log_y) {
-            let y = py(v);
-            let _ = writeln!(
-                s,
-                "<line x1=\"{LEFT}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"#ddd\"/>\
-                 <text x=\"{:.1}\" y=\"{:.1}\" {FONT} font-size=\"11\" text-anchor=\"end\">{label}</text>",
-                LEFT + pw,
-                LEFT - 6.0,
-                y + 4.0
-            );
+            y_gridline(&mut s, py(v), pw, &label);
         }
+        frame(&mut s, pw, ph, &self.y_label);
         let _ = writeln!(
             s,
-            "<rect x=\"{LEFT}\" y=\"{TOP}\" width=\"{pw}\" height=\"{ph}\" fill=\"none\" stroke=\"#333\"/>\n\
-             <text x=\"{:.1}\" y=\"{:.1}\" {FONT} font-size=\"13\" text-anchor=\"middle\">{}</text>\n\
-             <text x=\"18\" y=\"{:.1}\" {FONT} font-size=\"13\" text-anchor=\"middle\" \
-             transform=\"rotate(-90 18 {:.1})\">{}</text>",
+            "<text x=\"{:.1}\" y=\"{:.1}\" {FONT} font-size=\"13\" text-anchor=\"middle\">{}</text>",
             LEFT + pw / 2.0,
             H - 14.0,
-            escape(&self.x_label),
-            TOP + ph / 2.0,
-            TOP + ph / 2.0,
-            escape(&self.y_label)
+            escape(&self.x_label)
         );
         // Series and legend.
         for (i, se) in self.series.iter().enumerate() {
@@ -240,26 +257,13 @@ impl LineChart {
 }
 
 /// A bar chart: one bar per (label, value, colour).
-pub fn bar_chart(title: &str, y_label: &str, bars: &[(String, f64, &str)]) -> String {
+pub fn bar_chart(chart_title: &str, y_label: &str, bars: &[(String, f64, &str)]) -> String {
     let (pw, ph) = (W - LEFT - 40.0, H - TOP - BOTTOM - 20.0);
     let hi = bars.iter().map(|b| b.1).fold(0.0f64, f64::max).max(1e-12) * 1.1;
     let mut s = header(W, H);
-    let _ = writeln!(
-        s,
-        "<text x=\"{}\" y=\"26\" {FONT} font-size=\"16\" text-anchor=\"middle\">{}</text>",
-        LEFT + pw / 2.0,
-        escape(title)
-    );
+    title(&mut s, pw, chart_title);
     for (v, label) in ticks(0.0, hi, false) {
-        let y = TOP + ph * (1.0 - v / hi);
-        let _ = writeln!(
-            s,
-            "<line x1=\"{LEFT}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"#ddd\"/>\
-             <text x=\"{:.1}\" y=\"{:.1}\" {FONT} font-size=\"11\" text-anchor=\"end\">{label}</text>",
-            LEFT + pw,
-            LEFT - 6.0,
-            y + 4.0
-        );
+        y_gridline(&mut s, TOP + ph * (1.0 - v / hi), pw, &label);
     }
     let slot = pw / bars.len().max(1) as f64;
     for (i, (label, v, colour)) in bars.iter().enumerate() {
@@ -280,15 +284,8 @@ pub fn bar_chart(title: &str, y_label: &str, bars: &[(String, f64, &str)]) -> St
             escape(label)
         );
     }
-    let _ = writeln!(
-        s,
-        "<rect x=\"{LEFT}\" y=\"{TOP}\" width=\"{pw}\" height=\"{ph}\" fill=\"none\" stroke=\"#333\"/>\n\
-         <text x=\"18\" y=\"{:.1}\" {FONT} font-size=\"13\" text-anchor=\"middle\" \
-         transform=\"rotate(-90 18 {:.1})\">{}</text>\n</svg>",
-        TOP + ph / 2.0,
-        TOP + ph / 2.0,
-        escape(y_label)
-    );
+    frame(&mut s, pw, ph, y_label);
+    s.push_str("</svg>\n");
     s
 }
 

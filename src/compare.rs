@@ -29,8 +29,8 @@ use crate::chart::{bar_chart, image_strip, write_svg_png, LineChart, Series, COL
 use crate::image::{check_writable_dir, read_image, write_image, Image, Metadata, WriteOptions};
 use crate::integrator::{Integrator, RayCounts};
 use crate::render::{
-    progress_bar, render_frame_independent, thread_pool, to_image, write_atomic, write_json,
-    Method, RenderOptions,
+    check_frames, progress_bar, render_frame_independent, thread_pool, to_image, write_atomic,
+    write_json, Method, RenderOptions,
 };
 use crate::reuse::render_reuse;
 use crate::scene::Scene;
@@ -517,14 +517,8 @@ pub fn default_frames(scene: &Scene) -> RangeInclusive<u32> {
 /// Run the comparison and write `compare.json`, `compare.csv` and the charts into `opts.out`.
 pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     let range = opts.frames.clone().unwrap_or_else(|| default_frames(scene));
+    check_frames(scene, &range)?;
     let (first, last) = (*range.start(), *range.end());
-    if first > last || last >= scene.frames {
-        bail!(
-            "--frames {first}-{last}: the scene '{}' has frames 0-{}",
-            scene.name,
-            scene.frames - 1
-        );
-    }
     let (w, h) = opts.res.unwrap_or((scene.width, scene.height));
     if w == 0 || h == 0 {
         bail!("--res {w}x{h}: width and height must be positive");
@@ -777,35 +771,27 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         y_label: "relMSE".into(),
         log_x: true,
         log_y: true,
+        // Every method at its widest window, solid; mis-exact's narrower windows dashed.
         series: lines
             .iter()
             .filter(|l| l.0 == Method::Independent || l.1 == max_window)
-            .map(|&(m, n_f)| Series {
+            .map(|&l| (l, false))
+            .chain(
+                lines
+                    .iter()
+                    .filter(|l| l.0 == Method::MisExact && l.1 != max_window)
+                    .map(|&l| (l, true)),
+            )
+            .map(|((m, n_f), dashed)| Series {
                 name: label(m, n_f),
                 colour: colour(m),
-                dashed: false,
+                dashed,
                 points: runs
                     .iter()
                     .filter(|r| key(r) == (m, n_f))
                     .map(|r| (r.seconds, r.relmse))
                     .collect(),
             })
-            .chain(
-                lines
-                    .iter()
-                    .filter(|l| l.0 != Method::Independent && l.1 != max_window)
-                    .filter(|l| l.0 == Method::MisExact)
-                    .map(|&(m, n_f)| Series {
-                        name: label(m, n_f),
-                        colour: colour(m),
-                        dashed: true,
-                        points: runs
-                            .iter()
-                            .filter(|r| key(r) == (m, n_f))
-                            .map(|r| (r.seconds, r.relmse))
-                            .collect(),
-                    }),
-            )
             .collect(),
     };
     let mut write_chart = |svg: String, stem: &str| -> Result<()> {

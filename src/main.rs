@@ -327,15 +327,7 @@ fn run(cli: Cli) -> Result<()> {
                 Some((x, y)) => x..=y,
                 None => compare::default_frames(&scene),
             };
-            if *range.end() >= scene.frames {
-                bail!(
-                    "--frames {}-{}: the scene '{}' has frames 0-{}",
-                    range.start(),
-                    range.end(),
-                    scene.name,
-                    scene.frames - 1
-                );
-            }
+            render::check_frames(&scene, &range)?;
             let res = a.res.unwrap_or((scene.width, scene.height));
             let pool = render::thread_pool(a.threads)?;
             reframe::embree::set_flush_denormals();

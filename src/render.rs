@@ -207,10 +207,9 @@ pub fn tiles(w: u32, h: u32) -> Vec<(u32, u32, u32, u32)> {
     v
 }
 
-/// Validated frame range and resolution for a scene and options.
-pub fn frame_plan(scene: &Scene, opts: &RenderOptions) -> Result<(RangeInclusive<u32>, u32, u32)> {
+/// A frame range must be non-empty and inside the scene's animation.
+pub fn check_frames(scene: &Scene, range: &RangeInclusive<u32>) -> Result<()> {
     let last = scene.frames - 1;
-    let range = opts.frames.clone().unwrap_or(0..=last);
     if range.start() > range.end() || *range.end() > last {
         bail!(
             "--frames {}-{}: the scene '{}' has frames 0-{last}",
@@ -219,6 +218,13 @@ pub fn frame_plan(scene: &Scene, opts: &RenderOptions) -> Result<(RangeInclusive
             scene.name
         );
     }
+    Ok(())
+}
+
+/// Validated frame range and resolution for a scene and options.
+pub fn frame_plan(scene: &Scene, opts: &RenderOptions) -> Result<(RangeInclusive<u32>, u32, u32)> {
+    let range = opts.frames.clone().unwrap_or(0..=scene.frames - 1);
+    check_frames(scene, &range)?;
     let (w, h) = opts.resolution.unwrap_or((scene.width, scene.height));
     if w == 0 || h == 0 {
         bail!("--res {w}x{h}: width and height must be positive");

@@ -118,16 +118,16 @@ impl FrameAccum {
     fn new(frame: u32, cam: Camera, opts: &RenderOptions) -> FrameAccum {
         let p = (cam.width * cam.height) as usize;
         let zeros32 = |n| (0..n).map(|_| AtomicU32::new(0)).collect::<Vec<_>>();
-        let havran = by_count(opts.method);
+        let by_count = by_count(opts.method);
         FrameAccum {
             frame,
             sum: FixedSums::new(3 * p),
-            unit: if havran {
+            unit: if by_count {
                 (opts.spp * opts.window) as f32
             } else {
                 1.0
             },
-            landed: (havran || opts.aov).then(|| zeros32(p)),
+            landed: (by_count || opts.aov).then(|| zeros32(p)),
             per_pixel_loss: opts.aov.then(|| (zeros32(p), zeros32(p))),
             cam,
             landed_total: AtomicU64::new(0),
