@@ -9,11 +9,14 @@
 //! ```
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
+use reframe::checkpoint::{default_checkpoint_dir, Chunk};
 use reframe::compare;
 use reframe::embree::Device;
 use reframe::render::{self, Method, RenderOptions};
 use reframe::scene::Scene;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 #[derive(Parser)]
 #[command(
@@ -35,6 +38,9 @@ enum Command {
     Bench(BenchArgs),
     /// Render (or find in the cache) the high-sample reference frames that compare measures against.
     Reference(ReferenceArgs),
+    /// Combine the partial files of a render split with `render --chunk K/N` into its frames,
+    /// bitwise identical to a one-process render.
+    Merge(MergeArgs),
     /// Render every method at a ladder of budgets, measure error, time and flicker against the
     /// reference, and chart them.
     Compare(CompareArgs),
@@ -58,6 +64,16 @@ struct ReferenceArgs {
     cache: PathBuf,
     #[arg(long, default_value_t = 0)]
     threads: usize,
+}
+
+#[derive(clap::Args)]
+struct MergeArgs {
+    /// The partial files of chunks 1..N (`<out folder>/<name>.chunk-K-of-N.partial`).
+    #[arg(required = true)]
+    partials: Vec<PathBuf>,
+    /// Output pattern of the frames (default: the one the chunks were rendered with).
+    #[arg(long)]
+    out: Option<String>,
 }
 
 #[derive(clap::Args)]
@@ -140,6 +156,33 @@ struct RenderArgs {
     /// Write render statistics as JSON.
     #[arg(long)]
     stats: Option<PathBuf>,
+    /// Continue an interrupted render from its checkpoint (same command line otherwise).
+    #[arg(long)]
+    resume: bool,
+    /// Checkpoint folder (default: `<out folder>/<name>.checkpoint`, or
+    /// `<name>.chunk-K-of-N.checkpoint` for a chunk).
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Seconds between checkpoints (0: after every group of frames, or every frame).
+    #[arg(long, default_value_t = 60.0)]
+    checkpoint_every: f64,
+    /// Render chunk K of N (1-based) of the groups and write its partial file
+    /// `<out folder>/<name>.chunk-K-of-N.partial` for `reframe merge`.
+    #[arg(long, value_parser = parse_chunk)]
+    chunk: Option<Chunk>,
+}
+
+fn parse_chunk(s: &str) -> Result<Chunk, String> {
+    let err = || format!("'{s}': expected K/N with 1 <= K <= N, e.g. 2/3");
+    let (k, n) = s.split_once('/').ok_or_else(err)?;
+    let (k, n): (u32, u32) = (
+        k.trim().parse().map_err(|_| err())?,
+        n.trim().parse().map_err(|_| err())?,
+    );
+    if k == 0 || k > n {
+        return Err(err());
+    }
+    Ok(Chunk { k, n })
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -220,11 +263,58 @@ fn main() {
         }
     };
     if let Err(e) = run(cli) {
+        if let Some(i) = e.downcast_ref::<render::Interrupted>() {
+            eprintln!("{i}");
+            if i.checkpoint.is_some() {
+                eprintln!("resume with: {}", resume_command());
+            }
+            std::process::exit(130);
+        }
         // One line: the chain of contexts, outermost first.
         let msg = format!("{e:#}").replace('\n', " ");
         eprintln!("error: {msg}");
         std::process::exit(1);
     }
+}
+
+/// This process's command line with `--resume` added, quoted for a POSIX shell.
+fn resume_command() -> String {
+    let mut args: Vec<String> = std::env::args().collect();
+    if !args.iter().any(|a| a == "--resume") {
+        args.push("--resume".into());
+    }
+    args.iter()
+        .map(|a| {
+            if a.chars()
+                .all(|c| c.is_ascii_alphanumeric() || "-_./=#:,".contains(c))
+            {
+                a.clone()
+            } else {
+                format!("'{}'", a.replace('\'', "'\\''"))
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// Ctrl-C, SIGTERM (Slurm's `scancel`, a scheduler's time limit) and SIGHUP: the first stops the
+/// render at the next group or frame, after a checkpoint; the second stops at once (the last
+/// checkpoint stays valid: every file is written under a temporary name and renamed).
+fn install_signal_handler() -> Result<Arc<AtomicBool>> {
+    let flag = Arc::new(AtomicBool::new(false));
+    let f = flag.clone();
+    ctrlc::set_handler(move || {
+        if f.swap(true, Ordering::SeqCst) {
+            eprintln!("\nstopping now; the last checkpoint is kept");
+            std::process::exit(130);
+        }
+        eprintln!(
+            "\ninterrupt: finishing the current group of frames and writing a checkpoint \
+             (interrupt again to stop at once)"
+        );
+    })
+    .context("installing the signal handler")?;
+    Ok(flag)
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -244,14 +334,29 @@ fn run(cli: Cli) -> Result<()> {
                 aov: a.aov,
                 frames: a.frames.map(|(x, y)| x..=y),
                 resolution: a.res,
-                out,
                 seed: a.seed,
                 threads: a.threads,
                 max_depth: a.max_depth,
                 exr_float: a.exr_float,
                 stats: a.stats.clone(),
                 progress: true,
+                checkpoint: Some(
+                    a.checkpoint
+                        .clone()
+                        .unwrap_or_else(|| default_checkpoint_dir(&out, a.chunk)),
+                ),
+                checkpoint_every: a.checkpoint_every,
+                resume: a.resume,
+                chunk: a.chunk,
+                interrupt: Some(install_signal_handler()?),
+                out,
             };
+            if !opts.checkpoint_every.is_finite() || opts.checkpoint_every < 0.0 {
+                bail!(
+                    "--checkpoint-every {}: seconds must be 0 or more",
+                    opts.checkpoint_every
+                );
+            }
             if opts.max_depth == 0 {
                 bail!("--max-depth 0: paths need at least one bounce");
             }
@@ -293,6 +398,24 @@ fn run(cli: Cli) -> Result<()> {
             }
             if let Some(p) = &a.stats {
                 println!("stats in {}", p.display());
+            }
+            Ok(())
+        }
+        Command::Merge(a) => {
+            let r = reframe::merge::merge(&a.partials, a.out.as_deref())?;
+            let (first, last) = (r.frames.first().unwrap(), r.frames.last().unwrap());
+            eprintln!(
+                "merged {} partial file(s) ({:.1} MB) into {} frame(s) ({:.1} MB) in {:.2} s",
+                a.partials.len(),
+                r.partial_bytes as f64 / 1e6,
+                r.frames.len(),
+                r.frame_bytes as f64 / 1e6,
+                r.seconds
+            );
+            if first == last {
+                println!("wrote {}", first.display());
+            } else {
+                println!("wrote {} .. {}", first.display(), last.display());
             }
             Ok(())
         }

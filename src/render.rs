@@ -17,6 +17,10 @@
 //! # anyhow::Ok(())
 //! ```
 use crate::camera::Camera;
+use crate::checkpoint::{
+    hash_exe, hash_scene, remove_stale_tmp, Checkpointer, Chunk, Fnv, FrameRecord, Kind, Progress,
+    RecordData, Run, RunKey, Trailer,
+};
 use crate::image::{write_image, Image, Metadata, OutputPattern, WriteOptions};
 use crate::integrator::{Integrator, RayCounts, Tally};
 use crate::sampling::Sampler;
@@ -27,8 +31,10 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::Serialize;
 use std::ops::RangeInclusive;
-use std::path::PathBuf;
-use std::time::Instant;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 /// Rendering methods, registered in one place: a new method is one file and one line here.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
@@ -82,6 +88,16 @@ pub struct RenderOptions {
     pub stats: Option<PathBuf>,
     /// Draw a progress bar (only ever on a terminal).
     pub progress: bool,
+    /// Checkpoint folder (`None`: no checkpoints); see `checkpoint`.
+    pub checkpoint: Option<PathBuf>,
+    /// Seconds between checkpoints (0: after every group, or frame).
+    pub checkpoint_every: f64,
+    /// Continue from the checkpoint in `checkpoint`, if there is one.
+    pub resume: bool,
+    /// Render only chunk K of N of the groups and write its partial file (`reframe merge`).
+    pub chunk: Option<Chunk>,
+    /// Set (by a signal handler) to stop at the next group or frame, after a checkpoint.
+    pub interrupt: Option<Arc<AtomicBool>>,
 }
 
 impl Default for RenderOptions {
@@ -101,6 +117,11 @@ impl Default for RenderOptions {
             exr_float: false,
             stats: None,
             progress: true,
+            checkpoint: None,
+            checkpoint_every: 60.0,
+            resume: false,
+            chunk: None,
+            interrupt: None,
         }
     }
 }
@@ -115,7 +136,7 @@ pub struct RayStats {
 }
 
 /// Reuse figures of one frame.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct FrameReuse {
     pub frame: u32,
     pub mean_effective_spp: f64,
@@ -152,7 +173,15 @@ pub struct RenderStats {
     /// Share of attempted reuses lost to occlusion or to falling off the target film.
     pub lost_reuse_fraction: f64,
     pub per_frame: Vec<FrameReuse>,
+    /// The frame files written, or a chunk's partial file.
     pub outputs: Vec<String>,
+    /// `K/N` of `--chunk`, if a chunk.
+    pub chunk: Option<String>,
+    /// The groups (reuse) or frames (independent) this render covered, inclusive.
+    pub units: [u32; 2],
+    /// Checkpoints written by this process, and the seconds spent writing them.
+    pub checkpoints_written: u32,
+    pub checkpoint_seconds: f64,
     #[serde(skip)]
     pub ray_counts: RayCounts,
 }
@@ -353,27 +382,52 @@ pub fn to_image(w: u32, h: u32, px: &[Vec3]) -> Image {
     }
 }
 
-/// Writes finished frames (atomically, with metadata) and remembers what it wrote.
-pub struct FrameSink<'a> {
-    pub scene: &'a Scene,
-    pub opts: &'a RenderOptions,
-    pub out: OutputPattern,
-    pub outputs: Vec<String>,
-    pub nonfinite_pixels: u64,
+/// What every frame file of a render records about how it was made.
+#[derive(Clone, Debug)]
+pub struct FrameMeta {
+    pub scene: String,
+    pub method: String,
+    pub spp: u32,
+    pub window: u32,
+    pub seed: u64,
+    pub exr_float: bool,
 }
 
-impl FrameSink<'_> {
-    /// Write frame `frame`: RGB plus optional extra channels (name, one value per pixel).
+/// Writes finished frames (atomically, with metadata).
+pub struct FrameSink {
+    pub meta: FrameMeta,
+    pub out: OutputPattern,
+}
+
+impl FrameSink {
+    /// Write frame `frame` seen by `cam`: RGB plus optional extra channels (name, one value per
+    /// pixel).
     pub fn emit(
-        &mut self,
+        &self,
         frame: u32,
         cam: &Camera,
         px: &[Vec3],
         extra: &[(&str, Vec<f32>)],
         seconds: f64,
-    ) -> Result<()> {
-        let (w, h) = (cam.width, cam.height);
-        self.nonfinite_pixels += px.iter().filter(|p| !p.is_finite()).count() as u64;
+    ) -> Result<PathBuf> {
+        let matrices = (
+            cam.world_to_camera().to_cols_array(),
+            cam.world_to_ndc().to_cols_array(),
+        );
+        self.write(frame, (cam.width, cam.height), matrices, px, extra, seconds)
+    }
+
+    /// Write frame `frame` of `w` x `h` pixels with its camera's (world-to-camera,
+    /// world-to-NDC) matrices.
+    pub fn write(
+        &self,
+        frame: u32,
+        (w, h): (u32, u32),
+        (world_to_camera, world_to_ndc): ([f32; 16], [f32; 16]),
+        px: &[Vec3],
+        extra: &[(&str, Vec<f32>)],
+        seconds: f64,
+    ) -> Result<PathBuf> {
         let mut img = to_image(w, h, px);
         if !extra.is_empty() {
             let nc = 3 + extra.len();
@@ -388,15 +442,15 @@ impl FrameSink<'_> {
         }
         let path = self.out.path(frame);
         let meta = Metadata {
-            method: self.opts.method.name().into(),
-            spp: self.opts.spp,
-            window: self.opts.window,
-            seed: self.opts.seed,
+            method: self.meta.method.clone(),
+            spp: self.meta.spp,
+            window: self.meta.window,
+            seed: self.meta.seed,
             render_seconds: seconds,
-            world_to_camera: cam.world_to_camera().to_cols_array(),
-            world_to_ndc: cam.world_to_ndc().to_cols_array(),
+            world_to_camera,
+            world_to_ndc,
             extra: vec![
-                ("scene".into(), self.scene.name.clone()),
+                ("scene".into(), self.meta.scene.clone()),
                 ("frame".into(), frame.to_string()),
             ],
         };
@@ -405,17 +459,77 @@ impl FrameSink<'_> {
             &img,
             &meta,
             &WriteOptions {
-                exr_float: self.opts.exr_float,
+                exr_float: self.meta.exr_float,
             },
         )
         .with_context(|| format!("writing frame {frame}"))?;
-        self.outputs.push(path.display().to_string());
-        Ok(())
+        Ok(path)
     }
 }
 
-/// Render the frames of `opts` and write them; returns the statistics (also written to
-/// `opts.stats` if set).
+/// A render stopped by a signal (`RenderOptions::interrupt`) after a checkpoint; `--resume`
+/// continues it.
+#[derive(Debug)]
+pub struct Interrupted {
+    /// The checkpoint folder, if checkpoints were on.
+    pub checkpoint: Option<PathBuf>,
+    /// Frames finished and written (or, for a chunk, retired to its log) so far.
+    pub frames_done: u32,
+}
+
+impl std::fmt::Display for Interrupted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.checkpoint {
+            Some(d) => write!(
+                f,
+                "interrupted after {} finished frame(s); the checkpoint is in {}",
+                self.frames_done,
+                d.display()
+            ),
+            None => write!(
+                f,
+                "interrupted after {} finished frame(s), without a checkpoint",
+                self.frames_done
+            ),
+        }
+    }
+}
+
+impl std::error::Error for Interrupted {}
+
+/// The settings that make a render's pixels what they are (a resume or merge needs them equal).
+fn run_key(
+    scene: &Scene,
+    opts: &RenderOptions,
+    range: &RangeInclusive<u32>,
+    (w, h): (u32, u32),
+) -> Result<RunKey> {
+    let mut f = Fnv::default();
+    hash_scene(&mut f, scene);
+    let scene_hash = format!("{:016x}", f.0);
+    let mut f = Fnv::default();
+    hash_exe(&mut f)?;
+    Ok(RunKey {
+        scene: scene.name.clone(),
+        scene_hash,
+        build_hash: format!("{:016x}", f.0),
+        method: opts.method.name().into(),
+        spp: opts.spp,
+        window: opts.window,
+        first_frame: *range.start(),
+        last_frame: *range.end(),
+        width: w,
+        height: h,
+        seed: opts.seed,
+        max_depth: opts.max_depth,
+        visibility: if opts.packets { "packet" } else { "single" }.into(),
+        aov: opts.aov,
+    })
+}
+
+/// Render the frames of `opts` and write them (or, for a chunk, its partial file); returns the
+/// statistics (also written to `opts.stats` if set). A render stopped by `opts.interrupt` ends
+/// in an `Interrupted` error after its checkpoint.
 pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     let startup_rss_bytes = rss_bytes();
     let (range, w, h) = frame_plan(scene, opts)?;
@@ -423,75 +537,130 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     if let Some(p) = &opts.stats {
         check_stats_path(p)?;
     }
+    // The units of work: groups of n_f frames sliding by one, or single frames.
+    let units = *range.start()..=range.end() + 1 - opts.window;
+    let units = match opts.chunk {
+        Some(c) => c.share(units).with_context(|| {
+            format!(
+                "{} of frames {}-{} with window {}",
+                if opts.method.reuses() {
+                    "groups"
+                } else {
+                    "frames"
+                },
+                range.start(),
+                range.end(),
+                opts.window
+            )
+        })?,
+        None => units,
+    };
+    let (ckpt, resumed) = if opts.checkpoint.is_some() || opts.chunk.is_some() {
+        let template = Trailer {
+            format: String::new(),
+            version: 0,
+            kind: Kind::Checkpoint,
+            key: run_key(scene, opts, &range, (w, h))?,
+            chunk: opts.chunk,
+            units: [*units.start(), *units.end()],
+            next_unit: *units.start(),
+            log_len: 0,
+            log_records: vec![],
+            records: vec![],
+            progress: Progress::default(),
+            out: opts.out.clone(),
+            exr_float: opts.exr_float,
+        };
+        let every = Duration::from_secs_f64(opts.checkpoint_every.max(0.0));
+        Checkpointer::open(opts.checkpoint.clone(), every, opts.resume, template)?
+    } else {
+        (Checkpointer::none(), None)
+    };
+    let (progress, next, active) = match resumed {
+        Some(r) => {
+            // Frame files a killed process was writing when it died.
+            let names: Vec<String> = range
+                .clone()
+                .filter_map(|f| Some(out.path(f).file_name()?.to_string_lossy().into_owned()))
+                .collect();
+            if let Some(dir) = out.path(*range.start()).parent() {
+                let dir = if dir.as_os_str().is_empty() {
+                    Path::new(".")
+                } else {
+                    dir
+                };
+                remove_stale_tmp(dir, |n| names.iter().any(|m| m == n));
+            }
+            (r.trailer.progress, r.trailer.next_unit, r.active)
+        }
+        None => (Progress::default(), *units.start(), vec![]),
+    };
+    let mut run = Run::new(ckpt, units, progress);
+    run.next = next;
+    run.interrupt = opts.interrupt.clone();
     let pool = thread_pool(opts.threads)?;
     crate::embree::set_flush_denormals();
     let integrator = Integrator::new(scene, opts.max_depth);
     let n_frames = range.end() - range.start() + 1;
-    let mut sink = FrameSink {
-        scene,
-        opts,
+    let sink = FrameSink {
+        meta: FrameMeta {
+            scene: scene.name.clone(),
+            method: opts.method.name().into(),
+            spp: opts.spp,
+            window: opts.window,
+            seed: opts.seed,
+            exr_float: opts.exr_float,
+        },
         out,
-        outputs: Vec::new(),
-        nonfinite_pixels: 0,
     };
-    let start = Instant::now();
-    let mut counts = RayCounts::default();
-    let mut reuse_stats = None;
-    match opts.method {
-        Method::Independent => {
-            let tiles_per_frame = tiles(w, h).len() as u64;
-            let pb = progress_bar(opts.progress, n_frames as u64 * tiles_per_frame, "tiles");
-            let total_rays = std::sync::atomic::AtomicU64::new(0);
-            for (done, frame) in range.clone().enumerate() {
-                let cam = scene.camera(frame, w, h);
-                let frame_start = Instant::now();
-                let on_tile = |c: &RayCounts| {
-                    let total = total_rays
-                        .fetch_add(c.total(), std::sync::atomic::Ordering::Relaxed)
-                        + c.total();
-                    let secs = start.elapsed().as_secs_f64().max(1e-9);
-                    pb.set_message(format!(
-                        "| frame {}/{n_frames} | {:.2} Mrays/s",
-                        done + 1,
-                        total as f64 / secs / 1e6
-                    ));
-                    pb.inc(1);
-                };
-                let f = pool.install(|| {
-                    render_frame_independent(
-                        &integrator,
-                        &cam,
-                        frame,
-                        opts.spp,
-                        opts.seed,
-                        false,
-                        &on_tile,
-                    )
-                });
-                counts.add(&f.counts);
-                sink.emit(
-                    frame,
-                    &cam,
-                    &f.pixels,
-                    &[],
-                    frame_start.elapsed().as_secs_f64(),
-                )?;
-            }
-            pb.finish_and_clear();
-        }
+    let frames_before = run.progress.per_frame.len() as u32;
+    let mut frames_done = 0u32;
+    let completed = match opts.method {
+        Method::Independent => pool.install(|| {
+            render_independent_run(&integrator, opts, (w, h), &mut run, &sink, &mut frames_done)
+        })?,
         Method::Havran | Method::Mis | Method::MisExact => {
             let mut emit =
                 |f: u32, cam: &Camera, px: &[Vec3], extra: &[(&str, Vec<f32>)], secs: f64| {
-                    sink.emit(f, cam, px, extra, secs)
+                    sink.emit(f, cam, px, extra, secs)?;
+                    frames_done += 1;
+                    Ok(())
                 };
-            let r = pool.install(|| {
-                crate::reuse::render_reuse(&integrator, opts, range.clone(), w, h, &mut emit)
-            })?;
-            counts = r.counts;
-            reuse_stats = Some(r);
+            pool.install(|| {
+                crate::reuse::render_reuse_run(
+                    &integrator,
+                    opts,
+                    range.clone(),
+                    w,
+                    h,
+                    &mut run,
+                    active,
+                    &mut emit,
+                )
+            })?
         }
+    };
+    if !completed {
+        return Err(Interrupted {
+            checkpoint: run.ckpt.dir().map(Path::to_path_buf),
+            frames_done: frames_before + frames_done,
+        }
+        .into());
     }
-    let seconds = start.elapsed().as_secs_f64();
+    let partial = run.finish()?;
+    let seconds = run.progress.seconds;
+    let counts = run.progress.counts();
+    let reuse_stats = opts
+        .method
+        .reuses()
+        .then(|| crate::reuse::ReuseStats::of(&run.progress, n_frames));
+    let outputs = match &partial {
+        Some(p) => vec![p.display().to_string()],
+        None => range
+            .clone()
+            .map(|f| sink.out.path(f).display().to_string())
+            .collect(),
+    };
     let stats = RenderStats {
         method: opts.method,
         scene: scene.name.clone(),
@@ -514,20 +683,97 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         rays_per_second: counts.total() as f64 / seconds.max(1e-9),
         peak_rss_bytes: peak_rss_bytes(),
         startup_rss_bytes,
-        nonfinite_pixels: sink.nonfinite_pixels,
-        nonfinite_samples: reuse_stats.as_ref().map_or(0, |r| r.nonfinite_samples),
+        nonfinite_pixels: run.progress.nonfinite_pixels,
+        nonfinite_samples: run.progress.nonfinite_samples,
         mean_effective_spp: reuse_stats
             .as_ref()
             .map_or(opts.spp as f64, |r| r.mean_effective_spp),
         lost_reuse_fraction: reuse_stats.as_ref().map_or(0.0, |r| r.lost_reuse_fraction),
         per_frame: reuse_stats.map(|r| r.per_frame).unwrap_or_default(),
-        outputs: sink.outputs,
+        outputs,
+        chunk: opts.chunk.map(|c| c.to_string()),
+        units: [*run.units.start(), *run.units.end()],
+        checkpoints_written: run.ckpt.written,
+        checkpoint_seconds: run.ckpt.spent.as_secs_f64(),
         ray_counts: counts,
     };
     if let Some(p) = &opts.stats {
         write_json(p, &stats)?;
     }
     Ok(stats)
+}
+
+/// The frames `run.units` with the independent tracer, from `run.next` on; each finished frame
+/// is written (or retired to a chunk's log). Returns false if interrupted (after a checkpoint).
+fn render_independent_run(
+    integrator: &Integrator,
+    opts: &RenderOptions,
+    (w, h): (u32, u32),
+    run: &mut Run,
+    sink: &FrameSink,
+    frames_done: &mut u32,
+) -> Result<bool> {
+    let scene = integrator.scene;
+    let (a, b) = (*run.units.start(), *run.units.end());
+    let tiles_per_frame = tiles(w, h).len() as u64;
+    let pb = progress_bar(opts.progress, (b + 1 - a) as u64 * tiles_per_frame, "tiles");
+    pb.set_position((run.next - a) as u64 * tiles_per_frame);
+    let start = Instant::now();
+    let total_rays = AtomicU64::new(0);
+    for frame in run.next..=b {
+        if run.interrupted() {
+            run.save(frame, &[])?;
+            pb.abandon();
+            return Ok(false);
+        }
+        let cam = scene.camera(frame, w, h);
+        let frame_start = Instant::now();
+        let on_tile = |c: &RayCounts| {
+            let total = total_rays.fetch_add(c.total(), Relaxed) + c.total();
+            let secs = start.elapsed().as_secs_f64().max(1e-9);
+            pb.set_message(format!(
+                "| frame {}/{} | {:.2} Mrays/s",
+                frame - a + 1,
+                b - a + 1,
+                total as f64 / secs / 1e6
+            ));
+            pb.inc(1);
+        };
+        let f = render_frame_independent(
+            integrator, &cam, frame, opts.spp, opts.seed, false, &on_tile,
+        );
+        run.progress.add_counts(&f.counts);
+        let seconds = frame_start.elapsed().as_secs_f64();
+        if run.ckpt.chunked() {
+            run.ckpt.retire(&FrameRecord {
+                frame,
+                width: w,
+                height: h,
+                groups: 1,
+                unit: 1.0,
+                data: RecordData::Pixels(f.pixels.iter().flat_map(|p| p.to_array()).collect()),
+                landed: None,
+                loss: None,
+                landed_total: 0,
+                tried: 0,
+                lost: 0,
+                seconds,
+                world_to_camera: cam.world_to_camera().to_cols_array(),
+                world_to_ndc: cam.world_to_ndc().to_cols_array(),
+            })?;
+        } else {
+            run.progress.nonfinite_pixels +=
+                f.pixels.iter().filter(|p| !p.is_finite()).count() as u64;
+            sink.emit(frame, &cam, &f.pixels, &[], seconds)?;
+        }
+        *frames_done += 1;
+        run.next = frame + 1;
+        if frame < b && run.ckpt.due() {
+            run.save(frame + 1, &[])?;
+        }
+    }
+    pb.finish_and_clear();
+    Ok(true)
 }
 
 /// The stats file's folder must exist and be writable before the render starts.

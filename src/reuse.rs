@@ -29,11 +29,12 @@
 //! Visibility tests for a tile of hits towards one eye all converge on that eye and go through
 //! `rtcOccluded16` packets (`--visibility packet`, the default) or single rays.
 use crate::camera::Camera;
+use crate::checkpoint::{Checkpointer, FrameRecord, Progress, RecordData, Run};
 use crate::embree::{Packet16, Ray};
 use crate::integrator::{facing, FirstHit, Integrator, RayCounts, Tally};
 use crate::render::{progress_bar, tiles, FrameReuse, Method, RenderOptions};
 use crate::sampling::{mix64, Sampler};
-use anyhow::Result;
+use anyhow::{bail, Result};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -84,6 +85,7 @@ impl FixedSums {
     }
 
     /// The exact sum of cell `i`, back in units.
+    #[cfg(test)]
     fn get(&self, i: usize, carry: &HashMap<usize, i64>) -> f64 {
         let c = carry.get(&i).copied().unwrap_or(0);
         (self.cells[i].load(Relaxed) as i64 + c) as f64 / FIXED
@@ -112,6 +114,8 @@ struct FrameAccum {
     lost: AtomicU64,
     groups: u32,
     started: Instant,
+    /// Seconds spent on this frame by the process a checkpoint was resumed from.
+    earlier_seconds: f64,
 }
 
 impl FrameAccum {
@@ -135,7 +139,85 @@ impl FrameAccum {
             lost: AtomicU64::new(0),
             groups: 0,
             started: Instant::now(),
+            earlier_seconds: 0.0,
         }
+    }
+
+    /// The accumulator as a state-file record (a copy: the frame keeps rendering).
+    fn to_record(&self) -> FrameRecord {
+        let mut carry: Vec<(u64, i64)> = self
+            .sum
+            .carry
+            .lock()
+            .unwrap()
+            .iter()
+            .map(|(&i, &c)| (i as u64, c))
+            .collect();
+        carry.sort_unstable();
+        let load = |v: &[AtomicU32]| v.iter().map(|c| c.load(Relaxed)).collect::<Vec<u32>>();
+        FrameRecord {
+            frame: self.frame,
+            width: self.cam.width,
+            height: self.cam.height,
+            groups: self.groups,
+            unit: self.unit,
+            data: RecordData::Sums {
+                cells: self.sum.cells.iter().map(|c| c.load(Relaxed)).collect(),
+                carry,
+            },
+            landed: self.landed.as_deref().map(load),
+            loss: self
+                .per_pixel_loss
+                .as_ref()
+                .map(|(t, l)| (load(t), load(l))),
+            landed_total: self.landed_total.load(Relaxed),
+            tried: self.tried.load(Relaxed),
+            lost: self.lost.load(Relaxed),
+            seconds: self.started.elapsed().as_secs_f64() + self.earlier_seconds,
+            world_to_camera: self.cam.world_to_camera().to_cols_array(),
+            world_to_ndc: self.cam.world_to_ndc().to_cols_array(),
+        }
+    }
+
+    /// The accumulator a checkpoint's record holds, for a render with `opts`.
+    fn from_record(r: &FrameRecord, cam: Camera, opts: &RenderOptions) -> Result<FrameAccum> {
+        let mut a = FrameAccum::new(r.frame, cam, opts);
+        let RecordData::Sums { cells, carry } = &r.data else {
+            bail!(
+                "frame {}: the checkpoint holds finished pixels, not sums",
+                r.frame
+            );
+        };
+        if cells.len() != a.sum.cells.len()
+            || r.unit.to_bits() != a.unit.to_bits()
+            || r.landed.is_some() != a.landed.is_some()
+            || r.loss.is_some() != a.per_pixel_loss.is_some()
+        {
+            bail!(
+                "frame {}: the checkpoint's accumulator does not fit these settings",
+                r.frame
+            );
+        }
+        for (c, &v) in a.sum.cells.iter().zip(cells) {
+            c.store(v, Relaxed);
+        }
+        *a.sum.carry.lock().unwrap() = carry.iter().map(|&(i, c)| (i as usize, c)).collect();
+        let store = |dst: &[AtomicU32], src: &[u32]| {
+            dst.iter().zip(src).for_each(|(d, &s)| d.store(s, Relaxed))
+        };
+        if let (Some(d), Some(s)) = (&a.landed, &r.landed) {
+            store(d, s);
+        }
+        if let (Some((dt, dl)), Some((st, sl))) = (&a.per_pixel_loss, &r.loss) {
+            store(dt, st);
+            store(dl, sl);
+        }
+        a.landed_total = AtomicU64::new(r.landed_total);
+        a.tried = AtomicU64::new(r.tried);
+        a.lost = AtomicU64::new(r.lost);
+        a.groups = r.groups;
+        a.earlier_seconds = r.seconds;
+        Ok(a)
     }
 
     /// Add `v` to pixel `i`, rounding stochastically with the bits of `dither`; false (and
@@ -162,15 +244,6 @@ impl FrameAccum {
             landed[i].fetch_add(n, Relaxed);
         }
     }
-}
-
-/// What `render_reuse` reports besides the frames.
-pub struct ReuseStats {
-    pub counts: RayCounts,
-    pub nonfinite_samples: u64,
-    pub mean_effective_spp: f64,
-    pub lost_reuse_fraction: f64,
-    pub per_frame: Vec<FrameReuse>,
 }
 
 /// Per hit and target eye: the pixel it lands in (if on the target's film and visible).
@@ -290,7 +363,38 @@ fn mis_contribution(
 /// A finished frame as `render_reuse` hands it out: (frame, camera, pixels, extra channels, seconds).
 pub type Emit<'e> = dyn FnMut(u32, &Camera, &[Vec3], &[(&str, Vec<f32>)], f64) -> Result<()> + 'e;
 
+/// What `render_reuse` reports besides the frames.
+pub struct ReuseStats {
+    pub counts: RayCounts,
+    pub nonfinite_samples: u64,
+    pub mean_effective_spp: f64,
+    pub lost_reuse_fraction: f64,
+    pub per_frame: Vec<FrameReuse>,
+}
+
+impl ReuseStats {
+    pub fn of(p: &Progress, frames: u32) -> ReuseStats {
+        ReuseStats {
+            counts: p.counts(),
+            nonfinite_samples: p.nonfinite_samples,
+            mean_effective_spp: p
+                .per_frame
+                .iter()
+                .map(|f| f.mean_effective_spp)
+                .sum::<f64>()
+                / frames as f64,
+            lost_reuse_fraction: if p.tried > 0 {
+                p.lost as f64 / p.tried as f64
+            } else {
+                0.0
+            },
+            per_frame: p.per_frame.clone(),
+        }
+    }
+}
+
 /// Render `range` with a reuse method, handing each frame to `emit` as soon as it is final.
+/// (No checkpoints, one process: `render::render` adds those.)
 pub fn render_reuse(
     integrator: &Integrator,
     opts: &RenderOptions,
@@ -299,20 +403,65 @@ pub fn render_reuse(
     h: u32,
     emit: &mut Emit,
 ) -> Result<ReuseStats> {
+    let groups = *range.start()..=range.end() + 1 - opts.window;
+    let mut run = Run::new(Checkpointer::none(), groups, Progress::default());
+    render_reuse_run(
+        integrator,
+        opts,
+        range.clone(),
+        w,
+        h,
+        &mut run,
+        vec![],
+        emit,
+    )?;
+    Ok(ReuseStats::of(
+        &run.progress,
+        range.end() - range.start() + 1,
+    ))
+}
+
+/// The groups `run.units` of a render of `range`: from `run.next` on, starting from the frames
+/// in flight `active` (a resumed checkpoint's), writing checkpoints as they fall due. Frames that
+/// no later group of the run touches go to `emit`, or, for a chunk, to its partial log. Returns
+/// false if `run.interrupt` stopped it (after a checkpoint at the last finished group).
+#[allow(clippy::too_many_arguments)]
+pub fn render_reuse_run(
+    integrator: &Integrator,
+    opts: &RenderOptions,
+    range: RangeInclusive<u32>,
+    w: u32,
+    h: u32,
+    run: &mut Run,
+    active: Vec<FrameRecord>,
+    emit: &mut Emit,
+) -> Result<bool> {
     let scene = integrator.scene;
     let n_f = opts.window;
     let (first, last) = (*range.start(), *range.end());
-    let last_group = last + 1 - n_f;
-    let n_groups = last_group - first + 1;
-    let pb = progress_bar(opts.progress, n_groups as u64, "groups");
-    let mut active: VecDeque<FrameAccum> = VecDeque::new();
-    let mut counts = RayCounts::default();
+    debug_assert!(*run.units.start() >= first && *run.units.end() + n_f - 1 <= last);
+    let last_group = *run.units.end();
+    let chunked = run.ckpt.chunked();
+    let pb = progress_bar(
+        opts.progress,
+        (last_group + 1 - run.units.start()) as u64,
+        "groups",
+    );
+    pb.set_position((run.next - run.units.start()) as u64);
+    let mut active: VecDeque<FrameAccum> = active
+        .iter()
+        .map(|r| FrameAccum::from_record(r, scene.camera(r.frame, w, h), opts))
+        .collect::<Result<_>>()?;
     let nonfinite = AtomicU64::new(0);
-    let mut per_frame = Vec::new();
-    let (mut tried_total, mut lost_total) = (0u64, 0u64);
     let tile_list = tiles(w, h);
     let mut written = 0;
-    for g0 in first..=last_group {
+    for g0 in run.next..=last_group {
+        if run.interrupted() {
+            let recs: Vec<FrameRecord> = active.iter().map(FrameAccum::to_record).collect();
+            run.save(g0, &recs)?;
+            pb.abandon();
+            return Ok(false);
+        }
         // The group's frames: keep those still active, add the new ones.
         while active.back().is_none_or(|a| a.frame < g0 + n_f - 1) {
             let f = active.back().map_or(g0, |a| a.frame + 1);
@@ -338,7 +487,8 @@ pub fn render_reuse(
                 a.add(&b);
                 a
             });
-        counts.add(&group_counts);
+        run.progress.add_counts(&group_counts);
+        run.progress.nonfinite_samples += nonfinite.swap(0, Relaxed);
         for a in active
             .iter_mut()
             .filter(|a| a.frame >= g0 && a.frame < g0 + n_f)
@@ -351,56 +501,60 @@ pub fn render_reuse(
             .is_some_and(|a| a.frame == g0 || g0 == last_group)
         {
             let a = active.pop_front().unwrap();
-            let fr = finish_frame(&a, opts.method);
-            tried_total += fr.tried;
-            lost_total += fr.lost;
-            let n_px = (w * h) as f64;
-            per_frame.push(FrameReuse {
-                frame: a.frame,
-                mean_effective_spp: a.landed_total.load(Relaxed) as f64 / n_px,
-                lost_reuse_fraction: if fr.tried > 0 {
-                    fr.lost as f64 / fr.tried as f64
-                } else {
-                    0.0
-                },
-            });
-            let extra: Vec<(&str, Vec<f32>)> = match (fr.spp_eff, fr.lost_share) {
-                (Some(spp_eff), Some(lost)) => vec![("spp_eff", spp_eff), ("lost_reuse", lost)],
-                _ => vec![],
-            };
-            emit(
-                a.frame,
-                &a.cam,
-                &fr.pixels,
-                &extra,
-                a.started.elapsed().as_secs_f64(),
-            )?;
+            let rec = a.to_record();
+            run.progress.tried += rec.tried;
+            run.progress.lost += rec.lost;
+            if chunked {
+                run.ckpt.retire(&rec)?;
+            } else {
+                let fr = finish_record(&rec, &rec.totals(), opts.method);
+                run.progress.per_frame.push(FrameReuse {
+                    frame: a.frame,
+                    mean_effective_spp: rec.landed_total as f64 / (w * h) as f64,
+                    lost_reuse_fraction: if rec.tried > 0 {
+                        rec.lost as f64 / rec.tried as f64
+                    } else {
+                        0.0
+                    },
+                });
+                run.progress.nonfinite_pixels +=
+                    fr.pixels.iter().filter(|p| !p.is_finite()).count() as u64;
+                let extra: Vec<(&str, Vec<f32>)> = match (fr.spp_eff, fr.lost_share) {
+                    (Some(spp_eff), Some(lost)) => {
+                        vec![("spp_eff", spp_eff), ("lost_reuse", lost)]
+                    }
+                    _ => vec![],
+                };
+                emit(
+                    a.frame,
+                    &a.cam,
+                    &fr.pixels,
+                    &extra,
+                    a.started.elapsed().as_secs_f64() + a.earlier_seconds,
+                )?;
+            }
             written += 1;
         }
-        pb.set_message(format!("| {written} frames written"));
+        run.next = g0 + 1;
+        if g0 < last_group && run.ckpt.due() {
+            let recs: Vec<FrameRecord> = active.iter().map(FrameAccum::to_record).collect();
+            run.save(g0 + 1, &recs)?;
+        }
+        pb.set_message(format!(
+            "| {written} frames {}",
+            if chunked { "retired" } else { "written" }
+        ));
         pb.inc(1);
     }
     pb.finish_and_clear();
-    let frames = (last - first + 1) as f64;
-    Ok(ReuseStats {
-        counts,
-        nonfinite_samples: nonfinite.into_inner(),
-        mean_effective_spp: per_frame.iter().map(|f| f.mean_effective_spp).sum::<f64>() / frames,
-        lost_reuse_fraction: if tried_total > 0 {
-            lost_total as f64 / tried_total as f64
-        } else {
-            0.0
-        },
-        per_frame,
-    })
+    Ok(true)
 }
 
-struct Finished {
-    pixels: Vec<Vec3>,
-    spp_eff: Option<Vec<f32>>,
-    lost_share: Option<Vec<f32>>,
-    tried: u64,
-    lost: u64,
+/// A frame's final pixels and, with `--aov`, its extra channels.
+pub struct Finished {
+    pub pixels: Vec<Vec3>,
+    pub spp_eff: Option<Vec<f32>>,
+    pub lost_share: Option<Vec<f32>>,
 }
 
 /// Whether `method` divides each pixel by the count of samples that landed in it (Havran's and
@@ -409,21 +563,29 @@ fn by_count(method: Method) -> bool {
     matches!(method, Method::Havran | Method::Mis)
 }
 
-/// The frame's final pixels: the mean over its groups (`mis-exact`), or over everything that
-/// landed (the methods that average by count).
-fn finish_frame(a: &FrameAccum, method: Method) -> Finished {
-    let n = (a.cam.width * a.cam.height) as usize;
-    let carry = std::mem::take(&mut *a.sum.carry.lock().unwrap());
-    let landed = |i: usize| a.landed.as_ref().map_or(0, |l| l[i].load(Relaxed));
+/// The frame's final pixels from its record and exact fixed-point `totals` (cells plus carries,
+/// summed over every chunk): the mean over its groups (`mis-exact`), or over everything that
+/// landed (the methods that average by count). One function for a single process, a resumed
+/// one and a merge of chunks, so that they agree to the bit.
+pub fn finish_record(r: &FrameRecord, totals: &[i64], method: Method) -> Finished {
+    let n = (r.width * r.height) as usize;
+    if let RecordData::Pixels(px) = &r.data {
+        return Finished {
+            pixels: px
+                .chunks_exact(3)
+                .map(|c| Vec3::new(c[0], c[1], c[2]))
+                .collect(),
+            spp_eff: None,
+            lost_share: None,
+        };
+    }
+    let landed = |i: usize| r.landed.as_ref().map_or(0, |l| l[i]);
+    let unit = |i: usize| (totals[i] as f64 / FIXED) as f32;
     let pixels = (0..n)
         .map(|i| {
-            let s = Vec3::new(
-                a.sum.get(3 * i, &carry) as f32,
-                a.sum.get(3 * i + 1, &carry) as f32,
-                a.sum.get(3 * i + 2, &carry) as f32,
-            ) * a.unit;
+            let s = Vec3::new(unit(3 * i), unit(3 * i + 1), unit(3 * i + 2)) * r.unit;
             if !by_count(method) {
-                s / a.groups as f32
+                s / r.groups as f32
             } else if landed(i) > 0 {
                 s / landed(i) as f32
             } else {
@@ -431,30 +593,21 @@ fn finish_frame(a: &FrameAccum, method: Method) -> Finished {
             }
         })
         .collect();
-    let spp_eff = a
+    let spp_eff = r
         .landed
         .as_ref()
-        .map(|l| l.iter().map(|c| c.load(Relaxed) as f32).collect());
-    let lost_share = a.per_pixel_loss.as_ref().map(|(tried, lost)| {
+        .map(|l| l.iter().map(|&c| c as f32).collect());
+    let lost_share = r.loss.as_ref().map(|(tried, lost)| {
         tried
             .iter()
             .zip(lost)
-            .map(|(t, l)| {
-                let t = t.load(Relaxed);
-                if t > 0 {
-                    l.load(Relaxed) as f32 / t as f32
-                } else {
-                    0.0
-                }
-            })
+            .map(|(&t, &l)| if t > 0 { l as f32 / t as f32 } else { 0.0 })
             .collect()
     });
     Finished {
         pixels,
         spp_eff,
         lost_share,
-        tried: a.tried.load(Relaxed),
-        lost: a.lost.load(Relaxed),
     }
 }
 

@@ -1,0 +1,353 @@
+//! Renders that survive interruption, and renders split into chunks: a killed (SIGKILL) or
+//! interrupted (SIGINT, SIGTERM) render resumed with `--resume`, and chunks 1..N merged with
+//! `reframe merge`, must give frames bitwise identical to one uninterrupted process.
+use reframe::image::read_image;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output};
+use std::time::{Duration, Instant};
+
+fn reframe() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_reframe"))
+}
+
+fn run(args: &[&str]) -> Output {
+    let o = reframe().args(args).output().unwrap();
+    assert!(
+        o.status.success(),
+        "reframe {args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    o
+}
+
+/// Every frame of `frames` in `a` and `b`: the same channels and the same bits.
+fn assert_identical(a: &Path, b: &Path, frames: std::ops::RangeInclusive<u32>) {
+    for f in frames {
+        let name = format!("f_{f:04}.exr");
+        let (x, y) = (
+            read_image(&a.join(&name)).unwrap(),
+            read_image(&b.join(&name)).unwrap(),
+        );
+        assert_eq!(x.channels, y.channels, "{name}");
+        let bits = |v: &[f32]| v.iter().map(|p| p.to_bits()).collect::<Vec<_>>();
+        let differ = bits(&x.data)
+            .iter()
+            .zip(bits(&y.data))
+            .filter(|(p, q)| **p != *q)
+            .count();
+        assert_eq!(differ, 0, "{name}: {differ} values differ");
+    }
+}
+
+fn leftovers(d: &Path) -> Vec<PathBuf> {
+    std::fs::read_dir(d)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.to_string_lossy().contains(".tmp-"))
+        .collect()
+}
+
+/// Wait until `ready` holds, then send `signal` to `child`; the render must still have been
+/// running (otherwise nothing was interrupted and the test proves nothing).
+fn interrupt_when(child: &mut Child, signal: &str, ready: impl Fn() -> bool) {
+    let start = Instant::now();
+    while !ready() {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the render finished before it could be interrupted"
+        );
+        assert!(start.elapsed() < Duration::from_secs(120), "no checkpoint");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(child.try_wait().unwrap().is_none(), "finished too early");
+    let ok = Command::new("kill")
+        .args([&format!("-{signal}"), &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok, "kill -{signal}");
+}
+
+const REUSE: [&str; 13] = [
+    "render",
+    "vase",
+    "--method",
+    "mis-exact",
+    "--window",
+    "5",
+    "--spp",
+    "2",
+    "--frames",
+    "4-23",
+    "--res",
+    "160x120",
+    "--exr-float",
+];
+
+fn with(base: &[&str], more: &[&str]) -> Vec<String> {
+    base.iter().chain(more).map(|s| s.to_string()).collect()
+}
+
+#[test]
+fn killed_render_resumes_to_identical_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let whole = d.join("whole");
+    let out = |sub: &str| format!("{}/{sub}/f_####.exr", d.display());
+    run(&with(&REUSE, &["--out", &out("whole")])
+        .iter()
+        .map(String::as_str)
+        .collect::<Vec<_>>());
+    // SIGKILL once the checkpoint holds some finished frames and frames in flight.
+    let killed = d.join("killed");
+    let args = with(
+        &REUSE,
+        &["--out", &out("killed"), "--checkpoint-every", "0"],
+    );
+    let mut child = reframe().args(&args).spawn().unwrap();
+    let state = killed.join("f.checkpoint/state");
+    interrupt_when(&mut child, "KILL", || {
+        state.exists() && killed.join("f_0006.exr").exists()
+    });
+    child.wait().unwrap();
+    assert!(state.exists(), "no checkpoint after the kill");
+    assert!(
+        !killed.join("f_0023.exr").exists(),
+        "the render had finished"
+    );
+    // Without --resume the checkpoint is not silently overwritten.
+    let o = reframe().args(&args).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("--resume"), "{err}");
+    // A resume with other settings is refused, naming the setting.
+    let mut other = args.clone();
+    other[7] = "3".into(); // --spp 3
+    let o = reframe().args(&other).arg("--resume").output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("spp: 3 vs 2") | err.contains("spp: 2 vs 3"),
+        "{err}"
+    );
+    let resumed = reframe().args(&args).arg("--resume").output().unwrap();
+    assert!(
+        resumed.status.success(),
+        "{}",
+        String::from_utf8_lossy(&resumed.stderr)
+    );
+    assert!(
+        !killed.join("f.checkpoint").exists(),
+        "checkpoint not removed"
+    );
+    assert_identical(&whole, &killed, 4..=23);
+}
+
+#[test]
+fn interrupted_render_stops_cleanly_and_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for (signal, method) in [("INT", "mis"), ("TERM", "independent")] {
+        let sub = d.join(signal);
+        let out = format!("{}/f_####.exr", sub.display());
+        let mut args = with(&REUSE, &["--out", &out, "--checkpoint-every", "0"]);
+        if method == "independent" {
+            args.splice(2..6, ["--method".to_string(), "independent".into()]);
+            args[5] = "8".into(); // --spp 8: slow enough to interrupt
+        } else {
+            args[3] = method.into();
+        }
+        let whole = d.join(format!("{signal}-whole"));
+        let mut wargs = args.clone();
+        let n = wargs.len();
+        wargs[n - 3] = format!("{}/f_####.exr", whole.display());
+        wargs.truncate(n - 2);
+        run(&wargs.iter().map(String::as_str).collect::<Vec<_>>());
+        let mut child = reframe()
+            .args(&args)
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        interrupt_when(&mut child, signal, || sub.join("f_0005.exr").exists());
+        let o = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(130), "{signal}: {err}");
+        assert!(
+            err.contains("resume with:") && err.contains("--resume"),
+            "{err}"
+        );
+        assert!(sub.join("f.checkpoint/state").exists());
+        assert!(
+            leftovers(&sub).is_empty(),
+            "half-written files: {:?}",
+            leftovers(&sub)
+        );
+        assert!(leftovers(&sub.join("f.checkpoint")).is_empty());
+        // Every frame file there is complete (it reads), and the render stopped early.
+        let written: Vec<_> = std::fs::read_dir(&sub)
+            .unwrap()
+            .flatten()
+            .filter(|e| e.path().extension().is_some_and(|x| x == "exr"))
+            .collect();
+        assert!(written.len() < 20, "{signal}: nothing was interrupted");
+        for e in &written {
+            read_image(&e.path()).unwrap();
+        }
+        // The hint is a command that works.
+        let hint = err.lines().find(|l| l.starts_with("resume with:")).unwrap();
+        assert!(hint.ends_with("--resume"), "{hint}");
+        run(&args
+            .iter()
+            .map(String::as_str)
+            .chain(["--resume"])
+            .collect::<Vec<_>>());
+        assert_identical(&whole, &sub, 4..=23);
+    }
+}
+
+#[test]
+fn chunks_merge_to_identical_frames_for_any_n() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let base = [
+        "render",
+        "vase",
+        "--method",
+        "mis-exact",
+        "--window",
+        "5",
+        "--spp",
+        "1",
+        "--frames",
+        "10-21",
+        "--res",
+        "48x36",
+        "--exr-float",
+        "--aov",
+    ];
+    let whole = d.join("whole");
+    let wout = format!("{}/f_####.exr", whole.display());
+    run(&with(&base, &["--out", &wout])
+        .iter()
+        .map(String::as_str)
+        .collect::<Vec<_>>());
+    // 8 groups: N = 1 (a chunk of everything), 3 (uneven), 8 (one group each).
+    for n in [1u32, 3, 8] {
+        let sub = d.join(format!("n{n}"));
+        let out = format!("{}/f_####.exr", sub.display());
+        let mut partials = vec![];
+        // Render the chunks in reverse order: the merge must not care.
+        for k in (1..=n).rev() {
+            let chunk = format!("{k}/{n}");
+            let o = run(&with(&base, &["--out", &out, "--chunk", &chunk])
+                .iter()
+                .map(String::as_str)
+                .collect::<Vec<_>>());
+            let p = sub.join(format!("f.chunk-{k}-of-{n}.partial"));
+            assert!(String::from_utf8_lossy(&o.stdout).contains(&p.display().to_string()));
+            assert!(!sub.join("f_0010.exr").exists(), "a chunk wrote frames");
+            partials.push(p.display().to_string());
+        }
+        if n > 1 {
+            // One chunk missing: refused, naming it, and nothing written.
+            let o = reframe()
+                .arg("merge")
+                .args(&partials[1..])
+                .output()
+                .unwrap();
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(
+                !o.status.success() && err.contains(&format!("chunk {n}/{n} is missing")),
+                "{err}"
+            );
+            assert!(!sub.join("f_0010.exr").exists());
+        }
+        run(&["merge"]
+            .into_iter()
+            .chain(partials.iter().map(String::as_str))
+            .collect::<Vec<_>>());
+        assert_identical(&whole, &sub, 10..=21);
+    }
+    // Chunks of different renders do not merge.
+    let other = d.join("other");
+    let oout = format!("{}/f_####.exr", other.display());
+    let mut b2 = base.to_vec();
+    b2[7] = "2";
+    for k in 1..=2 {
+        run(&with(&b2, &["--out", &oout, "--chunk", &format!("{k}/2")])
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>());
+    }
+    let o = reframe()
+        .args(["merge"])
+        .arg(d.join("n3/f.chunk-1-of-3.partial"))
+        .arg(other.join("f.chunk-2-of-2.partial"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("not chunks of the same render"),
+        "{err}"
+    );
+    // A truncated partial (a copy cut short) is refused, naming the file.
+    let p = d.join("n3/f.chunk-2-of-3.partial");
+    let bytes = std::fs::read(&p).unwrap();
+    std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
+    let o = reframe().arg("merge").arg(&p).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("not a complete"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_killed_chunk_resumes_and_merges_identically() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let base = with(&REUSE, &[]);
+    let whole = d.join("whole");
+    let wout = format!("{}/f_####.exr", whole.display());
+    let mut a = base.clone();
+    a.extend(["--out".into(), wout]);
+    run(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    let sub = d.join("chunks");
+    let out = format!("{}/f_####.exr", sub.display());
+    let chunk = |k: u32| {
+        let mut a = base.clone();
+        a.extend([
+            "--out".into(),
+            out.clone(),
+            "--chunk".into(),
+            format!("{k}/2"),
+            "--checkpoint-every".into(),
+            "0".into(),
+        ]);
+        a
+    };
+    run(&chunk(2).iter().map(String::as_str).collect::<Vec<_>>());
+    let mut child = reframe().args(chunk(1)).spawn().unwrap();
+    let state = sub.join("f.chunk-1-of-2.checkpoint/state");
+    let log = sub.join("f.chunk-1-of-2.partial.log");
+    // Killed once the log holds retired frames: the resume must truncate what came after.
+    interrupt_when(&mut child, "KILL", || {
+        state.exists() && std::fs::metadata(&log).is_ok_and(|m| m.len() > 300_000)
+    });
+    child.wait().unwrap();
+    let o = reframe()
+        .arg("merge")
+        .arg(sub.join("f.chunk-2-of-2.partial"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let mut resume = chunk(1);
+    resume.push("--resume".into());
+    run(&resume.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(!log.exists() && !state.exists());
+    run(&[
+        "merge",
+        &sub.join("f.chunk-1-of-2.partial").display().to_string(),
+        &sub.join("f.chunk-2-of-2.partial").display().to_string(),
+    ]);
+    assert_identical(&whole, &sub, 4..=23);
+}
