@@ -2,10 +2,20 @@
 # One-time (and idempotent) set-up of everything reframe needs to build and run on Debian 12/13:
 #   - Debian packages: OpenImageIO (headers and library), libclang (bindgen), pkg-config, g++;
 #   - Embree 4: the system's libembree4.so.4 if there is one, otherwise the Embree 4.4.0 runtime
-#     shipped in the PyPI wheel embreex==4.4.0.post1 (pinned, sha256-checked), unpacked into .deps/.
+#     shipped in the PyPI wheel embreex==4.4.0.post1 (pinned, sha256-checked), unpacked into .deps/;
+#   - with --tests, also what the test suite needs beyond that: Slurm (slurmctld, slurmd,
+#     slurm-client) and munge, for the one-node cluster of tests/slurm.rs. Their services are
+#     installed without being started or enabled: the test runs its own daemons.
 # Fast when everything is already there. Run as root (or with sudo) the first time.
 set -euo pipefail
 cd "$(dirname "$0")"
+with_tests=0
+for a in "$@"; do
+  case "$a" in
+    --tests) with_tests=1 ;;
+    *) echo "setup: unknown option $a (only --tests)" >&2; exit 2 ;;
+  esac
+done
 
 EMBREE_WHEEL=embreex-4.4.0.post1-cp311-cp311-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl
 EMBREE_SHA256=2cd0f7d5c6342e6247e31f700761689cae7829454d8c6de0c41e62124a023e1f
@@ -16,19 +26,38 @@ say() { echo "setup: $*" >&2; }
 
 # --- Debian packages -------------------------------------------------------------------------
 pkgs=(libopenimageio-dev libclang-dev pkg-config g++ python3 fonts-dejavu-core)
+services=(slurmctld slurmd munge)
+[ "$with_tests" = 1 ] && pkgs+=(slurmctld slurmd slurm-client munge)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" || missing+=("$p")
 done
+SUDO=""
 if [ ${#missing[@]} -gt 0 ]; then
   say "installing Debian packages: ${missing[*]}"
-  SUDO=""
   if [ "$(id -u)" -ne 0 ]; then
     command -v sudo >/dev/null || { say "need root to install ${missing[*]}"; exit 1; }
     SUDO=sudo
   fi
+  # Daemons in the list are installed, not started: a policy-rc.d that refuses every start
+  # while apt runs (unless the machine has one of its own).
+  policy=""
+  if [ ! -e /usr/sbin/policy-rc.d ]; then
+    policy=/usr/sbin/policy-rc.d
+    printf '#!/bin/sh\nexit 101\n' | $SUDO tee "$policy" >/dev/null
+    $SUDO chmod +x "$policy"
+    trap '$SUDO rm -f "$policy"' EXIT
+  fi
   $SUDO apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+  [ -n "$policy" ] && $SUDO rm -f "$policy"
+  trap - EXIT
+  # ... nor enabled at boot, where systemd runs.
+  for s in "${services[@]}"; do
+    if [[ " ${missing[*]} " == *" $s "* ]] && [ -d /run/systemd/system ]; then
+      $SUDO systemctl disable "$s" >/dev/null 2>&1 || true
+    fi
+  done
 fi
 
 # --- Embree 4 --------------------------------------------------------------------------------

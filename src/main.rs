@@ -69,8 +69,12 @@ struct ReferenceArgs {
 #[derive(clap::Args)]
 struct MergeArgs {
     /// The partial files of chunks 1..N (`<out folder>/<name>.chunk-K-of-N.partial`).
-    #[arg(required = true)]
+    #[arg(required_unless_present = "chunks", conflicts_with = "chunks")]
     partials: Vec<PathBuf>,
+    /// Instead of naming the partial files: merge the N chunks of the render that was given
+    /// this --out (their files are found beside it).
+    #[arg(long, requires = "out")]
+    chunks: Option<u32>,
     /// Output pattern of the frames (default: the one the chunks were rendered with).
     #[arg(long)]
     out: Option<String>,
@@ -362,7 +366,7 @@ fn run(cli: Cli) -> Result<()> {
             }
             let stats = render::render(&scene, &opts)?;
             let first = stats.outputs.first().context("no frame written")?;
-            let how = if stats.method.reuses() {
+            let how = if stats.method.reuses() && stats.chunk.is_none() {
                 format!(
                     "{}, window {}, {:.1} effective spp, {:.1}% reuses lost",
                     stats.method.name(),
@@ -370,12 +374,24 @@ fn run(cli: Cli) -> Result<()> {
                     stats.mean_effective_spp,
                     100.0 * stats.lost_reuse_fraction
                 )
+            } else if stats.method.reuses() {
+                format!("{}, window {}", stats.method.name(), stats.window)
             } else {
                 stats.method.name().to_string()
             };
+            let what = match &stats.chunk {
+                Some(c) => format!(
+                    "chunk {c} ({} {}-{}) of frames {}-{}",
+                    if stats.method.reuses() { "groups" } else { "frames" },
+                    stats.units[0],
+                    stats.units[1],
+                    stats.first_frame,
+                    stats.last_frame
+                ),
+                None => format!("{} frame(s)", stats.frames),
+            };
             eprintln!(
-                "rendered {} frame(s) of '{}' ({}x{}, {} spp, {how}) in {:.1} s, {:.2} Mrays/s, peak memory {} MB",
-                stats.frames,
+                "rendered {what} of '{}' ({}x{}, {} spp, {how}) in {:.1} s, {:.2} Mrays/s, peak memory {} MB",
                 scene.name,
                 stats.width,
                 stats.height,
@@ -402,11 +418,32 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Merge(a) => {
-            let r = reframe::merge::merge(&a.partials, a.out.as_deref())?;
+            let partials = match a.chunks {
+                Some(0) => bail!("--chunks 0: at least one chunk is needed"),
+                Some(n) => {
+                    // Those that exist: merge names a missing chunk itself.
+                    let all: Vec<PathBuf> = (1..=n)
+                        .map(|k| {
+                            let out = a.out.as_deref().unwrap();
+                            reframe::checkpoint::partial_path(out, Chunk { k, n })
+                        })
+                        .collect();
+                    let there: Vec<PathBuf> = all.iter().filter(|p| p.exists()).cloned().collect();
+                    if there.is_empty() {
+                        bail!(
+                            "--chunks {n}: none of the partial files is there (expected {} ..)",
+                            all[0].display()
+                        );
+                    }
+                    there
+                }
+                None => a.partials.clone(),
+            };
+            let r = reframe::merge::merge(&partials, a.out.as_deref())?;
             let (first, last) = (r.frames.first().unwrap(), r.frames.last().unwrap());
             eprintln!(
                 "merged {} partial file(s) ({:.1} MB) into {} frame(s) ({:.1} MB) in {:.2} s",
-                a.partials.len(),
+                partials.len(),
                 r.partial_bytes as f64 / 1e6,
                 r.frames.len(),
                 r.frame_bytes as f64 / 1e6,

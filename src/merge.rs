@@ -38,7 +38,16 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
     }
     let mut files = partials
         .iter()
-        .map(|p| StateFile::open(p))
+        .map(|p| {
+            if !p.exists() {
+                bail!(
+                    "{}: no such partial file; render its chunk (--chunk K/N) and merge again; \
+                     no frame was written",
+                    p.display()
+                );
+            }
+            StateFile::open(p)
+        })
         .collect::<Result<Vec<_>>>()?;
     // One set: the same settings and build, chunks 1..N each once.
     let t0 = files[0].trailer.clone();

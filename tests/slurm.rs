@@ -1,0 +1,209 @@
+//! The Slurm job-array path end to end: a one-node cluster (`tests/slurm/cluster.sh`: munged,
+//! slurmctld and slurmd from Debian's packages, as root, config in a temporary folder) runs
+//! `scripts/slurm/submit.sh` for N = 3 chunks and the merge job; the merged frames must equal a
+//! one-process render bit for bit. Then a chunk is lost and resubmitted alone. Every daemon the
+//! test started is stopped, whatever happens.
+//!
+//! Needs root and the packages `./setup.sh --tests` installs; `REFRAME_SKIP_SLURM=1` skips it
+//! (loudly) on a machine without them.
+use reframe::image::read_image;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+
+/// The cluster, stopped on drop.
+struct Cluster {
+    dir: PathBuf,
+    conf: String,
+}
+
+impl Cluster {
+    fn start(dir: &Path) -> Cluster {
+        let o = Command::new(format!("{ROOT}/tests/slurm/cluster.sh"))
+            .arg("start")
+            .arg(dir)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "starting the cluster: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        Cluster {
+            dir: dir.to_path_buf(),
+            conf: String::from_utf8_lossy(&o.stdout).trim().to_string(),
+        }
+    }
+
+    fn cmd(&self, program: &str) -> Command {
+        let mut c = Command::new(program);
+        c.env("SLURM_CONF", &self.conf);
+        c
+    }
+
+    /// A job's state from `scontrol` (COMPLETED, FAILED, PENDING, ...).
+    fn job_states(&self, job: &str) -> Vec<String> {
+        let o = self
+            .cmd("scontrol")
+            .args(["show", "job", "-o", job])
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&o.stdout)
+            .lines()
+            .filter_map(|l| {
+                l.split_whitespace()
+                    .find_map(|f| f.strip_prefix("JobState=").map(str::to_string))
+            })
+            .collect()
+    }
+
+    /// Wait until every job (array tasks included) of `jobs` has ended; their final states.
+    fn wait(&self, jobs: &[&str], timeout: Duration) -> Vec<String> {
+        let start = Instant::now();
+        loop {
+            let states: Vec<String> = jobs.iter().flat_map(|j| self.job_states(j)).collect();
+            let running = states.iter().any(|s| {
+                ["PENDING", "RUNNING", "CONFIGURING", "COMPLETING"].contains(&s.as_str())
+            });
+            if !states.is_empty() && !running {
+                return states;
+            }
+            assert!(
+                start.elapsed() < timeout,
+                "jobs {jobs:?} still not done after {timeout:?}: {states:?}"
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+}
+
+impl Drop for Cluster {
+    fn drop(&mut self) {
+        let _ = Command::new(format!("{ROOT}/tests/slurm/cluster.sh"))
+            .arg("stop")
+            .arg(&self.dir)
+            .status();
+    }
+}
+
+fn submit(c: &Cluster, logs: &Path, more: &[&str], render: &[String]) -> (String, String) {
+    let o = c
+        .cmd(&format!("{ROOT}/scripts/slurm/submit.sh"))
+        .args(["-n", "3", "--reframe", env!("CARGO_BIN_EXE_reframe"), "--logs"])
+        .arg(logs)
+        .args(more)
+        .arg("--")
+        .args(render)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "submit.sh: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let ids = std::fs::read_to_string(logs.join("last-submission")).unwrap();
+    let mut it = ids.split_whitespace().map(str::to_string);
+    (it.next().unwrap(), it.next().unwrap())
+}
+
+fn pixels(p: &Path) -> Vec<u32> {
+    read_image(p).unwrap().data.iter().map(|v| v.to_bits()).collect()
+}
+
+#[test]
+fn slurm_array_and_merge_match_one_process() {
+    if std::env::var_os("REFRAME_SKIP_SLURM").is_some() {
+        eprintln!("SKIPPED: REFRAME_SKIP_SLURM is set; the Slurm path is untested here");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let render: Vec<String> = [
+        "vase",
+        "--method",
+        "mis-exact",
+        "--window",
+        "3",
+        "--spp",
+        "1",
+        "--frames",
+        "20-28",
+        "--res",
+        "40x30",
+        "--exr-float",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    let one = d.join("one");
+    let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
+        .arg("render")
+        .args(&render)
+        .arg("--out")
+        .arg(one.join("f_####.exr"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let cluster = Cluster::start(&d.join("cluster"));
+    let out = d.join("array");
+    let logs = d.join("logs");
+    let mut args = render.clone();
+    args.extend(["--out".into(), out.join("f_####.exr").display().to_string()]);
+    let (chunks, merge) = submit(&cluster, &logs, &[], &args);
+    let states = cluster.wait(&[&chunks, &merge], Duration::from_secs(180));
+    let log = |name: &str| std::fs::read_to_string(logs.join(name)).unwrap_or_default();
+    assert!(
+        states.iter().all(|s| s == "COMPLETED"),
+        "{states:?}\nmerge log: {}",
+        log(&format!("merge-{merge}.log"))
+    );
+    assert_eq!(states.len(), 4, "3 array tasks and the merge: {states:?}");
+    for k in 1..=3 {
+        let l = log(&format!("chunk-{chunks}_{k}.log"));
+        assert!(l.contains(&format!("chunk {k}/3")), "chunk {k} log: {l}");
+    }
+    for f in 20..=28 {
+        let name = format!("f_{f:04}.exr");
+        assert!(
+            pixels(&one.join(&name)) == pixels(&out.join(&name)),
+            "{name} differs from the one-process render"
+        );
+    }
+
+    // A lost chunk: the merge refuses, naming it; resubmitted alone, it merges again.
+    let lost = out.join("f.chunk-2-of-3.partial");
+    std::fs::remove_file(&lost).unwrap();
+    for f in 20..=28 {
+        std::fs::remove_file(out.join(format!("f_{f:04}.exr"))).unwrap();
+    }
+    let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
+        .args(["merge", "--chunks", "3", "--out"])
+        .arg(out.join("f_####.exr"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("chunk 2/3 is missing"),
+        "{err}"
+    );
+    assert!(!out.join("f_0020.exr").exists());
+    let (chunks, merge) = submit(&cluster, &logs, &["--only", "2"], &args);
+    let states = cluster.wait(&[&chunks, &merge], Duration::from_secs(180));
+    assert_eq!(states, ["COMPLETED", "COMPLETED"], "resubmission");
+    assert!(lost.exists());
+    for f in 20..=28 {
+        let name = format!("f_{f:04}.exr");
+        assert!(pixels(&one.join(&name)) == pixels(&out.join(&name)), "{name}");
+    }
+    drop(cluster);
+    // Every daemon is gone.
+    for pid in ["munged", "slurmctld", "slurmd"] {
+        assert!(
+            !d.join(format!("cluster/run/{pid}.pid")).exists(),
+            "{pid} not stopped"
+        );
+    }
+}
