@@ -102,6 +102,9 @@ pub struct RunKey {
     pub max_depth: u32,
     pub visibility: String,
     pub aov: bool,
+    /// `--adaptive` target, 0 when off.
+    #[serde(default)]
+    pub adaptive: f32,
 }
 
 impl RunKey {
@@ -1040,6 +1043,7 @@ mod tests {
             max_depth: 16,
             visibility: "packet".into(),
             aov: false,
+            adaptive: 0.0,
         };
         let mut t = Trailer {
             format: "reframe-state".into(),

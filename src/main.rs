@@ -170,6 +170,10 @@ struct RenderArgs {
     /// Seconds between checkpoints (0: after every group of frames, or every frame).
     #[arg(long, default_value_t = 60.0)]
     checkpoint_every: f64,
+    /// mis-exact: extra native samples where a pixel expects fewer reused samples than others
+    /// (borders, disocclusions, cuts), topping each pixel up to F n_f n_r (default F = 1).
+    #[arg(long, num_args = 0..=1, default_missing_value = "1.0", value_name = "F")]
+    adaptive: Option<f32>,
     /// Render chunk K of N (1-based) of the groups and write its partial file
     /// `<out folder>/<name>.chunk-K-of-N.partial` for `reframe merge`.
     #[arg(long, value_parser = parse_chunk)]
@@ -351,6 +355,7 @@ fn run(cli: Cli) -> Result<()> {
                 ),
                 checkpoint_every: a.checkpoint_every,
                 resume: a.resume,
+                adaptive: a.adaptive,
                 chunk: a.chunk,
                 interrupt: Some(install_signal_handler()?),
                 out,

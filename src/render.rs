@@ -94,6 +94,9 @@ pub struct RenderOptions {
     pub checkpoint_every: f64,
     /// Continue from the checkpoint in `checkpoint`, if there is one.
     pub resume: bool,
+    /// `mis-exact` only: top every pixel's expected sample count up to this share of `n_f n_r`
+    /// with extra native samples (`reuse::adaptive_counts`); `None`: `n_r` everywhere.
+    pub adaptive: Option<f32>,
     /// Render only chunk K of N of the groups and write its partial file (`reframe merge`).
     pub chunk: Option<Chunk>,
     /// Set (by a signal handler) to stop at the next group or frame, after a checkpoint.
@@ -120,6 +123,7 @@ impl Default for RenderOptions {
             checkpoint: None,
             checkpoint_every: 60.0,
             resume: false,
+            adaptive: None,
             chunk: None,
             interrupt: None,
         }
@@ -273,6 +277,18 @@ pub fn frame_plan(scene: &Scene, opts: &RenderOptions) -> Result<(RangeInclusive
             "--window {}: larger than the {n} frames rendered",
             opts.window
         );
+    }
+    if let Some(t) = opts.adaptive {
+        if opts.method != Method::MisExact {
+            bail!(
+                "--adaptive: only mis-exact weighs samples by their exact densities, which \
+                 adaptive counts need (method is {})",
+                opts.method.name()
+            );
+        }
+        if !(t > 0.0 && t <= 1.0) {
+            bail!("--adaptive {t}: the target share of n_f n_r must be in (0, 1]");
+        }
     }
     if opts.method == Method::Independent && opts.window != 1 {
         bail!(
@@ -524,6 +540,7 @@ fn run_key(
         max_depth: opts.max_depth,
         visibility: if opts.packets { "packet" } else { "single" }.into(),
         aov: opts.aov,
+        adaptive: opts.adaptive.unwrap_or(0.0),
     })
 }
 

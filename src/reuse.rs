@@ -258,6 +258,9 @@ pub struct EyeTerms {
     pub wo: Vec3,
     /// `J_k / A_pix,k` (film density in pixels per unit area at x), or 0 where eye k cannot see x.
     pub j_over_a: f32,
+    /// `n_k(pi_k(x))`: native samples eye k shot in the pixel x projects to (`--spp`, or the
+    /// adaptive count of that pixel; ESTIMATOR.md, adaptive sampling).
+    pub n: f32,
 }
 
 /// MIS denominators of one native sample over the eyes of its group (ESTIMATOR.md, `Q`).
@@ -273,14 +276,15 @@ pub struct Denominators {
     pub emit: f32,
 }
 
-/// `D_k(x)` for each eye (0 where it cannot see x), for the exact (`exact`) or the paper's
-/// (approximation (10): every visible eye's density equal to `n_r`) weights.
+/// `D_k(x)` for each eye (0 where it cannot see x), for the exact (`exact`:
+/// `D_k = n_k(pi_k(x)) J_k / A_pix,k`, ESTIMATOR.md) or the paper's (approximation (10): every
+/// visible eye's density equal to `n_r`) weights.
 fn densities(eyes: &[EyeTerms], spp: u32, exact: bool) -> impl Iterator<Item = f32> + '_ {
     eyes.iter().map(move |e| {
         if e.j_over_a <= 0.0 {
             0.0
         } else if exact {
-            spp as f32 * e.j_over_a
+            e.n * e.j_over_a
         } else {
             spp as f32
         }
@@ -475,11 +479,28 @@ pub fn render_reuse_run(
         let work: Vec<(usize, usize)> = (0..group.len())
             .flat_map(|m| (0..tile_list.len()).map(move |t| (m, t)))
             .collect();
+        let (native_counts, pilot_rays) = match opts.adaptive {
+            Some(target) => {
+                let (c, r) = adaptive_counts(integrator, &group, opts.spp, target, &work, &tile_list);
+                (Some(c), r)
+            }
+            None => (None, RayCounts::default()),
+        };
+        run.progress.add_counts(&pilot_rays);
         let group_counts: RayCounts = work
             .par_iter()
             .map(|&(m, t)| {
                 let mut tally = Tally::default();
-                let bad = shade_tile(integrator, opts, &group, m, tile_list[t], g0, &mut tally);
+                let bad = shade_tile(
+                    integrator,
+                    opts,
+                    &group,
+                    m,
+                    tile_list[t],
+                    g0,
+                    native_counts.as_deref(),
+                    &mut tally,
+                );
                 nonfinite.fetch_add(bad, Relaxed);
                 tally.counts
             })
@@ -611,6 +632,90 @@ pub fn finish_record(r: &FrameRecord, totals: &[i64], method: Method) -> Finishe
     }
 }
 
+/// Adaptive native samples (the paper's future work, ESTIMATOR.md's `n_m(p)`): for every pixel of
+/// every frame of the group, how many native samples it shoots in this group, decided from the
+/// geometry before any sample is drawn, so that `mis-exact`'s densities can use them and stay
+/// unbiased.
+///
+/// A pilot ray through the pixel's centre finds the point x it sees. Eye k shoots `n_r` samples
+/// per pixel, so the count of its samples expected in pixel p of frame m is
+/// `n_r (J_k(x) / A_pix,k) / (J_m(x) / A_pix,m)` where it sees x (one visibility test), and 0
+/// where it does not. A pixel that every eye of the group sees expects about `n_f n_r`; one at a
+/// border, a disocclusion or a cut expects fewer. The pixel's count tops its expectation up to
+/// `target n_f n_r`: `n_r + clamp(ceil(target n_f n_r - expected), 0, (n_f - 1) n_r)`.
+/// (The pilot rays are deterministic, pixel centres, so they are independent of every sample.)
+fn adaptive_counts(
+    integrator: &Integrator,
+    group: &[&FrameAccum],
+    spp: u32,
+    target: f32,
+    work: &[(usize, usize)],
+    tile_list: &[(u32, u32, u32, u32)],
+) -> (Vec<Vec<u16>>, RayCounts) {
+    let scene = integrator.scene;
+    let n_f = group.len() as u32;
+    let full = target * (n_f * spp) as f32;
+    let cap = (n_f - 1) * spp;
+    let per_tile: Vec<(Vec<u16>, RayCounts)> = work
+        .par_iter()
+        .map(|&(m, t)| {
+            let (x0, y0, x1, y1) = tile_list[t];
+            let cam_m = &group[m].cam;
+            let mut rays = RayCounts::default();
+            let mut out = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let r = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+                    rays.primary += 1;
+                    let ja_m = |sp: &crate::scene::SurfacePoint| {
+                        cam_m.jacobian(sp.p, sp.ng) / cam_m.pixel_area()
+                    };
+                    let expected = match scene
+                        .geometry
+                        .intersect1(&Ray::new(cam_m.eye, cam_m.direction(r)))
+                        .map(|hit| scene.surface(&hit))
+                        .filter(|sp| ja_m(sp) > 0.0)
+                    {
+                        None => full, // nothing to reuse into this pixel: no top-up
+                        Some(sp) => {
+                            let own = ja_m(&sp);
+                            let mut e = spp as f32;
+                            for (k, acc) in group.iter().enumerate() {
+                                if k == m || acc.cam.pixel_of(sp.p).is_none() {
+                                    continue;
+                                }
+                                rays.visibility += 1;
+                                let ray = Ray::between(acc.cam.eye, Vec3::ZERO, sp.p, sp.ng);
+                                if !scene.geometry.occluded1(&ray) {
+                                    let ja = acc.cam.jacobian(sp.p, sp.ng) / acc.cam.pixel_area();
+                                    e += spp as f32 * ja / own;
+                                }
+                            }
+                            e
+                        }
+                    };
+                    let extra = (full - expected).ceil().clamp(0.0, cap as f32) as u32;
+                    out.push((spp + extra).min(u16::MAX as u32) as u16);
+                }
+            }
+            (out, rays)
+        })
+        .collect();
+    let (w, h) = (group[0].cam.width, group[0].cam.height);
+    let mut counts = vec![vec![0u16; (w * h) as usize]; group.len()];
+    let mut rays = RayCounts::default();
+    for (&(m, t), (c, r)) in work.iter().zip(per_tile) {
+        let (x0, y0, x1, _) = tile_list[t];
+        let tw = (x1 - x0) as usize;
+        for (i, &n) in c.iter().enumerate() {
+            let (tx, ty) = ((i % tw) as u32, (i / tw) as u32);
+            counts[m][((y0 + ty) * w + x0 + tx) as usize] = n;
+        }
+        rays.add(&r);
+    }
+    (counts, rays)
+}
+
 /// Trace the native samples of one tile of frame `group[m]` and splat every reuse of them into
 /// the group's frames. Returns the number of non-finite contributions dropped.
 fn shade_tile(
@@ -620,22 +725,35 @@ fn shade_tile(
     m: usize,
     (x0, y0, x1, y1): (u32, u32, u32, u32),
     g0: u32,
+    counts: Option<&[Vec<u16>]>,
     tally: &mut Tally,
 ) -> u64 {
     let native = group[m];
     let cam_m = &native.cam;
     let w = cam_m.width;
     let spp = opts.spp;
+    let n_f = group.len();
+    // Native samples of eye k in its pixel i: `--spp`, or the adaptive count.
+    let n_at = |k: usize, i: u32| counts.map_or(spp, |c| c[k][i as usize] as u32);
+    // Sample indices of a frame in a group: a stride that fits the most samples a pixel shoots.
+    let stride = if counts.is_some() {
+        spp * n_f as u32
+    } else {
+        spp
+    };
+    let mut landed_native = 0u64;
     // (pixel, sample index, hit) of every native sample that hit something.
     let mut hits: Vec<NativeHit> = Vec::new();
     for y in y0..y1 {
         for x in x0..x1 {
             let pixel = y * w + x;
-            native.land(pixel as usize, spp);
-            for s in 0..spp {
+            let n_p = n_at(m, pixel);
+            native.land(pixel as usize, n_p);
+            landed_native += n_p as u64;
+            for s in 0..n_p {
                 // Sample index: the frame's position in the group keeps each group's samples of a
                 // frame independent; with one frame per group this is the independent tracer's.
-                let index = (native.frame - g0) * spp + s;
+                let index = (native.frame - g0) * stride + s;
                 let mut sampler = Sampler::new(opts.seed, native.frame, pixel, index);
                 let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                 if let Some(fh) =
@@ -647,7 +765,6 @@ fn shade_tile(
         }
     }
     // Where each hit lands in each eye of the group (None: occluded or off the film).
-    let n_f = group.len();
     let mut land: Vec<Landing> = vec![None; hits.len() * n_f];
     for (k, acc) in group.iter().enumerate() {
         if k == m {
@@ -672,19 +789,21 @@ fn shade_tile(
     // Reuse bookkeeping summed locally and added once per tile: (tried, lost) per target eye.
     let mut loss = vec![(0u64, 0u64); n_f];
     let mut landed = vec![0u64; n_f];
-    landed[m] = (spp * (x1 - x0) * (y1 - y0)) as u64;
+    landed[m] = landed_native;
     let mut eyes: Vec<EyeTerms> = Vec::with_capacity(n_f);
     for (hi, (pixel, index, fh)) in hits.iter().enumerate() {
         let x = fh.sp.p;
         eyes.clear();
         for (k, acc) in group.iter().enumerate() {
             let wo = (acc.cam.eye - x).normalize();
-            let j_over_a = if land[hi * n_f + k].is_some() {
-                acc.cam.jacobian(x, fh.sp.ng) / acc.cam.pixel_area()
-            } else {
-                0.0
+            let (j_over_a, n) = match land[hi * n_f + k] {
+                Some(i) => (
+                    acc.cam.jacobian(x, fh.sp.ng) / acc.cam.pixel_area(),
+                    n_at(k, i) as f32,
+                ),
+                None => (0.0, 0.0),
             };
-            eyes.push(EyeTerms { wo, j_over_a });
+            eyes.push(EyeTerms { wo, j_over_a, n });
         }
         let q = if opts.method == Method::Havran {
             Denominators::default()

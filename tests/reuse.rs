@@ -100,14 +100,18 @@ fn mis_weights_sum_to_one() {
                 } else {
                     0.0
                 };
-                EyeTerms { wo, j_over_a: j }
+                EyeTerms {
+                    wo,
+                    j_over_a: j,
+                    n: spp as f32,
+                }
             })
             .collect();
         let m = scene.material(&fh.sp);
         for exact in [true, false] {
             let q = denominators(&integ, &fh, &terms, spp, exact);
             let mut sum = 0.0f64;
-            for &EyeTerms { wo, j_over_a: j } in &terms {
+            for &EyeTerms { wo, j_over_a: j, .. } in &terms {
                 if j == 0.0 {
                     continue;
                 }
