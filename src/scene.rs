@@ -15,7 +15,10 @@
 //! Materials: `Kd` Lambertian, `Ks`/`Ns` modified Phong (`Kd + Ks <= 1` per channel), `Ke`
 //! emission (one-sided, to the side of the counter-clockwise face normal). Every triangle with
 //! `Ke > 0` is an area light. Loading checks everything a render could trip over later and
-//! fails with a one-line error naming the file and the offending key, face or vertex.
+//! fails with a one-line error naming the file and the line (and the key or statement) at
+//! fault; the OBJ and MTL rules are in `scene/text.rs`. Limits: at most `MAX_FRAMES` frames and
+//! `MAX_PIXELS` pixels, coordinates (vertices, camera) at most 1e18 in magnitude, and every
+//! `usemtl` must name a material of an `mtllib` above it.
 //! The shipped scenes (`vase`, `cornell`, `furnace`) are embedded in the binary.
 //!
 //! ```no_run
@@ -32,7 +35,19 @@ use crate::sampling::uniform_triangle;
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{Vec2, Vec3};
 use serde::Deserialize;
+use std::cell::RefCell;
+use std::collections::HashMap;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
+use toml::Spanned;
+
+mod text;
+use text::{as_text, line_at, quote, MAX_COORD};
+
+/// Most frames a scene may have: every frame of the camera path is checked when it loads.
+pub const MAX_FRAMES: u32 = 1_000_000;
+/// Most pixels of a scene's resolution (16384 x 16384).
+pub const MAX_PIXELS: u64 = 1 << 28;
 
 /// The scenes shipped in `scenes/`, compiled into the binary: (name, toml, obj, mtl).
 const BUILTIN: &[(&str, &str, &str, &str)] = &[
@@ -63,20 +78,21 @@ pub fn builtin_names() -> Vec<&'static str> {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct SceneFile {
-    obj: String,
-    frames: u32,
-    resolution: [u32; 2],
+    obj: Spanned<String>,
+    frames: Spanned<u32>,
+    resolution: Spanned<[u32; 2]>,
     keyframe: Vec<KeyframeFile>,
 }
 
+/// Every value keeps its place in the file, so that an error can name its line.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct KeyframeFile {
-    frame: u32,
-    position: [f32; 3],
-    look_at: [f32; 3],
-    up: [f32; 3],
-    fov: f32,
+    frame: Spanned<u32>,
+    position: Spanned<[f32; 3]>,
+    look_at: Spanned<[f32; 3]>,
+    up: Spanned<[f32; 3]>,
+    fov: Spanned<f32>,
 }
 
 /// Emitting triangles, sampled in proportion to their power (area times luminance of `Ke`).
@@ -155,28 +171,18 @@ impl Scene {
                 builtin_names().join(", ")
             );
         };
-        let (label, toml_text) = match &source {
+        let (label, toml_bytes) = match &source {
             Source::Files { toml } => (
                 toml.display().to_string(),
-                std::fs::read_to_string(toml)
-                    .with_context(|| format!("{}: cannot read", toml.display()))?,
+                std::fs::read(toml).map_err(|e| anyhow!("{}: cannot read: {e}", toml.display()))?,
             ),
             Source::Builtin(i) => (
                 format!("{} (built in)", BUILTIN[*i].0),
-                BUILTIN[*i].1.to_string(),
+                BUILTIN[*i].1.as_bytes().to_vec(),
             ),
         };
-        let file: SceneFile = toml::from_str(&toml_text).map_err(|e| {
-            // toml's message spans several lines (a snippet of the file); keep it to one line.
-            let msg = e.message().to_string();
-            match e.span() {
-                Some(span) => {
-                    let line = toml_text[..span.start].matches('\n').count() + 1;
-                    anyhow!("{label}: line {line}: {msg}")
-                }
-                None => anyhow!("{label}: {msg}"),
-            }
-        })?;
+        let toml_text = as_text(&toml_bytes).map_err(|e| anyhow!("{label}: {e}"))?;
+        let file = parse_scene_file(&label, toml_text)?;
         let name = match &source {
             Source::Files { toml } => toml
                 .file_stem()
@@ -184,21 +190,26 @@ impl Scene {
                 .unwrap_or_default(),
             Source::Builtin(i) => BUILTIN[*i].0.to_string(),
         };
-        let (width, height, path) = check_camera(&label, &file)?;
-        let (obj_label, obj_text, mtl_dir) = match &source {
+        let (width, height, path) = check_camera(&label, toml_text, &file)?;
+        let obj_at = format!(
+            "{label}: line {}: obj '{}'",
+            line_at(toml_text.as_bytes(), file.obj.span().start),
+            file.obj.get_ref()
+        );
+        let (obj_label, obj_bytes, mtl_dir) = match &source {
             Source::Files { toml } => {
                 let dir = toml.parent().unwrap_or(Path::new(".")).to_path_buf();
-                let obj = dir.join(&file.obj);
-                let text = std::fs::read(&obj)
-                    .with_context(|| format!("{label}: obj '{}': cannot read", obj.display()))?;
+                let obj = dir.join(file.obj.get_ref());
+                let bytes = std::fs::read(&obj)
+                    .map_err(|e| anyhow!("{obj_at}: cannot read '{}': {e}", obj.display()))?;
                 (
                     obj.display().to_string(),
-                    text,
+                    bytes,
                     Some(obj.parent().unwrap_or(&dir).to_path_buf()),
                 )
             }
             Source::Builtin(i) => (
-                format!("{} (built in)", file.obj),
+                format!("{} (built in)", file.obj.get_ref()),
                 BUILTIN[*i].2.as_bytes().to_vec(),
                 None,
             ),
@@ -207,15 +218,19 @@ impl Scene {
             Source::Builtin(i) => Some(BUILTIN[*i].3),
             Source::Files { .. } => None,
         };
-        let mesh = load_obj(&obj_label, &obj_text, mtl_dir.as_deref(), builtin_mtl)?;
+        let (mesh, warning) = load_obj(&obj_label, &obj_bytes, mtl_dir.as_deref(), builtin_mtl)?;
         let geometry = TriangleScene::new(device, &mesh.positions, &mesh.triangles)
             .with_context(|| format!("{obj_label}: building the Embree scene"))?;
         let lights = Lights::new(&mesh)?.ok_or_else(|| {
             anyhow!("{obj_label}: the scene has no lights (no material with a positive Ke)")
         })?;
+        // Only once the scene is good: a failed load prints its one error line and nothing else.
+        if let Some(w) = warning {
+            eprintln!("warning: {w}");
+        }
         Ok(Scene {
             name,
-            frames: file.frames,
+            frames: *file.frames.get_ref(),
             width,
             height,
             path,
@@ -377,91 +392,136 @@ impl Lights {
     }
 }
 
-fn check_camera(label: &str, f: &SceneFile) -> Result<(u32, u32, CameraPath)> {
-    let [w, h] = f.resolution;
-    if w == 0 || h == 0 {
-        bail!("{label}: resolution {w}x{h}: width and height must be positive");
+/// The scene TOML, with errors on one line that name the line and quote it.
+fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
+    if text.trim().is_empty() {
+        bail!("{label}: the file is empty");
     }
-    if f.frames == 0 {
-        bail!("{label}: frames = 0: a scene needs at least one frame");
+    toml::from_str(text).map_err(|e| {
+        // toml's own message spans several lines (a snippet of the file); keep it to one.
+        let msg = e.message().trim().replace('\n', " ");
+        let Some(span) = e.span() else {
+            return anyhow!("{label}: {msg}");
+        };
+        let line = line_at(text.as_bytes(), span.start);
+        let quoted = quote(text.lines().nth(line - 1).unwrap_or(""));
+        // A key missing from the top level is reported against the whole top-level table.
+        if span.start == 0 && !quoted.starts_with('[') && msg.starts_with("missing field") {
+            anyhow!("{label}: {msg} at the top level")
+        } else if quoted.is_empty() {
+            anyhow!("{label}: line {line}: {msg}")
+        } else {
+            anyhow!("{label}: line {line} ('{quoted}'): {msg}")
+        }
+    })
+}
+
+fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, CameraPath)> {
+    let line = |span: Range<usize>| line_at(text.as_bytes(), span.start);
+    let [w, h] = *f.resolution.get_ref();
+    let at = format!("{label}: line {}: resolution", line(f.resolution.span()));
+    if w == 0 || h == 0 {
+        bail!("{at} {w}x{h}: width and height must be positive");
+    }
+    if w as u64 * h as u64 > MAX_PIXELS {
+        bail!("{at} {w}x{h}: more than {MAX_PIXELS} pixels");
+    }
+    let frames = *f.frames.get_ref();
+    let at = format!("{label}: line {}: frames = {frames}", line(f.frames.span()));
+    if frames == 0 {
+        bail!("{at}: a scene needs at least one frame");
+    }
+    if frames > MAX_FRAMES {
+        bail!("{at}: at most {MAX_FRAMES}");
     }
     if f.keyframe.is_empty() {
         bail!("{label}: no [[keyframe]]: the camera path needs at least one");
     }
-    if f.keyframe[0].frame != 0 {
-        bail!(
-            "{label}: keyframe 1: the first keyframe must be at frame 0, not {}",
-            f.keyframe[0].frame
-        );
-    }
     let mut keys = Vec::new();
+    let mut key_line = Vec::new();
     for (i, k) in f.keyframe.iter().enumerate() {
-        let at = format!("{label}: keyframe {} (frame {})", i + 1, k.frame);
-        if i > 0 && k.frame <= f.keyframe[i - 1].frame {
-            bail!("{at}: keyframe frames must increase strictly");
+        let frame = *k.frame.get_ref();
+        let at = |span: Range<usize>| format!("{label}: line {}: keyframe {}", line(span), i + 1);
+        if i == 0 && frame != 0 {
+            bail!(
+                "{}: the first keyframe must be at frame 0, not {frame}",
+                at(k.frame.span())
+            );
         }
-        if k.frame >= f.frames {
-            bail!("{at}: frame is past the last frame ({})", f.frames - 1);
+        if i > 0 && frame <= *f.keyframe[i - 1].frame.get_ref() {
+            bail!(
+                "{}: frame {frame}: keyframe frames must increase strictly (the one before is at {})",
+                at(k.frame.span()),
+                f.keyframe[i - 1].frame.get_ref()
+            );
+        }
+        if frame >= frames {
+            bail!(
+                "{}: frame {frame} is past the last frame ({})",
+                at(k.frame.span()),
+                frames - 1
+            );
         }
         for (key, v) in [
-            ("position", k.position),
-            ("look_at", k.look_at),
-            ("up", k.up),
+            ("position", &k.position),
+            ("look_at", &k.look_at),
+            ("up", &k.up),
         ] {
-            if !v.iter().all(|c| c.is_finite()) {
-                bail!("{at}: {key} {v:?} is not finite");
+            let c = v.get_ref();
+            if !c.iter().all(|c| c.is_finite()) {
+                bail!("{}: {key} {c:?} is not finite", at(v.span()));
+            }
+            if c.iter().any(|c| c.abs() > MAX_COORD) {
+                bail!(
+                    "{}: {key} {c:?} is too large (at most {MAX_COORD:e})",
+                    at(v.span())
+                );
             }
         }
-        if !(k.fov > 0.0 && k.fov < 180.0) {
-            bail!("{at}: fov {} must be in (0, 180) degrees", k.fov);
+        let fov = *k.fov.get_ref();
+        if !(fov > 0.0 && fov < 180.0) {
+            bail!(
+                "{}: fov {fov} must be in (0, 180) degrees",
+                at(k.fov.span())
+            );
         }
         keys.push(Keyframe {
-            frame: k.frame,
-            position: Vec3::from(k.position),
-            look_at: Vec3::from(k.look_at),
-            up: Vec3::from(k.up),
-            fov: k.fov,
+            frame,
+            position: Vec3::from(*k.position.get_ref()),
+            look_at: Vec3::from(*k.look_at.get_ref()),
+            up: Vec3::from(*k.up.get_ref()),
+            fov,
         });
+        key_line.push(line(k.position.span()));
     }
     let path = CameraPath { keyframes: keys };
     // Interpolation can make a valid pair of keyframes degenerate in between: check every frame.
-    for frame in 0..f.frames {
+    for frame in 0..frames {
         let k = path.at(frame);
         let view = k.look_at - k.position;
-        if view.length() <= 1e-6 {
-            bail!("{label}: frame {frame}: look_at coincides with position");
-        }
-        if view.normalize().cross(k.up).length() <= 1e-4 {
-            bail!(
-                "{label}: frame {frame}: up {} is parallel to the view direction",
-                k.up
-            );
-        }
+        let fails = if view.length() <= 1e-6 {
+            "look_at coincides with position".to_string()
+        } else if k.up.normalize_or_zero() == Vec3::ZERO {
+            "up has zero length".to_string()
+        } else if view.normalize().cross(k.up.normalize()).length() <= 1e-4 {
+            format!("up {} is parallel to the view direction", k.up)
+        } else {
+            continue;
+        };
+        let keys = &path.keyframes;
+        let i = keys.partition_point(|k| k.frame <= frame) - 1;
+        let at = if keys[i].frame == frame || i + 1 == keys.len() {
+            format!("keyframe {} at line {}", i + 1, key_line[i])
+        } else {
+            format!(
+                "between the keyframes at lines {} and {}",
+                key_line[i],
+                key_line[i + 1]
+            )
+        };
+        bail!("{label}: frame {frame} ({at}): {fails}");
     }
     Ok((w, h, path))
-}
-
-/// The MTL statements reframe reads must carry numbers: colours three, exponents one.
-fn check_mtl(text: &str) -> Result<()> {
-    for (i, line) in text.lines().enumerate() {
-        let mut words = line.split_whitespace();
-        let Some(key) = words.next() else { continue };
-        let want = match key {
-            "Ka" | "Kd" | "Ks" | "Ke" => 3,
-            "Ns" => 1,
-            _ => continue,
-        };
-        let nums: Vec<&str> = words.collect();
-        if nums.len() < want || nums[..want].iter().any(|w| w.parse::<f32>().is_err()) {
-            let shape = if want == 3 {
-                format!("'{key} r g b'")
-            } else {
-                format!("'{key} value'")
-            };
-            bail!("line {}: '{}': expected {shape}", i + 1, line.trim());
-        }
-    }
-    Ok(())
 }
 
 /// Triangle soup with per-triangle materials, as loaded from OBJ/MTL and checked.
@@ -476,51 +536,114 @@ struct Mesh {
     material_names: Vec<String>,
 }
 
+/// Where triangle `k` (1-based, in tobj's order) is: its OBJ line, quoted.
+fn triangle_at(text: &str, lines: &text::ObjLines, k: usize) -> String {
+    match lines.tri_line.get(k - 1) {
+        Some(&l) => format!(
+            "line {l}: '{}'",
+            quote(text.lines().nth(l - 1).unwrap_or(""))
+        ),
+        None => format!("triangle {k}"),
+    }
+}
+
+/// One MTL file as the material loader read it: its name in messages, the line of each material.
+struct MtlFile {
+    label: String,
+    newmtl: HashMap<String, usize>,
+}
+
+/// Read and check the MTL file `p` that the OBJ line `at` names; its text, for tobj.
+fn read_mtl(
+    p: &Path,
+    dir: Option<&Path>,
+    builtin: Option<&str>,
+    at: &str,
+) -> Result<(MtlFile, String)> {
+    let (label, bytes) = match (builtin, dir) {
+        (Some(m), _) => (format!("{} (built in)", p.display()), m.as_bytes().to_vec()),
+        (None, Some(dir)) => {
+            let path = dir.join(p);
+            let bytes = std::fs::read(&path)
+                .map_err(|e| anyhow!("{at}: cannot read '{}': {e}", path.display()))?;
+            (path.display().to_string(), bytes)
+        }
+        (None, None) => unreachable!("a scene has either files or built-in text"),
+    };
+    let text = as_text(&bytes).map_err(|e| anyhow!("{label}: {e}"))?;
+    // tobj 4.0.5 panics on a colour with fewer than three numbers: check first.
+    let newmtl = text::check_mtl(text).map_err(|e| anyhow!("{label}: {e}"))?;
+    Ok((MtlFile { label, newmtl }, text.to_string()))
+}
+
+/// Load and check the OBJ and the MTL files it names. Also returns a warning, to be printed
+/// once the whole scene has loaded.
 fn load_obj(
     label: &str,
-    text: &[u8],
+    bytes: &[u8],
     mtl_dir: Option<&Path>,
     builtin_mtl: Option<&str>,
-) -> Result<Mesh> {
+) -> Result<(Mesh, Option<String>)> {
+    let text = as_text(bytes).map_err(|e| anyhow!("{label}: {e}"))?;
+    let lines = text::check_obj(text).map_err(|e| anyhow!("{label}: {e}"))?;
     let opts = tobj::LoadOptions {
         triangulate: true,
         single_index: true,
         ignore_points: true,
         ignore_lines: true,
     };
-    let mtl_error: std::cell::RefCell<Option<String>> = Default::default();
-    let mut reader = std::io::BufReader::new(text);
-    let (models, materials) = tobj::load_obj_buf(&mut reader, &opts, |p| {
-        let (name, text) = match (builtin_mtl, mtl_dir) {
-            (Some(m), _) => (p.display().to_string(), m.to_string()),
-            (None, Some(dir)) => {
-                let path = dir.join(p);
-                match std::fs::read_to_string(&path) {
-                    Ok(t) => (path.display().to_string(), t),
-                    Err(e) => {
-                        *mtl_error.borrow_mut() = Some(format!("mtl '{}': {e}", path.display()));
-                        return Err(tobj::LoadError::OpenFileFailed);
-                    }
-                }
+    // tobj keeps only an error kind from the material loader: keep the message here.
+    let mtl_files: RefCell<Vec<MtlFile>> = Default::default();
+    let mtl_error: RefCell<Option<anyhow::Error>> = Default::default();
+    let loaded = tobj::load_obj_buf(&mut text.as_bytes(), &opts, |p| {
+        let call = mtl_files.borrow().len();
+        let at = format!(
+            "{label}: line {}: mtllib '{}'",
+            lines.mtllib.get(call).copied().unwrap_or(0),
+            p.display()
+        );
+        let read = read_mtl(p, mtl_dir, builtin_mtl, &at).and_then(|(file, text)| {
+            let mats = tobj::load_mtl_buf(&mut text.as_bytes())
+                .map_err(|e| anyhow!("{}: {e}", file.label))?;
+            Ok((file, mats))
+        });
+        match read {
+            Ok((file, mats)) => {
+                mtl_files.borrow_mut().push(file);
+                Ok(mats)
             }
-            (None, None) => unreachable!("a scene has either files or built-in text"),
-        };
-        // tobj 4.0.5 panics on a colour with fewer than three numbers: check first.
-        if let Err(e) = check_mtl(&text) {
-            *mtl_error.borrow_mut() = Some(format!("mtl '{name}': {e}"));
-            return Err(tobj::LoadError::MaterialParseError);
+            Err(e) => {
+                mtl_error.borrow_mut().get_or_insert(e);
+                Err(tobj::LoadError::MaterialParseError)
+            }
         }
-        let result = tobj::load_mtl_buf(&mut std::io::BufReader::new(text.as_bytes()));
-        if let Err(e) = &result {
-            *mtl_error.borrow_mut() = Some(format!("mtl '{name}': {e}"));
-        }
-        result
-    })
-    .map_err(|e| anyhow!("{label}: {e}"))?;
+    });
     if let Some(e) = mtl_error.into_inner() {
-        bail!("{label}: {e}");
+        return Err(e);
     }
+    // The checks above accept only what tobj reads: an error here is a gap in them.
+    let (models, materials) = loaded.map_err(|e| anyhow!("{label}: {e}"))?;
     let tmats = materials.map_err(|e| anyhow!("{label}: materials: {e}"))?;
+    let files = mtl_files.into_inner();
+
+    // tobj gives faces after an unknown `usemtl` no material; say which line names it.
+    for (n, name) in &lines.usemtl {
+        let above: Vec<&MtlFile> = files
+            .iter()
+            .zip(&lines.mtllib)
+            .filter(|(_, &l)| l < *n)
+            .map(|(f, _)| f)
+            .collect();
+        if !above.iter().any(|f| f.newmtl.contains_key(name)) {
+            let why = if above.is_empty() {
+                "no mtllib above this line".to_string()
+            } else {
+                let names: Vec<&str> = above.iter().map(|f| f.label.as_str()).collect();
+                format!("no such material in {}", names.join(", "))
+            };
+            bail!("{label}: line {n}: 'usemtl {}': {why}", quote(name));
+        }
+    }
 
     let mut mats = Vec::new();
     let mut names = Vec::new();
@@ -529,7 +652,16 @@ fn load_obj(
         let ks = Vec3::from(m.specular.unwrap_or([0.0; 3]));
         let ke = Vec3::from(m.emissive.unwrap_or([0.0; 3]));
         let ns = m.shininess.unwrap_or(0.0);
-        let at = format!("{label}: material '{}'", m.name);
+        let defined = files
+            .iter()
+            .rev()
+            .find_map(|f| {
+                f.newmtl
+                    .get(&m.name)
+                    .map(|l| format!("{}: line {l}", f.label))
+            })
+            .unwrap_or_else(|| label.to_string());
+        let at = format!("{defined}: material '{}'", m.name);
         for (key, v) in [("Kd", kd), ("Ks", ks), ("Ke", ke)] {
             if !v.is_finite() || v.min_element() < 0.0 {
                 bail!("{at}: {key} {v} must be finite and non-negative");
@@ -560,7 +692,11 @@ fn load_obj(
         materials: Vec::new(),
         material_names: Vec::new(),
     };
-    let all_have_normals = models.iter().all(|m| !m.mesh.normals.is_empty());
+    // Smooth shading needs a normal at every vertex of every object: tobj leaves out the normals
+    // of face vertices given without one, which would misalign the two arrays.
+    let all_have_normals = models
+        .iter()
+        .all(|m| m.mesh.normals.len() == m.mesh.positions.len());
     let mut face = 0usize;
     for model in &models {
         let m = &model.mesh;
@@ -603,9 +739,12 @@ fn load_obj(
         };
         for t in m.indices.chunks_exact(3) {
             face += 1;
+            // Only on error: the OBJ line of this triangle, quoted.
+            let at = || triangle_at(text, &lines, face);
             if let Some(&bad) = t.iter().find(|&&i| i as usize >= nv) {
                 bail!(
-                    "{label}: face {face}: vertex index {} out of range (1..{nv})",
+                    "{label}: {}: vertex index {} out of range (1..{nv})",
+                    at(),
                     bad as usize + 1
                 );
             }
@@ -618,11 +757,8 @@ fn load_obj(
             let cr = (b - a).cross(c - a);
             let len = cr.length();
             let scale = (b - a).length_squared().max((c - a).length_squared());
-            if len.is_nan() || len <= 1e-7 * scale {
-                bail!(
-                    "{label}: face {face} (object '{}'): zero-area triangle",
-                    model.name
-                );
+            if !len.is_finite() || len <= 1e-7 * scale {
+                bail!("{label}: {}: zero-area triangle", at());
             }
             mesh.triangles.push(tri);
             mesh.tri_material.push(mat);
@@ -631,10 +767,13 @@ fn load_obj(
         }
     }
     if mesh.triangles.is_empty() {
-        bail!("{label}: no triangles");
+        bail!("{label}: no faces");
     }
+    let mut warning = None;
     if need_default {
-        eprintln!("warning: {label}: faces without a material get a grey diffuse one (Kd 0.5)");
+        warning = Some(format!(
+            "{label}: faces without a material (before any usemtl) get a grey diffuse one (Kd 0.5)"
+        ));
         mats.push(Material {
             kd: Vec3::splat(0.5),
             ..Default::default()
@@ -643,7 +782,7 @@ fn load_obj(
     }
     mesh.materials = mats;
     mesh.material_names = names;
-    Ok(mesh)
+    Ok((mesh, warning))
 }
 
 #[cfg(test)]
