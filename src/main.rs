@@ -171,8 +171,9 @@ struct RenderArgs {
     #[arg(long, default_value_t = 60.0)]
     checkpoint_every: f64,
     /// mis-exact: extra native samples where a pixel expects fewer reused samples than others
-    /// (borders, disocclusions, cuts), topping each pixel up to F n_f n_r (default F = 1).
-    #[arg(long, num_args = 0..=1, default_missing_value = "1.0", value_name = "F")]
+    /// (borders, disocclusions, cuts), topping each pixel up to F n_f n_r (F = 0.75 if not
+    /// given).
+    #[arg(long, num_args = 0..=1, default_missing_value = "0.75", value_name = "F")]
     adaptive: Option<f32>,
     /// Render chunk K of N (1-based) of the groups and write its partial file
     /// `<out folder>/<name>.chunk-K-of-N.partial` for `reframe merge`.
@@ -387,7 +388,11 @@ fn run(cli: Cli) -> Result<()> {
             let what = match &stats.chunk {
                 Some(c) => format!(
                     "chunk {c} ({} {}-{}) of frames {}-{}",
-                    if stats.method.reuses() { "groups" } else { "frames" },
+                    if stats.method.reuses() {
+                        "groups"
+                    } else {
+                        "frames"
+                    },
                     stats.units[0],
                     stats.units[1],
                     stats.first_frame,

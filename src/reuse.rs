@@ -481,7 +481,8 @@ pub fn render_reuse_run(
             .collect();
         let (native_counts, pilot_rays) = match opts.adaptive {
             Some(target) => {
-                let (c, r) = adaptive_counts(integrator, &group, opts.spp, target, &work, &tile_list);
+                let (c, r) =
+                    adaptive_counts(integrator, &group, opts.spp, target, &work, &tile_list);
                 (Some(c), r)
             }
             None => (None, RayCounts::default()),
@@ -632,18 +633,22 @@ pub fn finish_record(r: &FrameRecord, totals: &[i64], method: Method) -> Finishe
     }
 }
 
+/// Side of the pixel blocks that share one pilot ray in `adaptive_counts`.
+const PILOT_BLOCK: u32 = 2;
+
 /// Adaptive native samples (the paper's future work, ESTIMATOR.md's `n_m(p)`): for every pixel of
 /// every frame of the group, how many native samples it shoots in this group, decided from the
 /// geometry before any sample is drawn, so that `mis-exact`'s densities can use them and stay
 /// unbiased.
 ///
-/// A pilot ray through the pixel's centre finds the point x it sees. Eye k shoots `n_r` samples
-/// per pixel, so the count of its samples expected in pixel p of frame m is
-/// `n_r (J_k(x) / A_pix,k) / (J_m(x) / A_pix,m)` where it sees x (one visibility test), and 0
-/// where it does not. A pixel that every eye of the group sees expects about `n_f n_r`; one at a
-/// border, a disocclusion or a cut expects fewer. The pixel's count tops its expectation up to
-/// `target n_f n_r`: `n_r + clamp(ceil(target n_f n_r - expected), 0, (n_f - 1) n_r)`.
-/// (The pilot rays are deterministic, pixel centres, so they are independent of every sample.)
+/// One pilot ray per 2x2 block of pixels, through the block's centre, finds the point x it sees.
+/// Eye k shoots `n_r` samples per pixel, so the count of its samples expected in a pixel of frame
+/// m around x is `n_r (J_k(x) / A_pix,k) / (J_m(x) / A_pix,m)` where it sees x (one visibility
+/// test) and 0 where it does not. A pixel that every eye of the group sees expects about
+/// `n_f n_r`; one at a border, a disocclusion or a cut expects fewer. The block's pixels top
+/// their expectation up to `target n_f n_r` in whole samples:
+/// `n_r + clamp(floor(target n_f n_r - expected), 0, (n_f - 1) n_r)`. The pilot rays are
+/// deterministic (block centres), so the counts are independent of every sample.
 fn adaptive_counts(
     integrator: &Integrator,
     group: &[&FrameAccum],
@@ -655,47 +660,49 @@ fn adaptive_counts(
     let scene = integrator.scene;
     let n_f = group.len() as u32;
     let full = target * (n_f * spp) as f32;
-    let cap = (n_f - 1) * spp;
+    let cap = ((n_f - 1) * spp) as f32;
     let per_tile: Vec<(Vec<u16>, RayCounts)> = work
         .par_iter()
         .map(|&(m, t)| {
             let (x0, y0, x1, y1) = tile_list[t];
             let cam_m = &group[m].cam;
             let mut rays = RayCounts::default();
-            let mut out = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
-            for y in y0..y1 {
-                for x in x0..x1 {
-                    let r = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+            let mut out = vec![spp as u16; ((x1 - x0) * (y1 - y0)) as usize];
+            for by in (y0..y1).step_by(PILOT_BLOCK as usize) {
+                for bx in (x0..x1).step_by(PILOT_BLOCK as usize) {
+                    let (ex, ey) = ((bx + PILOT_BLOCK).min(x1), (by + PILOT_BLOCK).min(y1));
+                    let r = Vec2::new((bx + ex) as f32, (by + ey) as f32) * 0.5;
                     rays.primary += 1;
-                    let ja_m = |sp: &crate::scene::SurfacePoint| {
-                        cam_m.jacobian(sp.p, sp.ng) / cam_m.pixel_area()
-                    };
-                    let expected = match scene
+                    let Some(sp) = scene
                         .geometry
                         .intersect1(&Ray::new(cam_m.eye, cam_m.direction(r)))
                         .map(|hit| scene.surface(&hit))
-                        .filter(|sp| ja_m(sp) > 0.0)
-                    {
-                        None => full, // nothing to reuse into this pixel: no top-up
-                        Some(sp) => {
-                            let own = ja_m(&sp);
-                            let mut e = spp as f32;
-                            for (k, acc) in group.iter().enumerate() {
-                                if k == m || acc.cam.pixel_of(sp.p).is_none() {
-                                    continue;
-                                }
-                                rays.visibility += 1;
-                                let ray = Ray::between(acc.cam.eye, Vec3::ZERO, sp.p, sp.ng);
-                                if !scene.geometry.occluded1(&ray) {
-                                    let ja = acc.cam.jacobian(sp.p, sp.ng) / acc.cam.pixel_area();
-                                    e += spp as f32 * ja / own;
-                                }
-                            }
-                            e
-                        }
+                    else {
+                        continue; // nothing there to reuse into: no top-up
                     };
-                    let extra = (full - expected).ceil().clamp(0.0, cap as f32) as u32;
-                    out.push((spp + extra).min(u16::MAX as u32) as u16);
+                    let own = cam_m.jacobian(sp.p, sp.ng) / cam_m.pixel_area();
+                    if own <= 0.0 {
+                        continue;
+                    }
+                    let mut expected = spp as f32;
+                    for (k, acc) in group.iter().enumerate() {
+                        if k == m || acc.cam.pixel_of(sp.p).is_none() {
+                            continue;
+                        }
+                        rays.visibility += 1;
+                        let ray = Ray::between(acc.cam.eye, Vec3::ZERO, sp.p, sp.ng);
+                        if !scene.geometry.occluded1(&ray) {
+                            let ja = acc.cam.jacobian(sp.p, sp.ng) / acc.cam.pixel_area();
+                            expected += spp as f32 * ja / own;
+                        }
+                    }
+                    let n = spp + (full - expected).floor().clamp(0.0, cap) as u32;
+                    let n = n.min(u16::MAX as u32) as u16;
+                    for y in by..ey {
+                        for x in bx..ex {
+                            out[((y - y0) * (x1 - x0) + x - x0) as usize] = n;
+                        }
+                    }
                 }
             }
             (out, rays)
@@ -718,6 +725,7 @@ fn adaptive_counts(
 
 /// Trace the native samples of one tile of frame `group[m]` and splat every reuse of them into
 /// the group's frames. Returns the number of non-finite contributions dropped.
+#[allow(clippy::too_many_arguments)]
 fn shade_tile(
     integrator: &Integrator,
     opts: &RenderOptions,

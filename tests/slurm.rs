@@ -64,9 +64,9 @@ impl Cluster {
         let start = Instant::now();
         loop {
             let states: Vec<String> = jobs.iter().flat_map(|j| self.job_states(j)).collect();
-            let running = states.iter().any(|s| {
-                ["PENDING", "RUNNING", "CONFIGURING", "COMPLETING"].contains(&s.as_str())
-            });
+            let running = states
+                .iter()
+                .any(|s| ["PENDING", "RUNNING", "CONFIGURING", "COMPLETING"].contains(&s.as_str()));
             if !states.is_empty() && !running {
                 return states;
             }
@@ -91,7 +91,13 @@ impl Drop for Cluster {
 fn submit(c: &Cluster, logs: &Path, more: &[&str], render: &[String]) -> (String, String) {
     let o = c
         .cmd(&format!("{ROOT}/scripts/slurm/submit.sh"))
-        .args(["-n", "3", "--reframe", env!("CARGO_BIN_EXE_reframe"), "--logs"])
+        .args([
+            "-n",
+            "3",
+            "--reframe",
+            env!("CARGO_BIN_EXE_reframe"),
+            "--logs",
+        ])
         .arg(logs)
         .args(more)
         .arg("--")
@@ -109,7 +115,12 @@ fn submit(c: &Cluster, logs: &Path, more: &[&str], render: &[String]) -> (String
 }
 
 fn pixels(p: &Path) -> Vec<u32> {
-    read_image(p).unwrap().data.iter().map(|v| v.to_bits()).collect()
+    read_image(p)
+        .unwrap()
+        .data
+        .iter()
+        .map(|v| v.to_bits())
+        .collect()
 }
 
 #[test]
@@ -196,7 +207,10 @@ fn slurm_array_and_merge_match_one_process() {
     assert!(lost.exists());
     for f in 20..=28 {
         let name = format!("f_{f:04}.exr");
-        assert!(pixels(&one.join(&name)) == pixels(&out.join(&name)), "{name}");
+        assert!(
+            pixels(&one.join(&name)) == pixels(&out.join(&name)),
+            "{name}"
+        );
     }
     drop(cluster);
     // Every daemon is gone.
