@@ -254,6 +254,11 @@ fn parse_res(s: &str) -> Result<(u32, u32), String> {
     if w == 0 || h == 0 {
         return Err(format!("'{s}': width and height must be positive"));
     }
+    // The scene files' limit too: 2^28 pixels (16384 x 16384) keeps every per-pixel index and
+    // buffer size far inside 32 bits.
+    if w as u64 * h as u64 > 1 << 28 {
+        return Err(format!("'{s}': at most 2^28 pixels (e.g. 16384x16384)"));
+    }
     Ok((w, h))
 }
 
@@ -283,6 +288,13 @@ fn main() {
         let msg = format!("{e:#}").replace('\n', " ");
         eprintln!("error: {msg}");
         std::process::exit(1);
+    }
+}
+
+/// The scene's load warnings, once a command has succeeded (a failure stays one line).
+fn print_warnings(scene: &Scene) {
+    for w in &scene.warnings {
+        eprintln!("warning: {w}");
     }
 }
 
@@ -371,6 +383,7 @@ fn run(cli: Cli) -> Result<()> {
                 bail!("--max-depth 0: paths need at least one bounce");
             }
             let stats = render::render(&scene, &opts)?;
+            print_warnings(&scene);
             let first = stats.outputs.first().context("no frame written")?;
             let how = if stats.method.reuses() && stats.chunk.is_none() {
                 format!(
@@ -483,6 +496,7 @@ fn run(cli: Cli) -> Result<()> {
                 ..Default::default()
             };
             let report = reframe::bench::run(&scene, &opts)?;
+            print_warnings(&scene);
             println!("{}", report.table());
             if let Some(p) = &a.json {
                 render::write_json(p, &report)?;
@@ -502,6 +516,7 @@ fn run(cli: Cli) -> Result<()> {
             let pool = render::thread_pool(a.threads)?;
             reframe::embree::set_flush_denormals();
             let r = compare::reference(&scene, range, res, a.reference_spp, &a.cache, &pool, true)?;
+            print_warnings(&scene);
             let how = if r.cached {
                 "cached".to_string()
             } else {
@@ -537,6 +552,7 @@ fn run(cli: Cli) -> Result<()> {
                 progress: true,
             };
             let report = compare::compare(&scene, &opts)?;
+            print_warnings(&scene);
             println!("{}", compare::summary(&report));
             println!("results in {}", opts.out.display());
             Ok(())

@@ -146,6 +146,9 @@ pub struct Scene {
     pub material_names: Vec<String>,
     pub lights: Lights,
     pub geometry: TriangleScene,
+    /// What loading found odd but not wrong (e.g. faces without a material). The command line
+    /// prints them once the command has succeeded, so that a failure stays one line.
+    pub warnings: Vec<String>,
 }
 
 /// Where a scene's files come from: the file system or the binary.
@@ -224,11 +227,8 @@ impl Scene {
         let lights = Lights::new(&mesh)?.ok_or_else(|| {
             anyhow!("{obj_label}: the scene has no lights (no material with a positive Ke)")
         })?;
-        // Only once the scene is good: a failed load prints its one error line and nothing else.
-        if let Some(w) = warning {
-            eprintln!("warning: {w}");
-        }
         Ok(Scene {
+            warnings: warning.into_iter().collect(),
             name,
             frames: *file.frames.get_ref(),
             width,
