@@ -692,11 +692,12 @@ fn load_obj(
         materials: Vec::new(),
         material_names: Vec::new(),
     };
-    // Smooth shading needs a normal at every vertex of every object: tobj leaves out the normals
-    // of face vertices given without one, which would misalign the two arrays.
-    let all_have_normals = models
-        .iter()
-        .all(|m| m.mesh.normals.len() == m.mesh.positions.len());
+    // Smooth shading, object by object: an object with a normal at every vertex is shaded with
+    // them; one without (tobj leaves out the normals of face vertices given without one, so a
+    // partial set cannot be aligned with the vertices) gets zero normals, which `surface` reads
+    // as "use the face normal". Scenes without any normals keep the array empty.
+    let smooth = |m: &tobj::Mesh| !m.normals.is_empty() && m.normals.len() == m.positions.len();
+    let any_smooth = models.iter().any(|m| smooth(&m.mesh));
     let mut face = 0usize;
     for model in &models {
         let m = &model.mesh;
@@ -713,7 +714,9 @@ fn load_obj(
             }
             mesh.positions.push(v);
         }
-        if all_have_normals {
+        if any_smooth && !smooth(m) {
+            mesh.normals.extend(std::iter::repeat_n(Vec3::ZERO, nv));
+        } else if any_smooth {
             for (i, c) in m.normals.chunks_exact(3).enumerate() {
                 let n = Vec3::new(c[0], c[1], c[2]);
                 if !n.is_finite() || n.length() < 1e-12 {
@@ -796,6 +799,37 @@ mod tests {
             let s = Scene::load(name, &d).unwrap_or_else(|e| panic!("{name}: {e:#}"));
             assert!(s.frames >= 1 && !s.lights.tris.is_empty(), "{name}");
         }
+    }
+
+    #[test]
+    fn objects_with_normals_are_smooth_beside_flat_ones() {
+        // The vase scene: the vase and ball carry `vn`, the room and table do not.
+        let d = Device::new().unwrap();
+        let s = Scene::load("vase", &d).unwrap();
+        assert_eq!(s.normals.len(), s.positions.len());
+        let zero = s.normals.iter().filter(|n| **n == Vec3::ZERO).count();
+        assert!(zero > 0 && zero < s.normals.len(), "{zero} flat vertices");
+        // A smooth triangle shades with an interpolated normal that differs from its face's.
+        let t = (0..s.triangles.len())
+            .find(|&t| {
+                s.triangles[t]
+                    .iter()
+                    .all(|&i| s.normals[i as usize] != Vec3::ZERO)
+            })
+            .unwrap();
+        let hit = Hit {
+            t: 1.0,
+            prim_id: t as u32,
+            u: 0.2,
+            v: 0.3,
+            ng: s.tri_normal[t],
+        };
+        let sp = s.surface(&hit);
+        assert!(
+            sp.ns.dot(sp.ng) > 0.0 && sp.ns.dot(sp.ng) < 0.99999,
+            "{:?}",
+            sp
+        );
     }
 
     #[test]
