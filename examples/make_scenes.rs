@@ -4,8 +4,8 @@
 //! cargo run --release --example make_scenes -- scenes
 //! ```
 //!
-//! Writes `vase.{obj,mtl}`, `cornell.{obj,mtl}` and `furnace.{obj,mtl}` into the
-//! given directory (the `*.toml` scene files next to them are hand-written).
+//! Writes `vase.{obj,mtl}`, `cornell.{obj,mtl}`, `furnace.{obj,mtl}` and the stress scenes'
+//! `occluders.{obj,mtl}` and `mirror-like.{obj,mtl}` into the given directory (the `*.toml` scene files next to them are hand-written).
 //! Std only; the output is deterministic (same bytes on every run).
 //!
 //! Conventions (those of the renderer): right-handed, y up, metres. Faces wind
@@ -664,6 +664,163 @@ fn furnace_scene() -> Scene {
     }
 }
 
+/// Stress room for frame reuse (`occluders`, `fast-pan`, `cut`): a long room with a row of
+/// full-height pillars in front of each end wall. A camera at y = 1.5, z = 2 looking along -z or
+/// +z with a vertical fov of 30 degrees sees only the end wall and the pillars (its frustum meets
+/// the floor and ceiling 5.6 m ahead, the end walls are 5 m away), so what an eye sees depends
+/// on x and z only: `tests/stress.rs` predicts the reuse losses in 2D from these numbers.
+fn stress_room_scene() -> Scene {
+    let header = "Stress room: x in [-9, 9], y in [0, 3], z in [-3, 7]; 0.3 m square pillars, floor to\n\
+                  ceiling, centred at z = -1 (x = -8.5, -7.5, ..., 8.5) and z = 5 (x = -8, -7, ..., 8);\n\
+                  16 m light strips on the ceiling above z = 2 (0.5 m wide) and near the end walls\n\
+                  (z = -2.3 and 6.3, 0.3 m wide).";
+    let mats = [
+        diffuse("back_wall", [0.70, 0.70, 0.66]),
+        diffuse("front_wall", [0.45, 0.55, 0.70]),
+        diffuse("floor", [0.45, 0.40, 0.35]),
+        diffuse("side_wall", [0.60, 0.60, 0.60]),
+        diffuse("back_pillar", [0.65, 0.30, 0.18]),
+        diffuse("front_pillar", [0.75, 0.70, 0.35]),
+        emitter("light", [0.65, 0.65, 0.65], [6.0, 6.0, 6.0]),
+    ];
+    let mut o = Obj::new(header, "occluders.mtl");
+    let (x0, x1, y1, z0, z1) = (-9.0, 9.0, 3.0, -3.0, 7.0);
+    o.object("floor", "floor");
+    o.quad(
+        [[x0, 0.0, z0], [x1, 0.0, z0], [x1, 0.0, z1], [x0, 0.0, z1]],
+        [0.0, 1.0, 0.0],
+    );
+    o.object("ceiling", "side_wall");
+    o.quad(
+        [[x0, y1, z0], [x1, y1, z0], [x1, y1, z1], [x0, y1, z1]],
+        [0.0, -1.0, 0.0],
+    );
+    o.object("back_wall", "back_wall");
+    o.quad(
+        [[x0, 0.0, z0], [x1, 0.0, z0], [x1, y1, z0], [x0, y1, z0]],
+        [0.0, 0.0, 1.0],
+    );
+    o.object("front_wall", "front_wall");
+    o.quad(
+        [[x0, 0.0, z1], [x1, 0.0, z1], [x1, y1, z1], [x0, y1, z1]],
+        [0.0, 0.0, -1.0],
+    );
+    o.object("side_walls", "side_wall");
+    side_wall(&mut o, x0, (0.0, y1), (z0, z1), 1.0);
+    side_wall(&mut o, x1, (0.0, y1), (z0, z1), -1.0);
+    // Pillars stand on the floor and touch the ceiling: side faces only.
+    o.object("back_pillars", "back_pillar");
+    for k in 0..18 {
+        o.block(-8.5 + k as f64, -1.0, 0.0, y1, 0.3, 0.3, 0.0, false, false);
+    }
+    o.object("front_pillars", "front_pillar");
+    for k in 0..17 {
+        o.block(-8.0 + k as f64, 5.0, 0.0, y1, 0.3, 0.3, 0.0, false, false);
+    }
+    o.object("light", "light");
+    ceiling_light(&mut o, [0.0, 2.99, 2.0], 16.0, 0.5);
+    ceiling_light(&mut o, [0.0, 2.99, -2.3], 16.0, 0.3);
+    ceiling_light(&mut o, [0.0, 2.99, 6.3], 16.0, 0.3);
+    Scene {
+        name: "occluders",
+        obj: o.text,
+        mtl: write_mtl(header, &mats),
+        emitter_ok: |n, _| n[1] < -0.999,
+    }
+}
+
+/// Near-mirror floor seen at grazing angles (`mirror-like`): three floor strips of modified Phong
+/// with exponents 100, 1000 and 10000 reflect a back wall with coloured panels, a light bar and a
+/// box.
+fn mirror_scene() -> Scene {
+    let header =
+        "Mirror-like: room x in [-2, 2], y in [0, 2.5], z in [-7, 1.5]; floor strips of Phong\n\
+                  exponent 100 (x < -0.6), 1000 (|x| < 0.6) and 10000 (x > 0.6), Kd 0, Ks 0.95;\n\
+                  coloured panels and a light bar on the back wall, a box, a ceiling light.";
+    let mats = [
+        glossy("phong100", [0.0, 0.0, 0.0], [0.95, 0.95, 0.95], 100.0),
+        glossy("phong1000", [0.0, 0.0, 0.0], [0.95, 0.95, 0.95], 1000.0),
+        glossy("phong10000", [0.0, 0.0, 0.0], [0.95, 0.95, 0.95], 10000.0),
+        diffuse("wall", [0.70, 0.70, 0.68]),
+        diffuse("red", [0.70, 0.12, 0.10]),
+        diffuse("green", [0.15, 0.55, 0.15]),
+        diffuse("blue", [0.12, 0.20, 0.70]),
+        diffuse("box", [0.75, 0.65, 0.40]),
+        emitter("light", [0.65, 0.65, 0.65], [10.0, 10.0, 10.0]),
+    ];
+    let mut o = Obj::new(header, "mirror-like.mtl");
+    let (x0, x1, y1, z0, z1) = (-2.0, 2.0, 2.5, -7.0, 1.5);
+    for (name, mtl, xa, xb) in [
+        ("floor_100", "phong100", x0, -0.6),
+        ("floor_1000", "phong1000", -0.6, 0.6),
+        ("floor_10000", "phong10000", 0.6, x1),
+    ] {
+        o.object(name, mtl);
+        o.quad(
+            [[xa, 0.0, z0], [xb, 0.0, z0], [xb, 0.0, z1], [xa, 0.0, z1]],
+            [0.0, 1.0, 0.0],
+        );
+    }
+    o.object("walls", "wall");
+    o.quad(
+        [[x0, y1, z0], [x1, y1, z0], [x1, y1, z1], [x0, y1, z1]],
+        [0.0, -1.0, 0.0],
+    );
+    o.quad(
+        [[x0, 0.0, z0], [x1, 0.0, z0], [x1, y1, z0], [x0, y1, z0]],
+        [0.0, 0.0, 1.0],
+    );
+    o.quad(
+        [[x0, 0.0, z1], [x1, 0.0, z1], [x1, y1, z1], [x0, y1, z1]],
+        [0.0, 0.0, -1.0],
+    );
+    side_wall(&mut o, x0, (0.0, y1), (z0, z1), 1.0);
+    side_wall(&mut o, x1, (0.0, y1), (z0, z1), -1.0);
+    // Panels 1 cm in front of the back wall (no coplanar faces).
+    for (name, xa, xb) in [
+        ("red", -1.8, -0.7),
+        ("green", -0.55, 0.55),
+        ("blue", 0.7, 1.8),
+    ] {
+        o.object(&format!("{name}_panel"), name);
+        o.quad(
+            [
+                [xa, 0.2, -6.99],
+                [xb, 0.2, -6.99],
+                [xb, 1.0, -6.99],
+                [xa, 1.0, -6.99],
+            ],
+            [0.0, 0.0, 1.0],
+        );
+    }
+    o.object("light_bar", "light");
+    o.quad(
+        [
+            [-1.5, 1.3, -6.98],
+            [1.5, 1.3, -6.98],
+            [1.5, 1.4, -6.98],
+            [-1.5, 1.4, -6.98],
+        ],
+        [0.0, 0.0, 1.0],
+    );
+    o.object("ceiling_light", "light");
+    ceiling_light(&mut o, [0.0, 2.49, -3.0], 1.0, 1.0);
+    o.object("box", "box");
+    o.block(-0.2, -4.5, 0.0, 0.5, 0.5, 0.5, 25.0, false, true);
+    Scene {
+        name: "mirror-like",
+        obj: o.text,
+        mtl: write_mtl(header, &mats),
+        emitter_ok: |n, c| {
+            if c[1] > 2.0 {
+                n[1] < -0.999
+            } else {
+                n[2] > 0.999
+            }
+        },
+    }
+}
+
 // ---------------------------------------------------------------- checks
 
 /// Parses the written OBJ and MTL back and checks them.
@@ -838,7 +995,13 @@ fn main() {
     let dir = Path::new(&args[1]);
     std::fs::create_dir_all(dir).expect("cannot create the output directory");
     let mut failed = false;
-    for scene in [vase_scene(), cornell_scene(), furnace_scene()] {
+    for scene in [
+        vase_scene(),
+        cornell_scene(),
+        furnace_scene(),
+        stress_room_scene(),
+        mirror_scene(),
+    ] {
         for (ext, text) in [("obj", &scene.obj), ("mtl", &scene.mtl)] {
             let path = dir.join(format!("{}.{ext}", scene.name));
             std::fs::write(&path, text).unwrap_or_else(|e| panic!("{}: {e}", path.display()));

@@ -2,6 +2,9 @@
 //! tracer, the MIS weights of a sample's eyes sum to one, `mis-exact` is unbiased on a glossy
 //! scene with occlusion and a zooming camera while Havran's reuse is caught biased, and on a
 //! diffuse scene without occlusion all reuse methods agree.
+mod stats;
+
+use stats::{block_moments, z_pass_fraction};
 use glam::Vec3;
 use reframe::camera::Camera;
 use reframe::embree::Device;
@@ -152,78 +155,6 @@ fn mis_weights_sum_to_one() {
         tested += 1;
     }
     assert!(tested > 1000, "only {tested} samples tested");
-}
-
-struct Moments {
-    mean: Vec<f64>,
-    var_of_mean: Vec<f64>,
-}
-
-/// Per-block luminance over `k` independent renders: block mean and the variance of that mean.
-fn block_moments(renders: &[Vec<Vec3>], w: usize, h: usize, b: usize) -> Moments {
-    let (bw, bh) = (w / b, h / b);
-    let k = renders.len() as f64;
-    let mut sums = vec![0.0f64; bw * bh];
-    let mut sq = vec![0.0f64; bw * bh];
-    for r in renders {
-        let mut blk = vec![0.0f64; bw * bh];
-        for y in 0..bh * b {
-            for x in 0..bw * b {
-                let p = r[y * w + x];
-                blk[(y / b) * bw + x / b] +=
-                    (0.2126 * p.x + 0.7152 * p.y + 0.0722 * p.z) as f64 / (b * b) as f64;
-            }
-        }
-        for i in 0..blk.len() {
-            sums[i] += blk[i];
-            sq[i] += blk[i] * blk[i];
-        }
-    }
-    let mean: Vec<f64> = sums.iter().map(|s| s / k).collect();
-    let var_of_mean = sq
-        .iter()
-        .zip(&mean)
-        .map(|(q, m)| ((q / k - m * m) * k / (k - 1.0)).max(0.0) / k)
-        .collect();
-    Moments { mean, var_of_mean }
-}
-
-/// Fraction of blocks whose z-score against the reference passes at alpha 0.01, Sidak-corrected.
-fn z_pass_fraction(test: &Moments, reference: &Moments) -> (f64, f64) {
-    let n = test.mean.len() as f64;
-    let alpha = 1.0 - (1.0f64 - 0.01).powf(1.0 / n);
-    // Two-sided normal quantile for alpha by bisection on erfc.
-    let z_crit = {
-        let (mut lo, mut hi) = (0.0f64, 10.0f64);
-        for _ in 0..60 {
-            let mid = 0.5 * (lo + hi);
-            if libm_erfc(mid / std::f64::consts::SQRT_2) > alpha {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        lo
-    };
-    let mut pass = 0;
-    let mut worst = 0.0f64;
-    for i in 0..test.mean.len() {
-        let var = test.var_of_mean[i] + reference.var_of_mean[i];
-        let z = if var > 0.0 {
-            (test.mean[i] - reference.mean[i]).abs() / var.sqrt()
-        } else {
-            0.0
-        };
-        worst = worst.max(z);
-        if z <= z_crit {
-            pass += 1;
-        }
-    }
-    (pass as f64 / n, worst)
-}
-
-fn libm_erfc(x: f64) -> f64 {
-    statrs::function::erf::erfc(x)
 }
 
 /// The vase moves in and zooms (fov 55 -> 30 over the animation), the ball occludes part of
