@@ -4,7 +4,6 @@
 //! diffuse scene without occlusion all reuse methods agree.
 mod stats;
 
-use stats::{block_moments, z_pass_fraction};
 use glam::Vec3;
 use reframe::camera::Camera;
 use reframe::embree::Device;
@@ -13,6 +12,7 @@ use reframe::render::{render_frame_independent, thread_pool, Method, RenderOptio
 use reframe::reuse::{denominators, render_reuse, EyeTerms};
 use reframe::sampling::Sampler;
 use reframe::scene::Scene;
+use stats::{block_moments, z_pass_fraction};
 use std::collections::BTreeMap;
 
 /// Render frames `a..=b` with a reuse method in memory: frame -> pixels.
@@ -314,12 +314,19 @@ fn reuse_methods_agree_on_diffuse_scene_without_occlusion() {
 /// time (the figures are printed; the test asserts the ratio and the unbiased mean).
 #[test]
 fn adaptive_samples_even_out_the_noise() {
+    let occluders = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/occluders.toml");
+    // The vase's borders (zooming in), and the bands beside the pillars of `occluders`.
+    adaptive_evens_out(occluders, (2, 14, 8));
+    adaptive_evens_out("vase", (30, 42, 36));
+}
+
+fn adaptive_evens_out(scene: &str, (a, z, target): (u32, u32, u32)) {
     let device = Device::new().unwrap();
-    let scene = Scene::load("vase", &device).unwrap();
+    let name = scene;
+    let scene = Scene::load(scene, &device).unwrap();
     let integ = Integrator::new(&scene, 8);
     let pool = thread_pool(0).unwrap();
     let (w, h) = (64, 48);
-    let (a, z, target) = (30, 42, 36);
     let k = 48;
     let run = |adaptive: Option<f32>| {
         let start = std::time::Instant::now();
@@ -405,7 +412,7 @@ fn adaptive_samples_even_out_the_noise() {
         s[n / 100] / s[n / 2]
     };
     eprintln!(
-        "starved pixels {n_starved}/{n}; relative variance starved/rest: {ratio_plain:.2} plain, \
+        "{name}: starved pixels {n_starved}/{n}; relative variance starved/rest: {ratio_plain:.2} plain, \
          {ratio_adapt:.2} adaptive; 1st-percentile/median spp_eff: {:.2} plain, {:.2} adaptive; \
          seconds per render {t_plain:.3} plain, {t_adapt:.3} adaptive; variance x time, all \
          pixels: {:.3e} plain, {:.3e} adaptive; starved pixels: {:.3e} plain, {:.3e} adaptive",

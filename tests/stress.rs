@@ -21,7 +21,6 @@
 //! bias is the point of the README's table, not an invariant.
 mod stats;
 
-use stats::{block_moments, z_test, Moments};
 use glam::{Vec2, Vec3};
 use reframe::camera::Camera;
 use reframe::embree::{Device, Ray};
@@ -29,6 +28,7 @@ use reframe::integrator::Integrator;
 use reframe::render::{render_frame_independent, thread_pool, Method, RenderOptions};
 use reframe::reuse::{render_reuse, ReuseStats};
 use reframe::scene::Scene;
+use stats::{block_moments, z_test, Moments};
 use std::collections::BTreeMap;
 use std::ops::RangeInclusive;
 
