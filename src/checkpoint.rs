@@ -81,8 +81,18 @@ pub fn hash_scene(f: &mut Fnv, scene: &Scene) {
 /// resume nor a merge mixes builds.
 pub fn hash_exe(f: &mut Fnv) -> Result<()> {
     let exe = std::env::current_exe().context("finding the reframe executable")?;
-    f.bytes(&std::fs::read(&exe).with_context(|| format!("reading {}", exe.display()))?);
-    Ok(())
+    // Streamed: the binary is ~50 MB, which would otherwise show in the peak memory.
+    let mut r = File::open(&exe).with_context(|| format!("reading {}", exe.display()))?;
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        let n = r
+            .read(&mut buf)
+            .with_context(|| format!("reading {}", exe.display()))?;
+        if n == 0 {
+            return Ok(());
+        }
+        f.bytes(&buf[..n]);
+    }
 }
 
 /// The settings a state file was made with; resuming or merging needs them all equal.

@@ -26,6 +26,7 @@
 use crate::bench::{measure_costs, predicted_speedup, Costs};
 use crate::camera::Camera;
 use crate::chart::{bar_chart, image_strip, write_svg_png, LineChart, Series, COLOURS};
+use crate::checkpoint::{hash_exe, hash_scene, Fnv};
 use crate::image::{check_writable_dir, read_image, write_image, Image, Metadata, WriteOptions};
 use crate::integrator::{Integrator, RayCounts};
 use crate::render::{
@@ -86,25 +87,6 @@ struct ReferenceInfo {
     seconds: f64,
 }
 
-/// FNV-1a, 64 bits: a stable hash for the cache key (not for security).
-struct Fnv(u64);
-
-impl Fnv {
-    fn new() -> Fnv {
-        Fnv(0xcbf2_9ce4_8422_2325)
-    }
-    fn bytes(&mut self, b: &[u8]) {
-        for &x in b {
-            self.0 = (self.0 ^ x as u64).wrapping_mul(0x100_0000_01b3);
-        }
-    }
-    fn f32s(&mut self, v: impl IntoIterator<Item = f32>) {
-        for x in v {
-            self.bytes(&x.to_bits().to_le_bytes());
-        }
-    }
-}
-
 /// The cache key of a reference (see the module note).
 pub fn reference_key(
     scene: &Scene,
@@ -112,29 +94,12 @@ pub fn reference_key(
     (w, h): (u32, u32),
     spp: u32,
 ) -> Result<String> {
-    let mut f = Fnv::new();
-    f.f32s(scene.positions.iter().flat_map(|p| p.to_array()));
-    f.f32s(scene.normals.iter().flat_map(|p| p.to_array()));
-    for t in &scene.triangles {
-        f.bytes(&t.map(u32::to_le_bytes).concat());
-    }
-    for m in &scene.tri_material {
-        f.bytes(&m.to_le_bytes());
-    }
-    f.bytes(format!("{:?}{:?}", scene.materials, scene.path).as_bytes());
-    for v in [
-        scene.frames,
-        *range.start(),
-        *range.end(),
-        w,
-        h,
-        spp,
-        PASSES,
-    ] {
+    let mut f = Fnv::default();
+    hash_scene(&mut f, scene);
+    for v in [*range.start(), *range.end(), w, h, spp, PASSES] {
         f.bytes(&v.to_le_bytes());
     }
-    let exe = std::env::current_exe().context("finding the reframe executable")?;
-    f.bytes(&std::fs::read(&exe).with_context(|| format!("reading {}", exe.display()))?);
+    hash_exe(&mut f)?;
     Ok(format!("{:016x}", f.0))
 }
 
