@@ -3,6 +3,8 @@
 //! ```text
 //! reframe render [SCENE] --method independent --spp 8 --frames 0-47 --res 320x240 \
 //!     --out out/vase_####.exr --seed 0 --threads 0 --stats stats.json
+//! reframe render vase --method mis-exact --window 7 --chunk 2/3 --out out/vase_####.exr
+//! reframe merge --chunks 3 --out out/vase_####.exr
 //! reframe bench [SCENE] --json bench.json
 //! reframe reference [SCENE] --frames 15-31 --reference-spp 256
 //! reframe compare [SCENE] --out out/compare
