@@ -170,8 +170,7 @@ impl std::fmt::Display for Chunk {
 /// The counters a render carries across a resume (what `--stats` reports).
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct Progress {
-    /// Primary, path, shadow and visibility rays.
-    pub rays: [u64; 4],
+    pub counts: RayCounts,
     pub nonfinite_samples: u64,
     pub nonfinite_pixels: u64,
     pub tried: u64,
@@ -179,27 +178,6 @@ pub struct Progress {
     pub per_frame: Vec<FrameReuse>,
     /// Seconds of rendering before this process started.
     pub seconds: f64,
-}
-
-impl Progress {
-    pub fn counts(&self) -> RayCounts {
-        let [primary, path, shadow, visibility] = self.rays;
-        RayCounts {
-            primary,
-            path,
-            shadow,
-            visibility,
-        }
-    }
-    pub fn add_counts(&mut self, c: &RayCounts) {
-        for (r, v) in self
-            .rays
-            .iter_mut()
-            .zip([c.primary, c.path, c.shadow, c.visibility])
-        {
-            *r += v;
-        }
-    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -232,6 +210,34 @@ pub struct Trailer {
     /// The output pattern and EXR precision the frames are (to be) written with.
     pub out: String,
     pub exr_float: bool,
+}
+
+impl Trailer {
+    /// A run's trailer before it has rendered anything: `key`'s settings, the units it covers,
+    /// the output it writes.
+    pub fn new(
+        key: RunKey,
+        chunk: Option<Chunk>,
+        units: &RangeInclusive<u32>,
+        out: String,
+        exr_float: bool,
+    ) -> Trailer {
+        Trailer {
+            format: "reframe-state".into(),
+            version: VERSION,
+            kind: Kind::Checkpoint,
+            key,
+            chunk,
+            units: [*units.start(), *units.end()],
+            next_unit: *units.start(),
+            log_len: 0,
+            log_records: vec![],
+            records: vec![],
+            progress: Progress::default(),
+            out,
+            exr_float,
+        }
+    }
 }
 
 /// One frame's accumulator.
@@ -548,8 +554,13 @@ impl StateFile {
 }
 
 /// Write a state file atomically: records, trailer (with the records' offsets filled in), flush
-/// to disk, rename.
-pub fn write_state(path: &Path, trailer: &mut Trailer, records: &[FrameRecord]) -> Result<()> {
+/// to disk, rename. The records are taken one at a time, so that a checkpoint holds one frame's
+/// copy in memory, not all of them.
+pub fn write_state(
+    path: &Path,
+    trailer: &mut Trailer,
+    records: impl IntoIterator<Item = FrameRecord>,
+) -> Result<()> {
     let tmp = tmp_name(path);
     let result = (|| -> Result<()> {
         let mut w = BufWriter::new(File::create(&tmp)?);
@@ -580,7 +591,9 @@ fn write_trailer(w: &mut impl Write, t: &Trailer) -> std::io::Result<()> {
     w.write_all(MAGIC)
 }
 
-fn tmp_name(p: &Path) -> PathBuf {
+/// The temporary name `p` is written under before it is renamed into place (the `.tmp-PID`
+/// suffix that `remove_stale_tmp` recognises).
+pub fn tmp_name(p: &Path) -> PathBuf {
     let mut name = p.file_name().unwrap_or_default().to_os_string();
     name.push(format!(".tmp-{}", std::process::id()));
     p.with_file_name(name)
@@ -605,11 +618,7 @@ pub fn remove_stale_tmp(dir: &Path, ours: impl Fn(&str) -> bool) {
 /// The file name stem of an output pattern: `out/vase_####.exr` gives `out` and `vase`.
 pub fn output_stem(pattern: &str) -> (PathBuf, String) {
     let p = Path::new(pattern);
-    let dir = p
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."))
-        .to_path_buf();
+    let dir = crate::image::parent_dir(p);
     let name = p
         .file_name()
         .map(|n| n.to_string_lossy())
@@ -679,21 +688,7 @@ impl Checkpointer {
             dir: None,
             every: Duration::MAX,
             last: Instant::now(),
-            template: Trailer {
-                format: String::new(),
-                version: VERSION,
-                kind: Kind::Checkpoint,
-                key: RunKey::default(),
-                chunk: None,
-                units: [0, 0],
-                next_unit: 0,
-                log_len: 0,
-                log_records: vec![],
-                records: vec![],
-                progress: Progress::default(),
-                out: String::new(),
-                exr_float: false,
-            },
+            template: Trailer::new(RunKey::default(), None, &(0..=0), String::new(), false),
             log: None,
             partial: None,
             spent: Duration::ZERO,
@@ -717,7 +712,7 @@ impl Checkpointer {
         dir: Option<PathBuf>,
         every: Duration,
         resume: bool,
-        mut template: Trailer,
+        template: Trailer,
     ) -> Result<(Checkpointer, Option<Resumed>)> {
         let mut resumed = None;
         if let Some(d) = &dir {
@@ -791,8 +786,6 @@ impl Checkpointer {
                 Some((f, lp, len, recs))
             }
         };
-        template.format = "reframe-state".into();
-        template.version = VERSION;
         Ok((
             Checkpointer {
                 dir,
@@ -822,7 +815,7 @@ impl Checkpointer {
         &mut self,
         next_unit: u32,
         progress: &Progress,
-        active: &[FrameRecord],
+        active: impl IntoIterator<Item = FrameRecord>,
     ) -> Result<()> {
         let Some(dir) = &self.dir else {
             return Ok(());
@@ -859,7 +852,7 @@ impl Checkpointer {
 
     /// The run is complete: a chunk turns its log into the partial file; the checkpoint goes.
     /// Returns the partial file of a chunk.
-    pub fn finish(mut self, next_unit: u32, progress: &Progress) -> Result<Option<PathBuf>> {
+    pub fn finish(&mut self, next_unit: u32, progress: &Progress) -> Result<Option<PathBuf>> {
         let mut out = None;
         if let (Some((f, lp, _, recs)), Some(partial)) = (self.log.take(), &self.partial) {
             let mut t = self.template.clone();
@@ -921,21 +914,23 @@ impl Run {
         self.earlier_seconds + self.started.elapsed().as_secs_f64()
     }
 
-    /// Checkpoint: `next` is the first unit still to render, `active` the frames in flight.
-    pub fn save(&mut self, next: u32, active: &[FrameRecord]) -> Result<()> {
+    /// Checkpoint at `next` (the first unit still to render), with the frames in flight
+    /// `active`.
+    pub fn save(&mut self, active: impl IntoIterator<Item = FrameRecord>) -> Result<()> {
         self.progress.seconds = self.seconds();
-        self.ckpt.save(next, &self.progress, active)
+        self.ckpt.save(self.next, &self.progress, active)
     }
 
     /// The run is complete: the chunk's partial file, if any (the checkpoint is removed).
     pub fn finish(&mut self) -> Result<Option<PathBuf>> {
         self.progress.seconds = self.seconds();
-        let ckpt = std::mem::replace(&mut self.ckpt, Checkpointer::none());
-        let (spent, written) = (ckpt.spent, ckpt.written);
-        let out = ckpt.finish(self.next, &self.progress);
-        self.ckpt.spent = spent;
-        self.ckpt.written = written;
-        out
+        self.ckpt.finish(self.next, &self.progress)
+    }
+
+    /// Frames finished so far, this process and the ones it resumed: every unit retires its
+    /// first frame (the last unit retires the rest, but a run stopped early never did it).
+    pub fn frames_retired(&self) -> u32 {
+        self.next - self.units.start()
     }
 }
 
@@ -1055,23 +1050,10 @@ mod tests {
             aov: false,
             adaptive: 0.0,
         };
-        let mut t = Trailer {
-            format: "reframe-state".into(),
-            version: VERSION,
-            kind: Kind::Checkpoint,
-            key: key.clone(),
-            chunk: None,
-            units: [0, 7],
-            next_unit: 3,
-            log_len: 0,
-            log_records: vec![],
-            records: vec![],
-            progress: Progress::default(),
-            out: "o_####.exr".into(),
-            exr_float: false,
-        };
+        let mut t = Trailer::new(key.clone(), None, &(0..=7), "o_####.exr".into(), false);
+        t.next_unit = 3;
         let recs = [record(3, true), record(4, true)];
-        write_state(&p, &mut t, &recs).unwrap();
+        write_state(&p, &mut t, recs.clone()).unwrap();
         let mut sf = StateFile::open(&p).unwrap();
         assert_eq!(sf.trailer.next_unit, 3);
         let offs = sf.trailer.records.clone();

@@ -29,7 +29,7 @@ const DIM_PATH: u64 = 8;
 const DIMS_PER_BOUNCE: u64 = 8;
 
 /// Ray counts by kind, for statistics and the rays-per-second figures.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct RayCounts {
     pub primary: u64,
     /// Continuation rays of the random walk (BSDF-sampled), including the one from the first hit.

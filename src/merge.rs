@@ -141,16 +141,12 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
         }
         check_groups(&rec, key.first_frame, key.last_frame, key.window, method)?;
         let fr = finish_record(&rec, &totals, method);
-        let extra: Vec<(&str, Vec<f32>)> = match (fr.spp_eff, fr.lost_share) {
-            (Some(s), Some(l)) => vec![("spp_eff", s), ("lost_reuse", l)],
-            _ => vec![],
-        };
         let path = sink.write(
             *frame,
             (rec.width, rec.height),
             (rec.world_to_camera, rec.world_to_ndc),
             &fr.pixels,
-            &extra,
+            &fr.channels(),
             rec.seconds,
         )?;
         frame_bytes += std::fs::metadata(&path).map_or(0, |m| m.len());

@@ -18,10 +18,10 @@
 //! ```
 use crate::camera::Camera;
 use crate::checkpoint::{
-    hash_exe, hash_scene, remove_stale_tmp, Checkpointer, Chunk, Fnv, FrameRecord, Kind, Progress,
-    RecordData, Run, RunKey, Trailer,
+    hash_exe, hash_scene, remove_stale_tmp, tmp_name, Checkpointer, Chunk, Fnv, FrameRecord,
+    Progress, RecordData, Run, RunKey, Trailer,
 };
-use crate::image::{write_image, Image, Metadata, OutputPattern, WriteOptions};
+use crate::image::{parent_dir, write_image, Image, Metadata, OutputPattern, WriteOptions};
 use crate::integrator::{Integrator, RayCounts, Tally};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
@@ -240,6 +240,20 @@ pub fn tiles(w: u32, h: u32) -> Vec<(u32, u32, u32, u32)> {
     v
 }
 
+/// Copy a tile's values (row by row, as `tiles` gives them) into their place in a `w`-wide frame.
+pub fn place_tile<T: Copy>(
+    frame: &mut [T],
+    w: u32,
+    (x0, y0, x1, _): (u32, u32, u32, u32),
+    values: &[T],
+) {
+    let tw = (x1 - x0) as usize;
+    for (row, v) in values.chunks(tw).enumerate() {
+        let start = ((y0 + row as u32) * w + x0) as usize;
+        frame[start..start + tw].copy_from_slice(v);
+    }
+}
+
 /// A frame range must be non-empty and inside the scene's animation.
 pub fn check_frames(scene: &Scene, range: &RangeInclusive<u32>) -> Result<()> {
     let last = scene.frames - 1;
@@ -373,12 +387,8 @@ pub fn render_frame_independent(
     let mut pixels = vec![Vec3::ZERO; (w * h) as usize];
     let mut counts = RayCounts::default();
     let mut ray_logs = Vec::new();
-    for (&(x0, y0, x1, _), (px, t)) in tiles.iter().zip(results) {
-        let tw = (x1 - x0) as usize;
-        for (i, p) in px.iter().enumerate() {
-            let (tx, ty) = ((i % tw) as u32, (i / tw) as u32);
-            pixels[((y0 + ty) * w + x0 + tx) as usize] = *p;
-        }
+    for (&tile, (px, t)) in tiles.iter().zip(results) {
+        place_tile(&mut pixels, w, tile, &px);
         counts.add(&t.counts);
         ray_logs.extend(t.log);
     }
@@ -573,21 +583,8 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         None => units,
     };
     let (ckpt, resumed) = if opts.checkpoint.is_some() || opts.chunk.is_some() {
-        let template = Trailer {
-            format: String::new(),
-            version: 0,
-            kind: Kind::Checkpoint,
-            key: run_key(scene, opts, &range, (w, h))?,
-            chunk: opts.chunk,
-            units: [*units.start(), *units.end()],
-            next_unit: *units.start(),
-            log_len: 0,
-            log_records: vec![],
-            records: vec![],
-            progress: Progress::default(),
-            out: opts.out.clone(),
-            exr_float: opts.exr_float,
-        };
+        let key = run_key(scene, opts, &range, (w, h))?;
+        let template = Trailer::new(key, opts.chunk, &units, opts.out.clone(), opts.exr_float);
         let every = Duration::from_secs_f64(opts.checkpoint_every.max(0.0));
         Checkpointer::open(opts.checkpoint.clone(), every, opts.resume, template)?
     } else {
@@ -600,14 +597,8 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
                 .clone()
                 .filter_map(|f| Some(out.path(f).file_name()?.to_string_lossy().into_owned()))
                 .collect();
-            if let Some(dir) = out.path(*range.start()).parent() {
-                let dir = if dir.as_os_str().is_empty() {
-                    Path::new(".")
-                } else {
-                    dir
-                };
-                remove_stale_tmp(dir, |n| names.iter().any(|m| m == n));
-            }
+            let dir = parent_dir(&out.path(*range.start()));
+            remove_stale_tmp(&dir, |n| names.iter().any(|m| m == n));
             (r.trailer.progress, r.trailer.next_unit, r.active)
         }
         None => (Progress::default(), *units.start(), vec![]),
@@ -630,43 +621,30 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         },
         out,
     };
-    let frames_before = run.progress.per_frame.len() as u32;
-    let mut frames_done = 0u32;
     let completed = match opts.method {
-        Method::Independent => pool.install(|| {
-            render_independent_run(&integrator, opts, (w, h), &mut run, &sink, &mut frames_done)
-        })?,
+        Method::Independent => {
+            pool.install(|| render_independent_run(&integrator, opts, (w, h), &mut run, &sink))?
+        }
         Method::Havran | Method::Mis | Method::MisExact => {
             let mut emit =
                 |f: u32, cam: &Camera, px: &[Vec3], extra: &[(&str, Vec<f32>)], secs: f64| {
-                    sink.emit(f, cam, px, extra, secs)?;
-                    frames_done += 1;
-                    Ok(())
+                    sink.emit(f, cam, px, extra, secs).map(|_| ())
                 };
             pool.install(|| {
-                crate::reuse::render_reuse_run(
-                    &integrator,
-                    opts,
-                    range.clone(),
-                    w,
-                    h,
-                    &mut run,
-                    active,
-                    &mut emit,
-                )
+                crate::reuse::render_reuse_run(&integrator, opts, w, h, &mut run, active, &mut emit)
             })?
         }
     };
     if !completed {
         return Err(Interrupted {
             checkpoint: run.ckpt.dir().map(Path::to_path_buf),
-            frames_done: frames_before + frames_done,
+            frames_done: run.frames_retired(),
         }
         .into());
     }
     let partial = run.finish()?;
     let seconds = run.progress.seconds;
-    let counts = run.progress.counts();
+    let counts = run.progress.counts;
     let reuse_stats = opts
         .method
         .reuses()
@@ -728,7 +706,6 @@ fn render_independent_run(
     (w, h): (u32, u32),
     run: &mut Run,
     sink: &FrameSink,
-    frames_done: &mut u32,
 ) -> Result<bool> {
     let scene = integrator.scene;
     let (a, b) = (*run.units.start(), *run.units.end());
@@ -739,7 +716,7 @@ fn render_independent_run(
     let total_rays = AtomicU64::new(0);
     for frame in run.next..=b {
         if run.interrupted() {
-            run.save(frame, &[])?;
+            run.save([])?;
             pb.abandon();
             return Ok(false);
         }
@@ -759,7 +736,7 @@ fn render_independent_run(
         let f = render_frame_independent(
             integrator, &cam, frame, opts.spp, opts.seed, false, &on_tile,
         );
-        run.progress.add_counts(&f.counts);
+        run.progress.counts.add(&f.counts);
         let seconds = frame_start.elapsed().as_secs_f64();
         if run.ckpt.chunked() {
             run.ckpt.retire(&FrameRecord {
@@ -783,10 +760,9 @@ fn render_independent_run(
                 f.pixels.iter().filter(|p| !p.is_finite()).count() as u64;
             sink.emit(frame, &cam, &f.pixels, &[], seconds)?;
         }
-        *frames_done += 1;
         run.next = frame + 1;
         if frame < b && run.ckpt.due() {
-            run.save(frame + 1, &[])?;
+            run.save([])?;
         }
     }
     pb.finish_and_clear();
@@ -795,10 +771,7 @@ fn render_independent_run(
 
 /// The stats file's folder must exist and be writable before the render starts.
 pub fn check_stats_path(p: &std::path::Path) -> Result<()> {
-    let dir = p
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(std::path::Path::new("."));
+    let dir = parent_dir(p);
     if !dir.is_dir() {
         bail!(
             "--stats {}: folder {} does not exist",
@@ -806,7 +779,7 @@ pub fn check_stats_path(p: &std::path::Path) -> Result<()> {
             dir.display()
         );
     }
-    crate::image::check_writable_dir(dir).with_context(|| format!("--stats {}", p.display()))
+    crate::image::check_writable_dir(&dir).with_context(|| format!("--stats {}", p.display()))
 }
 
 /// Write JSON atomically (temporary name, then rename).
@@ -817,9 +790,7 @@ pub fn write_json<T: Serialize>(p: &std::path::Path, v: &T) -> Result<()> {
 
 /// Write a file atomically: a temporary name in the same folder, then a rename.
 pub fn write_atomic(p: &std::path::Path, bytes: &[u8]) -> Result<()> {
-    let mut name = p.file_name().unwrap_or_default().to_os_string();
-    name.push(format!(".tmp-{}", std::process::id()));
-    let tmp = p.with_file_name(name);
+    let tmp = tmp_name(p);
     std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
     std::fs::rename(&tmp, p).with_context(|| {
         let _ = std::fs::remove_file(&tmp);

@@ -32,7 +32,7 @@ use crate::camera::Camera;
 use crate::checkpoint::{Checkpointer, FrameRecord, Progress, RecordData, Run};
 use crate::embree::{Packet16, Ray};
 use crate::integrator::{facing, FirstHit, Integrator, RayCounts, Tally};
-use crate::render::{progress_bar, tiles, FrameReuse, Method, RenderOptions};
+use crate::render::{place_tile, progress_bar, tiles, FrameReuse, Method, RenderOptions};
 use crate::sampling::{mix64, Sampler};
 use anyhow::{bail, Result};
 use glam::{Vec2, Vec3};
@@ -379,7 +379,7 @@ pub struct ReuseStats {
 impl ReuseStats {
     pub fn of(p: &Progress, frames: u32) -> ReuseStats {
         ReuseStats {
-            counts: p.counts(),
+            counts: p.counts,
             nonfinite_samples: p.nonfinite_samples,
             mean_effective_spp: p
                 .per_frame
@@ -409,31 +409,21 @@ pub fn render_reuse(
 ) -> Result<ReuseStats> {
     let groups = *range.start()..=range.end() + 1 - opts.window;
     let mut run = Run::new(Checkpointer::none(), groups, Progress::default());
-    render_reuse_run(
-        integrator,
-        opts,
-        range.clone(),
-        w,
-        h,
-        &mut run,
-        vec![],
-        emit,
-    )?;
+    render_reuse_run(integrator, opts, w, h, &mut run, vec![], emit)?;
     Ok(ReuseStats::of(
         &run.progress,
         range.end() - range.start() + 1,
     ))
 }
 
-/// The groups `run.units` of a render of `range`: from `run.next` on, starting from the frames
-/// in flight `active` (a resumed checkpoint's), writing checkpoints as they fall due. Frames that
-/// no later group of the run touches go to `emit`, or, for a chunk, to its partial log. Returns
-/// false if `run.interrupt` stopped it (after a checkpoint at the last finished group).
-#[allow(clippy::too_many_arguments)]
+/// The groups `run.units` (group `g` is frames `g..g + n_f`): from `run.next` on, starting from
+/// the frames in flight `active` (a resumed checkpoint's), writing checkpoints as they fall due.
+/// Frames that no later group of the run touches go to `emit`, or, for a chunk, to its partial
+/// log. Returns false if `run.interrupt` stopped it (after a checkpoint at the last finished
+/// group).
 pub fn render_reuse_run(
     integrator: &Integrator,
     opts: &RenderOptions,
-    range: RangeInclusive<u32>,
     w: u32,
     h: u32,
     run: &mut Run,
@@ -442,8 +432,6 @@ pub fn render_reuse_run(
 ) -> Result<bool> {
     let scene = integrator.scene;
     let n_f = opts.window;
-    let (first, last) = (*range.start(), *range.end());
-    debug_assert!(*run.units.start() >= first && *run.units.end() + n_f - 1 <= last);
     let last_group = *run.units.end();
     let chunked = run.ckpt.chunked();
     let pb = progress_bar(
@@ -461,8 +449,7 @@ pub fn render_reuse_run(
     let mut written = 0;
     for g0 in run.next..=last_group {
         if run.interrupted() {
-            let recs: Vec<FrameRecord> = active.iter().map(FrameAccum::to_record).collect();
-            run.save(g0, &recs)?;
+            run.save(active.iter().map(FrameAccum::to_record))?;
             pb.abandon();
             return Ok(false);
         }
@@ -487,7 +474,7 @@ pub fn render_reuse_run(
             }
             None => (None, RayCounts::default()),
         };
-        run.progress.add_counts(&pilot_rays);
+        run.progress.counts.add(&pilot_rays);
         let group_counts: RayCounts = work
             .par_iter()
             .map(|&(m, t)| {
@@ -509,7 +496,7 @@ pub fn render_reuse_run(
                 a.add(&b);
                 a
             });
-        run.progress.add_counts(&group_counts);
+        run.progress.counts.add(&group_counts);
         run.progress.nonfinite_samples += nonfinite.swap(0, Relaxed);
         for a in active
             .iter_mut()
@@ -541,17 +528,11 @@ pub fn render_reuse_run(
                 });
                 run.progress.nonfinite_pixels +=
                     fr.pixels.iter().filter(|p| !p.is_finite()).count() as u64;
-                let extra: Vec<(&str, Vec<f32>)> = match (fr.spp_eff, fr.lost_share) {
-                    (Some(spp_eff), Some(lost)) => {
-                        vec![("spp_eff", spp_eff), ("lost_reuse", lost)]
-                    }
-                    _ => vec![],
-                };
                 emit(
                     a.frame,
                     &a.cam,
                     &fr.pixels,
-                    &extra,
+                    &fr.channels(),
                     a.started.elapsed().as_secs_f64() + a.earlier_seconds,
                 )?;
             }
@@ -559,8 +540,7 @@ pub fn render_reuse_run(
         }
         run.next = g0 + 1;
         if g0 < last_group && run.ckpt.due() {
-            let recs: Vec<FrameRecord> = active.iter().map(FrameAccum::to_record).collect();
-            run.save(g0 + 1, &recs)?;
+            run.save(active.iter().map(FrameAccum::to_record))?;
         }
         pb.set_message(format!(
             "| {written} frames {}",
@@ -577,6 +557,16 @@ pub struct Finished {
     pub pixels: Vec<Vec3>,
     pub spp_eff: Option<Vec<f32>>,
     pub lost_share: Option<Vec<f32>>,
+}
+
+impl Finished {
+    /// The extra channels as written: `spp_eff` and `lost_reuse` with `--aov`, else none.
+    pub fn channels(&self) -> Vec<(&'static str, Vec<f32>)> {
+        match (&self.spp_eff, &self.lost_share) {
+            (Some(s), Some(l)) => vec![("spp_eff", s.clone()), ("lost_reuse", l.clone())],
+            _ => vec![],
+        }
+    }
 }
 
 /// Whether `method` divides each pixel by the count of samples that landed in it (Havran's and
@@ -712,12 +702,7 @@ fn adaptive_counts(
     let mut counts = vec![vec![0u16; (w * h) as usize]; group.len()];
     let mut rays = RayCounts::default();
     for (&(m, t), (c, r)) in work.iter().zip(per_tile) {
-        let (x0, y0, x1, _) = tile_list[t];
-        let tw = (x1 - x0) as usize;
-        for (i, &n) in c.iter().enumerate() {
-            let (tx, ty) = ((i % tw) as u32, (i / tw) as u32);
-            counts[m][((y0 + ty) * w + x0 + tx) as usize] = n;
-        }
+        place_tile(&mut counts[m], w, tile_list[t], &c);
         rays.add(&r);
     }
     (counts, rays)

@@ -277,7 +277,8 @@ fn path_str(path: &Path) -> Result<&str> {
     })
 }
 
-fn parent_dir(path: &Path) -> PathBuf {
+/// The folder of `path`, `.` for a bare file name.
+pub fn parent_dir(path: &Path) -> PathBuf {
     match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
