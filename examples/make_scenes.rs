@@ -22,6 +22,9 @@
 //! consistent with the face normal, emitters facing the intended way,
 //! `Kd + Ks <= 1` per channel. It exits with an error if any check fails.
 
+#[path = "../tests/stress_room/mod.rs"]
+mod stress_room;
+
 use std::collections::BTreeMap;
 use std::f64::consts::PI;
 use std::fmt::Write as _;
@@ -684,7 +687,8 @@ fn stress_room_scene() -> Scene {
         emitter("light", [0.65, 0.65, 0.65], [6.0, 6.0, 6.0]),
     ];
     let mut o = Obj::new(header, "occluders.mtl");
-    let (x0, x1, y1, z0, z1) = (-9.0, 9.0, 3.0, -3.0, 7.0);
+    use stress_room::{BACK_PILLARS, FRONT_PILLARS, PILLAR, X0, X1, Y1, Z0, Z1};
+    let (x0, x1, y1, z0, z1) = (X0, X1, Y1, Z0, Z1);
     o.object("floor", "floor");
     o.quad(
         [[x0, 0.0, z0], [x1, 0.0, z0], [x1, 0.0, z1], [x0, 0.0, z1]],
@@ -710,12 +714,12 @@ fn stress_room_scene() -> Scene {
     side_wall(&mut o, x1, (0.0, y1), (z0, z1), -1.0);
     // Pillars stand on the floor and touch the ceiling: side faces only.
     o.object("back_pillars", "back_pillar");
-    for k in 0..18 {
-        o.block(-8.5 + k as f64, -1.0, 0.0, y1, 0.3, 0.3, 0.0, false, false);
+    for (x, z) in BACK_PILLARS.centres() {
+        o.block(x, z, 0.0, y1, PILLAR, PILLAR, 0.0, false, false);
     }
     o.object("front_pillars", "front_pillar");
-    for k in 0..17 {
-        o.block(-8.0 + k as f64, 5.0, 0.0, y1, 0.3, 0.3, 0.0, false, false);
+    for (x, z) in FRONT_PILLARS.centres() {
+        o.block(x, z, 0.0, y1, PILLAR, PILLAR, 0.0, false, false);
     }
     o.object("light", "light");
     ceiling_light(&mut o, [0.0, 2.99, 2.0], 16.0, 0.5);

@@ -2,7 +2,7 @@
 //!
 //! A `Camera` generates primary rays and, for frame reuse, does the reverse: projects a surface
 //! point into its film (`project`) and gives the film-to-surface Jacobian `J(x)` that turns a
-//! uniform density on the film into an area density on the surface (ESTIMATOR.md, `J_m(x)`).
+//! uniform density on the film into an area density on the surface (docs/estimators.md, "The camera's area density").
 //! The film sits at focal distance `f = 1` in front of the eye; raster coordinates run from
 //! (0, 0) at the top-left corner to (width, height).
 //!
@@ -99,7 +99,7 @@ impl Camera {
         self.film_area() / (self.width as f32 * self.height as f32)
     }
 
-    /// `dA_film / dA_x = f^2 cos_x / (cos_t^3 d^2)` (ESTIMATOR.md, J_m), without the visibility
+    /// `dA_film / dA_x = f^2 cos_x / (cos_t^3 d^2)` (docs/estimators.md, `J`), without the visibility
     /// and inside-the-film factors, for a point `x` with unit geometric normal `n` that is in
     /// front of the eye.
     #[inline]

@@ -1,7 +1,7 @@
 //! The independent path tracer, split at the first hit so that frame reuse can consume it.
 //!
 //! `trace_first_hit` follows one camera sample to its primary hit `x` and gathers, once, all that
-//! the paper reuses across eyes (ESTIMATOR.md, "native sample"): the BSDF-sampled direction `w`
+//! the paper reuses across eyes (docs/estimators.md, "Notation"): the BSDF-sampled direction `w`
 //! with the radiance arriving along it, split into the emitter reached directly (`le_w`) and the
 //! rest of the random walk (`li_w`), and one light sample at `x`. `FirstHit::radiance` then
 //! shades that record for any eye: for the eye that generated it this is the ordinary path-traced
@@ -10,7 +10,7 @@
 //! Direct light at every vertex combines next-event estimation and BSDF sampling with the
 //! balance heuristic (Veach 1997, eq. 9.13): a light sample contributes `f cos Le / (p_l + p_b)`,
 //! an emitter hit by the BSDF direction `f cos Le / (p_b + p_l)`, which is the form whose
-//! denominator the reuse estimator extends over the eyes of a group (ESTIMATOR.md, `Q_dir`).
+//! denominator the reuse estimator extends over the eyes of a group (docs/estimators.md, "Direct light and self-emission").
 //! Paths end by Russian roulette after `RR_DEPTH` bounces, or at `max_depth`.
 use crate::bsdf::Material;
 use crate::embree::{Hit, Ray};
@@ -105,7 +105,7 @@ pub struct FirstLight {
 }
 
 /// The primary hit of a camera sample and everything gathered there that does not depend on
-/// the eye (ESTIMATOR.md's native sample), plus the generating eye's BSDF density.
+/// the eye (docs/estimators.md's native sample), plus the generating eye's BSDF density.
 #[derive(Clone, Copy, Debug)]
 pub struct FirstHit {
     pub sp: SurfacePoint,

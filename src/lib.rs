@@ -2,22 +2,32 @@
 //! neighbouring frames ("Reusing frames in camera animation", Méndez-Feliu, Sbert,
 //! Szirmay-Kalos 2006), measured against an independent path tracer.
 //!
-//! The architecture, one concept per module: `camera`, `scene` (loading, materials, lights),
-//! `bsdf`, `sampling`, `embree` (the only unsafe module besides the image bridge), `image` (film
-//! output through OpenImageIO), `integrator` (the independent tracer and its first-hit record), `reuse` (the frame-reuse methods),
-//! `render` (the driver: frame loop, tiles, progress, files), `bench` (the cost model's terms),
-//! `compare` (reference, errors, flicker, equal-error speed-ups) and `chart` (SVG and PNG charts).
-pub mod bench;
+//! The architecture, one concept per module, with arrows pointing down only:
+//!
+//! ```text
+//! main.rs, cli.rs        the command line: clap structs, summaries, dispatch
+//! eval/                  bench, reference, errors and fits, compare, charts
+//! driver/                options and their validation, the frame loops, runs and signals,
+//!                        frame files, --stats, merge
+//! state/                 the state-file format, run key and chunks, checkpoints
+//! reuse/                 the method registry, the weights (each equation once), the kernel,
+//!                        visibility, adaptive counts
+//! film/                  fixed-point sums, frame accumulators, develop, tiles
+//! integrator             the path tracer and its first-hit record
+//! scene/                 loading, materials, lights, surface points
+//! camera, bsdf, sampling, embree, image     the leaves (embree and image hold the unsafe FFI)
+//! util/                  hashes, atomic files, memory figures
+//! ```
 pub mod bsdf;
 pub mod camera;
-pub mod chart;
-pub mod checkpoint;
-pub mod compare;
+pub mod driver;
 pub mod embree;
+pub mod eval;
+pub mod film;
 pub mod image;
 pub mod integrator;
-pub mod merge;
-pub mod render;
 pub mod reuse;
 pub mod sampling;
 pub mod scene;
+pub mod state;
+pub mod util;

@@ -1,20 +1,9 @@
 //! `reframe bench`, `reframe reference` and `reframe compare` end to end, at small sizes.
+mod common;
+
+use common::reframe_ok as reframe;
 use serde_json::Value;
 use std::path::Path;
-use std::process::Command;
-
-fn reframe(args: &[&str]) -> std::process::Output {
-    let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "reframe {args:?}: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    o
-}
 
 fn json(p: &Path) -> Value {
     serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
@@ -155,10 +144,7 @@ fn compare_rejects_bad_settings_before_rendering() {
         let mut a = vec!["compare", "cornell", "--res", "40x40", "--out"];
         a.push(out.to_str().unwrap());
         a.extend(args);
-        let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
-            .args(&a)
-            .output()
-            .unwrap();
+        let o = common::reframe(&a).output().unwrap();
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success(), "{a:?} succeeded");
         assert!(err.contains(needle), "{a:?}: {err}");

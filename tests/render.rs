@@ -1,10 +1,12 @@
 //! End-to-end checks of the independent path tracer: the analytic furnace, determinism across
 //! thread counts, and what a render leaves on disk (frames, metadata, statistics).
+mod common;
+
+use common::{assert_identical, reframe_ok};
+use reframe::driver::{render, render_frame_independent, thread_pool, RenderOptions};
 use reframe::embree::Device;
 use reframe::integrator::Integrator;
-use reframe::render::{render, render_frame_independent, thread_pool, RenderOptions};
 use reframe::scene::Scene;
-use std::process::Command;
 
 /// Inside a closed sphere of albedo 0.5 and emission 0.5 the radiance is 1 everywhere
 /// (L = Le + rho L). The mean of the image must be 1 within a tight tolerance, and so must every
@@ -121,38 +123,28 @@ fn render_writes_frames_metadata_and_stats() {
     assert_eq!(names, ["c_0003.exr", "c_0004.exr", "stats.json"]);
 }
 
-/// Run `reframe render ARGS --threads T --out DIR/tT_####.exr` for 1 and 2 threads (extra
-/// `{t}` in an argument is replaced by the thread count), then assert that frames `frames` are
-/// bitwise identical between the two runs. Returns the 1-thread frames.
+/// Run `reframe render ARGS --threads T --out DIR/tT/f_####.exr` for 1 and 2 threads (`{t}` in
+/// an argument is replaced by the thread count, `{dir}` by `d`), then assert that frames
+/// `frames` are bitwise identical between the two runs. Returns the 1-thread frames.
 fn render_with_1_and_2_threads(
     d: &std::path::Path,
     args: &[&str],
     frames: std::ops::RangeInclusive<u32>,
 ) -> Vec<reframe::image::Image> {
     for t in ["1", "2"] {
-        let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
-            .arg("render")
-            .args(args.iter().map(|a| {
-                a.replace("{t}", t)
-                    .replace("{dir}", &d.display().to_string())
-            }))
-            .args(["--exr-float", "--threads", t, "--out"])
-            .arg(d.join(format!("t{t}_####.exr")))
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let mut all: Vec<String> = vec!["render".into()];
+        all.extend(args.iter().map(|a| {
+            a.replace("{t}", t)
+                .replace("{dir}", &d.display().to_string())
+        }));
+        let out = d.join(format!("t{t}/f_####.exr")).display().to_string();
+        all.extend(["--exr-float", "--threads", t, "--out", &out].map(String::from));
+        reframe_ok(&all);
     }
-    frames
-        .map(|f| {
-            let a = reframe::image::read_image(&d.join(format!("t1_{f:04}.exr"))).unwrap();
-            let b = reframe::image::read_image(&d.join(format!("t2_{f:04}.exr"))).unwrap();
-            assert_eq!(
-                a.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-                b.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-                "frame {f} differs between 1 and 2 threads"
-            );
-            a
-        })
+    let names = || frames.clone().map(|f| format!("f_{f:04}.exr"));
+    assert_identical(&d.join("t1"), &d.join("t2"), names());
+    names()
+        .map(|n| reframe::image::read_image(&d.join("t1").join(n)).unwrap())
         .collect()
 }
 

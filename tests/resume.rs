@@ -1,42 +1,22 @@
 //! Renders that survive interruption, and renders split into chunks: a killed (SIGKILL) or
 //! interrupted (SIGINT, SIGTERM) render resumed with `--resume`, and chunks 1..N merged with
 //! `reframe merge`, must give frames bitwise identical to one uninterrupted process.
+mod common;
+
+use common::reframe_ok as run;
 use reframe::image::read_image;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output};
+use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
+/// The `reframe` command, arguments to come.
 fn reframe() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_reframe"))
-}
-
-fn run(args: &[&str]) -> Output {
-    let o = reframe().args(args).output().unwrap();
-    assert!(
-        o.status.success(),
-        "reframe {args:?}: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    o
+    common::reframe::<&str>(&[])
 }
 
 /// Every frame of `frames` in `a` and `b`: the same channels and the same bits.
 fn assert_identical(a: &Path, b: &Path, frames: std::ops::RangeInclusive<u32>) {
-    for f in frames {
-        let name = format!("f_{f:04}.exr");
-        let (x, y) = (
-            read_image(&a.join(&name)).unwrap(),
-            read_image(&b.join(&name)).unwrap(),
-        );
-        assert_eq!(x.channels, y.channels, "{name}");
-        let bits = |v: &[f32]| v.iter().map(|p| p.to_bits()).collect::<Vec<_>>();
-        let differ = bits(&x.data)
-            .iter()
-            .zip(bits(&y.data))
-            .filter(|(p, q)| **p != *q)
-            .count();
-        assert_eq!(differ, 0, "{name}: {differ} values differ");
-    }
+    common::assert_identical(a, b, frames.map(|f| format!("f_{f:04}.exr")));
 }
 
 fn leftovers(d: &Path) -> Vec<PathBuf> {

@@ -1,21 +1,25 @@
-//! Statistical and structural tests of frame reuse (ESTIMATOR.md): window 1 is the independent
+//! Statistical and structural tests of frame reuse (docs/estimators.md): window 1 is the independent
 //! tracer, the MIS weights of a sample's eyes sum to one, `mis-exact` is unbiased on a glossy
 //! scene with occlusion and a zooming camera while Havran's reuse is caught biased, and on a
 //! diffuse scene without occlusion all reuse methods agree.
+mod common;
 mod stats;
 
+use common::render_in_memory;
 use glam::Vec3;
 use reframe::camera::Camera;
+use reframe::driver::{render_frame_independent, thread_pool, RenderOptions};
 use reframe::embree::Device;
+use reframe::film::Developed;
 use reframe::integrator::Integrator;
-use reframe::render::{render_frame_independent, thread_pool, Method, RenderOptions};
-use reframe::reuse::{denominators, render_reuse, EyeTerms};
+use reframe::reuse::weights::{indirect_weights, EyeTerms};
+use reframe::reuse::Method;
 use reframe::sampling::Sampler;
 use reframe::scene::Scene;
 use stats::{block_moments, z_pass_fraction};
 use std::collections::BTreeMap;
 
-/// Render frames `a..=b` with a reuse method in memory: frame -> pixels.
+/// Render frames `a..=b` at `w` x `h` with a reuse method in memory: frame -> pixels.
 #[allow(clippy::too_many_arguments)]
 fn reuse_frames(
     integ: &Integrator,
@@ -38,12 +42,11 @@ fn reuse_frames(
     };
     reuse_render(integ, &opts, a, b, w, h)
         .into_iter()
-        .map(|(f, (px, _))| (f, px))
+        .map(|(f, d)| (f, d.pixels()))
         .collect()
 }
 
-/// Render frames `a..=b` with `opts` in memory: frame -> (pixels, extra channels).
-type Channels = Vec<(String, Vec<f32>)>;
+/// Render frames `a..=b` at `w` x `h` with `opts` in memory: frame -> developed frame.
 fn reuse_render(
     integ: &Integrator,
     opts: &RenderOptions,
@@ -51,22 +54,13 @@ fn reuse_render(
     b: u32,
     w: u32,
     h: u32,
-) -> BTreeMap<u32, (Vec<Vec3>, Channels)> {
-    let mut frames = BTreeMap::new();
-    let mut emit = |f: u32, _: &Camera, px: &[Vec3], extra: &[(&str, Vec<f32>)], _: f64| {
-        let extra = extra
-            .iter()
-            .map(|(n, v)| (n.to_string(), v.clone()))
-            .collect();
-        frames.insert(f, (px.to_vec(), extra));
-        Ok(())
+) -> BTreeMap<u32, Developed> {
+    let opts = RenderOptions {
+        frames: Some(a..=b),
+        resolution: Some((w, h)),
+        ..opts.clone()
     };
-    let stats = render_reuse(integ, opts, a..=b, w, h, &mut emit).unwrap();
-    assert_eq!(stats.nonfinite_samples, 0, "non-finite contributions");
-    for (px, _) in frames.values() {
-        assert!(px.iter().all(|p| p.is_finite()), "non-finite pixel");
-    }
-    frames
+    render_in_memory(integ, &opts).0
 }
 
 #[test]
@@ -93,8 +87,9 @@ fn window_one_is_the_independent_tracer() {
     }
 }
 
-/// Each eye's weight as the generating technique, computed from its own Jacobian and pdf, must
-/// sum to one with the denominator the estimator uses.
+/// The balance weights the estimator gives a sample's eyes (as the generating technique of its
+/// BSDF direction) sum to one, for the exact densities and for approximation (10), whenever some
+/// eye of the group sees the hit.
 #[test]
 fn mis_weights_sum_to_one() {
     let device = Device::new().unwrap();
@@ -112,45 +107,33 @@ fn mis_weights_sum_to_one() {
         let Some(fh) = integ.trace_first_hit(cam.eye, cam.direction(r), &mut s, &mut t) else {
             continue;
         };
-        let Some(wdir) = fh.w else { continue };
-        // Pretend every eye that has x on its film sees it (visibility is a 0/1 factor of D).
+        if fh.w.is_none() {
+            continue;
+        }
+        // Pretend every eye that has x on its film sees it (visibility is a 0/1 factor of D),
+        // with uneven native counts, as adaptive sampling makes them.
         let terms: Vec<EyeTerms> = eyes
             .iter()
-            .map(|e| {
-                let wo = (e.eye - fh.sp.p).normalize();
-                let j = if e.project(fh.sp.p).is_some() {
+            .enumerate()
+            .map(|(k, e)| EyeTerms {
+                wo: (e.eye - fh.sp.p).normalize(),
+                j_over_a: if e.project(fh.sp.p).is_some() {
                     e.jacobian(fh.sp.p, fh.sp.ng) / e.pixel_area()
                 } else {
                     0.0
-                };
-                EyeTerms {
-                    wo,
-                    j_over_a: j,
-                    n: spp as f32,
-                }
+                },
+                n: (spp + k as u32 % 3) as f32,
             })
             .collect();
-        let m = scene.material(&fh.sp);
-        for exact in [true, false] {
-            let q = denominators(&integ, &fh, &terms, spp, exact);
-            let mut sum = 0.0f64;
-            for &EyeTerms {
-                wo, j_over_a: j, ..
-            } in &terms
-            {
-                if j == 0.0 {
-                    continue;
-                }
-                let (ng, ns) = reframe::integrator::facing(&fh.sp, wo);
-                let p = if ng.dot(wdir) > 0.0 {
-                    m.pdf(ns, wo, wdir)
-                } else {
-                    0.0
-                };
-                let d = if exact { spp as f32 * j } else { spp as f32 };
-                sum += (d * p) as f64 / q.ind as f64;
+        for method in [Method::MisExact, Method::Mis] {
+            let weights = indirect_weights(&integ, &fh, &terms, spp, method.weights());
+            assert!(weights.iter().all(|w| (0.0..=1.0 + 1e-6).contains(w)));
+            let sum: f64 = weights.iter().map(|&w| w as f64).sum();
+            assert!((sum - 1.0).abs() < 1e-5, "{method:?}: weights sum to {sum}");
+            // An eye that cannot see x never takes weight.
+            for (wk, e) in weights.iter().zip(&terms) {
+                assert!(e.j_over_a > 0.0 || *wk == 0.0);
             }
-            assert!((sum - 1.0).abs() < 1e-5, "weights sum to {sum}");
         }
         tested += 1;
     }
@@ -218,7 +201,7 @@ fn mis_exact_is_unbiased_and_havran_is_not() {
                 reuse_render(&integ, &opts, a, z, w, h)
                     .remove(&target)
                     .unwrap()
-                    .0
+                    .pixels()
             })
         })
         .collect();
@@ -330,7 +313,7 @@ fn adaptive_evens_out(scene: &str, (a, z, target): (u32, u32, u32)) {
     let k = 48;
     let run = |adaptive: Option<f32>| {
         let start = std::time::Instant::now();
-        let renders: Vec<(Vec<Vec3>, Channels)> = (0..k)
+        let renders: Vec<Developed> = (0..k)
             .map(|s| {
                 let opts = RenderOptions {
                     method: Method::MisExact,
@@ -357,20 +340,20 @@ fn adaptive_evens_out(scene: &str, (a, z, target): (u32, u32, u32)) {
     let lum = |p: Vec3| (0.2126 * p.x + 0.7152 * p.y + 0.0722 * p.z) as f64;
     // Relative variance per pixel, var / (mean^2 + 0.01): the noise as seen, whatever the
     // pixel's brightness (the relMSE of `compare`).
-    let variance = |r: &[(Vec<Vec3>, Channels)]| -> Vec<f64> {
+    let variance = |r: &[Developed]| -> Vec<f64> {
         (0..n)
             .map(|i| {
-                let v: Vec<f64> = r.iter().map(|(px, _)| lum(px[i])).collect();
+                let v: Vec<f64> = r.iter().map(|d| lum(d.rgb(i))).collect();
                 let m = v.iter().sum::<f64>() / v.len() as f64;
                 let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (v.len() - 1) as f64;
                 var / (m * m + 0.01)
             })
             .collect()
     };
-    let spp_eff = |r: &[(Vec<Vec3>, Channels)]| -> Vec<f32> {
+    let spp_eff = |r: &[Developed]| -> Vec<f32> {
         let mut sum = vec![0.0f32; n];
-        for (_, ch) in r {
-            let e = &ch.iter().find(|(n, _)| n == "spp_eff").unwrap().1;
+        for d in r {
+            let e = d.channel("spp_eff").expect("an spp_eff channel");
             sum.iter_mut()
                 .zip(e)
                 .for_each(|(s, v)| *s += v / r.len() as f32);

@@ -6,7 +6,9 @@
 //!
 //! Needs root and the packages `./setup.sh --tests` installs; `REFRAME_SKIP_SLURM=1` skips it
 //! (loudly) on a machine without them.
-use reframe::image::read_image;
+mod common;
+
+use common::{assert_identical, reframe, reframe_ok};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -114,15 +116,6 @@ fn submit(c: &Cluster, logs: &Path, more: &[&str], render: &[String]) -> (String
     (it.next().unwrap(), it.next().unwrap())
 }
 
-fn pixels(p: &Path) -> Vec<u32> {
-    read_image(p)
-        .unwrap()
-        .data
-        .iter()
-        .map(|v| v.to_bits())
-        .collect()
-}
-
 #[test]
 fn slurm_array_and_merge_match_one_process() {
     if std::env::var_os("REFRAME_SKIP_SLURM").is_some() {
@@ -149,14 +142,10 @@ fn slurm_array_and_merge_match_one_process() {
     .map(|s| s.to_string())
     .collect();
     let one = d.join("one");
-    let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
-        .arg("render")
-        .args(&render)
-        .arg("--out")
-        .arg(one.join("f_####.exr"))
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut one_args = vec!["render".to_string()];
+    one_args.extend(render.iter().cloned());
+    one_args.extend(["--out".into(), one.join("f_####.exr").display().to_string()]);
+    reframe_ok(&one_args);
 
     let cluster = Cluster::start(&d.join("cluster"));
     let out = d.join("array");
@@ -176,13 +165,7 @@ fn slurm_array_and_merge_match_one_process() {
         let l = log(&format!("chunk-{chunks}_{k}.log"));
         assert!(l.contains(&format!("chunk {k}/3")), "chunk {k} log: {l}");
     }
-    for f in 20..=28 {
-        let name = format!("f_{f:04}.exr");
-        assert!(
-            pixels(&one.join(&name)) == pixels(&out.join(&name)),
-            "{name} differs from the one-process render"
-        );
-    }
+    assert_identical(&one, &out, (20..=28).map(|f| format!("f_{f:04}.exr")));
 
     // A lost chunk: the merge refuses, naming it; resubmitted alone, it merges again.
     let lost = out.join("f.chunk-2-of-3.partial");
@@ -190,8 +173,7 @@ fn slurm_array_and_merge_match_one_process() {
     for f in 20..=28 {
         std::fs::remove_file(out.join(format!("f_{f:04}.exr"))).unwrap();
     }
-    let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
-        .args(["merge", "--chunks", "3", "--out"])
+    let o = reframe(&["merge", "--chunks", "3", "--out"])
         .arg(out.join("f_####.exr"))
         .output()
         .unwrap();
@@ -205,13 +187,7 @@ fn slurm_array_and_merge_match_one_process() {
     let states = cluster.wait(&[&chunks, &merge], Duration::from_secs(180));
     assert_eq!(states, ["COMPLETED", "COMPLETED"], "resubmission");
     assert!(lost.exists());
-    for f in 20..=28 {
-        let name = format!("f_{f:04}.exr");
-        assert!(
-            pixels(&one.join(&name)) == pixels(&out.join(&name)),
-            "{name}"
-        );
-    }
+    assert_identical(&one, &out, (20..=28).map(|f| format!("f_{f:04}.exr")));
     drop(cluster);
     // Every daemon is gone.
     for pid in ["munged", "slurmctld", "slurmd"] {

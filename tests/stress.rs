@@ -19,15 +19,19 @@
 //!
 //! The z-tests of `havran` and `mis` are printed (run with `--nocapture`), not asserted: their
 //! bias is the point of the README's table, not an invariant.
+mod common;
 mod stats;
+mod stress_room;
 
+use common::render_in_memory;
 use glam::{Vec2, Vec3};
 use reframe::camera::Camera;
+use reframe::driver::{render_frame_independent, thread_pool, RenderOptions};
 use reframe::embree::{Device, Ray};
 use reframe::integrator::Integrator;
-use reframe::render::{render_frame_independent, thread_pool, Method, RenderOptions};
-use reframe::reuse::{render_reuse, ReuseStats};
+use reframe::reuse::Method;
 use reframe::scene::Scene;
+use reframe::state::checkpoint::Counters;
 use stats::{block_moments, z_test, Moments};
 use std::collections::BTreeMap;
 use std::ops::RangeInclusive;
@@ -50,7 +54,6 @@ fn load(name: &str, device: &Device) -> Scene {
 
 /// One frame of a reuse run: pixels and the `--aov` channels.
 struct Frame {
-    px: Vec<Vec3>,
     spp_eff: Vec<f32>,
     lost: Vec<f32>,
 }
@@ -63,52 +66,39 @@ fn reuse(
     spp: u32,
     seed: u64,
     range: RangeInclusive<u32>,
-) -> (BTreeMap<u32, Frame>, ReuseStats) {
+) -> (BTreeMap<u32, Frame>, Counters) {
     let opts = RenderOptions {
         method,
         window: N_F,
         spp,
         seed,
         aov: true,
+        frames: Some(range),
+        resolution: Some((W, H)),
         progress: false,
         ..RenderOptions::default()
     };
-    let mut frames = BTreeMap::new();
-    let mut emit = |f: u32, _: &Camera, px: &[Vec3], extra: &[(&str, Vec<f32>)], _: f64| {
-        let channel = |name: &str| {
-            extra
-                .iter()
-                .find(|(n, _)| *n == name)
-                .map(|(_, v)| v.clone())
-                .unwrap_or_else(|| panic!("no {name} channel"))
-        };
-        frames.insert(
-            f,
-            Frame {
-                px: px.to_vec(),
+    let (frames, stats) = render_in_memory(integ, &opts);
+    let frames = frames
+        .into_iter()
+        .map(|(f, d)| {
+            let channel = |name: &str| {
+                d.channel(name)
+                    .unwrap_or_else(|| panic!("no {name} channel"))
+            };
+            let frame = Frame {
                 spp_eff: channel("spp_eff"),
                 lost: channel("lost_reuse"),
-            },
-        );
-        Ok(())
-    };
-    let stats = render_reuse(integ, &opts, range, W, H, &mut emit).unwrap();
-    assert_eq!(
-        stats.nonfinite_samples, 0,
-        "{method:?}: non-finite contributions"
-    );
-    for (f, fr) in &frames {
-        assert!(
-            fr.px.iter().all(|p| p.is_finite()),
-            "{method:?} frame {f}: non-finite pixel"
-        );
-    }
+            };
+            (f, frame)
+        })
+        .collect();
     (frames, stats)
 }
 
 /// Every method over every frame of the scene at 1 sample per pixel: no NaN or Inf anywhere.
 /// Returns the `mis-exact` run (its `--aov` channels and statistics).
-fn every_method_is_finite(scene: &Scene, integ: &Integrator) -> (BTreeMap<u32, Frame>, ReuseStats) {
+fn every_method_is_finite(scene: &Scene, integ: &Integrator) -> (BTreeMap<u32, Frame>, Counters) {
     for f in 0..scene.frames {
         let px = render_frame_independent(integ, &scene.camera(f, W, H), f, 1, 3, false, &|_| {});
         assert!(
@@ -154,22 +144,12 @@ fn z_runs(scene: &Scene, integ: &Integrator, target: u32, methods: &[Method]) ->
                             window: N_F,
                             spp: 2,
                             seed: s,
+                            frames: Some(target - n..=target + n),
+                            resolution: Some((W, H)),
                             progress: false,
                             ..RenderOptions::default()
                         };
-                        let mut out = Vec::new();
-                        let mut emit =
-                            |f: u32, _: &Camera, px: &[Vec3], _: &[(&str, Vec<f32>)], _: f64| {
-                                if f == target {
-                                    out = px.to_vec();
-                                }
-                                Ok(())
-                            };
-                        let st =
-                            render_reuse(integ, &opts, target - n..=target + n, W, H, &mut emit)
-                                .unwrap();
-                        assert_eq!(st.nonfinite_samples, 0);
-                        out
+                        render_in_memory(integ, &opts).0[&target].pixels()
                     })
                 })
                 .collect();
@@ -235,8 +215,9 @@ fn column_means(v: &[f32]) -> Vec<f64> {
 
 // ------------------------------------------------------------------ the room in plan
 
-/// The stress room of `examples/make_scenes.rs` in plan (x, z): 0.3 m pillars centred at z = -1
-/// (x = -8.5, -7.5, ..., 8.5) and at z = 5 (x = -8, ..., 8), walls at z = -3, z = 7, x = +-9.
+/// The stress room of `examples/make_scenes.rs` in plan (x, z), from the numbers both share
+/// (`tests/stress_room`): 0.3 m pillars centred at z = -1 (x = -8.5, -7.5, ..., 8.5) and at z = 5
+/// (x = -8, ..., 8), walls at z = -3, z = 7, x = +-9.
 struct Plan {
     /// Pillars as (x0, x1, z0, z1).
     pillars: Vec<[f32; 4]>,
@@ -247,12 +228,13 @@ const SUB: u32 = 16;
 
 impl Plan {
     fn room() -> Plan {
-        let h = 0.15;
-        let back = (0..18).map(|k| (-8.5 + k as f32, -1.0));
-        let front = (0..17).map(|k| (-8.0 + k as f32, 5.0));
+        let h = (stress_room::PILLAR / 2.0) as f32;
+        let rows = [stress_room::BACK_PILLARS, stress_room::FRONT_PILLARS];
         Plan {
-            pillars: back
-                .chain(front)
+            pillars: rows
+                .iter()
+                .flat_map(|r| r.centres())
+                .map(|(x, z)| (x as f32, z as f32))
                 .map(|(x, z)| [x - h, x + h, z - h, z + h])
                 .collect(),
         }
@@ -278,7 +260,9 @@ impl Plan {
     /// First surface met from `o` along `d`.
     fn cast(&self, o: Vec2, d: Vec2) -> Vec2 {
         let mut t = f32::INFINITY;
-        for (c, dc, walls) in [(o.x, d.x, [-9.0, 9.0]), (o.y, d.y, [-3.0, 7.0])] {
+        use stress_room::{X0, X1, Z0, Z1};
+        let (xs, zs) = ([X0 as f32, X1 as f32], [Z0 as f32, Z1 as f32]);
+        for (c, dc, walls) in [(o.x, d.x, xs), (o.y, d.y, zs)] {
             for wall in walls {
                 let tw = (wall - c) / dc;
                 if tw > 0.0 {

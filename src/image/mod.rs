@@ -20,11 +20,11 @@ mod bridge;
 use std::fmt;
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use anyhow::{anyhow, bail, Result};
 use rayon::prelude::*;
 
+use crate::util::fs::{check_writable_dir, parent_dir, unique};
 use bridge::ffi;
 
 /// A float image, interleaved channels, row-major, top row first.
@@ -275,38 +275,6 @@ fn path_str(path: &Path) -> Result<&str> {
             path.display()
         )
     })
-}
-
-/// The folder of `path`, `.` for a bare file name.
-pub fn parent_dir(path: &Path) -> PathBuf {
-    match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    }
-}
-
-/// Fail unless a file can be created (and removed) in `dir`: creates and deletes a probe file.
-pub fn check_writable_dir(dir: &Path) -> Result<()> {
-    let probe = dir.join(format!(
-        ".reframe-probe-{}-{}",
-        std::process::id(),
-        unique()
-    ));
-    fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&probe)
-        .map_err(|e| anyhow!("cannot create files in folder {}: {e}", dir.display()))?;
-    fs::remove_file(&probe)
-        .map_err(|e| anyhow!("cannot delete probe file {}: {e}", probe.display()))?;
-    Ok(())
-}
-
-/// Distinguishes temporary and probe files of concurrent writers within this process (the pid
-/// distinguishes processes).
-fn unique() -> u64 {
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    COUNTER.fetch_add(1, Ordering::Relaxed)
 }
 
 /// Deletes the temporary file on every way out of `write_image` except success.

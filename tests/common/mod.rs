@@ -1,6 +1,13 @@
-//! Running the real binary on bad input, shared by the corpus (`tests/bad_input.rs`) and the
-//! mutation test (`tests/mutants.rs`): one run with a time limit, and the rules a failed run
-//! must follow.
+//! What the integration tests share: one way to run the real binary (`reframe_ok` for runs that
+//! must succeed, `run_reframe` with a time limit for bad input, and the rules a failed run must
+//! follow), one in-memory render (`render_in_memory`), and one bitwise comparison of frame files
+//! (`assert_identical`). Each test file uses a part of it.
+#![allow(dead_code)]
+use reframe::driver::{render_frames, RenderOptions};
+use reframe::film::{Developed, MemorySink};
+use reframe::integrator::Integrator;
+use reframe::state::checkpoint::Counters;
+use std::collections::BTreeMap;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -115,4 +122,68 @@ pub fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec
     });
     out.sort_by_key(|(i, _)| *i);
     out.into_iter().map(|(_, r)| r).collect()
+}
+
+/// The `reframe` command with `args`, ready to run (standard input closed).
+pub fn reframe<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_reframe"));
+    c.args(args).stdin(Stdio::null());
+    c
+}
+
+/// Run `reframe` with `args`; fail the test, showing its stderr, unless it succeeds.
+pub fn reframe_ok<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> std::process::Output {
+    let o = reframe(args).output().expect("start reframe");
+    assert!(
+        o.status.success(),
+        "reframe {:?} failed: {}",
+        args.iter()
+            .map(|a| a.as_ref().to_owned())
+            .collect::<Vec<_>>(),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    o
+}
+
+/// Render `opts` in memory (frames, resolution and all: see `RenderOptions`) with `integ`:
+/// frame -> developed frame, and the run's counters. Fails the test if a contribution or a
+/// pixel came out NaN or infinite.
+pub fn render_in_memory(
+    integ: &Integrator,
+    opts: &RenderOptions,
+) -> (BTreeMap<u32, Developed>, Counters) {
+    let mut sink = MemorySink::default();
+    let counters = render_frames(integ, opts, &mut sink).expect("render in memory");
+    assert_eq!(
+        counters.nonfinite_samples, 0,
+        "{:?}: non-finite contributions",
+        opts.method
+    );
+    for (f, d) in &sink.0 {
+        assert_eq!(
+            d.nonfinite, 0,
+            "{:?} frame {f}: non-finite pixel",
+            opts.method
+        );
+    }
+    (sink.0, counters)
+}
+
+/// Assert that the frame files `names` are bitwise identical in folders `a` and `b`: the same
+/// channels and the same bits of every value.
+pub fn assert_identical(a: &Path, b: &Path, names: impl IntoIterator<Item = String>) {
+    let mut n = 0;
+    for name in names {
+        let (x, y) = (
+            reframe::image::read_image(&a.join(&name))
+                .unwrap_or_else(|e| panic!("{}: {e}", a.join(&name).display())),
+            reframe::image::read_image(&b.join(&name))
+                .unwrap_or_else(|e| panic!("{}: {e}", b.join(&name).display())),
+        );
+        assert_eq!(x.channels, y.channels, "{name}: channels");
+        let bits = |v: &[f32]| v.iter().map(|p| p.to_bits()).collect::<Vec<_>>();
+        assert!(bits(&x.data) == bits(&y.data), "{name} differs");
+        n += 1;
+    }
+    assert!(n > 0, "no frames compared");
 }

@@ -1,376 +1,27 @@
-//! `reframe reference` and `reframe compare`: every method against a cached high-sample reference,
-//! error against time, flicker, and the charts.
-//!
-//! **Reference.** The independent tracer at `--reference-spp`, as `PASSES` passes with their own
-//! seeds: the mean is the reference `R` and the spread of the passes gives the variance of that
-//! mean per pixel and channel, `V = sum_k (p_k - R)^2 / (K (K - 1))`. The frames are cached as EXR
-//! (channels R, G, B, var.R, var.G, var.B) in a folder whose name carries a key: a hash of the
-//! loaded scene (geometry, materials, camera path), the resolution, the frames, the sample count
-//! and the reframe executable itself, so that any change to the scene or the code renders it anew.
-//! A folder is used only once its `reference.json` (written last) is there.
-//!
-//! **Errors**, per frame over pixels `p` and channels `c`, with `I` the image under test and `V`
-//! subtracted so that the reference's own noise does not count (it is independent of `I`):
-//! - `rmse = sqrt(max(0, mean((I - R)^2 - V)))`;
-//! - `relmse = mean(((I - R)^2 - V) / (R^2 + 0.01))`;
-//! - `flicker_t = sqrt(max(0, mean((E_t - E_(t-1))^2 - V_t - V_(t-1))))` with `E_t = I_t - R_t`:
-//!   the RMS change of the error image from one frame to the next; lower is steadier.
-//!
-//! Overall: `rmse` over all frames' pixels, `relmse` the mean over frames, `flicker` the mean of
-//! `flicker_t` over consecutive pairs.
-//!
-//! **Equal-error speed-up**: `log relmse = a + b log t` is fitted by least squares to each
-//! method's runs (one line per method and window; a single run assumes `b = -1`, the Monte Carlo
-//! rate). At the geometric mean of the method's own errors, the time the independent line needs
-//! over the time the method's line needs is the speed-up.
-use crate::bench::{measure_costs, predicted_speedup, Costs};
-use crate::camera::Camera;
-use crate::chart::{bar_chart, image_strip, write_svg_png, LineChart, Series, COLOURS};
-use crate::checkpoint::{hash_exe, hash_scene, Fnv};
-use crate::image::{check_writable_dir, read_image, write_image, Image, Metadata, WriteOptions};
-use crate::integrator::{Integrator, RayCounts};
-use crate::render::{
-    check_frames, progress_bar, render_frame_independent, thread_pool, to_image, write_atomic,
-    write_json, Method, RenderOptions,
+//! `reframe compare`: every method at a ladder of budgets against a cached high-sample reference
+//! (`reference`), error against time and flicker (`errors`), and the charts (`chart`).
+use super::bench::{measure_costs, predicted_speedup, Costs};
+use super::chart::{bar_chart, image_strip, write_svg_png, LineChart, Series, COLOURS};
+use super::errors::{
+    errors, loglog_fit, time_for, FrameError, FLICKER_FORMULA, RELMSE_FORMULA, RMSE_FORMULA,
 };
-use crate::reuse::render_reuse;
+use super::reference::{reference, PASSES};
+use crate::driver::options::{check_max_depth, check_resolution};
+use crate::driver::{check_frames, progress_bar, render_frames, thread_pool, RenderOptions};
+use crate::film::Developed;
+use crate::image::Image;
+use crate::integrator::Integrator;
+use crate::reuse::Method;
 use crate::scene::Scene;
+use crate::util::fs::{check_writable_dir, write_atomic, write_json};
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::ops::RangeInclusive;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
-
-/// Passes the reference is split into, for its per-pixel variance.
-pub const PASSES: u32 = 8;
-/// Seed of the reference's first pass; compare's runs use `--seed` (small numbers).
-const REFERENCE_SEED: u64 = 0x7265_6672_616d_6500;
-/// The `relmse` denominator offset.
-const REL_EPS: f64 = 0.01;
-
-pub const RELMSE_FORMULA: &str = "relmse = mean over pixels and RGB channels of ((I - R)^2 - V) / (R^2 + 0.01), V = variance of the reference's mean";
-pub const RMSE_FORMULA: &str =
-    "rmse = sqrt(max(0, mean over pixels and RGB channels of (I - R)^2 - V))";
-pub const FLICKER_FORMULA: &str = "flicker = mean over t of sqrt(max(0, mean over pixels and RGB channels of (E_t - E_(t-1))^2 - V_t - V_(t-1))), E_t = I_t - R_t";
-
-/// One reference frame: the mean and the variance of the mean, per pixel.
-pub struct RefFrame {
-    pub mean: Vec<Vec3>,
-    pub var: Vec<Vec3>,
-}
-
-pub struct Reference {
-    pub first: u32,
-    pub frames: Vec<RefFrame>,
-    pub dir: PathBuf,
-    pub spp: u32,
-    /// Found in the cache (nothing rendered).
-    pub cached: bool,
-    /// Render time when it was made.
-    pub seconds: f64,
-}
-
-/// What marks a cached reference as complete and what it was made from.
-#[derive(Serialize, Deserialize)]
-struct ReferenceInfo {
-    scene: String,
-    width: u32,
-    height: u32,
-    first_frame: u32,
-    last_frame: u32,
-    spp: u32,
-    passes: u32,
-    key: String,
-    seconds: f64,
-}
-
-/// The cache key of a reference (see the module note).
-pub fn reference_key(
-    scene: &Scene,
-    range: &RangeInclusive<u32>,
-    (w, h): (u32, u32),
-    spp: u32,
-) -> Result<String> {
-    let mut f = Fnv::default();
-    hash_scene(&mut f, scene);
-    for v in [*range.start(), *range.end(), w, h, spp, PASSES] {
-        f.bytes(&v.to_le_bytes());
-    }
-    hash_exe(&mut f)?;
-    Ok(format!("{:016x}", f.0))
-}
-
-/// The reference of `range` at `w` x `h`: from the cache when there, else rendered and cached.
-#[allow(clippy::too_many_arguments)]
-pub fn reference(
-    scene: &Scene,
-    range: RangeInclusive<u32>,
-    (w, h): (u32, u32),
-    spp: u32,
-    cache: &Path,
-    pool: &rayon::ThreadPool,
-    progress: bool,
-) -> Result<Reference> {
-    if spp < PASSES || !spp.is_multiple_of(PASSES) {
-        bail!("--reference-spp {spp}: must be a multiple of {PASSES} (the reference is {PASSES} passes, for its variance)");
-    }
-    let key = reference_key(scene, &range, (w, h), spp)?;
-    let (first, last) = (*range.start(), *range.end());
-    let dir = cache.join(format!(
-        "{}_{w}x{h}_f{first}-{last}_{spp}spp_{key}",
-        scene.name
-    ));
-    let info_path = dir.join("reference.json");
-    let frame_path = |f: u32| dir.join(format!("ref_{f:04}.exr"));
-    if let Ok(text) = std::fs::read_to_string(&info_path) {
-        let info: ReferenceInfo = serde_json::from_str(&text)
-            .with_context(|| format!("{}: not a reference description", info_path.display()))?;
-        let mut frames = Vec::new();
-        for f in range.clone() {
-            frames.push(read_reference_frame(&frame_path(f), w, h)?);
-        }
-        return Ok(Reference {
-            first,
-            frames,
-            dir,
-            spp,
-            cached: true,
-            seconds: info.seconds,
-        });
-    }
-    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-    check_writable_dir(&dir)?;
-    let integrator = Integrator::new(scene, 16);
-    let n = (last - first + 1) as u64;
-    let pb = progress_bar(progress, n * PASSES as u64, "reference passes");
-    let start = Instant::now();
-    let mut frames = Vec::new();
-    for f in range.clone() {
-        let cam = scene.camera(f, w, h);
-        let none = |_: &RayCounts| {};
-        let passes: Vec<Vec<Vec3>> = (0..PASSES as u64)
-            .map(|k| {
-                let px = pool.install(|| {
-                    render_frame_independent(
-                        &integrator,
-                        &cam,
-                        f,
-                        spp / PASSES,
-                        REFERENCE_SEED + k,
-                        false,
-                        &none,
-                    )
-                    .pixels
-                });
-                pb.inc(1);
-                px
-            })
-            .collect();
-        let k = PASSES as f32;
-        let mean: Vec<Vec3> = (0..passes[0].len())
-            .map(|i| passes.iter().map(|p| p[i]).sum::<Vec3>() / k)
-            .collect();
-        let var: Vec<Vec3> = (0..mean.len())
-            .map(|i| {
-                passes
-                    .iter()
-                    .map(|p| (p[i] - mean[i]) * (p[i] - mean[i]))
-                    .sum::<Vec3>()
-                    / (k * (k - 1.0))
-            })
-            .collect();
-        write_reference_frame(&frame_path(f), scene, &cam, f, spp, &mean, &var)?;
-        frames.push(RefFrame { mean, var });
-    }
-    pb.finish_and_clear();
-    let seconds = start.elapsed().as_secs_f64();
-    write_json(
-        &info_path,
-        &ReferenceInfo {
-            scene: scene.name.clone(),
-            width: w,
-            height: h,
-            first_frame: first,
-            last_frame: last,
-            spp,
-            passes: PASSES,
-            key,
-            seconds,
-        },
-    )?;
-    Ok(Reference {
-        first,
-        frames,
-        dir,
-        spp,
-        cached: false,
-        seconds,
-    })
-}
-
-fn write_reference_frame(
-    path: &Path,
-    scene: &Scene,
-    cam: &Camera,
-    frame: u32,
-    spp: u32,
-    mean: &[Vec3],
-    var: &[Vec3],
-) -> Result<()> {
-    let mut img = Image::new(
-        cam.width,
-        cam.height,
-        &["R", "G", "B", "var.R", "var.G", "var.B"],
-    );
-    img.data = mean
-        .iter()
-        .zip(var)
-        .flat_map(|(m, v)| m.to_array().into_iter().chain(v.to_array()))
-        .collect();
-    let meta = Metadata {
-        method: "reference".into(),
-        spp,
-        window: 1,
-        seed: REFERENCE_SEED,
-        render_seconds: 0.0,
-        world_to_camera: cam.world_to_camera().to_cols_array(),
-        world_to_ndc: cam.world_to_ndc().to_cols_array(),
-        extra: vec![
-            ("scene".into(), scene.name.clone()),
-            ("frame".into(), frame.to_string()),
-        ],
-    };
-    write_image(path, &img, &meta, &WriteOptions { exr_float: true })
-}
-
-fn read_reference_frame(path: &Path, w: u32, h: u32) -> Result<RefFrame> {
-    let img = read_image(path).with_context(|| "the cached reference is incomplete")?;
-    if (img.width, img.height) != (w, h) {
-        bail!(
-            "{}: {}x{}, expected {w}x{h}",
-            path.display(),
-            img.width,
-            img.height
-        );
-    }
-    let ch = |name: &str| {
-        img.channel_index(name)
-            .with_context(|| format!("{}: no channel {name}", path.display()))
-    };
-    let idx = [
-        ch("R")?,
-        ch("G")?,
-        ch("B")?,
-        ch("var.R")?,
-        ch("var.G")?,
-        ch("var.B")?,
-    ];
-    let nc = img.channels.len();
-    let at = |i: usize, c: usize| img.data[i * nc + idx[c]];
-    let n = (w * h) as usize;
-    Ok(RefFrame {
-        mean: (0..n)
-            .map(|i| Vec3::new(at(i, 0), at(i, 1), at(i, 2)))
-            .collect(),
-        var: (0..n)
-            .map(|i| Vec3::new(at(i, 3), at(i, 4), at(i, 5)))
-            .collect(),
-    })
-}
-
-/// Errors of one frame against the reference.
-#[derive(Clone, Debug, Serialize)]
-pub struct FrameError {
-    pub frame: u32,
-    pub rmse: f64,
-    pub relmse: f64,
-    /// Against the previous frame; absent for the first.
-    pub flicker: Option<f64>,
-}
-
-/// The errors of a run's frames: per frame, and overall (rmse, relmse, flicker).
-pub fn errors(frames: &[Vec<Vec3>], r: &Reference) -> (Vec<FrameError>, f64, f64, f64) {
-    let mut per = Vec::new();
-    let mut sq_total = 0.0;
-    for (t, img) in frames.iter().enumerate() {
-        let rf = &r.frames[t];
-        let (mut sq, mut rel) = (0.0f64, 0.0f64);
-        for ((i, m), v) in img.iter().zip(&rf.mean).zip(&rf.var) {
-            for c in 0..3 {
-                let d = (i[c] - m[c]) as f64;
-                let e = d * d - v[c] as f64;
-                sq += e;
-                rel += e / ((m[c] as f64).powi(2) + REL_EPS);
-            }
-        }
-        let n = (img.len() * 3) as f64;
-        let flicker = (t > 0).then(|| {
-            let (prev, rp) = (&frames[t - 1], &r.frames[t - 1]);
-            let mut s = 0.0f64;
-            for p in 0..img.len() {
-                for c in 0..3 {
-                    let e1 = (img[p][c] - rf.mean[p][c]) as f64;
-                    let e0 = (prev[p][c] - rp.mean[p][c]) as f64;
-                    s += (e1 - e0).powi(2) - rf.var[p][c] as f64 - rp.var[p][c] as f64;
-                }
-            }
-            (s / n).max(0.0).sqrt()
-        });
-        sq_total += sq;
-        per.push(FrameError {
-            frame: r.first + t as u32,
-            rmse: (sq / n).max(0.0).sqrt(),
-            relmse: rel / n,
-            flicker,
-        });
-    }
-    let n_all = frames.iter().map(|f| f.len() * 3).sum::<usize>() as f64;
-    let rmse = (sq_total / n_all).max(0.0).sqrt();
-    let relmse = per.iter().map(|e| e.relmse).sum::<f64>() / per.len() as f64;
-    let fl: Vec<f64> = per.iter().filter_map(|e| e.flicker).collect();
-    let flicker = if fl.is_empty() {
-        0.0
-    } else {
-        fl.iter().sum::<f64>() / fl.len() as f64
-    };
-    (per, rmse, relmse, flicker)
-}
-
-/// Least-squares line through `(ln x, ln y)`: `(a, b)` with `ln y = a + b ln x`. A single point
-/// gets the Monte Carlo slope `b = -1`. `None` without a usable point.
-pub fn loglog_fit(points: &[(f64, f64)]) -> Option<(f64, f64)> {
-    let p: Vec<(f64, f64)> = points
-        .iter()
-        .filter(|(x, y)| *x > 0.0 && *y > 0.0 && x.is_finite() && y.is_finite())
-        .map(|(x, y)| (x.ln(), y.ln()))
-        .collect();
-    match p.len() {
-        0 => None,
-        1 => Some((p[0].1 + p[0].0, -1.0)),
-        n => {
-            let n = n as f64;
-            let (mx, my) = (
-                p.iter().map(|q| q.0).sum::<f64>() / n,
-                p.iter().map(|q| q.1).sum::<f64>() / n,
-            );
-            let sxx: f64 = p.iter().map(|q| (q.0 - mx).powi(2)).sum();
-            let sxy: f64 = p.iter().map(|q| (q.0 - mx) * (q.1 - my)).sum();
-            if sxx < 1e-12 {
-                return Some((my + mx, -1.0));
-            }
-            let b = sxy / sxx;
-            Some((my - b * mx, b))
-        }
-    }
-}
-
-/// The time at which the fitted line `(a, b)` reaches error `e`; `None` if it never falls.
-fn time_for(fit: (f64, f64), e: f64) -> Option<f64> {
-    (fit.1 < -1e-3).then(|| ((e.ln() - fit.0) / fit.1).exp())
-}
 
 /// What to compare.
 #[derive(Clone, Debug)]
@@ -386,6 +37,8 @@ pub struct CompareOptions {
     /// Group sizes of the reuse runs (longer than the frames: skipped).
     pub windows: Vec<u32>,
     pub reference_spp: u32,
+    /// Longest path, in bounces, of every run and of the reference.
+    pub max_depth: u32,
     pub cache: PathBuf,
     pub out: PathBuf,
     pub threads: usize,
@@ -410,6 +63,7 @@ impl Default for CompareOptions {
             reuse_budgets: vec![1, 2],
             windows: vec![3, 7, 17],
             reference_spp: 256,
+            max_depth: 16,
             cache: PathBuf::from("out/reference-cache"),
             out: PathBuf::from("out/compare"),
             threads: 0,
@@ -485,9 +139,8 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     check_frames(scene, &range)?;
     let (first, last) = (*range.start(), *range.end());
     let (w, h) = opts.res.unwrap_or((scene.width, scene.height));
-    if w == 0 || h == 0 {
-        bail!("--res {w}x{h}: width and height must be positive");
-    }
+    check_resolution((w, h))?;
+    check_max_depth(opts.max_depth)?;
     let n_frames = last - first + 1;
     if opts.budgets.contains(&0) || opts.reuse_budgets.contains(&0) {
         bail!("a budget of 0 samples per pixel: every run needs at least one");
@@ -520,6 +173,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         range.clone(),
         (w, h),
         opts.reference_spp,
+        opts.max_depth,
         &opts.cache,
         &pool,
         opts.progress,
@@ -534,13 +188,13 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             format!("rendered in {:.1} s", reference.seconds)
         }
     );
-    let integrator = Integrator::new(scene, 16);
+    let integrator = Integrator::new(scene, opts.max_depth);
     let crop_frame = first + n_frames / 2;
     let mut runs: Vec<Run> = Vec::new();
     let mut crops: Vec<Vec<Vec3>> = Vec::new();
     let mut plan: Vec<(Method, u32, u32)> = Vec::new();
     for &m in &opts.methods {
-        if m == Method::Independent {
+        if !m.reuses() {
             plan.extend(opts.budgets.iter().map(|&s| (m, 1, s)));
         } else {
             for &n_f in opts.windows.iter().filter(|&&n| n <= n_frames) {
@@ -555,40 +209,27 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     for (method, window, spp) in plan {
         let start = Instant::now();
         let mut frames: Vec<Vec<Vec3>> = Vec::with_capacity(n_frames as usize);
-        let mut eff = spp as f64;
-        if method == Method::Independent {
-            for f in range.clone() {
-                let cam = scene.camera(f, w, h);
-                let none = |_: &RayCounts| {};
-                let px = pool.install(|| {
-                    render_frame_independent(&integrator, &cam, f, spp, opts.seed, false, &none)
-                });
-                frames.push(px.pixels);
-            }
+        let ropts = RenderOptions {
+            method,
+            spp,
+            window,
+            seed: opts.seed,
+            frames: Some(range.clone()),
+            resolution: Some((w, h)),
+            max_depth: opts.max_depth,
+            progress: false,
+            ..RenderOptions::default()
+        };
+        let mut keep = |d: Developed| {
+            frames.push(d.pixels());
+            Ok(())
+        };
+        let counters = pool.install(|| render_frames(&integrator, &ropts, &mut keep))?;
+        let eff = if method.reuses() {
+            counters.mean_effective_spp(n_frames)
         } else {
-            let ropts = RenderOptions {
-                method,
-                spp,
-                window,
-                seed: opts.seed,
-                progress: false,
-                ..RenderOptions::default()
-            };
-            let stats = pool.install(|| {
-                render_reuse(
-                    &integrator,
-                    &ropts,
-                    range.clone(),
-                    w,
-                    h,
-                    &mut |_, _, px, _, _| {
-                        frames.push(px.to_vec());
-                        Ok(())
-                    },
-                )
-            })?;
-            eff = stats.mean_effective_spp;
-        }
+            spp as f64
+        };
         let seconds = start.elapsed().as_secs_f64();
         let (per_frame, rmse, relmse, flicker) = errors(&frames, &reference);
         pb.suspend(|| {
@@ -615,7 +256,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
 
     // Cost model: measured on the middle frame, as `reframe bench` does.
     let cam = scene.camera(crop_frame, w, h);
-    let (costs, _, _) = measure_costs(scene, &integrator, &pool, &cam, crop_frame, 2, opts.seed);
+    let (costs, _, _) = measure_costs(&integrator, &pool, &cam, crop_frame, 2, opts.seed);
 
     // Fits and derived figures.
     let key = |r: &Run| (r.method, r.window);
@@ -830,7 +471,6 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         crop_png(
             &reference.frames[(crop_frame - first) as usize].mean,
             w,
-            h,
             crop,
         )?,
         crop[2],
@@ -853,7 +493,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             };
             tiles.push((
                 format!("{}\n{what}, {:.2} s", m.name(), r.seconds),
-                crop_png(&crops[i], w, h, crop)?,
+                crop_png(&crops[i], w, crop)?,
                 crop[2],
                 crop[3],
             ));
@@ -980,12 +620,11 @@ fn num_points(m: &BTreeMap<String, f64>) -> Vec<(f64, f64)> {
 }
 
 /// The crop of a frame as an 8-bit sRGB PNG.
-fn crop_png(px: &[Vec3], w: u32, h: u32, [x0, y0, cw, ch]: [u32; 4]) -> Result<Vec<u8>> {
-    let full = to_image(w, h, px);
+fn crop_png(px: &[Vec3], w: u32, [x0, y0, cw, ch]: [u32; 4]) -> Result<Vec<u8>> {
     let mut img = Image::new(cw, ch, &["R", "G", "B"]);
     img.data = (y0..y0 + ch)
         .flat_map(|y| (x0..x0 + cw).map(move |x| (x, y)))
-        .flat_map(|(x, y)| full.pixel(x, y).to_vec())
+        .flat_map(|(x, y)| px[(y * w + x) as usize].to_array())
         .collect();
     let rgb = crate::image::encode_srgb8(&img)?;
     let mut pixmap = resvg::tiny_skia::Pixmap::new(cw, ch).context("empty crop")?;
@@ -998,64 +637,4 @@ fn crop_png(px: &[Vec3], w: u32, h: u32, [x0, y0, cw, ch]: [u32; 4]) -> Result<V
         dst[3] = 255;
     }
     pixmap.encode_png().context("encoding a crop")
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn loglog_fit_recovers_a_power_law() {
-        let pts: Vec<(f64, f64)> = [1.0, 2.0, 4.0, 8.0].iter().map(|&t| (t, 0.3 / t)).collect();
-        let (a, b) = loglog_fit(&pts).unwrap();
-        assert!((b + 1.0).abs() < 1e-12 && (a - 0.3f64.ln()).abs() < 1e-12);
-        assert!((time_for((a, b), 0.03).unwrap() - 10.0).abs() < 1e-9);
-        // One point: the Monte Carlo slope through it.
-        let (a1, b1) = loglog_fit(&[(2.0, 0.5)]).unwrap();
-        assert_eq!(b1, -1.0);
-        assert!((time_for((a1, b1), 0.25).unwrap() - 4.0).abs() < 1e-9);
-        // An error that does not fall with time has no time for a lower error.
-        assert!(time_for((0.0, 0.0), 0.1).is_none());
-        assert!(loglog_fit(&[(1.0, 0.0)]).is_none());
-    }
-
-    fn reference_of(mean: Vec<Vec<Vec3>>, var: f32) -> Reference {
-        Reference {
-            first: 0,
-            frames: mean
-                .into_iter()
-                .map(|m| RefFrame {
-                    var: vec![Vec3::splat(var); m.len()],
-                    mean: m,
-                })
-                .collect(),
-            dir: PathBuf::new(),
-            spp: 8,
-            cached: false,
-            seconds: 0.0,
-        }
-    }
-
-    #[test]
-    fn errors_follow_their_formulas() {
-        let r = reference_of(
-            vec![vec![Vec3::splat(1.0); 4], vec![Vec3::splat(2.0); 4]],
-            0.0,
-        );
-        // Frame 0 off by +0.1 everywhere, frame 1 off by -0.1: rmse 0.1, flicker 0.2.
-        let frames = vec![vec![Vec3::splat(1.1); 4], vec![Vec3::splat(1.9); 4]];
-        let (per, rmse, relmse, flicker) = errors(&frames, &r);
-        assert!((rmse - 0.1).abs() < 1e-6, "{rmse}");
-        assert!((per[0].relmse - 0.01 / 1.01).abs() < 1e-6);
-        assert!((per[1].relmse - 0.01 / 4.01).abs() < 1e-6);
-        assert!((relmse - (per[0].relmse + per[1].relmse) / 2.0).abs() < 1e-12);
-        assert!(per[0].flicker.is_none());
-        assert!((flicker - 0.2).abs() < 1e-6, "{flicker}");
-        // The reference's variance is taken off: an exact image scores 0, not -V.
-        let noisy = reference_of(vec![vec![Vec3::splat(1.0); 4]], 0.0025);
-        let (_, rmse, _, _) = errors(&[vec![Vec3::splat(1.1); 4]], &noisy);
-        assert!((rmse - 0.0075f64.sqrt()).abs() < 1e-6, "{rmse}");
-        let (_, rmse, _, _) = errors(&[vec![Vec3::splat(1.0); 4]], &noisy);
-        assert_eq!(rmse, 0.0);
-    }
 }

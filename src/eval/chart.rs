@@ -1,6 +1,6 @@
 //! Charts for `reframe compare`: written as SVG by hand (a chart is a few dozen elements) and
 //! rasterised to PNG with resvg, so that both files show the same drawing.
-use crate::render::write_atomic;
+use crate::util::fs::write_atomic;
 use anyhow::{anyhow, Context, Result};
 use base64::Engine as _;
 use std::fmt::Write as _;

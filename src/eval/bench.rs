@@ -23,7 +23,7 @@
 //! tiles and threads, so the bare rate is measured on exactly the rays the renderer traced.
 //!
 //! ```no_run
-//! use reframe::{bench, embree::Device, scene::Scene};
+//! use reframe::{embree::Device, eval::bench, scene::Scene};
 //! let device = Device::new()?;
 //! let opts = bench::BenchOptions { windows: vec![3, 7], ..Default::default() };
 //! let report = bench::run(&Scene::load("vase", &device)?, &opts)?;
@@ -31,12 +31,15 @@
 //! # anyhow::Ok(())
 //! ```
 use crate::camera::Camera;
-use crate::embree::Ray;
-use crate::integrator::{Integrator, RayCounts, Tally};
-use crate::render::{
-    render_frame_independent, thread_pool, tiles, Method, RayStats, RenderOptions,
+use crate::driver::options::{check_max_depth, check_resolution};
+use crate::driver::{
+    render_frame_independent, render_frames, thread_pool, FrameResult, RenderOptions,
 };
-use crate::reuse::{render_reuse, visibility, Landing, NativeHit};
+use crate::embree::Ray;
+use crate::film::tiles::tiles;
+use crate::integrator::{Integrator, RayCounts, Tally};
+use crate::reuse::visibility::{visibility, Landing, NativeHit};
+use crate::reuse::Method;
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use anyhow::{bail, Result};
@@ -63,6 +66,8 @@ pub struct BenchOptions {
     /// Group sizes `n_f` of the speed-up runs (those longer than the animation are skipped).
     pub windows: Vec<u32>,
     pub seed: u64,
+    /// Longest path, in bounces.
+    pub max_depth: u32,
 }
 
 impl Default for BenchOptions {
@@ -75,6 +80,7 @@ impl Default for BenchOptions {
             speedup_spp: 1,
             windows: vec![3, 7, 17, 33],
             seed: 1,
+            max_depth: 16,
         }
     }
 }
@@ -120,7 +126,7 @@ pub struct BenchReport {
     pub speedup_spp: u32,
     pub speedup_runs: Vec<SpeedupRun>,
     pub render_seconds: f64,
-    pub rays: RayStats,
+    pub rays: RayCounts,
     pub render_rays_per_second: f64,
     pub bare_seconds: f64,
     pub bare_rays_per_second: f64,
@@ -209,14 +215,14 @@ pub struct Costs {
 /// Measure `c_e`, `c_l` and `c_v` on frame `frame` seen by `cam` (see the module note). Also
 /// returns the timed independent render and its wall time.
 pub fn measure_costs(
-    scene: &Scene,
     integrator: &Integrator,
     pool: &rayon::ThreadPool,
     cam: &Camera,
     frame: u32,
     spp: u32,
     seed: u64,
-) -> (Costs, crate::render::FrameResult, f64) {
+) -> (Costs, FrameResult, f64) {
+    let scene = integrator.scene;
     let threads = pool.current_num_threads();
     let (w, h) = (cam.width, cam.height);
     let none = |_: &RayCounts| {};
@@ -263,6 +269,7 @@ fn per_core_ns(seconds: f64, threads: usize, items: u64) -> f64 {
 
 pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     let (w, h) = opts.res.unwrap_or((scene.width, scene.height));
+    check_resolution((w, h))?;
     let frame = opts.frame.unwrap_or(scene.frames / 2);
     if frame >= scene.frames {
         bail!(
@@ -278,13 +285,13 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     }
     let pool = thread_pool(opts.threads)?;
     let threads = pool.current_num_threads();
-    let integrator = Integrator::new(scene, 16);
+    check_max_depth(opts.max_depth)?;
+    let integrator = Integrator::new(scene, opts.max_depth);
     let cam = scene.camera(frame, w, h);
     let (spp, seed) = (opts.spp, opts.seed);
     let none = |_: &RayCounts| {};
 
-    let (costs, timed, render_seconds) =
-        measure_costs(scene, &integrator, &pool, &cam, frame, spp, seed);
+    let (costs, timed, render_seconds) = measure_costs(&integrator, &pool, &cam, frame, spp, seed);
     let Costs {
         c_e,
         c_l,
@@ -304,20 +311,15 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
             spp: opts.speedup_spp,
             window: n_f,
             seed,
+            frames: Some(first..=last),
+            resolution: Some((w, h)),
+            max_depth: opts.max_depth,
             progress: false,
             ..RenderOptions::default()
         };
         let t0 = Instant::now();
-        let stats = pool.install(|| {
-            render_reuse(
-                &integrator,
-                &ropts,
-                first..=last,
-                w,
-                h,
-                &mut |_, _, _, _, _| Ok(()),
-            )
-        })?;
+        let mut discard = |_: crate::film::Developed| Ok(());
+        let stats = pool.install(|| render_frames(&integrator, &ropts, &mut discard))?;
         let reuse_seconds = t0.elapsed().as_secs_f64();
         let t0 = Instant::now();
         for f in first..=last {
@@ -347,7 +349,7 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
             independent_seconds,
             reuse_seconds,
             visibility_tests: stats.counts.visibility,
-            lost_reuse_fraction: stats.lost_reuse_fraction,
+            lost_reuse_fraction: stats.lost_reuse_fraction(),
         });
     }
     let [predicted_speedup, measured_speedup, c_reuse, visibility_share] = report_maps;
@@ -400,12 +402,7 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
         speedup_spp: opts.speedup_spp,
         speedup_runs: runs,
         render_seconds,
-        rays: RayStats {
-            primary: c.primary,
-            path: c.path,
-            shadow: c.shadow,
-            visibility: 0,
-        },
+        rays: c,
         render_rays_per_second: render_rate,
         bare_seconds,
         bare_rays_per_second: bare_rate,

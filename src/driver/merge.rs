@@ -4,7 +4,7 @@
 //! Chunks split the render by group, not by frame: a frame near a chunk's edge belongs to groups
 //! of two chunks, and each chunk leaves its share of that frame's accumulator in its partial file.
 //! Merging adds the shares' integer fixed-point sums and counts (exact and order-free) and
-//! finishes the frame with the same function a single process uses (`reuse::finish_record`),
+//! develops the frame with the same function a single process uses (`film::develop`),
 //! so the merged frames are bitwise identical to a one-process render with the same seed, for
 //! any N. Nothing is written unless every chunk 1..N is there, made with the same settings and
 //! build.
@@ -13,11 +13,13 @@
 //! reframe render vase --method mis-exact --window 7 --chunk 2/3 --out out/vase_####.exr
 //! reframe merge out/vase.chunk-*-of-3.partial --out out/vase_####.exr
 //! ```
-use crate::checkpoint::{partial_path, Chunk, FrameRecord, Kind, StateFile};
-use crate::render::{check_output, FrameMeta, FrameSink, Method};
-use crate::reuse::finish_record;
+use super::options::check_output;
+use super::sink::{FileSink, FrameMeta};
+use crate::film::{develop, Developed, FrameAccum, Sink};
+use crate::reuse::Method;
+use crate::state::key::{partial_path, Chunk};
+use crate::state::{Kind, Record, StateFile};
 use anyhow::{anyhow, bail, Context, Result};
-use clap::ValueEnum;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -28,6 +30,8 @@ pub struct MergeReport {
     /// Bytes of the partial files, and of the frames written.
     pub partial_bytes: u64,
     pub frame_bytes: u64,
+    /// Pixels written with a NaN or infinite channel.
+    pub nonfinite_pixels: u64,
 }
 
 /// Merge `partials` into frames written with `out` (default: the pattern the chunks were given).
@@ -96,8 +100,8 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
         );
     }
     let key = &t0.key;
-    let method = Method::from_str(&key.method, false)
-        .map_err(|_| anyhow!("{}: unknown method '{}'", label(&files[0]), key.method))?;
+    let method = Method::from_name(&key.method)
+        .ok_or_else(|| anyhow!("{}: unknown method '{}'", label(&files[0]), key.method))?;
     let range = key.first_frame..=key.last_frame;
     let pattern = out.unwrap_or(&t0.out);
     let out = check_output(pattern, &range)?;
@@ -113,8 +117,8 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
             bail!("frame {f}: in none of the partial files; no frame was written");
         }
     }
-    let sink = FrameSink {
-        meta: FrameMeta {
+    let mut sink = FileSink::new(
+        FrameMeta {
             scene: key.scene.clone(),
             method: key.method.clone(),
             spp: key.spp,
@@ -123,60 +127,84 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
             exr_float: t0.exr_float,
         },
         out,
-    };
+    );
     let partial_bytes = files
         .iter()
         .map(|f| std::fs::metadata(&f.path).map_or(0, |m| m.len()))
         .sum();
-    let mut frames = Vec::new();
-    let mut frame_bytes = 0;
+    let norm = method.norm();
+    let mut nonfinite_pixels = 0;
     for (frame, list) in &shares {
-        let (i0, off0) = list[0];
-        let mut rec: FrameRecord = files[i0].record(off0)?;
-        let mut totals = rec.totals();
-        for &(i, off) in &list[1..] {
-            let other = files[i].record(off)?;
-            rec.absorb(&other, &mut totals)
-                .with_context(|| format!("merging {}", label(&files[i])))?;
-        }
-        check_groups(&rec, key.first_frame, key.last_frame, key.window, method)?;
-        let fr = finish_record(&rec, &totals, method);
-        let path = sink.write(
-            *frame,
-            (rec.width, rec.height),
-            (rec.world_to_camera, rec.world_to_ndc),
-            &fr.pixels,
-            &fr.channels(),
-            rec.seconds,
-        )?;
-        frame_bytes += std::fs::metadata(&path).map_or(0, |m| m.len());
-        frames.push(path);
+        let mut shares = list.iter().map(|&(i, off)| {
+            let label = label(&files[i]);
+            files[i].record(off, norm).map(|r| (r, label))
+        });
+        let (first, _) = shares.next().expect("a frame has at least one share")?;
+        let d: Developed = match first {
+            Record::Pixels(d) => {
+                if let Some(r) = shares.next() {
+                    bail!("frame {frame}: finished pixels in two partials ({})", r?.1);
+                }
+                d
+            }
+            Record::Sums(mut acc) => {
+                for r in shares {
+                    let (r, label) = r?;
+                    absorb(&mut acc, r).with_context(|| format!("merging {label}"))?;
+                }
+                check_groups(&acc, key.first_frame, key.last_frame, key.window, method)?;
+                develop(&acc)
+            }
+        };
+        nonfinite_pixels += d.nonfinite;
+        sink.put(d)?;
     }
+    let frame_bytes = sink
+        .written
+        .iter()
+        .map(|p| std::fs::metadata(p).map_or(0, |m| m.len()))
+        .sum();
     Ok(MergeReport {
-        frames,
+        frames: sink.written,
         seconds: start.elapsed().as_secs_f64(),
         partial_bytes,
         frame_bytes,
+        nonfinite_pixels,
     })
+}
+
+/// Add another chunk's share of a frame.
+fn absorb(acc: &mut FrameAccum, r: Record) -> Result<()> {
+    match r {
+        Record::Sums(o) => acc
+            .absorb(&o)
+            .map_err(|e| anyhow!("frame {}: {e}", acc.frame())),
+        Record::Pixels(_) => bail!("frame {}: finished pixels beside sums", acc.frame()),
+    }
 }
 
 /// A merged frame must hold every group that contains it: with groups `g..g+n_f-1` for `g` in
 /// `first..=last+1-n_f`, frame `f` is in `min(f, last_group) - max(f+1-n_f, first) + 1` of them.
-fn check_groups(rec: &FrameRecord, first: u32, last: u32, n_f: u32, method: Method) -> Result<()> {
+fn check_groups(acc: &FrameAccum, first: u32, last: u32, n_f: u32, method: Method) -> Result<()> {
     if !method.reuses() {
         return Ok(());
     }
-    let f = rec.frame;
-    let last_group = last + 1 - n_f;
-    let expected = f.min(last_group) + 1 - (f + 1).saturating_sub(n_f).max(first);
-    if rec.groups != expected {
+    let f = acc.frame();
+    let expected = expected_groups(f, first, last, n_f);
+    if acc.groups != expected {
         bail!(
             "frame {f}: the partial files hold {} of its {expected} groups; no further frame was \
              written",
-            rec.groups
+            acc.groups
         );
     }
     Ok(())
+}
+
+/// The groups that contain frame `f` of frames `first..=last` with `n_f` frames per group.
+fn expected_groups(f: u32, first: u32, last: u32, n_f: u32) -> u32 {
+    let last_group = last + 1 - n_f;
+    f.min(last_group) + 1 - (f + 1).saturating_sub(n_f).max(first)
 }
 
 #[cfg(test)]
@@ -185,30 +213,13 @@ mod tests {
 
     #[test]
     fn group_counts_per_frame() {
-        // Frames 0-9, n_f 3: groups 0..=7; frame 0 in 1 group, 1 in 2, 2..=7 in 3, 8 in 2, 9 in 1.
-        let counts: Vec<u32> = (0..10)
-            .map(|f| {
-                let g = (0..=7u32).filter(|g| f >= *g && f < g + 3).count() as u32;
-                let rec = FrameRecord {
-                    frame: f,
-                    width: 1,
-                    height: 1,
-                    groups: g,
-                    unit: 1.0,
-                    data: crate::checkpoint::RecordData::Pixels(vec![0.0; 3]),
-                    landed: None,
-                    loss: None,
-                    landed_total: 0,
-                    tried: 0,
-                    lost: 0,
-                    seconds: 0.0,
-                    world_to_camera: [0.0; 16],
-                    world_to_ndc: [0.0; 16],
-                };
-                check_groups(&rec, 0, 9, 3, Method::MisExact).unwrap();
-                g
-            })
-            .collect();
+        // Frames 0-9, n_f 3: groups 0..=7; frame 0 in 1 group, 1 in 2, 2..=7 in 3, 8 in 2, 9 in 1,
+        // counted here by listing the groups.
+        for f in 0..10 {
+            let g = (0..=7u32).filter(|g| f >= *g && f < g + 3).count() as u32;
+            assert_eq!(expected_groups(f, 0, 9, 3), g, "frame {f}");
+        }
+        let counts: Vec<u32> = (0..10).map(|f| expected_groups(f, 0, 9, 3)).collect();
         assert_eq!(counts, [1, 2, 3, 3, 3, 3, 3, 3, 2, 1]);
     }
 }

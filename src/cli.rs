@@ -1,0 +1,300 @@
+//! The command line's shape: clap's structs for every subcommand and the parsers of its values.
+//! `main.rs` dispatches them; the checks of what the values mean belong to the library
+//! (`driver::RenderOptions::validate` and the like), so that library and command line agree.
+use clap::{Parser, Subcommand};
+use reframe::reuse::Method;
+use reframe::state::key::Chunk;
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "reframe",
+    version,
+    about = "Render camera animations, reusing frames (Méndez-Feliu et al. 2006)"
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Render frames of an animation.
+    Render(RenderArgs),
+    /// Measure the cost model's c_e, c_l, c_v, the speed-up eq. 16 predicts against the one
+    /// measured, and the tracer's rays per second against bare Embree calls on the same rays.
+    Bench(BenchArgs),
+    /// Render (or find in the cache) the high-sample reference frames that compare measures against.
+    Reference(ReferenceArgs),
+    /// Combine the partial files of a render split with `render --chunk K/N` into its frames,
+    /// bitwise identical to a one-process render.
+    Merge(MergeArgs),
+    /// Render every method at a ladder of budgets, measure error, time and flicker against the
+    /// reference, and chart them.
+    Compare(CompareArgs),
+}
+
+#[derive(clap::Args)]
+pub struct ReferenceArgs {
+    /// Scene TOML file or shipped scene (default: vase).
+    pub scene: Option<String>,
+    /// Frames, "A-B" (default: 17 around the middle of the animation).
+    #[arg(long, value_parser = parse_frames)]
+    pub frames: Option<(u32, u32)>,
+    /// Resolution "WxH" (default: the scene's).
+    #[arg(long, value_parser = parse_res)]
+    pub res: Option<(u32, u32)>,
+    /// Samples per pixel of the reference (a multiple of 8: it is 8 passes, for its variance).
+    #[arg(long, default_value_t = 256)]
+    pub reference_spp: u32,
+    /// Longest path, in bounces, of the reference (and, for compare, of every run).
+    #[arg(long, default_value_t = 16)]
+    pub max_depth: u32,
+    /// Folder of cached references.
+    #[arg(long, default_value = "out/reference-cache")]
+    pub cache: PathBuf,
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+}
+
+#[derive(clap::Args)]
+pub struct MergeArgs {
+    /// The partial files of chunks 1..N (`<out folder>/<name>.chunk-K-of-N.partial`).
+    #[arg(required_unless_present = "chunks", conflicts_with = "chunks")]
+    pub partials: Vec<PathBuf>,
+    /// Instead of naming the partial files: merge the N chunks of the render that was given
+    /// this --out (their files are found beside it).
+    #[arg(long, requires = "out")]
+    pub chunks: Option<u32>,
+    /// Output pattern of the frames (default: the one the chunks were rendered with).
+    #[arg(long)]
+    pub out: Option<String>,
+}
+
+#[derive(clap::Args)]
+pub struct CompareArgs {
+    #[command(flatten)]
+    pub reference: ReferenceArgs,
+    /// Folder for compare.json, compare.csv and the charts (PNG and SVG).
+    #[arg(long, default_value = "out/compare")]
+    pub out: PathBuf,
+    /// Methods to compare, comma-separated.
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Method::Independent, Method::Havran, Method::Mis, Method::MisExact])]
+    pub methods: Vec<Method>,
+    /// Samples per pixel of the independent runs, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1, 2, 4, 8, 16])]
+    pub budgets: Vec<u32>,
+    /// Native samples per pixel of the reuse runs, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1, 2])]
+    pub reuse_budgets: Vec<u32>,
+    /// Frames per group n_f of the reuse runs, comma-separated (odd; longer than the frames:
+    /// skipped).
+    #[arg(long, value_delimiter = ',', default_values_t = [3, 7, 17])]
+    pub windows: Vec<u32>,
+    /// Crop of the equal-time strip, "X,Y,W,H" in pixels (default: a centred square of half
+    /// the height).
+    #[arg(long, value_parser = parse_crop)]
+    pub crop: Option<[u32; 4]>,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+pub fn parse_crop(s: &str) -> Result<[u32; 4], String> {
+    let v: Vec<u32> = s
+        .split(',')
+        .map(|p| p.trim().parse())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("'{s}': expected X,Y,W,H in pixels"))?;
+    <[u32; 4]>::try_from(v).map_err(|_| format!("'{s}': expected X,Y,W,H in pixels"))
+}
+
+#[derive(clap::Args)]
+pub struct RenderArgs {
+    /// Scene TOML file, or a shipped scene: vase (default), cornell, furnace.
+    pub scene: Option<String>,
+    #[arg(long, value_enum, default_value_t = Method::Independent)]
+    pub method: Method,
+    /// Samples per pixel (for reuse methods: native samples per pixel per group pass).
+    #[arg(long, default_value_t = 8)]
+    pub spp: u32,
+    /// Frames per reuse group, n_f = 2n+1 (reuse methods only).
+    #[arg(long, default_value_t = 1)]
+    pub window: u32,
+    /// How reuse visibility tests are traced: 16-wide coherent packets or single rays.
+    #[arg(long, value_enum, default_value_t = Visibility::Packet)]
+    pub visibility: Visibility,
+    /// Write extra EXR channels per frame: `spp_eff` (samples that landed per pixel) and
+    /// `lost_reuse` (share of attempted reuses lost).
+    #[arg(long)]
+    pub aov: bool,
+    /// Frames to render, 0-based and inclusive: "A-B" or "A" (default: all).
+    #[arg(long, value_parser = parse_frames)]
+    pub frames: Option<(u32, u32)>,
+    /// Resolution "WxH" (default: the scene's).
+    #[arg(long, value_parser = parse_res)]
+    pub res: Option<(u32, u32)>,
+    /// Output pattern; '####' is the zero-padded frame number, the extension picks the format
+    /// (exr: linear half float; png, jpg, tif: 8-bit sRGB). Default: out/<scene>_####.exr
+    #[arg(long)]
+    pub out: Option<String>,
+    /// Write EXR pixels as 32-bit float instead of half.
+    #[arg(long)]
+    pub exr_float: bool,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Worker threads (0: one per core).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// Maximum path length in bounces.
+    #[arg(long, default_value_t = 16)]
+    pub max_depth: u32,
+    /// Write render statistics as JSON.
+    #[arg(long)]
+    pub stats: Option<PathBuf>,
+    /// Continue an interrupted render from its checkpoint (same command line otherwise).
+    #[arg(long)]
+    pub resume: bool,
+    /// Checkpoint folder (default: `<out folder>/<name>.checkpoint`, or
+    /// `<name>.chunk-K-of-N.checkpoint` for a chunk).
+    #[arg(long)]
+    pub checkpoint: Option<PathBuf>,
+    /// Seconds between checkpoints (0: after every group of frames, or every frame).
+    #[arg(long, default_value_t = 60.0)]
+    pub checkpoint_every: f64,
+    /// mis-exact: extra native samples where a pixel expects fewer reused samples than others
+    /// (borders, disocclusions, cuts), topping each pixel up to F n_f n_r (F = 0.75 if not
+    /// given).
+    #[arg(long, num_args = 0..=1, default_missing_value = "0.75", value_name = "F")]
+    pub adaptive: Option<f32>,
+    /// Render chunk K of N (1-based) of the groups and write its partial file
+    /// `<out folder>/<name>.chunk-K-of-N.partial` for `reframe merge`.
+    #[arg(long, value_parser = parse_chunk)]
+    pub chunk: Option<Chunk>,
+}
+
+pub fn parse_chunk(s: &str) -> Result<Chunk, String> {
+    let err = || format!("'{s}': expected K/N with 1 <= K <= N, e.g. 2/3");
+    let (k, n) = s.split_once('/').ok_or_else(err)?;
+    let (k, n): (u32, u32) = (
+        k.trim().parse().map_err(|_| err())?,
+        n.trim().parse().map_err(|_| err())?,
+    );
+    if k == 0 || k > n {
+        return Err(err());
+    }
+    Ok(Chunk { k, n })
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum Visibility {
+    Packet,
+    Single,
+}
+
+#[derive(clap::Args)]
+pub struct BenchArgs {
+    /// Scene TOML file or shipped scene (default: vase).
+    pub scene: Option<String>,
+    /// Samples per pixel of the cost and ray-rate passes.
+    #[arg(long, default_value_t = 4)]
+    pub spp: u32,
+    /// Native samples per pixel n_r of the speed-up runs.
+    #[arg(long, default_value_t = 1)]
+    pub speedup_spp: u32,
+    /// Group sizes n_f of the speed-up runs, comma-separated (longer than the animation: skipped).
+    #[arg(long, value_delimiter = ',', default_values_t = [3, 7, 17, 33])]
+    pub windows: Vec<u32>,
+    /// Resolution "WxH" (default: the scene's).
+    #[arg(long, value_parser = parse_res)]
+    pub res: Option<(u32, u32)>,
+    /// Frame to measure (default: the middle one).
+    #[arg(long)]
+    pub frame: Option<u32>,
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// Longest path, in bounces.
+    #[arg(long, default_value_t = 16)]
+    pub max_depth: u32,
+    /// Write the figures as JSON.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+pub fn parse_frames(s: &str) -> Result<(u32, u32), String> {
+    let err = || format!("'{s}': expected A-B or A (0-based frame numbers)");
+    let (a, b) = match s.split_once('-') {
+        Some((a, b)) => (
+            a.trim().parse().map_err(|_| err())?,
+            b.trim().parse().map_err(|_| err())?,
+        ),
+        None => {
+            let a = s.trim().parse().map_err(|_| err())?;
+            (a, a)
+        }
+    };
+    if a > b {
+        return Err(format!("'{s}': the first frame is after the last"));
+    }
+    Ok((a, b))
+}
+
+pub fn parse_res(s: &str) -> Result<(u32, u32), String> {
+    let err = || format!("'{s}': expected WxH, e.g. 320x240");
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(err)?;
+    let (w, h): (u32, u32) = (
+        w.trim().parse().map_err(|_| err())?,
+        h.trim().parse().map_err(|_| err())?,
+    );
+    match reframe::driver::options::resolution_problem((w, h)) {
+        Some(why) => Err(format!("'{s}': {why}")),
+        None => Ok((w, h)),
+    }
+}
+
+/// The line `render` prints when it is done: what was rendered, how, and how fast.
+pub fn render_summary(stats: &reframe::driver::RenderStats) -> String {
+    let reuses = stats.method.reuses();
+    let how = if reuses && stats.chunk.is_none() {
+        format!(
+            "{}, window {}, {:.1} effective spp, {:.1}% reuses lost",
+            stats.method.name(),
+            stats.window,
+            stats.mean_effective_spp,
+            100.0 * stats.lost_reuse_fraction
+        )
+    } else if reuses {
+        format!("{}, window {}", stats.method.name(), stats.window)
+    } else {
+        stats.method.name().to_string()
+    };
+    let what = match &stats.chunk {
+        Some(c) => format!(
+            "chunk {c} ({} {}-{}) of frames {}-{}",
+            if reuses { "groups" } else { "frames" },
+            stats.units[0],
+            stats.units[1],
+            stats.first_frame,
+            stats.last_frame
+        ),
+        None => format!("{} frame(s)", stats.frames),
+    };
+    format!(
+        "rendered {what} of '{}' ({}x{}, {} spp, {how}) in {:.1} s, {:.2} Mrays/s, peak memory {} MB",
+        stats.scene,
+        stats.width,
+        stats.height,
+        stats.spp,
+        stats.seconds,
+        stats.rays_per_second / 1e6,
+        stats.peak_rss_bytes / 1_000_000
+    )
+}
+
+/// `wrote FIRST .. LAST` (or `wrote FILE`) for the files a command wrote.
+pub fn wrote(files: &[String]) -> String {
+    match files {
+        [] => "wrote nothing".into(),
+        [one] => format!("wrote {one}"),
+        [first, .., last] => format!("wrote {first} .. {last}"),
+    }
+}

@@ -1,0 +1,160 @@
+//! The reuse methods' frame loop: groups of `n_f` frames sliding one frame at a time.
+//!
+//! Group `g` is frames `g..g + n_f`. Its frames' accumulators stay in memory while any group
+//! still to render contains them; a frame that no later group touches is developed and handed
+//! to the sink as soon as its last group is done (or, for a chunk, its share is appended to the
+//! chunk's log). Memory therefore grows with width x height x n_f: 12 bytes per pixel per frame
+//! in flight (16 for the methods that average by count, 24 with `--aov`).
+use super::progress_bar;
+use super::run::Run;
+use crate::film::tiles::tiles;
+use crate::film::{develop, FrameAccum, Layout, Sink, View};
+use crate::integrator::{Integrator, RayCounts, Tally};
+use crate::reuse::adaptive::adaptive_counts;
+use crate::reuse::shade::{shade_tile, Target};
+use crate::reuse::Params;
+use crate::state::Record;
+use anyhow::{bail, Result};
+use rayon::prelude::*;
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+
+/// What the group loop needs besides the estimator's parameters.
+pub struct GroupSettings {
+    pub params: Params,
+    pub window: u32,
+    pub aov: bool,
+    /// `--adaptive` target share of `n_f n_r`.
+    pub adaptive: Option<f32>,
+    pub width: u32,
+    pub height: u32,
+    pub progress: bool,
+}
+
+/// The groups `run.units` from `run.next` on, starting from the frames in flight `active` (a
+/// resumed checkpoint's), writing checkpoints as they fall due. Returns false if `run.interrupt`
+/// stopped it (after a checkpoint at the last finished group).
+pub fn run_groups(
+    integrator: &Integrator,
+    s: &GroupSettings,
+    run: &mut Run,
+    active: Vec<FrameAccum>,
+    sink: &mut dyn Sink,
+) -> Result<bool> {
+    let scene = integrator.scene;
+    let (w, h, n_f) = (s.width, s.height, s.window);
+    let layout: Layout = s.params.method.layout(s.params.spp, n_f, s.aov);
+    let last_group = *run.units.end();
+    let chunked = run.ckpt.chunked();
+    let pb = progress_bar(
+        s.progress,
+        (last_group + 1 - run.units.start()) as u64,
+        "groups",
+    );
+    pb.set_position((run.next - run.units.start()) as u64);
+    for a in &active {
+        if a.layout != layout || (a.view.width, a.view.height) != (w, h) {
+            bail!(
+                "frame {}: the checkpoint's accumulator does not fit these settings",
+                a.frame()
+            );
+        }
+    }
+    let mut active: VecDeque<(crate::camera::Camera, FrameAccum)> = active
+        .into_iter()
+        .map(|a| (scene.camera(a.frame(), w, h), a))
+        .collect();
+    let nonfinite = AtomicU64::new(0);
+    let tile_list = tiles(w, h);
+    let mut written = 0;
+    for g0 in run.next..=last_group {
+        if run.interrupted() {
+            run.save(active.iter().map(|(_, a)| a))?;
+            pb.abandon();
+            return Ok(false);
+        }
+        // The group's frames: keep those still active, add the new ones.
+        while active.back().is_none_or(|(_, a)| a.frame() < g0 + n_f - 1) {
+            let f = active.back().map_or(g0, |(_, a)| a.frame() + 1);
+            let cam = scene.camera(f, w, h);
+            let film = FrameAccum::new(View::of(f, &cam), layout);
+            active.push_back((cam, film));
+        }
+        let group: Vec<Target> = active
+            .iter()
+            .filter(|(_, a)| a.frame() >= g0 && a.frame() < g0 + n_f)
+            .map(|(cam, film)| Target { cam, film })
+            .collect();
+        debug_assert_eq!(group.len(), n_f as usize);
+        let work: Vec<(usize, usize)> = (0..group.len())
+            .flat_map(|m| (0..tile_list.len()).map(move |t| (m, t)))
+            .collect();
+        let (native_counts, pilot_rays) = match s.adaptive {
+            Some(target) => {
+                let (c, r) =
+                    adaptive_counts(integrator, &group, s.params.spp, target, &work, &tile_list);
+                (Some(c), r)
+            }
+            None => (None, RayCounts::default()),
+        };
+        run.counters.counts.add(&pilot_rays);
+        let group_counts: RayCounts = work
+            .par_iter()
+            .map(|&(m, t)| {
+                let mut tally = Tally::default();
+                let bad = shade_tile(
+                    integrator,
+                    &s.params,
+                    &group,
+                    m,
+                    tile_list[t],
+                    g0,
+                    native_counts.as_deref(),
+                    &mut tally,
+                );
+                nonfinite.fetch_add(bad, Relaxed);
+                tally.counts
+            })
+            .reduce(RayCounts::default, |mut a, b| {
+                a.add(&b);
+                a
+            });
+        drop(group);
+        run.counters.counts.add(&group_counts);
+        run.counters.nonfinite_samples += nonfinite.swap(0, Relaxed);
+        for (_, a) in active
+            .iter_mut()
+            .filter(|(_, a)| a.frame() >= g0 && a.frame() < g0 + n_f)
+        {
+            a.groups += 1;
+        }
+        // Frames no later group contains: g0 itself, or every remaining one after the last group.
+        while active
+            .front()
+            .is_some_and(|(_, a)| a.frame() == g0 || g0 == last_group)
+        {
+            let (_, a) = active.pop_front().unwrap();
+            run.counters.per_frame.push(a.reuse());
+            if chunked {
+                run.ckpt.retire(&Record::Sums(a))?;
+            } else {
+                let d = develop(&a);
+                drop(a);
+                run.counters.nonfinite_pixels += d.nonfinite;
+                sink.put(d)?;
+            }
+            written += 1;
+        }
+        run.next = g0 + 1;
+        if g0 < last_group && run.ckpt.due() {
+            run.save(active.iter().map(|(_, a)| a))?;
+        }
+        pb.set_message(format!(
+            "| {written} frames {}",
+            if chunked { "retired" } else { "written" }
+        ));
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    Ok(true)
+}

@@ -1,0 +1,136 @@
+//! The independent tracer's frame loop: every frame path-traced on its own, tile by tile.
+//!
+//! Determinism: pixels are independent (their random numbers are keyed by seed, frame, pixel and
+//! sample), each tile's pixels are summed in sample order, and tiles are placed into the frame by
+//! index, so the frames are bitwise identical for any thread count.
+use super::progress_bar;
+use super::run::Run;
+use crate::camera::Camera;
+use crate::film::tiles::{place_tile, tiles};
+use crate::film::{Developed, Sink, View};
+use crate::integrator::{Integrator, RayCounts, Tally};
+use crate::sampling::Sampler;
+use crate::state::Record;
+use anyhow::Result;
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::time::Instant;
+
+/// A rendered frame: linear RGB pixels, ray counts, and (benchmark only) each tile's rays.
+pub struct FrameResult {
+    pub pixels: Vec<Vec3>,
+    pub counts: RayCounts,
+    pub ray_logs: Vec<Vec<(crate::embree::Ray, bool)>>,
+}
+
+/// Render one frame with the independent path tracer; `on_tile` sees each finished tile's rays.
+pub fn render_frame_independent(
+    integrator: &Integrator,
+    cam: &Camera,
+    frame: u32,
+    spp: u32,
+    seed: u64,
+    log_rays: bool,
+    on_tile: &(dyn Fn(&RayCounts) + Sync),
+) -> FrameResult {
+    let (w, h) = (cam.width, cam.height);
+    let tiles = tiles(w, h);
+    let results: Vec<(Vec<Vec3>, Tally)> = tiles
+        .par_iter()
+        .map(|&(x0, y0, x1, y1)| {
+            let mut t = if log_rays {
+                Tally::logging()
+            } else {
+                Tally::default()
+            };
+            let mut px = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let pixel = y * w + x;
+                    let mut sum = Vec3::ZERO;
+                    for s in 0..spp {
+                        let mut sampler = Sampler::new(seed, frame, pixel, s);
+                        let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
+                        sum += integrator.sample_pixel(cam, r, &mut sampler, &mut t);
+                    }
+                    px.push(sum / spp as f32);
+                }
+            }
+            on_tile(&t.counts);
+            (px, t)
+        })
+        .collect();
+    let mut pixels = vec![Vec3::ZERO; (w * h) as usize];
+    let mut counts = RayCounts::default();
+    let mut ray_logs = Vec::new();
+    for (&tile, (px, t)) in tiles.iter().zip(results) {
+        place_tile(&mut pixels, w, tile, &px);
+        counts.add(&t.counts);
+        ray_logs.extend(t.log);
+    }
+    FrameResult {
+        pixels,
+        counts,
+        ray_logs,
+    }
+}
+
+/// The frames `run.units` with the independent tracer, from `run.next` on; each finished frame
+/// goes to `sink` (or, for a chunk, to its partial log). Returns false if interrupted (after a
+/// checkpoint).
+pub fn run_independent(
+    integrator: &Integrator,
+    (spp, seed): (u32, u64),
+    (w, h): (u32, u32),
+    progress: bool,
+    run: &mut Run,
+    sink: &mut dyn Sink,
+) -> Result<bool> {
+    let scene = integrator.scene;
+    let (a, b) = (*run.units.start(), *run.units.end());
+    let tiles_per_frame = tiles(w, h).len() as u64;
+    let pb = progress_bar(progress, (b + 1 - a) as u64 * tiles_per_frame, "tiles");
+    pb.set_position((run.next - a) as u64 * tiles_per_frame);
+    let start = Instant::now();
+    let total_rays = AtomicU64::new(0);
+    for frame in run.next..=b {
+        if run.interrupted() {
+            run.save([])?;
+            pb.abandon();
+            return Ok(false);
+        }
+        let cam = scene.camera(frame, w, h);
+        let frame_start = Instant::now();
+        let on_tile = |c: &RayCounts| {
+            let total = total_rays.fetch_add(c.total(), Relaxed) + c.total();
+            let secs = start.elapsed().as_secs_f64().max(1e-9);
+            pb.set_message(format!(
+                "| frame {}/{} | {:.2} Mrays/s",
+                frame - a + 1,
+                b - a + 1,
+                total as f64 / secs / 1e6
+            ));
+            pb.inc(1);
+        };
+        let f = render_frame_independent(integrator, &cam, frame, spp, seed, false, &on_tile);
+        run.counters.counts.add(&f.counts);
+        let d = Developed::from_pixels(
+            View::of(frame, &cam),
+            &f.pixels,
+            frame_start.elapsed().as_secs_f64(),
+        );
+        run.counters.nonfinite_pixels += d.nonfinite;
+        if run.ckpt.chunked() {
+            run.ckpt.retire(&Record::Pixels(d))?;
+        } else {
+            sink.put(d)?;
+        }
+        run.next = frame + 1;
+        if frame < b && run.ckpt.due() {
+            run.save([])?;
+        }
+    }
+    pb.finish_and_clear();
+    Ok(true)
+}

@@ -1,0 +1,238 @@
+//! The driver: owns the frame loops, the worker pool, the progress bar, the statistics and every
+//! file a render writes. The estimators only estimate (Mitsuba's `SamplingIntegrator::render`
+//! against the CLI's `film->write`); arrows point down only: the driver calls `reuse`, `film`,
+//! `state` and the integrator, none of which calls back.
+//!
+//! The rooms: `options` (what a render is asked to do, and its one validation), `run` (a
+//! resumable run and its interruption), `independent` and `groups` (the two frame loops),
+//! `sink` (frame files), `stats` (what `--stats` writes) and `merge` (`reframe merge`).
+//!
+//! ```no_run
+//! use reframe::driver::{render, RenderOptions};
+//! use reframe::{embree::Device, scene::Scene};
+//! let device = Device::new()?;
+//! let scene = Scene::load("furnace", &device)?;
+//! let opts = RenderOptions { out: "out/furnace_####.exr".into(), ..RenderOptions::default() };
+//! let stats = render(&scene, &opts)?;
+//! println!("{} rays", stats.rays_total());
+//! # anyhow::Ok(())
+//! ```
+pub mod groups;
+pub mod independent;
+pub mod merge;
+pub mod options;
+pub mod run;
+pub mod sink;
+pub mod stats;
+
+pub use independent::{render_frame_independent, FrameResult};
+pub use options::{check_frames, Plan, RenderOptions};
+pub use run::Interrupted;
+pub use stats::RenderStats;
+
+use crate::film::{FrameAccum, Sink};
+use crate::integrator::Integrator;
+use crate::reuse::Params;
+use crate::scene::Scene;
+use crate::state::checkpoint::{Checkpointer, Counters};
+use crate::state::key::{scene_and_build_hashes, RunKey};
+use crate::state::Trailer;
+use crate::util::fs::{parent_dir, remove_stale_tmp, write_json};
+use anyhow::{Context, Result};
+use groups::{run_groups, GroupSettings};
+use indicatif::{ProgressBar, ProgressStyle};
+use run::Run;
+use sink::{FileSink, FrameMeta};
+use std::path::Path;
+use std::time::Duration;
+
+/// A rayon pool whose workers set FTZ/DAZ, as Embree asks of every tracing thread.
+pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .start_handler(|_| crate::embree::set_flush_denormals())
+        .build()
+        .context("creating the worker threads")
+}
+
+pub fn progress_bar(enabled: bool, len: u64, what: &str) -> ProgressBar {
+    if !enabled {
+        return ProgressBar::hidden();
+    }
+    // indicatif draws only when stderr is a terminal, so scripts and logs stay quiet.
+    let pb = ProgressBar::new(len);
+    pb.set_style(
+        ProgressStyle::with_template(&format!(
+            "{{spinner}} [{{elapsed_precise}}] {{bar:30}} {{pos}}/{{len}} {what} {{msg}} ETA {{eta}}"
+        ))
+        .expect("valid template"),
+    );
+    pb
+}
+
+/// The settings that make a render's pixels what they are (a resume or merge needs them equal).
+fn run_key(scene: &Scene, opts: &RenderOptions, plan: &Plan) -> Result<RunKey> {
+    let (scene_hash, build_hash) = scene_and_build_hashes(scene)?;
+    Ok(RunKey {
+        scene: scene.name.clone(),
+        scene_hash,
+        build_hash,
+        method: opts.method.name().into(),
+        spp: opts.spp,
+        window: opts.window,
+        first_frame: *plan.frames.start(),
+        last_frame: *plan.frames.end(),
+        width: plan.width,
+        height: plan.height,
+        seed: opts.seed,
+        max_depth: opts.max_depth,
+        visibility: if opts.packets { "packet" } else { "single" }.into(),
+        aov: opts.aov,
+        adaptive: opts.adaptive.unwrap_or(0.0),
+    })
+}
+
+/// Run `run` with the frame loop of `opts.method`, from the frames in flight `active`, handing
+/// finished frames to `sink`. False if interrupted.
+fn frame_loop(
+    integrator: &Integrator,
+    opts: &RenderOptions,
+    plan: &Plan,
+    run: &mut Run,
+    active: Vec<FrameAccum>,
+    sink: &mut dyn Sink,
+) -> Result<bool> {
+    let (w, h) = (plan.width, plan.height);
+    if !opts.method.reuses() {
+        return independent::run_independent(
+            integrator,
+            (opts.spp, opts.seed),
+            (w, h),
+            opts.progress,
+            run,
+            sink,
+        );
+    }
+    let settings = GroupSettings {
+        params: Params {
+            method: opts.method,
+            spp: opts.spp,
+            seed: opts.seed,
+            packets: opts.packets,
+        },
+        window: opts.window,
+        aov: opts.aov,
+        adaptive: opts.adaptive,
+        width: w,
+        height: h,
+        progress: opts.progress,
+    };
+    run_groups(integrator, &settings, run, active, sink)
+}
+
+/// Render the frames of `opts` in memory with `integrator`, handing each finished frame to
+/// `sink` (no checkpoint, no chunk, no file): the comparisons', the benchmark's and the tests'
+/// way in. Returns the run's counters.
+pub fn render_frames(
+    integrator: &Integrator,
+    opts: &RenderOptions,
+    sink: &mut dyn Sink,
+) -> Result<Counters> {
+    let plan = opts.validate(integrator.scene)?;
+    let mut run = Run::in_memory(plan.units.clone());
+    frame_loop(integrator, opts, &plan, &mut run, vec![], sink)?;
+    run.counters.seconds = run.seconds();
+    Ok(run.counters)
+}
+
+/// Render the frames of `opts` and write them (or, for a chunk, its partial file); returns the
+/// statistics (also written to `opts.stats` if set). A render stopped by `opts.interrupt` ends
+/// in an `Interrupted` error after its checkpoint.
+pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
+    let startup_rss_bytes = crate::util::mem::rss_bytes();
+    let plan = opts.validate(scene)?;
+    let out = opts.check_files(&plan)?;
+    let (ckpt, resumed) = if opts.checkpoint.is_some() || opts.chunk.is_some() {
+        let key = run_key(scene, opts, &plan)?;
+        let template = Trailer::new(
+            key,
+            opts.chunk,
+            &plan.units,
+            opts.out.clone(),
+            opts.exr_float,
+        );
+        let every = Duration::from_secs_f64(opts.checkpoint_every);
+        Checkpointer::open(
+            opts.checkpoint.clone(),
+            every,
+            opts.resume,
+            template,
+            opts.method.norm(),
+        )?
+    } else {
+        (Checkpointer::none(), None)
+    };
+    let (counters, next, active) = match resumed {
+        Some(r) => {
+            // Frame files a killed process was writing when it died.
+            let names: Vec<String> = plan
+                .frames
+                .clone()
+                .filter_map(|f| Some(out.path(f).file_name()?.to_string_lossy().into_owned()))
+                .collect();
+            let dir = parent_dir(&out.path(*plan.frames.start()));
+            remove_stale_tmp(&dir, |n| names.iter().any(|m| m == n));
+            (r.trailer.progress, r.trailer.next_unit, r.active)
+        }
+        None => (Counters::default(), *plan.units.start(), vec![]),
+    };
+    let mut run = Run::new(ckpt, plan.units.clone(), next, counters);
+    run.interrupt = opts.interrupt.clone();
+    let pool = thread_pool(opts.threads)?;
+    crate::embree::set_flush_denormals();
+    let integrator = Integrator::new(scene, opts.max_depth);
+    let mut sink = FileSink::new(
+        FrameMeta {
+            scene: scene.name.clone(),
+            method: opts.method.name().into(),
+            spp: opts.spp,
+            window: opts.window,
+            seed: opts.seed,
+            exr_float: opts.exr_float,
+        },
+        out,
+    );
+    let completed =
+        pool.install(|| frame_loop(&integrator, opts, &plan, &mut run, active, &mut sink))?;
+    if !completed {
+        return Err(Interrupted {
+            checkpoint: run.ckpt.dir().map(Path::to_path_buf),
+            frames_done: run.frames_retired(),
+        }
+        .into());
+    }
+    let partial = run.finish()?;
+    let outputs = match &partial {
+        Some(p) => vec![p.display().to_string()],
+        None => plan
+            .frames
+            .clone()
+            .map(|f| sink.out.path(f).display().to_string())
+            .collect(),
+    };
+    let stats = RenderStats::new(
+        &scene.name,
+        opts,
+        &plan,
+        &run.counters,
+        run.counters.seconds,
+        pool.current_num_threads(),
+        startup_rss_bytes,
+        outputs,
+        (run.ckpt.written, run.ckpt.spent.as_secs_f64()),
+    );
+    if let Some(p) = &opts.stats {
+        write_json(p, &stats)?;
+    }
+    Ok(stats)
+}

@@ -1,0 +1,236 @@
+//! What a render is asked to do, and the one validation of it: the library's `render` and the
+//! command line both go through `RenderOptions::validate`, before the first ray and before the
+//! first file is written.
+use crate::image::OutputPattern;
+use crate::reuse::Method;
+use crate::scene::{Scene, MAX_PIXELS};
+use crate::state::key::Chunk;
+use crate::util::fs::check_file_target;
+use anyhow::{bail, Context, Result};
+use std::ops::RangeInclusive;
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+#[derive(Clone, Debug)]
+pub struct RenderOptions {
+    pub method: Method,
+    pub spp: u32,
+    /// Frames per reuse group (n_f = 2n+1); 1 for the independent tracer.
+    pub window: u32,
+    /// Visibility tests of reuse in 16-wide packets (else single rays).
+    pub packets: bool,
+    /// Write extra EXR channels: effective sample count and share of lost reuses per pixel.
+    pub aov: bool,
+    /// Inclusive frame range; `None` renders all of the scene's frames.
+    pub frames: Option<RangeInclusive<u32>>,
+    /// Resolution override; `None` keeps the scene's.
+    pub resolution: Option<(u32, u32)>,
+    pub out: String,
+    pub seed: u64,
+    /// Worker threads; 0 = one per core.
+    pub threads: usize,
+    pub max_depth: u32,
+    pub exr_float: bool,
+    pub stats: Option<PathBuf>,
+    /// Draw a progress bar (only ever on a terminal).
+    pub progress: bool,
+    /// Checkpoint folder (`None`: no checkpoints); see `state::checkpoint`.
+    pub checkpoint: Option<PathBuf>,
+    /// Seconds between checkpoints (0: after every group, or frame).
+    pub checkpoint_every: f64,
+    /// Continue from the checkpoint in `checkpoint`, if there is one.
+    pub resume: bool,
+    /// `mis-exact` only: top every pixel's expected sample count up to this share of `n_f n_r`
+    /// with extra native samples (`reuse::adaptive`); `None`: `n_r` everywhere.
+    pub adaptive: Option<f32>,
+    /// Render only chunk K of N of the groups and write its partial file (`reframe merge`).
+    pub chunk: Option<Chunk>,
+    /// Set (by a signal handler) to stop at the next group or frame, after a checkpoint.
+    pub interrupt: Option<Arc<AtomicBool>>,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        RenderOptions {
+            method: Method::Independent,
+            spp: 8,
+            window: 1,
+            packets: true,
+            aov: false,
+            frames: None,
+            resolution: None,
+            out: "out/frame_####.exr".into(),
+            seed: 0,
+            threads: 0,
+            max_depth: 16,
+            exr_float: false,
+            stats: None,
+            progress: true,
+            checkpoint: None,
+            checkpoint_every: 60.0,
+            resume: false,
+            adaptive: None,
+            chunk: None,
+            interrupt: None,
+        }
+    }
+}
+
+/// A validated render: what it covers.
+#[derive(Clone, Debug)]
+pub struct Plan {
+    pub frames: RangeInclusive<u32>,
+    pub width: u32,
+    pub height: u32,
+    /// The units of work this process renders: groups of `window` frames sliding by one (group
+    /// `g` is frames `g..g + window`), or single frames; a chunk's share of them.
+    pub units: RangeInclusive<u32>,
+}
+
+impl Plan {
+    pub fn frame_count(&self) -> u32 {
+        self.frames.end() - self.frames.start() + 1
+    }
+}
+
+/// A frame range must be non-empty and inside the scene's animation.
+pub fn check_frames(scene: &Scene, range: &RangeInclusive<u32>) -> Result<()> {
+    let last = scene.frames - 1;
+    if range.start() > range.end() || *range.end() > last {
+        bail!(
+            "--frames {}-{}: the scene '{}' has frames 0-{last}",
+            range.start(),
+            range.end(),
+            scene.name
+        );
+    }
+    Ok(())
+}
+
+/// What is wrong with a resolution, if anything: it must have pixels, and at most `MAX_PIXELS`
+/// of them (2^28, 16384 x 16384, keeps every per-pixel index and buffer size inside 32 bits).
+pub fn resolution_problem((w, h): (u32, u32)) -> Option<&'static str> {
+    if w == 0 || h == 0 {
+        Some("width and height must be positive")
+    } else if w as u64 * h as u64 > MAX_PIXELS {
+        Some("at most 2^28 pixels (e.g. 16384x16384)")
+    } else {
+        None
+    }
+}
+
+/// A resolution must have pixels, and at most `MAX_PIXELS` of them.
+pub fn check_resolution((w, h): (u32, u32)) -> Result<()> {
+    match resolution_problem((w, h)) {
+        Some(why) => bail!("--res {w}x{h}: {why}"),
+        None => Ok(()),
+    }
+}
+
+/// Paths need at least one bounce.
+pub fn check_max_depth(max_depth: u32) -> Result<()> {
+    if max_depth == 0 {
+        bail!("--max-depth 0: paths need at least one bounce");
+    }
+    Ok(())
+}
+
+impl RenderOptions {
+    /// Every setting checked against `scene`, before anything is traced or written: the frames,
+    /// resolution, samples, window, method-specific flags, checkpoint interval and depth. The
+    /// files (`--out`, `--stats`) are checked by `check_files`.
+    pub fn validate(&self, scene: &Scene) -> Result<Plan> {
+        let range = self.frames.clone().unwrap_or(0..=scene.frames - 1);
+        check_frames(scene, &range)?;
+        let (w, h) = self.resolution.unwrap_or((scene.width, scene.height));
+        check_resolution((w, h))?;
+        if self.spp == 0 {
+            bail!("--spp 0: at least one sample per pixel is needed");
+        }
+        let n = range.end() - range.start() + 1;
+        if self.window.is_multiple_of(2) {
+            bail!(
+                "--window {}: a group is n_f = 2n+1 frames, so the window must be odd",
+                self.window
+            );
+        }
+        if self.window > n {
+            bail!(
+                "--window {}: larger than the {n} frames rendered",
+                self.window
+            );
+        }
+        if let Some(t) = self.adaptive {
+            if !self.method.adaptive() {
+                bail!(
+                    "--adaptive: only mis-exact weighs samples by their exact densities, which \
+                     adaptive counts need (method is {})",
+                    self.method.name()
+                );
+            }
+            if !(t > 0.0 && t <= 1.0) {
+                bail!("--adaptive {t}: the target share of n_f n_r must be in (0, 1]");
+            }
+        }
+        if !self.method.reuses() && self.window != 1 {
+            bail!(
+                "--window {}: only the reuse methods (havran, mis, mis-exact) take a window",
+                self.window
+            );
+        }
+        if !self.checkpoint_every.is_finite() || self.checkpoint_every < 0.0 {
+            bail!(
+                "--checkpoint-every {}: seconds must be 0 or more",
+                self.checkpoint_every
+            );
+        }
+        check_max_depth(self.max_depth)?;
+        let units = *range.start()..=range.end() + 1 - self.window;
+        let units = match self.chunk {
+            Some(c) => c.share(units).with_context(|| {
+                format!(
+                    "{} of frames {}-{} with window {}",
+                    if self.method.reuses() {
+                        "groups"
+                    } else {
+                        "frames"
+                    },
+                    range.start(),
+                    range.end(),
+                    self.window
+                )
+            })?,
+            None => units,
+        };
+        Ok(Plan {
+            frames: range,
+            width: w,
+            height: h,
+            units,
+        })
+    }
+
+    /// The output pattern and the stats file, checked before anything is traced: a long render
+    /// must not fail at its end.
+    pub fn check_files(&self, plan: &Plan) -> Result<OutputPattern> {
+        let out = check_output(&self.out, &plan.frames)?;
+        if let Some(p) = &self.stats {
+            check_file_target("--stats", p)?;
+        }
+        Ok(out)
+    }
+}
+
+/// An output pattern that can take `frames`: parsed, with a frame field if it is more than one,
+/// in a format OIIO writes, in a folder where files can be created.
+pub fn check_output(pattern: &str, frames: &RangeInclusive<u32>) -> Result<OutputPattern> {
+    let out = OutputPattern::parse(pattern)?;
+    if frames.start() != frames.end() && !out.has_frame_field() {
+        bail!(
+            "--out {pattern}: several frames need a frame number field such as '####' in the name"
+        );
+    }
+    out.validate()?;
+    Ok(out)
+}

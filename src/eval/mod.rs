@@ -1,0 +1,9 @@
+//! Evaluation: what the methods cost and how accurate they are, measured through the driver.
+//! `bench` (the cost model's terms and eq. 16), `reference` (cached high-sample frames),
+//! `errors` (error, flicker and their fits), `compare` (every method against the reference) and
+//! `chart` (SVG and PNG charts).
+pub mod bench;
+pub mod chart;
+pub mod compare;
+pub mod errors;
+pub mod reference;

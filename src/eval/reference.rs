@@ -1,0 +1,261 @@
+//! `reframe reference`: the high-sample reference frames that `compare` measures against.
+//!
+//! The independent tracer at `--reference-spp`, as `PASSES` passes with their own seeds: the
+//! mean is the reference `R` and the spread of the passes gives the variance of that mean per
+//! pixel and channel, `V = sum_k (p_k - R)^2 / (K (K - 1))`. The frames are cached as EXR
+//! (channels R, G, B, var.R, var.G, var.B) in a folder whose name carries a key: a hash of the
+//! loaded scene (geometry, materials, camera path), the resolution, the frames, the sample count,
+//! the path depth and the reframe executable itself, so that any change to the scene, the
+//! settings or the code renders it anew. A folder is used only once its `reference.json`
+//! (written last) is there.
+use crate::camera::Camera;
+use crate::driver::options::check_max_depth;
+use crate::driver::{progress_bar, render_frame_independent};
+use crate::image::{read_image, write_image, Image, Metadata, WriteOptions};
+use crate::integrator::{Integrator, RayCounts};
+use crate::scene::Scene;
+use crate::state::key::scene_and_build_hashes;
+use crate::util::fs::{check_writable_dir, write_json};
+use crate::util::hash::Fnv;
+use anyhow::{bail, Context, Result};
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+use std::ops::RangeInclusive;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Passes the reference is split into, for its per-pixel variance.
+pub const PASSES: u32 = 8;
+/// Seed of the reference's first pass; compare's runs use `--seed` (small numbers).
+const REFERENCE_SEED: u64 = 0x7265_6672_616d_6500;
+/// One reference frame: the mean and the variance of the mean, per pixel.
+pub struct RefFrame {
+    pub mean: Vec<Vec3>,
+    pub var: Vec<Vec3>,
+}
+
+pub struct Reference {
+    pub first: u32,
+    pub frames: Vec<RefFrame>,
+    pub dir: PathBuf,
+    pub spp: u32,
+    /// Found in the cache (nothing rendered).
+    pub cached: bool,
+    /// Render time when it was made.
+    pub seconds: f64,
+}
+
+/// What marks a cached reference as complete and what it was made from.
+#[derive(Serialize, Deserialize)]
+struct ReferenceInfo {
+    scene: String,
+    width: u32,
+    height: u32,
+    first_frame: u32,
+    last_frame: u32,
+    spp: u32,
+    passes: u32,
+    #[serde(default)]
+    max_depth: u32,
+    key: String,
+    seconds: f64,
+}
+
+/// The cache key of a reference (see the module note).
+pub fn reference_key(
+    scene: &Scene,
+    range: &RangeInclusive<u32>,
+    (w, h): (u32, u32),
+    spp: u32,
+    max_depth: u32,
+) -> Result<String> {
+    let (scene_hash, build_hash) = scene_and_build_hashes(scene)?;
+    let mut f = Fnv::default();
+    f.bytes(scene_hash.as_bytes());
+    f.bytes(build_hash.as_bytes());
+    for v in [*range.start(), *range.end(), w, h, spp, PASSES, max_depth] {
+        f.bytes(&v.to_le_bytes());
+    }
+    Ok(f.hex())
+}
+
+/// The reference of `range` at `w` x `h`: from the cache when there, else rendered and cached.
+#[allow(clippy::too_many_arguments)]
+pub fn reference(
+    scene: &Scene,
+    range: RangeInclusive<u32>,
+    (w, h): (u32, u32),
+    spp: u32,
+    max_depth: u32,
+    cache: &Path,
+    pool: &rayon::ThreadPool,
+    progress: bool,
+) -> Result<Reference> {
+    if spp < PASSES || !spp.is_multiple_of(PASSES) {
+        bail!("--reference-spp {spp}: must be a multiple of {PASSES} (the reference is {PASSES} passes, for its variance)");
+    }
+    check_max_depth(max_depth)?;
+    let key = reference_key(scene, &range, (w, h), spp, max_depth)?;
+    let (first, last) = (*range.start(), *range.end());
+    let dir = cache.join(format!(
+        "{}_{w}x{h}_f{first}-{last}_{spp}spp_d{max_depth}_{key}",
+        scene.name
+    ));
+    let info_path = dir.join("reference.json");
+    let frame_path = |f: u32| dir.join(format!("ref_{f:04}.exr"));
+    if let Ok(text) = std::fs::read_to_string(&info_path) {
+        let info: ReferenceInfo = serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a reference description", info_path.display()))?;
+        let mut frames = Vec::new();
+        for f in range.clone() {
+            frames.push(read_reference_frame(&frame_path(f), w, h)?);
+        }
+        return Ok(Reference {
+            first,
+            frames,
+            dir,
+            spp,
+            cached: true,
+            seconds: info.seconds,
+        });
+    }
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    check_writable_dir(&dir)?;
+    let integrator = Integrator::new(scene, max_depth);
+    let n = (last - first + 1) as u64;
+    let pb = progress_bar(progress, n * PASSES as u64, "reference passes");
+    let start = Instant::now();
+    let mut frames = Vec::new();
+    for f in range.clone() {
+        let cam = scene.camera(f, w, h);
+        let none = |_: &RayCounts| {};
+        let passes: Vec<Vec<Vec3>> = (0..PASSES as u64)
+            .map(|k| {
+                let px = pool.install(|| {
+                    render_frame_independent(
+                        &integrator,
+                        &cam,
+                        f,
+                        spp / PASSES,
+                        REFERENCE_SEED + k,
+                        false,
+                        &none,
+                    )
+                    .pixels
+                });
+                pb.inc(1);
+                px
+            })
+            .collect();
+        let k = PASSES as f32;
+        let mean: Vec<Vec3> = (0..passes[0].len())
+            .map(|i| passes.iter().map(|p| p[i]).sum::<Vec3>() / k)
+            .collect();
+        let var: Vec<Vec3> = (0..mean.len())
+            .map(|i| {
+                passes
+                    .iter()
+                    .map(|p| (p[i] - mean[i]) * (p[i] - mean[i]))
+                    .sum::<Vec3>()
+                    / (k * (k - 1.0))
+            })
+            .collect();
+        write_reference_frame(&frame_path(f), scene, &cam, f, spp, &mean, &var)?;
+        frames.push(RefFrame { mean, var });
+    }
+    pb.finish_and_clear();
+    let seconds = start.elapsed().as_secs_f64();
+    write_json(
+        &info_path,
+        &ReferenceInfo {
+            scene: scene.name.clone(),
+            width: w,
+            height: h,
+            first_frame: first,
+            last_frame: last,
+            spp,
+            passes: PASSES,
+            max_depth,
+            key,
+            seconds,
+        },
+    )?;
+    Ok(Reference {
+        first,
+        frames,
+        dir,
+        spp,
+        cached: false,
+        seconds,
+    })
+}
+
+fn write_reference_frame(
+    path: &Path,
+    scene: &Scene,
+    cam: &Camera,
+    frame: u32,
+    spp: u32,
+    mean: &[Vec3],
+    var: &[Vec3],
+) -> Result<()> {
+    let mut img = Image::new(
+        cam.width,
+        cam.height,
+        &["R", "G", "B", "var.R", "var.G", "var.B"],
+    );
+    img.data = mean
+        .iter()
+        .zip(var)
+        .flat_map(|(m, v)| m.to_array().into_iter().chain(v.to_array()))
+        .collect();
+    let meta = Metadata {
+        method: "reference".into(),
+        spp,
+        window: 1,
+        seed: REFERENCE_SEED,
+        render_seconds: 0.0,
+        world_to_camera: cam.world_to_camera().to_cols_array(),
+        world_to_ndc: cam.world_to_ndc().to_cols_array(),
+        extra: vec![
+            ("scene".into(), scene.name.clone()),
+            ("frame".into(), frame.to_string()),
+        ],
+    };
+    write_image(path, &img, &meta, &WriteOptions { exr_float: true })
+}
+
+fn read_reference_frame(path: &Path, w: u32, h: u32) -> Result<RefFrame> {
+    let img = read_image(path).with_context(|| "the cached reference is incomplete")?;
+    if (img.width, img.height) != (w, h) {
+        bail!(
+            "{}: {}x{}, expected {w}x{h}",
+            path.display(),
+            img.width,
+            img.height
+        );
+    }
+    let ch = |name: &str| {
+        img.channel_index(name)
+            .with_context(|| format!("{}: no channel {name}", path.display()))
+    };
+    let idx = [
+        ch("R")?,
+        ch("G")?,
+        ch("B")?,
+        ch("var.R")?,
+        ch("var.G")?,
+        ch("var.B")?,
+    ];
+    let nc = img.channels.len();
+    let at = |i: usize, c: usize| img.data[i * nc + idx[c]];
+    let n = (w * h) as usize;
+    Ok(RefFrame {
+        mean: (0..n)
+            .map(|i| Vec3::new(at(i, 0), at(i, 1), at(i, 2)))
+            .collect(),
+        var: (0..n)
+            .map(|i| Vec3::new(at(i, 3), at(i, 4), at(i, 5)))
+            .collect(),
+    })
+}

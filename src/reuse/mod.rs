@@ -1,0 +1,127 @@
+//! Frame reuse (Méndez-Feliu, Sbert, Szirmay-Kalos 2006; the estimators derived in
+//! `docs/estimators.md`).
+//!
+//! Schedule (the paper's Sec. 4.1): a group is `n_f = --window` consecutive frames; every frame of
+//! the group shoots `n_r = --spp` native samples per pixel, and every native primary hit is
+//! reused in every other frame of the group after one visibility test towards that frame's eye.
+//! Groups slide one frame at a time; a frame's estimate is the mean of the estimates of the
+//! groups it belongs to (the driver's group loop, `driver::groups`).
+//!
+//! The rooms: `Method` (here) is the one registry of methods and answers every per-method
+//! question; `weights` holds each equation of the paper once, by number; `shade` traces a tile's
+//! native samples and splats their reuses into the group's films; `visibility` tests hits against
+//! an eye; `adaptive` decides per-pixel native counts before sampling. The estimator takes a
+//! `Params` struct, never the command line's options, and writes no file.
+pub mod adaptive;
+pub mod shade;
+pub mod visibility;
+pub mod weights;
+
+use crate::film::{Layout, Norm};
+use serde::Serialize;
+
+/// Rendering methods, registered in one place: a new method is one variant here and one arm in
+/// each `match` on it (`name`, `weights`, `norm`, `adaptive`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// Independent path tracing of every frame (the baseline).
+    Independent,
+    /// Havran et al. 2003: reused samples averaged unweighted (biased on glossy surfaces).
+    Havran,
+    /// The paper's MIS reuse (eq. 13-15 with approximation (10)).
+    Mis,
+    /// Balance heuristic over the group's eyes with exact area densities (docs/estimators.md).
+    MisExact,
+}
+
+/// Which estimator a method splats with (`weights`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Weights {
+    /// No reuse: the path tracer's own estimate in its own pixel.
+    None,
+    /// The native eye's estimate (7) re-evaluated for the target eye (Havran et al.).
+    OwnEye,
+    /// The balance heuristic of eq. 15, which approximation (10) reduces eq. 13 to.
+    Paper,
+    /// Eq. 13 with the exact area densities `D_k` (docs/estimators.md, "exact").
+    Exact,
+}
+
+impl Method {
+    pub const ALL: [Method; 4] = [
+        Method::Independent,
+        Method::Havran,
+        Method::Mis,
+        Method::MisExact,
+    ];
+
+    pub fn name(&self) -> &'static str {
+        match self {
+            Method::Independent => "independent",
+            Method::Havran => "havran",
+            Method::Mis => "mis",
+            Method::MisExact => "mis-exact",
+        }
+    }
+
+    /// The method named `s` (as `name` spells it).
+    pub fn from_name(s: &str) -> Option<Method> {
+        Method::ALL.into_iter().find(|m| m.name() == s)
+    }
+
+    pub fn weights(&self) -> Weights {
+        match self {
+            Method::Independent => Weights::None,
+            Method::Havran => Weights::OwnEye,
+            Method::Mis => Weights::Paper,
+            Method::MisExact => Weights::Exact,
+        }
+    }
+
+    /// Whether it reuses samples across frames (and so takes a window).
+    pub fn reuses(&self) -> bool {
+        self.weights() != Weights::None
+    }
+
+    /// How a pixel's sums are normalised: by the count that landed (the ratio estimators of
+    /// Havran et al. and of the paper: "for every pixel we keep the final color and the number
+    /// of samples ... and average every result", Sec. 4.2), or by the groups (each group's
+    /// splats are already a whole estimate, their weights dividing by the expected count).
+    pub fn norm(&self) -> Norm {
+        match self {
+            Method::Havran | Method::Mis => Norm::Count,
+            Method::Independent | Method::MisExact => Norm::Groups,
+        }
+    }
+
+    /// Whether adaptive native counts (`--adaptive`) keep it unbiased: only weights built from
+    /// the exact densities take per-pixel counts into account.
+    pub fn adaptive(&self) -> bool {
+        self.weights() == Weights::Exact
+    }
+
+    /// The accumulator layout of a frame for `n_r` native samples and `n_f` frames per group:
+    /// the methods that average by count splat whole radiance estimates, so one unit of their
+    /// sums is worth `n_r n_f` (the count expected without losses) to keep the sums small.
+    pub fn layout(&self, spp: u32, window: u32, aov: bool) -> Layout {
+        let by_count = self.norm() == Norm::Count;
+        Layout {
+            unit: if by_count { (spp * window) as f32 } else { 1.0 },
+            norm: self.norm(),
+            landed: by_count || aov,
+            loss: aov,
+        }
+    }
+}
+
+/// What the reuse estimator needs to know of a render (a small part of the driver's options).
+#[derive(Clone, Copy, Debug)]
+pub struct Params {
+    pub method: Method,
+    /// Native samples per pixel per group, `n_r`.
+    pub spp: u32,
+    pub seed: u64,
+    /// Visibility tests in 16-wide packets (else single rays).
+    pub packets: bool,
+}

@@ -1,0 +1,205 @@
+//! The weights of frame reuse, each equation of the paper in one place (derived in
+//! `docs/estimators.md`, whose section names the comments cite).
+//!
+//! A native sample `s = (x, w)` of eye `m` lands in pixel `i` of frame `j`; what it adds there is
+//! decided by the method's `Weights`:
+//! - `OwnEye` (Havran et al.): the native eye's estimate (7), `FirstHit::radiance`, re-evaluated
+//!   for eye `j`; pixels average by count. On diffuse surfaces eq. 14 shows this is what eq. 15
+//!   gives too, which is why the unweighted average works there and nowhere else.
+//! - `Paper`: eq. 15, `f_j cos L / sum_{visible m'} p(w | x, x->o_m')`: the balance heuristic of
+//!   eq. 13 once approximation (10) has made every visible eye's area density `n_r`. With `n_v`
+//!   eyes seeing `x`, `n_r n_v` samples are expected per pixel, so the value splatted is `n_r n_v`
+//!   times eq. 15, and the pixel divides by the count that landed.
+//! - `Exact`: eq. 13 with the exact densities `D_k = n_k(pi_k(x)) J_k(x) vis inside / A_pix,k`:
+//!   `(J_j / A_pix,j) f_j cos L / sum_k D_k p(w | x, x->o_k)`, unbiased.
+//!
+//! The light sample and the emitter reached along `w` use `p + p_l` in the denominators and the
+//! self-emission of `x` divides by `sum_k D_k` (docs/estimators.md, "direct light").
+use super::Weights;
+use crate::bsdf::Material;
+use crate::integrator::{facing, FirstHit, Integrator};
+use glam::Vec3;
+
+/// The per-eye quantities of one native hit that every method's weights are built from.
+#[derive(Clone, Copy, Debug)]
+pub struct EyeTerms {
+    /// Unit direction from x to the eye.
+    pub wo: Vec3,
+    /// `J_k / A_pix,k` (film density in pixels per unit area at x), or 0 where eye k cannot see x.
+    pub j_over_a: f32,
+    /// `n_k(pi_k(x))`: native samples eye k shot in the pixel x projects to (`--spp`, or the
+    /// adaptive count of that pixel; docs/estimators.md, "adaptive counts").
+    pub n: f32,
+}
+
+/// MIS denominators of one native sample over the eyes of its group (eq. 13's denominator).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Denominators {
+    /// `sum_k D_k p_k(w)`: indirect radiance along w.
+    pub ind: f32,
+    /// `sum_k D_k (p_k(w) + p_l(w))`: the emitter reached along w.
+    pub dir_w: f32,
+    /// `sum_k D_k (p_k(w_l) + p_l(w_l))`: the light sample.
+    pub dir_l: f32,
+    /// `sum_k D_k`: self-emission.
+    pub emit: f32,
+}
+
+/// `D_k(x)` of one eye (0 where it cannot see x): the exact density `n_k J_k / A_pix,k`, or
+/// approximation (10), under which every visible eye's density is `n_r`.
+pub fn density(weights: Weights, e: &EyeTerms, spp: u32) -> f32 {
+    if e.j_over_a <= 0.0 {
+        return 0.0;
+    }
+    match weights {
+        Weights::Exact => e.n * e.j_over_a,
+        Weights::Paper => spp as f32, // approximation (10)
+        Weights::None | Weights::OwnEye => 0.0,
+    }
+}
+
+/// Eq. 13's denominators for `fh` given each eye's terms.
+pub fn denominators(
+    integrator: &Integrator,
+    fh: &FirstHit,
+    eyes: &[EyeTerms],
+    spp: u32,
+    weights: Weights,
+) -> Denominators {
+    let m = integrator.scene.material(&fh.sp);
+    let mut q = Denominators::default();
+    for e in eyes {
+        let d = density(weights, e, spp);
+        if d == 0.0 {
+            continue;
+        }
+        let pdf_k = |w: Vec3| eye_pdf(m, fh, e, w);
+        q.emit += d;
+        if let Some(w) = fh.w {
+            let p = pdf_k(w);
+            q.ind += d * p;
+            q.dir_w += d * (p + fh.pdf_light_w);
+        }
+        if let Some(l) = &fh.light {
+            q.dir_l += d * (pdf_k(l.wi) + l.pdf);
+        }
+    }
+    q
+}
+
+/// The weights of one native hit over the eyes of its group, ready to give its value in any
+/// of them.
+pub struct Weighing<'a> {
+    weights: Weights,
+    integrator: &'a Integrator<'a>,
+    fh: &'a FirstHit,
+    q: Denominators,
+    /// `n_r n_v`: the paper's count average (see the module note).
+    paper_scale: f32,
+}
+
+impl<'a> Weighing<'a> {
+    pub fn new(
+        weights: Weights,
+        integrator: &'a Integrator<'a>,
+        fh: &'a FirstHit,
+        eyes: &[EyeTerms],
+        spp: u32,
+    ) -> Weighing<'a> {
+        let q = match weights {
+            Weights::Paper | Weights::Exact => denominators(integrator, fh, eyes, spp, weights),
+            Weights::None | Weights::OwnEye => Denominators::default(),
+        };
+        let visible = eyes.iter().filter(|e| e.j_over_a > 0.0).count();
+        Weighing {
+            weights,
+            integrator,
+            fh,
+            q,
+            paper_scale: (spp as usize * visible) as f32,
+        }
+    }
+
+    pub fn denominators(&self) -> &Denominators {
+        &self.q
+    }
+
+    /// What the sample splats into the pixel it lands in of the eye at `eye`, with terms `e`.
+    pub fn value(&self, eye: Vec3, e: &EyeTerms) -> Vec3 {
+        match self.weights {
+            // Estimator (7) with the native eye's densities.
+            Weights::None | Weights::OwnEye => self.fh.radiance(self.integrator.scene, eye),
+            // `n_r n_v` times eq. 15.
+            Weights::Paper => self.balance(eye, e.wo, self.paper_scale),
+            // Eq. 13 with exact densities: `J_j / A_pix,j` times the balance-heuristic sum.
+            Weights::Exact => self.balance(eye, e.wo, e.j_over_a),
+        }
+    }
+
+    /// `scale` times the balance-heuristic contribution of the sample to the eye at `eye`
+    /// (unit direction `wo`): self-emission, the light sample, the emitter reached along `w`
+    /// and the rest of the walk, each over its denominator.
+    fn balance(&self, eye: Vec3, wo: Vec3, scale: f32) -> Vec3 {
+        let (scene, fh, q) = (self.integrator.scene, self.fh, &self.q);
+        let sp = &fh.sp;
+        let m = scene.material(sp);
+        let (ng, ns) = facing(sp, wo);
+        let mut l = Vec3::ZERO;
+        if q.emit > 0.0 {
+            l += scene.emitted(sp, eye) / q.emit;
+        }
+        if let Some(ls) = &fh.light {
+            if ls.le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 && q.dir_l > 0.0 {
+                l += m.eval(ns, wo, ls.wi) * ns.dot(ls.wi) * ls.le / q.dir_l;
+            }
+        }
+        if let Some(w) = fh.w {
+            if ng.dot(w) > 0.0 {
+                let fc = m.eval(ns, wo, w) * ns.dot(w);
+                if q.dir_w > 0.0 {
+                    l += fc * fh.le_w / q.dir_w;
+                }
+                if q.ind > 0.0 {
+                    l += fc * fh.li_w / q.ind;
+                }
+            }
+        }
+        l * scale
+    }
+}
+
+/// Each visible eye's balance weight for the indirect part, `D_k p_k(w) / sum_k' D_k' p_k'(w)`,
+/// as the estimator computes it (zero for the eyes that cannot see x). They sum to one wherever
+/// some eye can have drawn `w`: what the weights test checks.
+pub fn indirect_weights(
+    integrator: &Integrator,
+    fh: &FirstHit,
+    eyes: &[EyeTerms],
+    spp: u32,
+    weights: Weights,
+) -> Vec<f32> {
+    let q = denominators(integrator, fh, eyes, spp, weights);
+    let m = integrator.scene.material(&fh.sp);
+    let Some(w) = fh.w else {
+        return vec![0.0; eyes.len()];
+    };
+    eyes.iter()
+        .map(|e| {
+            if q.ind > 0.0 {
+                density(weights, e, spp) * eye_pdf(m, fh, e, w) / q.ind
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+/// The density eye `e` samples `w` with at the hit: its lobe, on its side of the surface.
+fn eye_pdf(m: &Material, fh: &FirstHit, e: &EyeTerms, w: Vec3) -> f32 {
+    let (ng, ns) = facing(&fh.sp, e.wo);
+    if ng.dot(w) > 0.0 {
+        m.pdf(ns, e.wo, w)
+    } else {
+        0.0
+    }
+}

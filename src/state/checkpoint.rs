@@ -1,0 +1,297 @@
+//! Checkpoints and a chunk's log of finished frames, and the counters a run carries across a
+//! resume.
+//!
+//! Atomicity: a checkpoint is written to a temporary name, flushed to disk and renamed over the
+//! previous one, so a kill at any moment (even SIGKILL) leaves either the old or the new
+//! checkpoint. A chunk's finished records go to an append-only log beside its partial file; the
+//! checkpoint remembers the log's length, a resume truncates the log to it, and the finished
+//! chunk appends the trailer and renames the log to the partial file.
+//!
+//! Where they live, for `--out DIR/NAME_####.ext`: the checkpoint in `DIR/NAME.checkpoint/state`
+//! (`DIR/NAME.chunk-K-of-N.checkpoint/` for a chunk), a chunk's partial in
+//! `DIR/NAME.chunk-K-of-N.partial` (`key`). A render that finishes removes its checkpoint.
+use super::key::{partial_path, RunKey};
+use super::{
+    accum_bytes, pixels_bytes, write_accum, write_pixels, write_state, write_trailer, Kind, Record,
+    StateFile, Trailer,
+};
+use crate::film::{FrameAccum, FrameReuse, Norm};
+use crate::integrator::RayCounts;
+use crate::util::fs::{check_writable_dir, remove_stale_tmp};
+use anyhow::{bail, Context, Result};
+use serde::{Deserialize, Serialize};
+use std::fs::{File, OpenOptions};
+use std::io::{BufWriter, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// The counters a render carries across a resume (what `--stats` reports). Each is counted once:
+/// the run's reuse figures are the sums of `per_frame`.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Counters {
+    pub counts: RayCounts,
+    pub nonfinite_samples: u64,
+    pub nonfinite_pixels: u64,
+    /// Reuse figures of every frame retired so far (for a chunk, its share of each frame).
+    pub per_frame: Vec<FrameReuse>,
+    /// Seconds of rendering before this process started.
+    pub seconds: f64,
+}
+
+impl Counters {
+    /// Reuses tried and lost over the frames retired so far.
+    pub fn tried_lost(&self) -> (u64, u64) {
+        self.per_frame
+            .iter()
+            .fold((0, 0), |(t, l), f| (t + f.tried, l + f.lost))
+    }
+
+    pub fn lost_reuse_fraction(&self) -> f64 {
+        match self.tried_lost() {
+            (0, _) => 0.0,
+            (t, l) => l as f64 / t as f64,
+        }
+    }
+
+    /// Landed samples per pixel, averaged over `frames` frames.
+    pub fn mean_effective_spp(&self, frames: u32) -> f64 {
+        self.per_frame
+            .iter()
+            .map(|f| f.mean_effective_spp)
+            .sum::<f64>()
+            / frames as f64
+    }
+}
+
+/// What a resumed render starts from.
+pub struct Resumed {
+    pub trailer: Trailer,
+    /// The frames in flight at the checkpoint.
+    pub active: Vec<FrameAccum>,
+}
+
+/// A chunk's append-only log of finished records: (file, path, valid length, (frame, offset) of
+/// each record).
+type ChunkLog = (File, PathBuf, u64, Vec<(u32, u64)>);
+
+/// Checkpoints and the chunk log of one render.
+pub struct Checkpointer {
+    /// The checkpoint folder; `None`: no checkpoints.
+    dir: Option<PathBuf>,
+    every: Duration,
+    last: Instant,
+    template: Trailer,
+    /// A chunk's append-only log of finished records.
+    log: Option<ChunkLog>,
+    partial: Option<PathBuf>,
+    /// Time spent writing checkpoints, for the statistics.
+    pub spent: Duration,
+    pub written: u32,
+}
+
+impl Checkpointer {
+    /// No checkpoints and no chunk: a plain in-memory render.
+    pub fn none() -> Checkpointer {
+        Checkpointer {
+            dir: None,
+            every: Duration::MAX,
+            last: Instant::now(),
+            template: Trailer::new(RunKey::default(), None, &(0..=0), String::new(), false),
+            log: None,
+            partial: None,
+            spent: Duration::ZERO,
+            written: 0,
+        }
+    }
+
+    /// Whether finished frames go to a chunk's partial log rather than to frame files.
+    pub fn chunked(&self) -> bool {
+        self.log.is_some()
+    }
+
+    pub fn dir(&self) -> Option<&Path> {
+        self.dir.as_deref()
+    }
+
+    /// Open the checkpoint folder `dir` (if any) for a run with `template`'s settings. With
+    /// `resume`, read the checkpoint there and check it was made with the same settings; without,
+    /// refuse to overwrite one. A chunk also opens its log, truncated to the checkpoint's length.
+    pub fn open(
+        dir: Option<PathBuf>,
+        every: Duration,
+        resume: bool,
+        template: Trailer,
+        norm: Norm,
+    ) -> Result<(Checkpointer, Option<Resumed>)> {
+        let mut resumed = None;
+        if let Some(d) = &dir {
+            let state = d.join("state");
+            if state.exists() {
+                if !resume {
+                    bail!(
+                        "{} holds the checkpoint of an interrupted render: add --resume to \
+                         continue it, or delete the folder to start over",
+                        d.display()
+                    );
+                }
+                let mut sf = StateFile::open(&state)?;
+                let t = sf.trailer.clone();
+                if t.kind != Kind::Checkpoint {
+                    bail!("{}: not a checkpoint", state.display());
+                }
+                if let Some(diff) = t.key.difference(&template.key) {
+                    bail!(
+                        "--resume: the checkpoint in {} was made with other settings ({diff}); \
+                         resume with the same command line and build, or delete the folder",
+                        d.display()
+                    );
+                }
+                if t.chunk != template.chunk || t.units != template.units {
+                    bail!(
+                        "--resume: the checkpoint in {} is of another chunk",
+                        d.display()
+                    );
+                }
+                remove_stale_tmp(d, |_| true);
+                let mut active = Vec::new();
+                for &(_, off) in &t.records {
+                    match sf.record(off, norm)? {
+                        Record::Sums(a) => active.push(a),
+                        Record::Pixels(_) => bail!(
+                            "{}: the checkpoint holds finished pixels, not sums",
+                            state.display()
+                        ),
+                    }
+                }
+                resumed = Some(Resumed { trailer: t, active });
+            } else if resume {
+                eprintln!(
+                    "note: no checkpoint in {}: starting from the beginning",
+                    d.display()
+                );
+            }
+            std::fs::create_dir_all(d)
+                .with_context(|| format!("creating the checkpoint folder {}", d.display()))?;
+            check_writable_dir(d)?;
+        }
+        let partial = template.chunk.map(|c| partial_path(&template.out, c));
+        let log = match &partial {
+            None => None,
+            Some(p) => {
+                let mut name = p.file_name().unwrap_or_default().to_os_string();
+                name.push(".log");
+                let lp = p.with_file_name(name);
+                let f = OpenOptions::new()
+                    .create(true)
+                    .truncate(false)
+                    .write(true)
+                    .open(&lp)
+                    .with_context(|| format!("opening {}", lp.display()))?;
+                let (len, recs) = match &resumed {
+                    Some(r) => (r.trailer.log_len, r.trailer.log_records.clone()),
+                    None => (0, Vec::new()),
+                };
+                if f.metadata()?.len() < len {
+                    bail!("{}: shorter than its checkpoint says; delete the checkpoint and the log to start the chunk over", lp.display());
+                }
+                f.set_len(len)?;
+                let mut f = f;
+                f.seek(SeekFrom::Start(len))?;
+                Some((f, lp, len, recs))
+            }
+        };
+        Ok((
+            Checkpointer {
+                dir,
+                every,
+                last: Instant::now(),
+                template,
+                log,
+                partial,
+                spent: Duration::ZERO,
+                written: 0,
+            },
+            resumed,
+        ))
+    }
+
+    /// Whether a checkpoint is due (there is a folder and `every` has passed since the last).
+    pub fn due(&self) -> bool {
+        self.dir.is_some() && self.last.elapsed() >= self.every
+    }
+
+    pub fn enabled(&self) -> bool {
+        self.dir.is_some()
+    }
+
+    /// Write the checkpoint: the next unit to render, the counters, the frames in flight.
+    pub fn save<'a>(
+        &mut self,
+        next_unit: u32,
+        progress: &Counters,
+        active: impl IntoIterator<Item = &'a FrameAccum>,
+    ) -> Result<()> {
+        let Some(dir) = &self.dir else {
+            return Ok(());
+        };
+        let t0 = Instant::now();
+        let mut t = self.template.clone();
+        t.kind = Kind::Checkpoint;
+        t.next_unit = next_unit;
+        t.progress = progress.clone();
+        if let Some((f, _, len, recs)) = &mut self.log {
+            // The log's records must be on disk before a checkpoint counts them.
+            f.sync_data()?;
+            t.log_len = *len;
+            t.log_records = recs.clone();
+        }
+        write_state(&dir.join("state"), &mut t, active)?;
+        self.spent += t0.elapsed();
+        self.written += 1;
+        self.last = Instant::now();
+        Ok(())
+    }
+
+    /// A chunk's frame that no later group of the chunk touches: append it to the log.
+    pub fn retire(&mut self, r: &Record) -> Result<()> {
+        let (f, lp, len, recs) = self.log.as_mut().expect("retire is only called for chunks");
+        let mut w = BufWriter::new(&mut *f);
+        match r {
+            Record::Sums(a) => write_accum(a, &mut w),
+            Record::Pixels(d) => write_pixels(d, &mut w),
+        }
+        .and_then(|_| std::io::Write::flush(&mut w))
+        .with_context(|| format!("writing {}", lp.display()))?;
+        recs.push((r.frame(), *len));
+        *len += match r {
+            Record::Sums(a) => accum_bytes(a),
+            Record::Pixels(d) => pixels_bytes(d),
+        };
+        Ok(())
+    }
+
+    /// The run is complete: a chunk turns its log into the partial file; the checkpoint goes.
+    /// Returns the partial file of a chunk.
+    pub fn finish(&mut self, next_unit: u32, progress: &Counters) -> Result<Option<PathBuf>> {
+        let mut out = None;
+        if let (Some((f, lp, _, recs)), Some(partial)) = (self.log.take(), &self.partial) {
+            let mut t = self.template.clone();
+            t.kind = Kind::Partial;
+            t.next_unit = next_unit;
+            t.progress = progress.clone();
+            t.records = recs;
+            let mut w = BufWriter::new(f);
+            write_trailer(&mut w, &t).with_context(|| format!("writing {}", lp.display()))?;
+            let f = w.into_inner().map_err(|e| e.into_error())?;
+            f.sync_all()?;
+            std::fs::rename(&lp, partial)
+                .with_context(|| format!("renaming {} to {}", lp.display(), partial.display()))?;
+            out = Some(partial.clone());
+        }
+        if let Some(d) = &self.dir {
+            let _ = std::fs::remove_file(d.join("state"));
+            let _ = std::fs::remove_dir(d);
+        }
+        Ok(out)
+    }
+}

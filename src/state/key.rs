@@ -1,0 +1,184 @@
+//! What identifies a render's state: the settings its pixels depend on (`RunKey`), the chunks a
+//! render is split into (`Chunk`), and where its checkpoint and partial files live.
+use crate::scene::Scene;
+use crate::util::hash::{hash_exe, Fnv};
+use anyhow::{bail, Result};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Everything about a scene that changes a rendered pixel: geometry, materials, camera path.
+pub fn hash_scene(f: &mut Fnv, scene: &Scene) {
+    f.f32s(scene.positions.iter().flat_map(|p| p.to_array()));
+    f.f32s(scene.normals.iter().flat_map(|p| p.to_array()));
+    for t in &scene.triangles {
+        f.bytes(&t.map(u32::to_le_bytes).concat());
+    }
+    for m in &scene.tri_material {
+        f.bytes(&m.to_le_bytes());
+    }
+    f.bytes(format!("{:?}{:?}", scene.materials, scene.path).as_bytes());
+    f.bytes(&scene.frames.to_le_bytes());
+}
+
+/// The hex hashes of `scene` and of this build, as a run key and a reference key carry them.
+pub fn scene_and_build_hashes(scene: &Scene) -> Result<(String, String)> {
+    let mut f = Fnv::default();
+    hash_scene(&mut f, scene);
+    let mut b = Fnv::default();
+    hash_exe(&mut b)?;
+    Ok((f.hex(), b.hex()))
+}
+
+/// The settings a state file was made with; resuming or merging needs them all equal.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RunKey {
+    pub scene: String,
+    pub scene_hash: String,
+    pub build_hash: String,
+    pub method: String,
+    pub spp: u32,
+    pub window: u32,
+    pub first_frame: u32,
+    pub last_frame: u32,
+    pub width: u32,
+    pub height: u32,
+    pub seed: u64,
+    pub max_depth: u32,
+    pub visibility: String,
+    pub aov: bool,
+    /// `--adaptive` target, 0 when off.
+    #[serde(default)]
+    pub adaptive: f32,
+}
+
+impl RunKey {
+    /// The first setting that differs from `o`, as "key: ours vs theirs".
+    pub fn difference(&self, o: &RunKey) -> Option<String> {
+        let (a, b) = (
+            serde_json::to_value(self).ok()?,
+            serde_json::to_value(o).ok()?,
+        );
+        let (a, b) = (a.as_object()?, b.as_object()?);
+        a.iter().find_map(|(k, v)| {
+            let w = &b[k];
+            (v != w).then(|| format!("{k}: {v} vs {w}"))
+        })
+    }
+}
+
+/// `K/N` of `--chunk`, 1-based.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Chunk {
+    pub k: u32,
+    pub n: u32,
+}
+
+impl Chunk {
+    /// This chunk's share of `units` (groups, or frames for the independent tracer): contiguous
+    /// and as even as integer division makes them.
+    pub fn share(
+        &self,
+        units: std::ops::RangeInclusive<u32>,
+    ) -> Result<std::ops::RangeInclusive<u32>> {
+        let (a, count) = (*units.start(), units.end() - units.start() + 1);
+        if self.n > count {
+            bail!(
+                "--chunk {}/{}: only {count} {} to split; use at most {count} chunks",
+                self.k,
+                self.n,
+                if count == 1 { "unit" } else { "units" }
+            );
+        }
+        let lo = (self.k - 1) as u64 * count as u64 / self.n as u64;
+        let hi = self.k as u64 * count as u64 / self.n as u64;
+        Ok(a + lo as u32..=a + hi as u32 - 1)
+    }
+}
+
+impl std::fmt::Display for Chunk {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.k, self.n)
+    }
+}
+
+/// The file name stem of an output pattern: `out/vase_####.exr` gives `out` and `vase`.
+pub fn output_stem(pattern: &str) -> (PathBuf, String) {
+    let p = Path::new(pattern);
+    let dir = crate::util::fs::parent_dir(p);
+    let name = p
+        .file_name()
+        .map(|n| n.to_string_lossy())
+        .unwrap_or_default();
+    let stem = match name.find('#') {
+        Some(i) => name[..i].trim_end_matches(['_', '.', '-']).to_string(),
+        None => Path::new(&*name)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+    };
+    (
+        dir,
+        if stem.is_empty() {
+            "frames".into()
+        } else {
+            stem
+        },
+    )
+}
+
+/// The default checkpoint folder of a render writing `pattern` (see the module note).
+pub fn default_checkpoint_dir(pattern: &str, chunk: Option<Chunk>) -> PathBuf {
+    let (dir, stem) = output_stem(pattern);
+    match chunk {
+        Some(c) => dir.join(format!("{stem}.chunk-{}-of-{}.checkpoint", c.k, c.n)),
+        None => dir.join(format!("{stem}.checkpoint")),
+    }
+}
+
+/// The partial file chunk `c` of a render writing `pattern` produces.
+pub fn partial_path(pattern: &str, c: Chunk) -> PathBuf {
+    let (dir, stem) = output_stem(pattern);
+    dir.join(format!("{stem}.chunk-{}-of-{}.partial", c.k, c.n))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chunks_split_units_contiguously_and_evenly() {
+        for count in 1..20u32 {
+            for n in 1..=count {
+                let shares: Vec<_> = (1..=n)
+                    .map(|k| Chunk { k, n }.share(5..=4 + count).unwrap())
+                    .collect();
+                assert_eq!(*shares[0].start(), 5);
+                assert_eq!(*shares.last().unwrap().end(), 4 + count);
+                for w in shares.windows(2) {
+                    assert_eq!(*w[0].end() + 1, *w[1].start());
+                }
+                let sizes: Vec<u32> = shares.iter().map(|s| s.end() + 1 - s.start()).collect();
+                assert!(sizes.iter().max().unwrap() - sizes.iter().min().unwrap() <= 1);
+            }
+            assert!(Chunk { k: 1, n: count + 1 }.share(0..=count - 1).is_err());
+        }
+    }
+
+    #[test]
+    fn stems_and_paths() {
+        assert_eq!(
+            output_stem("out/vase_####.exr"),
+            ("out".into(), "vase".into())
+        );
+        assert_eq!(output_stem("x.png"), (".".into(), "x".into()));
+        assert_eq!(output_stem("a/####.exr"), ("a".into(), "frames".into()));
+        assert_eq!(
+            partial_path("r/f_####.exr", Chunk { k: 2, n: 3 }),
+            PathBuf::from("r/f.chunk-2-of-3.partial")
+        );
+        assert_eq!(
+            default_checkpoint_dir("r/f_####.exr", None),
+            PathBuf::from("r/f.checkpoint")
+        );
+    }
+}
