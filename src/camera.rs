@@ -112,6 +112,19 @@ impl Camera {
         cos_x / (cos_t * cos_t * cos_t * d2)
     }
 
+    /// `dA_film / dw = f^2 / cos_t^3` for the unit direction `d` from the eye: the film density
+    /// of a direction (a point at infinity; docs/estimators.md, "Control variate"), 0 behind the
+    /// eye. Without the inside-the-film factor.
+    #[inline]
+    pub fn jacobian_dir(&self, d: Vec3) -> f32 {
+        let cos_t = d.dot(self.forward);
+        if cos_t <= 0.0 {
+            0.0
+        } else {
+            1.0 / (cos_t * cos_t * cos_t)
+        }
+    }
+
     /// World to camera space, camera space as OpenEXR's standard `worldToCamera` defines it
     /// (x right, y up, z the viewing direction), as a column-vector matrix.
     pub fn world_to_camera(&self) -> Mat4 {

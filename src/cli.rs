@@ -2,6 +2,7 @@
 //! `main.rs` dispatches them; the checks of what the values mean belong to the library
 //! (`driver::RenderOptions::validate` and the like), so that library and command line agree.
 use clap::{Parser, Subcommand};
+use reframe::eval::compare::Regime;
 use reframe::reuse::Method;
 use reframe::state::key::Chunk;
 use std::path::PathBuf;
@@ -36,7 +37,8 @@ pub enum Command {
 
 #[derive(clap::Args)]
 pub struct ReferenceArgs {
-    /// Scene TOML file or shipped scene (default: vase).
+    /// Scene TOML file or shipped scene (default: vase-long, the vase's zoom with 36 frames of
+    /// camera move either side, long enough for the steady state of n_f = 33).
     pub scene: Option<String>,
     /// Frames, "A-B" (default: 17 around the middle of the animation).
     #[arg(long, value_parser = parse_frames)]
@@ -79,7 +81,7 @@ pub struct CompareArgs {
     #[arg(long, default_value = "out/compare")]
     pub out: PathBuf,
     /// Methods to compare, comma-separated.
-    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Method::Independent, Method::Havran, Method::Mis, Method::MisExact])]
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Method::Independent, Method::Havran, Method::Mis, Method::MisExact, Method::MisCv])]
     pub methods: Vec<Method>,
     /// Samples per pixel of the independent runs, comma-separated.
     #[arg(long, value_delimiter = ',', default_values_t = [1, 2, 4, 8, 16])]
@@ -89,8 +91,13 @@ pub struct CompareArgs {
     pub reuse_budgets: Vec<u32>,
     /// Frames per group n_f of the reuse runs, comma-separated (odd; longer than the frames:
     /// skipped).
-    #[arg(long, value_delimiter = ',', default_values_t = [3, 7, 17])]
+    #[arg(long, value_delimiter = ',', default_values_t = [3, 7, 17, 33])]
     pub windows: Vec<u32>,
+    /// What a reuse run measures: `steady` (every measured frame in all n_f of its groups,
+    /// charged one group's time: a long animation) or `range` (only the measured frames
+    /// rendered, their ends in fewer groups).
+    #[arg(long, value_enum, default_value_t = Regime::Steady)]
+    pub regime: Regime,
     /// Crop of the equal-time strip, "X,Y,W,H" in pixels (default: a centred square of half
     /// the height).
     #[arg(long, value_parser = parse_crop)]
@@ -201,6 +208,9 @@ pub struct BenchArgs {
     /// Native samples per pixel n_r of the speed-up runs.
     #[arg(long, default_value_t = 1)]
     pub speedup_spp: u32,
+    /// Reuse method of the speed-up runs.
+    #[arg(long, value_enum, default_value_t = Method::MisExact)]
+    pub method: Method,
     /// Group sizes n_f of the speed-up runs, comma-separated (longer than the animation: skipped).
     #[arg(long, value_delimiter = ',', default_values_t = [3, 7, 17, 33])]
     pub windows: Vec<u32>,

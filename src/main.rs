@@ -202,6 +202,7 @@ fn run(cli: Cli) -> Result<()> {
                 frame: a.frame,
                 threads: a.threads,
                 speedup_spp: a.speedup_spp,
+                speedup_method: a.method,
                 windows: a.windows,
                 max_depth: a.max_depth,
                 ..Default::default()
@@ -217,7 +218,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Reference(a) => {
             let device = Device::new()?;
-            let scene = Scene::load(a.scene.as_deref().unwrap_or("vase"), &device)?;
+            let scene = Scene::load(a.scene.as_deref().unwrap_or("vase-long"), &device)?;
             let range = match a.frames {
                 Some((x, y)) => x..=y,
                 None => compare::default_frames(&scene),
@@ -255,8 +256,9 @@ fn run(cli: Cli) -> Result<()> {
         Command::Compare(a) => {
             let device = Device::new()?;
             let r = a.reference;
-            let scene = Scene::load(r.scene.as_deref().unwrap_or("vase"), &device)?;
+            let scene = Scene::load(r.scene.as_deref().unwrap_or("vase-long"), &device)?;
             let opts = compare::CompareOptions {
+                regime: a.regime,
                 frames: r.frames.map(|(x, y)| x..=y),
                 res: r.res,
                 methods: a.methods,

@@ -58,6 +58,12 @@ const BUILTIN: &[(&str, &str, &str, &str)] = &[
         include_str!("../scenes/vase.mtl"),
     ),
     (
+        "vase-long",
+        include_str!("../scenes/vase-long.toml"),
+        include_str!("../scenes/vase.obj"),
+        include_str!("../scenes/vase.mtl"),
+    ),
+    (
         "cornell",
         include_str!("../scenes/cornell.toml"),
         include_str!("../scenes/cornell.obj"),

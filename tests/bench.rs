@@ -52,7 +52,7 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
             "--res",
             "40x40",
             "--frames",
-            "2-6",
+            "4-8",
             "--budgets",
             "1,8",
             "--reuse-budgets",
@@ -74,8 +74,19 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
     let c = json(&out.join("compare.json"));
     assert_eq!(c["reference"]["cached"], false);
     let runs = c["runs"].as_array().unwrap();
-    // independent x2, then 3 reuse methods x 2 windows x 1 budget.
-    assert_eq!(runs.len(), 2 + 3 * 2);
+    // independent x2, then 4 reuse methods x 2 windows x 1 budget; the steady state renders
+    // n_f - 1 frames either side of the measured ones and charges one group's time per frame.
+    assert_eq!(runs.len(), 2 + 4 * 2);
+    assert_eq!(c["regime"], "steady");
+    for r in &runs[2..] {
+        let n_f = r["window"].as_u64().unwrap();
+        assert_eq!(r["rendered_frames"][0].as_u64(), Some(4 + 1 - n_f));
+        assert_eq!(r["rendered_frames"][1].as_u64(), Some(8 + n_f - 1));
+        let groups = (5 + n_f - 1) as f64;
+        let charged = r["run_seconds"].as_f64().unwrap() * 5.0 / groups;
+        assert!((r["seconds"].as_f64().unwrap() - charged).abs() < 1e-9);
+    }
+    assert!(c["equal_error_speedup"]["mis-cv"]["5"].as_f64().unwrap() > 0.0);
     for r in runs {
         for key in [
             "method", "window", "spp", "seconds", "rmse", "relmse", "flicker",
@@ -111,6 +122,36 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
     }
     let csv = std::fs::read_to_string(out.join("compare.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + runs.len());
+    // The range regime renders the measured frames only and reports their ends apart; a window
+    // whose steady state needs frames the scene lacks is skipped, saying so.
+    run(args(&[
+        "--regime",
+        "range",
+        "--methods",
+        "independent,mis-cv",
+    ]));
+    let c = json(&out.join("compare.json"));
+    let cv: Vec<&Value> = c["runs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|r| r["method"] == "mis-cv")
+        .collect();
+    assert_eq!(cv.len(), 2);
+    for r in cv {
+        assert_eq!(r["rendered_frames"][0].as_u64(), Some(4));
+        assert!(r["ends_relmse"].as_f64().is_some(), "{r}");
+    }
+    // (A repeated list flag adds to the list: windows 3, 5 and 21.)
+    run(args(&[
+        "--windows",
+        "21",
+        "--methods",
+        "independent,mis-cv",
+    ]));
+    let c = json(&out.join("compare.json"));
+    assert_eq!(c["runs"].as_array().unwrap().len(), 2 + 2);
+    assert!(c["skipped"][0].as_str().unwrap().contains("n_f 21"), "{c}");
     // Second time: the reference comes from the cache, and `reframe reference` finds it too.
     run(args(&["--methods", "independent"]));
     assert_eq!(json(&out.join("compare.json"))["reference"]["cached"], true);
@@ -120,7 +161,7 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
         "--res",
         "40x40",
         "--frames",
-        "2-6",
+        "4-8",
         "--reference-spp",
         "64",
         "--cache",

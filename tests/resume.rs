@@ -126,7 +126,7 @@ fn killed_render_resumes_to_identical_frames() {
 fn interrupted_render_stops_cleanly_and_resumes() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    for (signal, method) in [("INT", "mis"), ("TERM", "independent")] {
+    for (signal, method) in [("INT", "mis"), ("TERM", "independent"), ("HUP", "mis-cv")] {
         let sub = d.join(signal);
         let out = format!("{}/f_####.exr", sub.display());
         let mut args = with(&REUSE, &["--out", &out, "--checkpoint-every", "0"]);
@@ -204,6 +204,29 @@ fn chunks_merge_to_identical_frames_for_any_n() {
         "--exr-float",
         "--aov",
     ];
+    // mis-cv's two folds merge the same way: its accumulators carry both.
+    let cv_base: Vec<&str> = base
+        .iter()
+        .map(|a| if *a == "mis-exact" { "mis-cv" } else { a })
+        .collect();
+    let cv_whole = d.join("cv-whole");
+    let cv_out = format!("{}/f_####.exr", cv_whole.display());
+    run(&with(&cv_base, &["--out", &cv_out])
+        .iter()
+        .map(String::as_str)
+        .collect::<Vec<_>>());
+    let cv = d.join("cv");
+    let cv_sub = format!("{}/f_####.exr", cv.display());
+    for k in [2, 3, 1] {
+        run(
+            &with(&cv_base, &["--out", &cv_sub, "--chunk", &format!("{k}/3")])
+                .iter()
+                .map(String::as_str)
+                .collect::<Vec<_>>(),
+        );
+    }
+    run(&["merge", "--chunks", "3", "--out", &cv_sub]);
+    assert_identical(&cv_whole, &cv, 10..=21);
     let whole = d.join("whole");
     let wout = format!("{}/f_####.exr", whole.display());
     run(&with(&base, &["--out", &wout])

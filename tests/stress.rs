@@ -106,7 +106,7 @@ fn every_method_is_finite(scene: &Scene, integ: &Integrator) -> (BTreeMap<u32, F
             "independent frame {f}: non-finite pixel"
         );
     }
-    for method in [Method::Havran, Method::Mis] {
+    for method in [Method::Havran, Method::Mis, Method::MisCv] {
         reuse(integ, method, 1, 3, 0..=scene.frames - 1);
     }
     reuse(integ, Method::MisExact, 1, 3, 0..=scene.frames - 1)
@@ -139,9 +139,12 @@ fn z_runs(scene: &Scene, integ: &Integrator, target: u32, methods: &[Method]) ->
             let renders: Vec<Vec<Vec3>> = (0..K)
                 .map(|s| {
                     pool.install(|| {
+                        // mis-cv needs groups of both parities over the target: window 3 over
+                        // the same frames puts it in three.
+                        let window = if method == Method::MisCv { 3 } else { N_F };
                         let opts = RenderOptions {
                             method,
-                            window: N_F,
+                            window,
                             spp: 2,
                             seed: s,
                             frames: Some(target - n..=target + n),
@@ -175,16 +178,18 @@ fn check_unbiased(name: &str, z: &ZRuns) {
             t.worst,
             t.mean_z
         );
-        if *method == Method::MisExact {
+        if matches!(method, Method::MisExact | Method::MisCv) {
             assert!(
                 t.pass >= 0.99,
-                "{name}: mis-exact fails the z-test on {:.1}% of blocks (worst z {:.1})",
+                "{name}: {} fails the z-test on {:.1}% of blocks (worst z {:.1})",
+                method.name(),
                 100.0 * (1.0 - t.pass),
                 t.worst
             );
             assert!(
                 t.mean_z.abs() < 4.0,
-                "{name}: mis-exact image mean off by {:.1} sigma",
+                "{name}: {} image mean off by {:.1} sigma",
+                method.name(),
                 t.mean_z
             );
         }
@@ -424,7 +429,12 @@ fn truck_test(name: &str, target: u32, n_r: u32) -> (Predicted, Vec<f64>, Vec<f6
         p.lost_fraction
     );
     // Diffuse scene: `havran` and `mis` are the same estimator here (eq. 14), so only `mis`.
-    let z = z_runs(&scene, &integ, target, &[Method::MisExact, Method::Mis]);
+    let z = z_runs(
+        &scene,
+        &integ,
+        target,
+        &[Method::MisExact, Method::MisCv, Method::Mis],
+    );
     check_unbiased(name, &z);
     (p, measured, column_means(&frames[&target].lost))
 }
@@ -551,7 +561,12 @@ fn cut_loses_every_reuse_across_it() {
         }
     }
     // The group of frames 4-10 straddles the cut.
-    let z = z_runs(&scene, &integ, 7, &[Method::MisExact, Method::Mis]);
+    let z = z_runs(
+        &scene,
+        &integ,
+        7,
+        &[Method::MisExact, Method::MisCv, Method::Mis],
+    );
     check_unbiased("cut", &z);
 }
 
@@ -615,7 +630,7 @@ fn vase_border_loses_reuse_at_the_borders() {
         &scene,
         &integ,
         target,
-        &[Method::MisExact, Method::Mis, Method::Havran],
+        &[Method::MisExact, Method::MisCv, Method::Mis, Method::Havran],
     );
     check_unbiased("vase-border", &z);
     // The noisy borders: effective samples (from the variance) in the border block columns
@@ -652,7 +667,7 @@ fn mirror_like_reuse_pays_nothing_on_the_sharpest_lobe() {
         &scene,
         &integ,
         target,
-        &[Method::MisExact, Method::Mis, Method::Havran],
+        &[Method::MisExact, Method::MisCv, Method::Mis, Method::Havran],
     );
     check_unbiased("mirror-like", &z);
     // Blocks whose 16 pixel centres all see one material.

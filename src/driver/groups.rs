@@ -126,7 +126,7 @@ pub fn run_groups(
             .iter_mut()
             .filter(|(_, a)| a.frame() >= g0 && a.frame() < g0 + n_f)
         {
-            a.groups += 1;
+            a.groups[(g0 % 2) as usize] += 1;
         }
         // Frames no later group contains: g0 itself, or every remaining one after the last group.
         while active
@@ -136,7 +136,7 @@ pub fn run_groups(
             let (_, a) = active.pop_front().unwrap();
             run.counters.per_frame.push(a.reuse());
             if chunked {
-                run.ckpt.retire(&Record::Sums(a))?;
+                run.ckpt.retire(&Record::Sums(Box::new(a)))?;
             } else {
                 let d = develop(&a);
                 drop(a);

@@ -191,11 +191,11 @@ fn check_groups(acc: &FrameAccum, first: u32, last: u32, n_f: u32, method: Metho
     }
     let f = acc.frame();
     let expected = expected_groups(f, first, last, n_f);
-    if acc.groups != expected {
+    if acc.group_count() != expected {
         bail!(
             "frame {f}: the partial files hold {} of its {expected} groups; no further frame was \
              written",
-            acc.groups
+            acc.group_count()
         );
     }
     Ok(())

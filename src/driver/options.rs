@@ -164,8 +164,8 @@ impl RenderOptions {
         if let Some(t) = self.adaptive {
             if !self.method.adaptive() {
                 bail!(
-                    "--adaptive: only mis-exact weighs samples by their exact densities, which \
-                     adaptive counts need (method is {})",
+                    "--adaptive: only mis-exact and mis-cv weigh samples by their exact \
+                     densities, which adaptive counts need (method is {})",
                     self.method.name()
                 );
             }

@@ -13,7 +13,7 @@
 //!
 //! The speed-up (eq. 16, `n_f (c_e + c_l) / ((c_e + c_l) + (n_f - 1) c_v)`) is measured the way
 //! the paper derives it: one group of `n_f` frames around the middle of the animation rendered
-//! with `mis-exact` at `n_r` native samples, against the independent tracer on the same frames at
+//! with a reuse method (`mis-exact` unless `--method` says otherwise) at `n_r` native samples, against the independent tracer on the same frames at
 //! `n_f n_r` samples per pixel (the same number of samples per pixel, were no reuse lost). The
 //! measured time of a reuse run also pays for what the model leaves out (projecting into every
 //! eye, the Jacobians and BRDFs of the weights, the splats), reported per reuse as `c_reuse`.
@@ -63,6 +63,8 @@ pub struct BenchOptions {
     pub threads: usize,
     /// Native samples per pixel `n_r` of the speed-up runs.
     pub speedup_spp: u32,
+    /// The reuse method of the speed-up runs.
+    pub speedup_method: Method,
     /// Group sizes `n_f` of the speed-up runs (those longer than the animation are skipped).
     pub windows: Vec<u32>,
     pub seed: u64,
@@ -78,6 +80,7 @@ impl Default for BenchOptions {
             frame: None,
             threads: 0,
             speedup_spp: 1,
+            speedup_method: Method::MisExact,
             windows: vec![3, 7, 17, 33],
             seed: 1,
             max_depth: 16,
@@ -93,7 +96,7 @@ pub struct SpeedupRun {
     pub last_frame: u32,
     /// The independent tracer on the group's frames at `window * speedup_spp` samples per pixel.
     pub independent_seconds: f64,
-    /// `mis-exact` over the group at `speedup_spp` native samples per pixel.
+    /// The reuse method over the group at `speedup_spp` native samples per pixel.
     pub reuse_seconds: f64,
     pub visibility_tests: u64,
     pub lost_reuse_fraction: f64,
@@ -124,6 +127,7 @@ pub struct BenchReport {
     /// Share of the reuse run's time spent in visibility tests (`tests * c_v_packet / time`).
     pub visibility_share: BTreeMap<String, f64>,
     pub speedup_spp: u32,
+    pub speedup_method: Method,
     pub speedup_runs: Vec<SpeedupRun>,
     pub render_seconds: f64,
     pub rays: RayCounts,
@@ -157,8 +161,9 @@ impl BenchReport {
         let _ = writeln!(t, "  c_v  visibility, packet      {:>9.1}", self.c_v_packet);
         let _ = writeln!(
             t,
-            "speed-up at equal samples per pixel ({} native spp, mis-exact):",
-            self.speedup_spp
+            "speed-up at equal samples per pixel ({} native spp, {}):",
+            self.speedup_spp,
+            self.speedup_method.name()
         );
         let _ = writeln!(
             t,
@@ -277,6 +282,9 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
             scene.frames - 1
         );
     }
+    if !opts.speedup_method.reuses() {
+        bail!("--method independent: the speed-up runs need a reuse method");
+    }
     if opts.spp == 0 || opts.speedup_spp == 0 {
         bail!("--spp 0: at least one sample per pixel is needed");
     }
@@ -307,7 +315,7 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
         let first = (frame.saturating_sub(n_f / 2)).min(scene.frames - n_f);
         let last = first + n_f - 1;
         let ropts = RenderOptions {
-            method: Method::MisExact,
+            method: opts.speedup_method,
             spp: opts.speedup_spp,
             window: n_f,
             seed,
@@ -400,6 +408,7 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
         c_reuse,
         visibility_share,
         speedup_spp: opts.speedup_spp,
+        speedup_method: opts.speedup_method,
         speedup_runs: runs,
         render_seconds,
         rays: c,

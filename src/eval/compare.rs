@@ -23,9 +23,25 @@ use std::ops::RangeInclusive;
 use std::path::PathBuf;
 use std::time::Instant;
 
+/// Which frames of a reuse run are measured, and what they are charged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Regime {
+    /// The steady state of a long animation: each reuse run renders `n_f - 1` frames more on
+    /// either side of the measured ones, so that every measured frame is in all `n_f` of its
+    /// groups, and the measured frames are charged their share of the run's time (one group's
+    /// time per output frame, what a user pays per frame of a long animation).
+    Steady,
+    /// Only the measured frames are rendered, and the whole run's time is charged: the ends of a
+    /// range (the first and last `n_f - 1` frames, in fewer groups) weigh in; their error is
+    /// reported apart (`ends_relmse`).
+    Range,
+}
+
 /// What to compare.
 #[derive(Clone, Debug)]
 pub struct CompareOptions {
+    pub regime: Regime,
     /// Frames; `None`: 17 frames around the middle of the animation (all of a shorter one).
     pub frames: Option<RangeInclusive<u32>>,
     pub res: Option<(u32, u32)>,
@@ -51,6 +67,7 @@ pub struct CompareOptions {
 impl Default for CompareOptions {
     fn default() -> Self {
         CompareOptions {
+            regime: Regime::Steady,
             frames: None,
             res: None,
             methods: vec![
@@ -58,10 +75,11 @@ impl Default for CompareOptions {
                 Method::Havran,
                 Method::Mis,
                 Method::MisExact,
+                Method::MisCv,
             ],
             budgets: vec![1, 2, 4, 8, 16],
             reuse_budgets: vec![1, 2],
-            windows: vec![3, 7, 17],
+            windows: vec![3, 7, 17, 33],
             reference_spp: 256,
             max_depth: 16,
             cache: PathBuf::from("out/reference-cache"),
@@ -80,17 +98,26 @@ pub struct Run {
     pub method: Method,
     pub window: u32,
     pub spp: u32,
+    /// The time charged to the measured frames (see `Regime`); the fits use it.
     pub seconds: f64,
+    /// The whole run's time, and the frames it rendered.
+    pub run_seconds: f64,
+    pub rendered_frames: [u32; 2],
     pub rmse: f64,
     pub relmse: f64,
     pub flicker: f64,
     pub mean_effective_spp: f64,
+    /// `Regime::Range`, reuse runs: the mean relMSE of the first and last `n_f - 1` frames
+    /// (fewer groups) and of the frames between them, if any.
+    pub ends_relmse: Option<f64>,
+    pub middle_relmse: Option<f64>,
     pub per_frame: Vec<FrameError>,
 }
 
 /// What `compare.json` holds (keys are a contract with users' scripts: add, never rename).
 #[derive(Debug, Serialize)]
 pub struct CompareReport {
+    pub regime: Regime,
     pub scene: String,
     pub width: u32,
     pub height: u32,
@@ -114,6 +141,8 @@ pub struct CompareReport {
     pub equal_time_flicker: BTreeMap<String, f64>,
     pub crop: [u32; 4],
     pub crop_frame: u32,
+    /// Runs left out, and why (a window whose steady state needs frames the scene lacks).
+    pub skipped: Vec<String>,
     pub outputs: Vec<String>,
 }
 
@@ -192,21 +221,52 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     let crop_frame = first + n_frames / 2;
     let mut runs: Vec<Run> = Vec::new();
     let mut crops: Vec<Vec<Vec3>> = Vec::new();
-    let mut plan: Vec<(Method, u32, u32)> = Vec::new();
+    // (method, window, spp, frames rendered) of every run.
+    let mut plan: Vec<(Method, u32, u32, RangeInclusive<u32>)> = Vec::new();
+    let mut skipped = Vec::new();
     for &m in &opts.methods {
         if !m.reuses() {
-            plan.extend(opts.budgets.iter().map(|&s| (m, 1, s)));
-        } else {
-            for &n_f in opts.windows.iter().filter(|&&n| n <= n_frames) {
-                plan.extend(opts.reuse_budgets.iter().map(|&s| (m, n_f, s)));
-            }
+            plan.extend(opts.budgets.iter().map(|&s| (m, 1, s, range.clone())));
+            continue;
         }
+        for &n_f in &opts.windows {
+            let rendered = match opts.regime {
+                Regime::Range if n_f <= n_frames => range.clone(),
+                Regime::Steady if first >= n_f - 1 && last + n_f - 1 < scene.frames => {
+                    first + 1 - n_f..=last + n_f - 1
+                }
+                _ => {
+                    skipped.push(format!(
+                        "{} n_f {n_f}: {}",
+                        m.name(),
+                        match opts.regime {
+                            Regime::Range => format!("longer than the {n_frames} frames"),
+                            Regime::Steady => format!(
+                                "its steady state needs frames {}-{}, the scene has 0-{}",
+                                first as i64 + 1 - n_f as i64,
+                                last + n_f - 1,
+                                scene.frames - 1
+                            ),
+                        }
+                    ));
+                    continue;
+                }
+            };
+            plan.extend(
+                opts.reuse_budgets
+                    .iter()
+                    .map(|&s| (m, n_f, s, rendered.clone())),
+            );
+        }
+    }
+    for s in &skipped {
+        eprintln!("compare: skipped {s}");
     }
     if plan.is_empty() {
         bail!("nothing to compare: no method with a budget and a window that fits the frames");
     }
     let pb = progress_bar(opts.progress, plan.len() as u64, "runs");
-    for (method, window, spp) in plan {
+    for (method, window, spp, rendered) in plan {
         let start = Instant::now();
         let mut frames: Vec<Vec<Vec3>> = Vec::with_capacity(n_frames as usize);
         let ropts = RenderOptions {
@@ -214,24 +274,52 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             spp,
             window,
             seed: opts.seed,
-            frames: Some(range.clone()),
+            frames: Some(rendered.clone()),
             resolution: Some((w, h)),
             max_depth: opts.max_depth,
             progress: false,
             ..RenderOptions::default()
         };
         let mut keep = |d: Developed| {
-            frames.push(d.pixels());
+            if range.contains(&d.view.frame) {
+                frames.push(d.pixels());
+            }
             Ok(())
         };
         let counters = pool.install(|| render_frames(&integrator, &ropts, &mut keep))?;
         let eff = if method.reuses() {
-            counters.mean_effective_spp(n_frames)
+            let measured: Vec<f64> = counters
+                .per_frame
+                .iter()
+                .filter(|f| range.contains(&f.frame))
+                .map(|f| f.mean_effective_spp)
+                .collect();
+            measured.iter().sum::<f64>() / measured.len() as f64
         } else {
             spp as f64
         };
-        let seconds = start.elapsed().as_secs_f64();
+        let run_seconds = start.elapsed().as_secs_f64();
+        // The steady state charges the measured frames one group's time each.
+        let groups = rendered.end() + 2 - rendered.start() - window;
+        let seconds = if opts.regime == Regime::Steady && method.reuses() {
+            run_seconds * n_frames as f64 / groups as f64
+        } else {
+            run_seconds
+        };
         let (per_frame, rmse, relmse, flicker) = errors(&frames, &reference);
+        let (ends_relmse, middle_relmse) = if opts.regime == Regime::Range && method.reuses() {
+            let mean =
+                |v: Vec<f64>| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
+            let at_end = |f: u32| f < first + window - 1 || f + window - 1 > last;
+            let (ends, middle): (Vec<&FrameError>, Vec<&FrameError>) =
+                per_frame.iter().partition(|e| at_end(e.frame));
+            (
+                mean(ends.iter().map(|e| e.relmse).collect()),
+                mean(middle.iter().map(|e| e.relmse).collect()),
+            )
+        } else {
+            (None, None)
+        };
         pb.suspend(|| {
             eprintln!(
                 "{:>11} window {window:>2} spp {spp:>3}: {seconds:>7.2} s  rmse {rmse:.5}  relMSE {relmse:.5}  flicker {flicker:.5}",
@@ -245,6 +333,10 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             window,
             spp,
             seconds,
+            run_seconds,
+            rendered_frames: [*rendered.start(), *rendered.end()],
+            ends_relmse,
+            middle_relmse,
             rmse,
             relmse,
             flicker,
@@ -303,18 +395,26 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     let t_sample = per_sample.get(per_sample.len() / 2).copied();
     let mut predicted = BTreeMap::new();
     let mut measured = BTreeMap::new();
-    for &n_f in opts.windows.iter().filter(|&&n| n <= n_frames) {
+    let mut windows: Vec<u32> = runs
+        .iter()
+        .filter(|r| r.method.reuses())
+        .map(|r| r.window)
+        .collect();
+    windows.sort_unstable();
+    windows.dedup();
+    for &n_f in &windows {
         predicted.insert(
             n_f.to_string(),
             predicted_speedup(n_f, costs.c_e, costs.c_l, costs.c_v_packet),
         );
-        let groups = (n_frames - n_f + 1) as f64;
         let ratios: Vec<f64> = runs
             .iter()
             .filter(|r| r.method == Method::MisExact && r.window == n_f)
             .filter_map(|r| {
+                // Groups of the run, each worth n_f^2 n_r samples per pixel without losses.
+                let groups = (r.rendered_frames[1] + 2 - r.rendered_frames[0] - n_f) as f64;
                 let ideal = groups * (n_f * n_f * r.spp) as f64;
-                t_sample.map(|t| t * ideal / r.seconds)
+                t_sample.map(|t| t * ideal / r.run_seconds)
             })
             .collect();
         if !ratios.is_empty() {
@@ -533,6 +633,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     let json_path = opts.out.join("compare.json");
     outputs.push(json_path.display().to_string());
     let report = CompareReport {
+        regime: opts.regime,
         scene: scene.name.clone(),
         width: w,
         height: h,
@@ -558,6 +659,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         equal_time_flicker,
         crop,
         crop_frame,
+        skipped,
         outputs,
     };
     write_json(&json_path, &report)?;

@@ -30,6 +30,23 @@ pub enum Norm {
     /// Divided by the samples that landed in the pixel (the ratio estimators of Havran et al.
     /// and of the paper, which average whatever lands).
     Count,
+    /// The cross-fitted control variate on the weight sums (`mis-cv`, docs/estimators.md,
+    /// "Control variate"): the groups are split into two folds by the parity of their first
+    /// frame; each fold keeps its sums `A_F` and its weight sums `W_F` (whose expectation is one
+    /// per group), and the pixel is
+    /// `(A_E - beta_O (W_E - G_E) + A_O - beta_E (W_O - G_O)) / (G_E + G_O)`,
+    /// `beta_F = A_F / W_F`.
+    ControlVariate,
+}
+
+impl Norm {
+    /// Folds of sums a pixel keeps: two for the control variate, else one.
+    pub fn folds(&self) -> usize {
+        match self {
+            Norm::ControlVariate => 2,
+            Norm::Groups | Norm::Count => 1,
+        }
+    }
 }
 
 /// What a frame's accumulator holds and how it is developed.
@@ -110,14 +127,18 @@ pub struct FrameReuse {
 pub struct FrameAccum {
     pub view: View,
     pub layout: Layout,
+    /// RGB per pixel and fold, pixel-major: cell `3 folds i + 3 f + c`.
     sum: FixedSums,
+    /// The control variate's weight sums per pixel and fold (cell `2 i + f`).
+    weights: Option<FixedSums>,
     landed: Option<Vec<AtomicU32>>,
     loss: Option<(Vec<AtomicU32>, Vec<AtomicU32>)>,
     landed_total: AtomicU64,
     tried: AtomicU64,
     lost: AtomicU64,
-    /// Groups that contributed.
-    pub groups: u32,
+    /// Groups that contributed, by the parity of their first frame (the control variate's
+    /// folds; the other methods use only the total).
+    pub groups: [u32; 2],
     pub clock: Clock,
 }
 
@@ -125,31 +146,38 @@ fn zeros(n: usize) -> Vec<AtomicU32> {
     (0..n).map(|_| AtomicU32::new(0)).collect()
 }
 
+/// Fixed-point cells and their carries (cell index, value in steps), as a state file holds them.
+pub type RawSums = (Vec<i32>, Vec<(u64, i64)>);
+
 /// The counters of an accumulator as a state file stores them.
 pub struct AccumParts {
     pub cells: Vec<i32>,
     pub carry: Vec<(u64, i64)>,
+    /// The control variate's weight cells and carries.
+    pub weights: Option<RawSums>,
     pub landed: Option<Vec<u32>>,
     pub loss: Option<(Vec<u32>, Vec<u32>)>,
     /// Landed, tried and lost over the whole frame.
     pub totals: [u64; 3],
-    pub groups: u32,
+    pub groups: [u32; 2],
     pub seconds: f64,
 }
 
 impl FrameAccum {
     pub fn new(view: View, layout: Layout) -> FrameAccum {
         let p = view.pixels();
+        let folds = layout.norm.folds();
         FrameAccum {
             view,
             layout,
-            sum: FixedSums::new(3 * p),
+            sum: FixedSums::new(3 * folds * p),
+            weights: (layout.norm == Norm::ControlVariate).then(|| FixedSums::new(folds * p)),
             landed: layout.landed.then(|| zeros(p)),
             loss: layout.loss.then(|| (zeros(p), zeros(p))),
             landed_total: AtomicU64::new(0),
             tried: AtomicU64::new(0),
             lost: AtomicU64::new(0),
-            groups: 0,
+            groups: [0; 2],
             clock: Clock::start(0.0),
         }
     }
@@ -158,9 +186,17 @@ impl FrameAccum {
     /// `layout`.
     pub fn from_parts(view: View, layout: Layout, parts: AccumParts) -> Option<FrameAccum> {
         let p = view.pixels();
+        let folds = layout.norm.folds();
         let fits = |v: &Vec<u32>| v.len() == p;
-        if parts.cells.len() != 3 * p
-            || parts.carry.iter().any(|&(i, _)| i as usize >= 3 * p)
+        let cells_fit = |cells: &Vec<i32>, carry: &Vec<(u64, i64)>, n: usize| {
+            cells.len() == n && carry.iter().all(|&(i, _)| (i as usize) < n)
+        };
+        if !cells_fit(&parts.cells, &parts.carry, 3 * folds * p)
+            || parts.weights.is_some() != (layout.norm == Norm::ControlVariate)
+            || !parts
+                .weights
+                .as_ref()
+                .is_none_or(|(c, k)| cells_fit(c, k, folds * p))
             || parts.landed.is_some() != layout.landed
             || parts.loss.is_some() != layout.loss
             || !parts.landed.as_ref().is_none_or(fits)
@@ -174,6 +210,7 @@ impl FrameAccum {
             view,
             layout,
             sum: FixedSums::from_parts(parts.cells, &parts.carry),
+            weights: parts.weights.map(|(c, k)| FixedSums::from_parts(c, &k)),
             landed: parts.landed.map(atomics),
             loss: parts.loss.map(|(t, l)| (atomics(t), atomics(l))),
             landed_total: AtomicU64::new(landed_total),
@@ -188,20 +225,36 @@ impl FrameAccum {
         self.view.frame
     }
 
-    /// Add `v` to pixel `i`, rounding stochastically with the bits of `dither`; false (and
-    /// nothing added) if `v` is not finite.
+    /// Add `v` to pixel `i` of fold `fold` (0 unless the layout has two), rounding
+    /// stochastically with the bits of `dither`; false (and nothing added) if `v` is not finite.
     #[inline]
-    pub fn splat(&self, i: usize, v: Vec3, dither: u64) -> bool {
+    pub fn splat(&self, i: usize, fold: usize, v: Vec3, dither: u64) -> bool {
         if !v.is_finite() {
             return false;
         }
         let v = v / self.layout.unit;
+        let base = 3 * (self.layout.norm.folds() * i + fold);
         for c in 0..3 {
             // 21 bits of the hash per channel: u in [0, 1).
             let u = ((dither >> (21 * c)) & 0x1f_ffff) as f64 / (1u64 << 21) as f64;
-            self.sum.add_value(3 * i + c, v[c], u);
+            self.sum.add_value(base + c, v[c], u);
         }
         true
+    }
+
+    /// Add the weight `w` to the control variate's sum of pixel `i`, fold `fold` (nothing where
+    /// the layout keeps none), rounding with `dither`.
+    #[inline]
+    pub fn splat_weight(&self, i: usize, fold: usize, w: f32, dither: u64) {
+        if let Some(ws) = &self.weights {
+            let u = (dither >> 11) as f64 / (1u64 << 53) as f64;
+            ws.add_value(2 * i + fold, w, u);
+        }
+    }
+
+    /// Groups that contributed, both folds.
+    pub fn group_count(&self) -> u32 {
+        self.groups[0] + self.groups[1]
     }
 
     /// Count `n` samples landing in pixel `i` (where the layout keeps counts).
@@ -242,6 +295,11 @@ impl FrameAccum {
 
     pub fn sums(&self) -> &FixedSums {
         &self.sum
+    }
+
+    /// The control variate's weight sums, if the layout keeps them.
+    pub fn weight_sums(&self) -> Option<&FixedSums> {
+        self.weights.as_ref()
     }
 
     pub fn landed_counts(&self) -> Option<impl Iterator<Item = u32> + '_> {
@@ -290,6 +348,9 @@ impl FrameAccum {
             return Err("records of different sizes or layouts".into());
         }
         self.sum.absorb(&o.sum);
+        if let (Some(a), Some(b)) = (&self.weights, &o.weights) {
+            a.absorb(b);
+        }
         let add = |a: &mut [AtomicU32], b: &[AtomicU32]| {
             for (x, y) in a.iter_mut().zip(b) {
                 *x.get_mut() += y.load(Relaxed);
@@ -304,7 +365,8 @@ impl FrameAccum {
         }
         let [l, t, x] = o.counts();
         self.add_counts(l, t, x);
-        self.groups += o.groups;
+        self.groups[0] += o.groups[0];
+        self.groups[1] += o.groups[1];
         self.clock.earlier += o.clock.earlier;
         Ok(())
     }
@@ -368,6 +430,7 @@ pub fn count_nonfinite(data: &[f32], nc: usize) -> u64 {
 pub fn develop(a: &FrameAccum) -> Developed {
     let n = a.view.pixels();
     let totals = a.sum.totals();
+    let weights = a.weights.as_ref().map(FixedSums::totals);
     let landed: Option<Vec<u32>> = a.landed_counts().map(|c| c.collect());
     let loss: Option<(Vec<u32>, Vec<u32>)> =
         a.loss_counts().map(|(t, l)| (t.collect(), l.collect()));
@@ -381,13 +444,26 @@ pub fn develop(a: &FrameAccum) -> Developed {
     let unit = a.layout.unit;
     for i in 0..n {
         let count = landed.as_ref().map_or(0, |l| l[i]);
-        let divisor = match a.layout.norm {
-            Norm::Groups => Some(a.groups as f32),
-            Norm::Count => (count > 0).then_some(count as f32),
-        };
-        for c in 0..3 {
-            let s = (totals[3 * i + c] as f64 / FIXED) as f32 * unit;
-            data.push(divisor.map_or(0.0, |d| s / d));
+        match (a.layout.norm, &weights) {
+            (Norm::ControlVariate, Some(w)) => {
+                let sum = |f: usize, c: usize| totals[6 * i + 3 * f + c] as f64 / FIXED;
+                let w = [w[2 * i] as f64 / FIXED, w[2 * i + 1] as f64 / FIXED];
+                let g = a.groups.map(f64::from);
+                for c in 0..3 {
+                    let s = [sum(0, c), sum(1, c)];
+                    data.push(control_variate(s, w, g) as f32 * unit);
+                }
+            }
+            (norm, _) => {
+                let divisor = match norm {
+                    Norm::Count => (count > 0).then_some(count as f32),
+                    _ => Some(a.group_count() as f32),
+                };
+                for c in 0..3 {
+                    let s = (totals[3 * i + c] as f64 / FIXED) as f32 * unit;
+                    data.push(divisor.map_or(0.0, |d| s / d));
+                }
+            }
         }
         if let Some((tried, lost)) = &loss {
             data.push(count as f32);
@@ -402,6 +478,20 @@ pub fn develop(a: &FrameAccum) -> Developed {
         data,
         seconds: a.clock.seconds(),
     }
+}
+
+/// The cross-fitted control-variate estimate of one pixel channel from its two folds' sums `s`,
+/// weight sums `w` (expectation one per group) and group counts `g` (docs/estimators.md,
+/// "Control variate"): each fold's self-normalised estimate `s_F / w_F` is the other fold's
+/// coefficient, so the coefficient is independent of the samples it multiplies. A fold without
+/// weight (no group, or nothing landed) gives coefficient 0.
+pub fn control_variate(s: [f64; 2], w: [f64; 2], g: [f64; 2]) -> f64 {
+    let groups = g[0] + g[1];
+    if groups == 0.0 {
+        return 0.0;
+    }
+    let beta = |f: usize| if w[f] > 0.0 { s[f] / w[f] } else { 0.0 };
+    (s[0] - beta(1) * (w[0] - g[0]) + s[1] - beta(0) * (w[1] - g[1])) / groups
 }
 
 /// Where finished frames go: files (the driver), memory (comparisons, tests).

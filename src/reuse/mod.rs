@@ -33,6 +33,9 @@ pub enum Method {
     Mis,
     /// Balance heuristic over the group's eyes with exact area densities (docs/estimators.md).
     MisExact,
+    /// `mis-exact` with a cross-fitted control variate on the sum of the weights that land in a
+    /// pixel: unbiased, without the count noise (docs/estimators.md, "Control variate").
+    MisCv,
 }
 
 /// Which estimator a method splats with (`weights`).
@@ -49,11 +52,12 @@ pub enum Weights {
 }
 
 impl Method {
-    pub const ALL: [Method; 4] = [
+    pub const ALL: [Method; 5] = [
         Method::Independent,
         Method::Havran,
         Method::Mis,
         Method::MisExact,
+        Method::MisCv,
     ];
 
     pub fn name(&self) -> &'static str {
@@ -62,6 +66,7 @@ impl Method {
             Method::Havran => "havran",
             Method::Mis => "mis",
             Method::MisExact => "mis-exact",
+            Method::MisCv => "mis-cv",
         }
     }
 
@@ -75,7 +80,7 @@ impl Method {
             Method::Independent => Weights::None,
             Method::Havran => Weights::OwnEye,
             Method::Mis => Weights::Paper,
-            Method::MisExact => Weights::Exact,
+            Method::MisExact | Method::MisCv => Weights::Exact,
         }
     }
 
@@ -92,6 +97,7 @@ impl Method {
         match self {
             Method::Havran | Method::Mis => Norm::Count,
             Method::Independent | Method::MisExact => Norm::Groups,
+            Method::MisCv => Norm::ControlVariate,
         }
     }
 

@@ -9,11 +9,12 @@ use super::visibility::{visibility, Landing, NativeHit};
 use super::weights::{EyeTerms, Weighing};
 use super::Params;
 use crate::camera::Camera;
+use crate::embree::Ray;
 use crate::film::tiles::Tile;
 use crate::film::FrameAccum;
 use crate::integrator::{Integrator, Tally};
 use crate::sampling::{mix64, Sampler};
-use glam::Vec2;
+use glam::{Vec2, Vec3};
 
 /// One frame of a group: its eye and its film.
 #[derive(Clone, Copy)]
@@ -51,8 +52,19 @@ pub fn shade_tile(
     } else {
         spp
     };
+    // The control variate's fold (the parity of the group) and whether the film keeps weights.
+    let film = native.film;
+    let fold = if film.layout.norm.folds() == 2 {
+        (g0 % 2) as usize
+    } else {
+        0
+    };
+    let cv = film.weight_sums().is_some();
     let mut landed_native = 0u64;
     let mut hits: Vec<NativeHit> = Vec::new();
+    // Camera samples that left the scene: (pixel, sample index, direction); kept for the control
+    // variate only, whose weights must cover every direction a pixel sees.
+    let mut escapes: Vec<(u32, u32, Vec3)> = Vec::new();
     for y in y0..y1 {
         for x in x0..x1 {
             let pixel = y * w + x;
@@ -65,10 +77,11 @@ pub fn shade_tile(
                 let index = (native_frame - g0) * stride + s;
                 let mut sampler = Sampler::new(p.seed, native_frame, pixel, index);
                 let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
-                if let Some(fh) =
-                    integrator.trace_first_hit(cam_m.eye, cam_m.direction(r), &mut sampler, tally)
-                {
-                    hits.push((pixel, index, fh));
+                let dir = cam_m.direction(r);
+                match integrator.trace_first_hit(cam_m.eye, dir, &mut sampler, tally) {
+                    Some(fh) => hits.push((pixel, index, fh)),
+                    None if cv => escapes.push((pixel, index, dir)),
+                    None => {}
                 }
             }
         }
@@ -130,18 +143,95 @@ pub fn shade_tile(
                 t.film.try_reuse(i, false);
             }
             let v = weighing.value(t.cam.eye, &eyes[k]);
-            // The rounding dither: a hash of the native sample and the target frame.
-            let dither = mix64(
-                mix64(p.seed ^ ((native_frame as u64) << 32 | *pixel as u64))
-                    ^ ((*index as u64) << 32 | t.film.frame() as u64),
-            );
-            if !t.film.splat(i, v, dither) {
+            let dither = dither(p.seed, native_frame, *pixel, *index, t.film.frame());
+            if !t.film.splat(i, fold, v, dither) {
                 bad += 1;
+            }
+            if cv {
+                // The sample's weight in eye k, `(J_k / A_pix,k) / sum_k' D_k'`.
+                let d = weighing.denominators().emit;
+                if d > 0.0 {
+                    t.film
+                        .splat_weight(i, fold, eyes[k].j_over_a / d, mix64(dither));
+                }
             }
         }
     }
     for ((t, (tried, lost)), n) in group.iter().zip(loss).zip(landed) {
         t.film.add_counts(n, tried, lost);
     }
+    for &(pixel, index, dir) in &escapes {
+        splat_escape(
+            integrator,
+            p,
+            group,
+            m,
+            fold,
+            (pixel, index, dir),
+            &n_at,
+            tally,
+        );
+    }
     bad
+}
+
+/// The rounding dither of a splat: a hash of the native sample and the target frame.
+fn dither(seed: u64, native_frame: u32, pixel: u32, index: u32, target: u32) -> u64 {
+    mix64(
+        mix64(seed ^ ((native_frame as u64) << 32 | pixel as u64))
+            ^ ((index as u64) << 32 | target as u64),
+    )
+}
+
+/// A camera sample of eye `group[m]` that left the scene along `dir`, as the control variate
+/// weighs it (docs/estimators.md, "Background pixels"): a point at infinity, which eye k sees
+/// where `dir` projects onto its film if the ray from its eye along `dir` escapes too, with the
+/// film density of a direction `J_k = 1 / cos_t^3`. It carries no radiance (nothing is there),
+/// only its weight `(J_k / A_pix,k) / sum_k' D_k'` in every eye that sees it, so that the weights
+/// landing in a pixel sum to one in expectation also where the pixel sees the background.
+#[allow(clippy::too_many_arguments)]
+fn splat_escape(
+    integrator: &Integrator,
+    p: &Params,
+    group: &[Target],
+    m: usize,
+    fold: usize,
+    (pixel, index, dir): (u32, u32, Vec3),
+    n_at: &dyn Fn(usize, u32) -> u32,
+    tally: &mut Tally,
+) {
+    let geometry = &integrator.scene.geometry;
+    // Per eye: the pixel `dir` lands in and `J_k / A_pix,k`, where the eye sees it.
+    let seen: Vec<Option<(u32, f32)>> = group
+        .iter()
+        .enumerate()
+        .map(|(k, t)| {
+            let i = if k == m {
+                pixel
+            } else {
+                let i = t.cam.pixel_of(t.cam.eye + dir)?;
+                tally.counts.visibility += 1;
+                if geometry.occluded1(&Ray::new(t.cam.eye, dir)) {
+                    return None;
+                }
+                i
+            };
+            Some((i, t.cam.jacobian_dir(dir) / t.cam.pixel_area()))
+        })
+        .collect();
+    let total: f32 = seen
+        .iter()
+        .enumerate()
+        .filter_map(|(k, s)| s.map(|(i, j)| n_at(k, i) as f32 * j))
+        .sum();
+    if total <= 0.0 {
+        return;
+    }
+    let native_frame = group[m].film.frame();
+    for (t, s) in group.iter().zip(&seen) {
+        if let Some((i, j)) = *s {
+            let d = dither(p.seed, native_frame, pixel, index, t.film.frame());
+            t.film.splat_weight(i as usize, fold, j / total, mix64(d));
+        }
+    }
 }

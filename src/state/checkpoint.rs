@@ -156,7 +156,7 @@ impl Checkpointer {
                 let mut active = Vec::new();
                 for &(_, off) in &t.records {
                     match sf.record(off, norm)? {
-                        Record::Sums(a) => active.push(a),
+                        Record::Sums(a) => active.push(*a),
                         Record::Pixels(_) => bail!(
                             "{}: the checkpoint holds finished pixels, not sums",
                             state.display()

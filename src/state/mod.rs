@@ -19,7 +19,8 @@
 pub mod checkpoint;
 pub mod key;
 
-use crate::film::{AccumParts, Developed, FrameAccum, Layout, Norm, View};
+use crate::film::fixed::FixedSums;
+use crate::film::{AccumParts, Developed, FrameAccum, Layout, Norm, RawSums, View};
 use crate::util::fs::tmp_name;
 use anyhow::{anyhow, bail, Context, Result};
 use checkpoint::Counters;
@@ -98,7 +99,7 @@ impl Trailer {
 
 /// One frame's record: an accumulator in flight or a chunk's share of one, or finished pixels.
 pub enum Record {
-    Sums(FrameAccum),
+    Sums(Box<FrameAccum>),
     Pixels(Developed),
 }
 
@@ -114,11 +115,14 @@ impl Record {
 /// The fixed part of a record, before its per-pixel arrays.
 struct Header {
     view: View,
-    groups: u32,
+    /// Groups that contributed, by the parity of their first frame.
+    groups: [u32; 2],
     /// 0: sums, 1: finished pixels.
     kind: u8,
     landed: bool,
     loss: bool,
+    /// The control variate's two folds and weight sums.
+    folds: bool,
     unit: f32,
     /// Landed, tried and lost over the frame.
     counts: [u64; 3],
@@ -126,16 +130,24 @@ struct Header {
 }
 
 /// Bytes of a record's fixed part.
-const HEADER_BYTES: u64 = 4 * 5 + 4 + 4 + 24 + 8 + 128;
+const HEADER_BYTES: u64 = 4 * 5 + 4 + 4 + 4 + 24 + 8 + 128;
 
 impl Header {
     fn write(&self, w: &mut impl Write) -> std::io::Result<()> {
         let v = &self.view;
-        for x in [RECORD_MAGIC, v.frame, v.width, v.height, self.groups] {
+        let total = self.groups[0] + self.groups[1];
+        for x in [RECORD_MAGIC, v.frame, v.width, v.height, total] {
             w.write_all(&x.to_le_bytes())?;
         }
-        w.write_all(&[self.kind, self.landed as u8, self.loss as u8, 0])?;
+        let flags = [
+            self.kind,
+            self.landed as u8,
+            self.loss as u8,
+            self.folds as u8,
+        ];
+        w.write_all(&flags)?;
         w.write_all(&self.unit.to_le_bytes())?;
+        w.write_all(&self.groups[1].to_le_bytes())?;
         for x in self.counts {
             w.write_all(&x.to_le_bytes())?;
         }
@@ -159,6 +171,10 @@ impl Header {
         let mut flags = [0u8; 4];
         r.read_exact(&mut flags)?;
         let unit = f32::from_bits(u32_(r)?);
+        let odd = u32_(r)?;
+        if odd > groups {
+            return Err(bad("more odd groups than groups"));
+        }
         let mut b8 = [0u8; 8];
         let mut u64_ = |r: &mut dyn Read| -> std::io::Result<u64> {
             r.read_exact(&mut b8)?;
@@ -182,10 +198,11 @@ impl Header {
                 world_to_camera: mats[..16].try_into().unwrap(),
                 world_to_ndc: mats[16..].try_into().unwrap(),
             },
-            groups,
+            groups: [groups - odd, odd],
             kind: flags[0],
             landed: flags[1] != 0,
             loss: flags[2] != 0,
+            folds: flags[3] != 0,
             unit,
             counts,
             seconds,
@@ -213,6 +230,44 @@ fn read_u32s(r: &mut impl Read, n: usize) -> std::io::Result<Vec<u32>> {
         .collect())
 }
 
+/// Fixed-point cells, then the count of carries and the carries (cell, value in steps).
+fn write_sums(s: &FixedSums, w: &mut impl Write) -> std::io::Result<()> {
+    for c in s.cells() {
+        w.write_all(&c.to_le_bytes())?;
+    }
+    let carry = s.carries();
+    w.write_all(&(carry.len() as u64).to_le_bytes())?;
+    for (i, c) in carry {
+        w.write_all(&i.to_le_bytes())?;
+        w.write_all(&c.to_le_bytes())?;
+    }
+    Ok(())
+}
+
+/// `n` fixed-point cells and their carries, as `write_sums` wrote them.
+fn read_sums(r: &mut impl Read, n: usize) -> std::io::Result<RawSums> {
+    let cells = read_u32s(r, n)?.into_iter().map(|c| c as i32).collect();
+    let mut b8 = [0u8; 8];
+    let mut u64_ = |r: &mut dyn Read| -> std::io::Result<u64> {
+        r.read_exact(&mut b8)?;
+        Ok(u64::from_le_bytes(b8))
+    };
+    let k = u64_(r)? as usize;
+    if k > n {
+        return Err(bad("implausible carry table"));
+    }
+    let mut carry = Vec::with_capacity(k);
+    for _ in 0..k {
+        let i = u64_(r)?;
+        let c = u64_(r)? as i64;
+        if i as usize >= n {
+            return Err(bad("carry outside the frame"));
+        }
+        carry.push((i, c));
+    }
+    Ok((cells, carry))
+}
+
 /// Write an accumulator as a record, streamed from its cells (no copy of the frame).
 pub fn write_accum(a: &FrameAccum, w: &mut impl Write) -> std::io::Result<()> {
     Header {
@@ -221,19 +276,15 @@ pub fn write_accum(a: &FrameAccum, w: &mut impl Write) -> std::io::Result<()> {
         kind: 0,
         landed: a.layout.landed,
         loss: a.layout.loss,
+        folds: a.weight_sums().is_some(),
         unit: a.layout.unit,
         counts: a.counts(),
         seconds: a.clock.seconds(),
     }
     .write(w)?;
-    for c in a.sums().cells() {
-        w.write_all(&c.to_le_bytes())?;
-    }
-    let carry = a.sums().carries();
-    w.write_all(&(carry.len() as u64).to_le_bytes())?;
-    for (i, c) in carry {
-        w.write_all(&i.to_le_bytes())?;
-        w.write_all(&c.to_le_bytes())?;
+    write_sums(a.sums(), w)?;
+    if let Some(ws) = a.weight_sums() {
+        write_sums(ws, w)?;
     }
     if let Some(l) = a.landed_counts() {
         write_u32s(w, l)?;
@@ -249,10 +300,11 @@ pub fn write_accum(a: &FrameAccum, w: &mut impl Write) -> std::io::Result<()> {
 pub fn write_pixels(d: &Developed, w: &mut impl Write) -> std::io::Result<()> {
     Header {
         view: d.view,
-        groups: 1,
+        groups: [1, 0],
         kind: 1,
         landed: false,
         loss: false,
+        folds: false,
         unit: 1.0,
         counts: [0; 3],
         seconds: d.seconds,
@@ -265,10 +317,10 @@ pub fn write_pixels(d: &Developed, w: &mut impl Write) -> std::io::Result<()> {
 /// Bytes of an accumulator's record.
 pub fn accum_bytes(a: &FrameAccum) -> u64 {
     let p = a.view.pixels() as u64;
+    let sums = |s: &FixedSums| 4 * s.len() as u64 + 8 + 16 * s.carries().len() as u64;
     HEADER_BYTES
-        + 12 * p
-        + 8
-        + 16 * a.sums().carries().len() as u64
+        + sums(a.sums())
+        + a.weight_sums().map_or(0, sums)
         + if a.layout.landed { 4 * p } else { 0 }
         + if a.layout.loss { 8 * p } else { 0 }
 }
@@ -285,25 +337,13 @@ pub fn read_record(r: &mut impl Read, norm: Norm) -> std::io::Result<Record> {
     let p = h.view.pixels();
     match h.kind {
         0 => {
-            let cells = read_u32s(r, 3 * p)?.into_iter().map(|c| c as i32).collect();
-            let mut b8 = [0u8; 8];
-            let mut u64_ = |r: &mut dyn Read| -> std::io::Result<u64> {
-                r.read_exact(&mut b8)?;
-                Ok(u64::from_le_bytes(b8))
+            let folds = if h.folds { 2 } else { 1 };
+            let (cells, carry) = read_sums(r, 3 * folds * p)?;
+            let weights = if h.folds {
+                Some(read_sums(r, folds * p)?)
+            } else {
+                None
             };
-            let n = u64_(r)? as usize;
-            if n > 3 * p {
-                return Err(bad("implausible carry table"));
-            }
-            let mut carry = Vec::with_capacity(n);
-            for _ in 0..n {
-                let i = u64_(r)?;
-                let c = u64_(r)? as i64;
-                if i as usize >= 3 * p {
-                    return Err(bad("carry outside the frame"));
-                }
-                carry.push((i, c));
-            }
             let landed = if h.landed {
                 Some(read_u32s(r, p)?)
             } else {
@@ -323,6 +363,7 @@ pub fn read_record(r: &mut impl Read, norm: Norm) -> std::io::Result<Record> {
             let parts = AccumParts {
                 cells,
                 carry,
+                weights,
                 landed,
                 loss,
                 totals: h.counts,
@@ -330,7 +371,7 @@ pub fn read_record(r: &mut impl Read, norm: Norm) -> std::io::Result<Record> {
                 seconds: h.seconds,
             };
             FrameAccum::from_parts(h.view, layout, parts)
-                .map(Record::Sums)
+                .map(|a| Record::Sums(Box::new(a)))
                 .ok_or_else(|| bad("inconsistent accumulator"))
         }
         1 => {
@@ -483,10 +524,11 @@ mod tests {
             AccumParts {
                 cells: (0..3 * p as i32).map(|i| i * 1000 - 5).collect(),
                 carry: vec![(4, 1 << 32), (17, -(1 << 33))],
+                weights: None,
                 landed: Some(vec![3; p]),
                 loss: Some((vec![2; p], vec![1; p])),
                 totals: [18, 12, 6],
-                groups: 2,
+                groups: [1, 1],
                 seconds: 1.5,
             },
         )
@@ -509,7 +551,7 @@ mod tests {
 
     #[test]
     fn records_round_trip_and_report_their_size() {
-        for r in [Record::Sums(accum(4)), Record::Pixels(pixels(4))] {
+        for r in [Record::Sums(Box::new(accum(4))), Record::Pixels(pixels(4))] {
             let bytes = bytes_of(&r);
             let size = match &r {
                 Record::Sums(a) => accum_bytes(a),
@@ -520,8 +562,8 @@ mod tests {
             // Written again, the record read back gives the same bytes (the seconds aside,
             // which keep running).
             let again = bytes_of(&back);
-            assert_eq!(again[..52], bytes[..52]);
-            assert_eq!(again[60..], bytes[60..]);
+            assert_eq!(again[..56], bytes[..56]);
+            assert_eq!(again[64..], bytes[64..]);
             // Any truncation is an error, never a panic or a short record.
             for cut in [0, 3, 40, bytes.len() - 1] {
                 assert!(read_record(&mut &bytes[..cut], Norm::Count).is_err());
@@ -539,7 +581,7 @@ mod tests {
             b.sums().totals().iter().map(|v| 2 * v).collect::<Vec<_>>()
         );
         assert_eq!(t[4], 2 * (3995 + (1 << 32)));
-        assert_eq!(a.groups, 4);
+        assert_eq!(a.groups, [2, 2]);
         assert_eq!(a.landed_counts().unwrap().next(), Some(6));
         assert_eq!(a.counts(), [36, 24, 12]);
         // Developed by count: pixel 0's red is 2 * (-5) steps, times the unit, over 6 landed.
