@@ -52,11 +52,31 @@ pub fn run_groups(
         "groups",
     );
     pb.set_position((run.next - run.units.start()) as u64);
+    // A resumed checkpoint holds exactly the frames the groups before `run.next` left in
+    // flight, each with the groups that contain it.
+    let u0 = *run.units.start();
+    let in_flight: Vec<u32> = if run.next > u0 {
+        (run.next..run.next + n_f - 1).collect()
+    } else {
+        vec![]
+    };
+    let frames: Vec<u32> = active.iter().map(FrameAccum::frame).collect();
+    if frames != in_flight {
+        bail!(
+            "the checkpoint holds frames {frames:?} in flight where the render needs {in_flight:?}; \
+             it is damaged: delete it to start over"
+        );
+    }
     for a in &active {
-        if a.layout != layout || (a.view.width, a.view.height) != (w, h) {
+        let f = a.frame();
+        let groups = (run.next - 1).min(f) + 1 - (f + 1).saturating_sub(n_f).max(u0);
+        if a.layout != layout
+            || (a.view.width, a.view.height) != (w, h)
+            || a.group_count() != groups
+        {
             bail!(
-                "frame {}: the checkpoint's accumulator does not fit these settings",
-                a.frame()
+                "frame {f}: the checkpoint's accumulator does not fit these settings (it is \
+                 damaged, or of another render): delete it to start over"
             );
         }
     }

@@ -85,8 +85,15 @@ pub fn run_independent(
     (w, h): (u32, u32),
     progress: bool,
     run: &mut Run,
+    active: Vec<crate::film::FrameAccum>,
     sink: &mut dyn Sink,
 ) -> Result<bool> {
+    if !active.is_empty() {
+        anyhow::bail!(
+            "the checkpoint holds frames in flight, which the independent tracer never leaves: \
+             it is damaged, or of another render; delete it to start over"
+        );
+    }
     let scene = integrator.scene;
     let (a, b) = (*run.units.start(), *run.units.end());
     let tiles_per_frame = tiles(w, h).len() as u64;

@@ -88,6 +88,16 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
                 label(f)
             );
         }
+        let all = t.key.first_frame..=t.key.last_frame + 1 - t.key.window;
+        let share = c.share(all).map_err(|e| anyhow!("{}: {e}", label(f)))?;
+        if t.units != [*share.start(), *share.end()] || t.next_unit != share.end() + 1 {
+            bail!(
+                "{}: damaged partial file (chunk {c} should cover units {}-{} and be complete)",
+                label(f),
+                share.start(),
+                share.end()
+            );
+        }
         by_k.insert(c.k, i);
     }
     let n = n.unwrap();
@@ -133,14 +143,14 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
         .map(|f| std::fs::metadata(&f.path).map_or(0, |m| m.len()))
         .sum();
     let norm = method.norm();
-    let mut nonfinite_pixels = 0;
-    for (frame, list) in &shares {
+    // A frame from its shares: read (each record checked), added, its groups counted.
+    let mut combine = |frame: u32, list: &[(usize, u64)]| -> Result<Developed> {
         let mut shares = list.iter().map(|&(i, off)| {
             let label = label(&files[i]);
             files[i].record(off, norm).map(|r| (r, label))
         });
         let (first, _) = shares.next().expect("a frame has at least one share")?;
-        let d: Developed = match first {
+        Ok(match first {
             Record::Pixels(d) => {
                 if let Some(r) = shares.next() {
                     bail!("frame {frame}: finished pixels in two partials ({})", r?.1);
@@ -155,7 +165,16 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
                 check_groups(&acc, key.first_frame, key.last_frame, key.window, method)?;
                 develop(&acc)
             }
-        };
+        })
+    };
+    // Every record of every partial is read and checked before the first frame is written: a
+    // damaged record in the last partial must not leave the first frames written.
+    for (frame, list) in &shares {
+        combine(*frame, list)?;
+    }
+    let mut nonfinite_pixels = 0;
+    for (frame, list) in &shares {
+        let d = combine(*frame, list)?;
         nonfinite_pixels += d.nonfinite;
         sink.put(d)?;
     }
@@ -193,7 +212,7 @@ fn check_groups(acc: &FrameAccum, first: u32, last: u32, n_f: u32, method: Metho
     let expected = expected_groups(f, first, last, n_f);
     if acc.group_count() != expected {
         bail!(
-            "frame {f}: the partial files hold {} of its {expected} groups; no further frame was \
+            "frame {f}: the partial files hold {} of its {expected} groups; no frame was \
              written",
             acc.group_count()
         );

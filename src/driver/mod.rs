@@ -89,6 +89,7 @@ fn run_key(scene: &Scene, opts: &RenderOptions, plan: &Plan) -> Result<RunKey> {
         visibility: if opts.packets { "packet" } else { "single" }.into(),
         aov: opts.aov,
         adaptive: opts.adaptive.unwrap_or(0.0),
+        exr_float: opts.exr_float,
     })
 }
 
@@ -110,6 +111,7 @@ fn frame_loop(
             (w, h),
             opts.progress,
             run,
+            active,
             sink,
         );
     }

@@ -47,8 +47,9 @@ pub struct RunKey {
     pub visibility: String,
     pub aov: bool,
     /// `--adaptive` target, 0 when off.
-    #[serde(default)]
     pub adaptive: f32,
+    /// EXR pixels as float: a resume or a merge must not mix half and float frames.
+    pub exr_float: bool,
 }
 
 impl RunKey {

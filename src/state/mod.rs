@@ -129,8 +129,9 @@ struct Header {
     seconds: f64,
 }
 
-/// Bytes of a record's fixed part.
+/// Bytes of a record's fixed part, and of the CRC-32 that ends every record.
 const HEADER_BYTES: u64 = 4 * 5 + 4 + 4 + 4 + 24 + 8 + 128;
+const CRC_BYTES: u64 = 4;
 
 impl Header {
     fn write(&self, w: &mut impl Write) -> std::io::Result<()> {
@@ -268,8 +269,59 @@ fn read_sums(r: &mut impl Read, n: usize) -> std::io::Result<RawSums> {
     Ok((cells, carry))
 }
 
+/// A writer that checksums what passes through it (CRC-32, `crc32fast`).
+struct CrcWriter<'w, W: Write> {
+    inner: &'w mut W,
+    crc: crc32fast::Hasher,
+}
+
+impl<W: Write> Write for CrcWriter<'_, W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.crc.update(&buf[..n]);
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// A reader that checksums what passes through it, and counts it.
+struct CrcReader<'r, R: Read> {
+    inner: &'r mut R,
+    crc: crc32fast::Hasher,
+    read: u64,
+}
+
+impl<R: Read> Read for CrcReader<'_, R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.crc.update(&buf[..n]);
+        self.read += n as u64;
+        Ok(n)
+    }
+}
+
+/// Write a record's body with `body`, then its CRC-32.
+fn checksummed<W: Write>(
+    w: &mut W,
+    body: impl FnOnce(&mut CrcWriter<W>) -> std::io::Result<()>,
+) -> std::io::Result<()> {
+    let mut cw = CrcWriter {
+        inner: w,
+        crc: crc32fast::Hasher::new(),
+    };
+    body(&mut cw)?;
+    let crc = cw.crc.finalize();
+    w.write_all(&crc.to_le_bytes())
+}
+
 /// Write an accumulator as a record, streamed from its cells (no copy of the frame).
 pub fn write_accum(a: &FrameAccum, w: &mut impl Write) -> std::io::Result<()> {
+    checksummed(w, |w| write_accum_body(a, w))
+}
+
+fn write_accum_body(a: &FrameAccum, w: &mut impl Write) -> std::io::Result<()> {
     Header {
         view: a.view,
         groups: a.groups,
@@ -298,6 +350,10 @@ pub fn write_accum(a: &FrameAccum, w: &mut impl Write) -> std::io::Result<()> {
 
 /// Write a finished frame (RGB only) as a record.
 pub fn write_pixels(d: &Developed, w: &mut impl Write) -> std::io::Result<()> {
+    checksummed(w, |w| write_pixels_body(d, w))
+}
+
+fn write_pixels_body(d: &Developed, w: &mut impl Write) -> std::io::Result<()> {
     Header {
         view: d.view,
         groups: [1, 0],
@@ -319,6 +375,7 @@ pub fn accum_bytes(a: &FrameAccum) -> u64 {
     let p = a.view.pixels() as u64;
     let sums = |s: &FixedSums| 4 * s.len() as u64 + 8 + 16 * s.carries().len() as u64;
     HEADER_BYTES
+        + CRC_BYTES
         + sums(a.sums())
         + a.weight_sums().map_or(0, sums)
         + if a.layout.landed { 4 * p } else { 0 }
@@ -327,14 +384,45 @@ pub fn accum_bytes(a: &FrameAccum) -> u64 {
 
 /// Bytes of a finished frame's record.
 pub fn pixels_bytes(d: &Developed) -> u64 {
-    HEADER_BYTES + 12 * d.view.pixels() as u64
+    HEADER_BYTES + CRC_BYTES + 12 * d.view.pixels() as u64
 }
 
-/// Read one record; its sums are normalised as `norm` says (the method's, which the record does
-/// not carry).
-pub fn read_record(r: &mut impl Read, norm: Norm) -> std::io::Result<Record> {
+/// Read one record of at most `max_len` bytes (what the file holds for it); its sums are
+/// normalised as `norm` says (the method's, which the record does not carry). Its CRC-32 must
+/// match, and nothing is allocated that the record's length does not hold.
+pub fn read_record(r: &mut impl Read, norm: Norm, max_len: u64) -> std::io::Result<Record> {
+    let mut cr = CrcReader {
+        inner: r,
+        crc: crc32fast::Hasher::new(),
+        read: 0,
+    };
+    let record = read_record_body(&mut cr, norm, max_len)?;
+    let crc = cr.crc.finalize();
+    let mut b4 = [0u8; 4];
+    cr.inner.read_exact(&mut b4)?;
+    if u32::from_le_bytes(b4) != crc {
+        return Err(bad("checksum mismatch (the record is damaged)"));
+    }
+    Ok(record)
+}
+
+fn read_record_body(r: &mut impl Read, norm: Norm, max_len: u64) -> std::io::Result<Record> {
     let h = Header::read(r)?;
     let p = h.view.pixels();
+    // The smallest record this header describes must fit in the bytes the file has for it.
+    let per_pixel = match h.kind {
+        0 => {
+            let folds = if h.folds { 2 } else { 1 };
+            12 * folds
+                + if h.folds { 4 * folds } else { 0 }
+                + if h.landed { 4 } else { 0 }
+                + if h.loss { 8 } else { 0 }
+        }
+        _ => 12,
+    };
+    if HEADER_BYTES + CRC_BYTES + per_pixel * p as u64 > max_len {
+        return Err(bad("longer than the file holds for it"));
+    }
     match h.kind {
         0 => {
             let folds = if h.folds { 2 } else { 1 };
@@ -396,34 +484,46 @@ pub struct StateFile {
     pub path: PathBuf,
     pub trailer: Trailer,
     file: BufReader<File>,
+    /// Each record's frame, first byte and end, in file order: they tile the file up to the
+    /// trailer, without gaps or overlaps.
+    spans: Vec<(u32, u64, u64)>,
 }
 
 impl StateFile {
+    /// Open a state file: the trailer must be whole (magic, length, CRC-32), of this version,
+    /// and consistent with itself (units inside the run, the next unit inside the units,
+    /// records of frames inside the run, each frame once, tiling the file). The records are
+    /// checked as they are read (`record`).
     pub fn open(path: &Path) -> Result<StateFile> {
         let label = path.display();
-        let mut f = File::open(path).with_context(|| format!("{label}: cannot open"))?;
+        let mut f = crate::util::fs::open_regular(path, "state file")?;
         let len = f.metadata()?.len();
         let incomplete = || {
             anyhow!(
                 "{label}: not a complete reframe state file (truncated, or still being written)"
             )
         };
-        if len < 16 {
+        if len < TAIL_BYTES {
             return Err(incomplete());
         }
-        f.seek(SeekFrom::Start(len - 16))?;
-        let mut tail = [0u8; 16];
+        f.seek(SeekFrom::Start(len - TAIL_BYTES))?;
+        let mut tail = [0u8; TAIL_BYTES as usize];
         f.read_exact(&mut tail)?;
-        if &tail[8..] != MAGIC {
+        if &tail[12..] != MAGIC {
             return Err(incomplete());
         }
-        let tlen = u64::from_le_bytes(tail[..8].try_into().unwrap());
-        if tlen > len - 16 {
+        let crc = u32::from_le_bytes(tail[..4].try_into().unwrap());
+        let tlen = u64::from_le_bytes(tail[4..12].try_into().unwrap());
+        if tlen > len - TAIL_BYTES {
             return Err(incomplete());
         }
-        f.seek(SeekFrom::Start(len - 16 - tlen))?;
+        let trailer_start = len - TAIL_BYTES - tlen;
+        f.seek(SeekFrom::Start(trailer_start))?;
         let mut json = vec![0u8; tlen as usize];
         f.read_exact(&mut json)?;
+        if crc32fast::hash(&json) != crc {
+            bail!("{label}: damaged state file (the trailer's checksum does not match)");
+        }
         // The version first, so that an older file is refused as such, not as unreadable.
         #[derive(Deserialize)]
         struct Version {
@@ -442,19 +542,113 @@ impl StateFile {
         }
         let trailer: Trailer = serde_json::from_slice(&json)
             .map_err(|e| anyhow!("{label}: unreadable trailer ({e})"))?;
+        let spans = check_trailer(&trailer, trailer_start)
+            .map_err(|why| anyhow!("{label}: damaged state file ({why})"))?;
         Ok(StateFile {
             path: path.to_path_buf(),
             trailer,
             file: BufReader::new(f),
+            spans,
         })
     }
 
-    /// The record that starts at `offset`, its sums normalised as `norm` says.
+    /// The record that starts at `offset` (one of the trailer's), its sums normalised as `norm`
+    /// says; refused unless it is whole, its checksum matches, it fills its span exactly, and
+    /// it is the frame the trailer says at the run's resolution.
     pub fn record(&mut self, offset: u64, norm: Norm) -> Result<Record> {
-        self.file.seek(SeekFrom::Start(offset))?;
-        read_record(&mut self.file, norm)
-            .with_context(|| format!("{}: damaged record at byte {offset}", self.path.display()))
+        let label = self.path.display().to_string();
+        let damaged = |why: String| anyhow!("{label}: damaged record at byte {offset} ({why})");
+        let &(frame, start, end) = self
+            .spans
+            .iter()
+            .find(|s| s.1 == offset)
+            .ok_or_else(|| damaged("not a record the trailer lists".into()))?;
+        self.file.seek(SeekFrom::Start(start))?;
+        let mut counted = CrcReader {
+            inner: &mut self.file,
+            crc: crc32fast::Hasher::new(),
+            read: 0,
+        };
+        let r = read_record(&mut counted, norm, end - start).map_err(|e| damaged(e.to_string()))?;
+        if counted.read != end - start {
+            return Err(damaged(format!(
+                "{} bytes where the trailer has {}",
+                counted.read,
+                end - start
+            )));
+        }
+        let key = &self.trailer.key;
+        let view = match &r {
+            Record::Sums(a) => a.view,
+            Record::Pixels(d) => d.view,
+        };
+        if view.frame != frame || (view.width, view.height) != (key.width, key.height) {
+            return Err(damaged(format!(
+                "frame {} at {}x{}, where the trailer has frame {frame} at {}x{}",
+                view.frame, view.width, view.height, key.width, key.height
+            )));
+        }
+        Ok(r)
     }
+}
+
+/// The trailer's own consistency; the records' spans, in file order.
+fn check_trailer(t: &Trailer, trailer_start: u64) -> Result<Vec<(u32, u64, u64)>, String> {
+    let k = &t.key;
+    if k.first_frame > k.last_frame || k.window == 0 || k.window > k.last_frame - k.first_frame + 1
+    {
+        return Err(format!(
+            "frames {}-{} with window {}",
+            k.first_frame, k.last_frame, k.window
+        ));
+    }
+    let last_unit = k.last_frame + 1 - k.window;
+    let [u0, u1] = t.units;
+    if u0 > u1 || u0 < k.first_frame || u1 > last_unit {
+        return Err(format!(
+            "units {u0}-{u1} outside {}-{last_unit}",
+            k.first_frame
+        ));
+    }
+    if t.next_unit < u0 || t.next_unit > u1 + 1 {
+        return Err(format!("next unit {} outside {u0}-{}", t.next_unit, u1 + 1));
+    }
+    if t.kind == Kind::Partial && t.records.is_empty() {
+        return Err("a partial file without records".into());
+    }
+    let mut spans: Vec<(u32, u64)> = t.records.clone();
+    spans.sort_by_key(|s| s.1);
+    let mut frames: Vec<u32> = spans.iter().map(|s| s.0).collect();
+    frames.sort_unstable();
+    if frames.windows(2).any(|w| w[0] == w[1]) {
+        return Err("a frame recorded twice".into());
+    }
+    if let Some(f) = frames
+        .iter()
+        .find(|&&f| f < k.first_frame || f > k.last_frame)
+    {
+        return Err(format!("a record of frame {f}, outside the run"));
+    }
+    // Records tile the file from byte 0 to the trailer.
+    let mut expected = 0;
+    let mut out = Vec::with_capacity(spans.len());
+    for (i, &(frame, start)) in spans.iter().enumerate() {
+        if start != expected {
+            return Err(format!(
+                "record offsets leave a gap or overlap at byte {start}"
+            ));
+        }
+        let end = spans.get(i + 1).map_or(trailer_start, |s| s.1);
+        if end <= start {
+            return Err(format!("record offsets overlap at byte {start}"));
+        }
+        out.push((frame, start, end));
+        expected = end;
+    }
+    if expected != trailer_start {
+        return Err("bytes between the records and the trailer".into());
+    }
+    Ok(out)
 }
 
 /// Write a state file atomically: records, trailer (with the records' offsets filled in), flush
@@ -490,9 +684,13 @@ pub fn write_state<'a>(
 fn write_trailer(w: &mut impl Write, t: &Trailer) -> std::io::Result<()> {
     let json = serde_json::to_vec(t).map_err(std::io::Error::other)?;
     w.write_all(&json)?;
+    w.write_all(&crc32fast::hash(&json).to_le_bytes())?;
     w.write_all(&(json.len() as u64).to_le_bytes())?;
     w.write_all(MAGIC)
 }
+
+/// Bytes after the trailer's JSON: its CRC-32, its length, the magic.
+const TAIL_BYTES: u64 = 4 + 8 + 8;
 
 #[cfg(test)]
 mod tests {
@@ -558,16 +756,30 @@ mod tests {
                 Record::Pixels(d) => pixels_bytes(d),
             };
             assert_eq!(bytes.len() as u64, size);
-            let back = read_record(&mut bytes.as_slice(), Norm::Count).unwrap();
+            let len = bytes.len() as u64;
+            let back = read_record(&mut bytes.as_slice(), Norm::Count, len).unwrap();
             // Written again, the record read back gives the same bytes (the seconds aside,
             // which keep running).
             let again = bytes_of(&back);
+            // (and the checksum, which covers them).
+            let n = bytes.len();
             assert_eq!(again[..56], bytes[..56]);
-            assert_eq!(again[64..], bytes[64..]);
+            assert_eq!(again[64..n - 4], bytes[64..n - 4]);
             // Any truncation is an error, never a panic or a short record.
             for cut in [0, 3, 40, bytes.len() - 1] {
-                assert!(read_record(&mut &bytes[..cut], Norm::Count).is_err());
+                assert!(read_record(&mut &bytes[..cut], Norm::Count, len).is_err());
             }
+            // Any flipped bit is caught by the checksum (or the header's checks), and a record
+            // longer than its span is refused before anything is allocated for it.
+            for i in (0..bytes.len()).step_by(7) {
+                let mut b = bytes.clone();
+                b[i] ^= 0x10;
+                assert!(
+                    read_record(&mut b.as_slice(), Norm::Count, len).is_err(),
+                    "byte {i}"
+                );
+            }
+            assert!(read_record(&mut bytes.as_slice(), Norm::Count, len - 100).is_err());
         }
     }
 
@@ -617,6 +829,7 @@ mod tests {
             visibility: "packet".into(),
             aov: false,
             adaptive: 0.0,
+            exr_float: false,
         };
         let mut t = Trailer::new(key.clone(), None, &(0..=7), "o_####.exr".into(), false);
         t.next_unit = 3;

@@ -1,0 +1,235 @@
+//! Property: a damaged state file is never accepted. Real partial files (chunks of a `mis-cv`
+//! render with `--aov`, so that every array of a record is there, and of an independent render,
+//! whose records are finished pixels) and a real checkpoint (a render killed mid-way) are
+//! damaged at random (a flipped byte, a truncation, a length field or an offset overwritten, bytes
+//! inserted) from a fixed seed; `reframe merge` and `reframe render --resume` must refuse each
+//! with one line, no panic and no hang, and `merge` must write no frame. The undamaged files
+//! merge and resume (so the refusals are the damage's).
+mod common;
+
+use common::{par_map, reframe_ok, refusal, run_reframe};
+use proptest::prelude::*;
+use proptest::strategy::ValueTree;
+use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+const SEED: [u8; 32] = *b"reframe: damaged state refused.!";
+/// Damaged partial files tried, and damaged checkpoints (a resume loads the scene: slower).
+const PARTIAL_CASES: usize = 80;
+const CHECKPOINT_CASES: usize = 24;
+
+#[derive(Clone, Debug)]
+enum Damage {
+    Flip {
+        at: f64,
+        mask: u8,
+    },
+    Truncate {
+        at: f64,
+    },
+    /// Overwrite 8 bytes (a length, an offset, a count) with a value.
+    Word {
+        at: f64,
+        value: u64,
+    },
+    Insert {
+        at: f64,
+        bytes: Vec<u8>,
+    },
+}
+
+fn damage() -> impl Strategy<Value = Damage> {
+    let at = 0.0..1.0f64;
+    prop_oneof![
+        (at.clone(), 1u8..=255).prop_map(|(at, mask)| Damage::Flip { at, mask }),
+        at.clone().prop_map(|at| Damage::Truncate { at }),
+        (
+            at.clone(),
+            prop_oneof![Just(0u64), Just(u64::MAX), Just(1 << 40), 0u64..4096]
+        )
+            .prop_map(|(at, value)| Damage::Word { at, value }),
+        (at, proptest::collection::vec(any::<u8>(), 1..16))
+            .prop_map(|(at, bytes)| Damage::Insert { at, bytes }),
+    ]
+}
+
+fn apply(d: &Damage, b: &mut Vec<u8>) {
+    let pos = |at: f64, n: usize| ((at * n as f64) as usize).min(n.saturating_sub(1));
+    match d {
+        Damage::Flip { at, mask } => {
+            let i = pos(*at, b.len());
+            b[i] ^= mask;
+        }
+        Damage::Truncate { at } => b.truncate(pos(*at, b.len())),
+        Damage::Word { at, value } => {
+            let i = pos(*at, b.len().saturating_sub(8));
+            let old = &b[i..i + 8];
+            let new = value.to_le_bytes();
+            // A word that already holds the value damages nothing: change one more bit.
+            let new = if old == new {
+                (value ^ 1).to_le_bytes()
+            } else {
+                new
+            };
+            b[i..i + 8].copy_from_slice(&new);
+        }
+        Damage::Insert { at, bytes } => {
+            let i = pos(*at, b.len());
+            b.splice(i..i, bytes.iter().copied());
+        }
+    }
+}
+
+fn cases(n: usize) -> Vec<Damage> {
+    let mut runner = TestRunner::new_with_rng(
+        Config::default(),
+        TestRng::from_seed(RngAlgorithm::ChaCha, &SEED),
+    );
+    (0..n)
+        .map(|_| damage().new_tree(&mut runner).unwrap().current())
+        .collect()
+}
+
+fn strings(v: &[&str]) -> Vec<String> {
+    v.iter().map(|s| s.to_string()).collect()
+}
+
+/// Frame files in `d`.
+fn frames_in(d: &Path) -> Vec<PathBuf> {
+    std::fs::read_dir(d)
+        .map(|e| {
+            e.flatten()
+                .map(|e| e.path())
+                .filter(|p| p.extension().is_some_and(|x| x == "exr"))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+#[test]
+fn damaged_partials_are_never_merged() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let renders: [(&str, &[&str]); 2] = [
+        ("cv", &["--method", "mis-cv", "--window", "3", "--aov"]),
+        ("ind", &["--method", "independent"]),
+    ];
+    let mut sets = Vec::new();
+    for (name, extra) in renders {
+        let out = d.join(name).join("f_####.exr").display().to_string();
+        for k in 1..=2 {
+            let mut a = strings(&[
+                "render", "vase", "--frames", "10-15", "--res", "24x18", "--spp", "1", "--out",
+                &out,
+            ]);
+            a.extend(strings(extra));
+            a.extend(strings(&["--chunk", &format!("{k}/2")]));
+            reframe_ok(&a);
+        }
+        let partials: Vec<PathBuf> = (1..=2)
+            .map(|k| d.join(name).join(format!("f.chunk-{k}-of-2.partial")))
+            .collect();
+        // Undamaged, they merge.
+        let check = d.join(format!("{name}-check"));
+        let out = check.join("f_####.exr").display().to_string();
+        let mut a = strings(&["merge", "--out", &out]);
+        a.extend(partials.iter().map(|p| p.display().to_string()));
+        reframe_ok(&a);
+        assert_eq!(frames_in(&check).len(), 6);
+        sets.push(partials);
+    }
+    let all: Vec<(usize, Damage)> = cases(PARTIAL_CASES).into_iter().enumerate().collect();
+    let outcomes = par_map(&all, |(i, dmg)| {
+        let i = *i;
+        let partials = &sets[i % sets.len()];
+        let k = (i / sets.len()) % 2;
+        let case = d.join(format!("case{i}"));
+        std::fs::create_dir_all(&case).unwrap();
+        let mut files = Vec::new();
+        for (j, p) in partials.iter().enumerate() {
+            let mut b = std::fs::read(p).unwrap();
+            if j == k {
+                apply(dmg, &mut b);
+            }
+            let q = case.join(p.file_name().unwrap());
+            std::fs::write(&q, &b).unwrap();
+            files.push(q.display().to_string());
+        }
+        let out = case.join("f_####.exr").display().to_string();
+        let mut a = strings(&["merge", "--out", &out]);
+        a.extend(files);
+        let o = run_reframe(&a, Duration::from_secs(20));
+        let verdict = refusal(&o).map_err(|e| format!("case {i} {dmg:?}: {e}"));
+        if verdict.is_ok() && !frames_in(&case).is_empty() {
+            return Err(format!("case {i} {dmg:?}: frames written"));
+        }
+        verdict
+    });
+    for o in outcomes {
+        o.unwrap();
+    }
+}
+
+#[test]
+fn damaged_checkpoints_are_never_resumed() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("k/f_####.exr").display().to_string();
+    let args = strings(&[
+        "render",
+        "vase",
+        "--method",
+        "mis-cv",
+        "--window",
+        "5",
+        "--spp",
+        "1",
+        "--frames",
+        "10-40",
+        "--res",
+        "64x48",
+        "--aov",
+        "--checkpoint-every",
+        "0",
+        "--out",
+        &out,
+    ]);
+    // A checkpoint with frames in flight: kill the render once one is there.
+    let state = d.join("k/f.checkpoint/state");
+    let mut child = common::reframe(&args).spawn().unwrap();
+    let start = Instant::now();
+    while !(state.exists() && d.join("k/f_0012.exr").exists()) {
+        assert!(child.try_wait().unwrap().is_none(), "finished too soon");
+        assert!(start.elapsed() < Duration::from_secs(60));
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let good = std::fs::read(&state).unwrap();
+    // Each case resumes from its own copy of the output folder.
+    let all: Vec<(usize, Damage)> = cases(CHECKPOINT_CASES).into_iter().enumerate().collect();
+    let outcomes = par_map(&all, |(i, dmg)| {
+        let case = d.join(format!("case{i}"));
+        std::fs::create_dir_all(case.join("f.checkpoint")).unwrap();
+        let mut b = good.clone();
+        apply(dmg, &mut b);
+        std::fs::write(case.join("f.checkpoint/state"), &b).unwrap();
+        let out = case.join("f_####.exr").display().to_string();
+        let mut a = args.clone();
+        let n = a.len();
+        a[n - 1] = out;
+        a.push("--resume".into());
+        let o = run_reframe(&a, Duration::from_secs(30));
+        refusal(&o).map_err(|e| format!("case {i} {dmg:?}: {e}"))
+    });
+    for o in outcomes {
+        o.unwrap();
+    }
+    // Undamaged, it resumes.
+    std::fs::write(&state, &good).unwrap();
+    let mut a = args.clone();
+    a.push("--resume".into());
+    reframe_ok(&a);
+    assert!(!state.exists());
+}
