@@ -289,9 +289,15 @@ impl Scene {
         let geometry = TriangleScene::new(device, &mesh.positions, &mesh.triangles)
             .with_context(|| format!("{obj_label}: building the Embree scene"))?;
         let lights = Lights::new(&mesh).ok_or_else(|| {
+            // A light lost with its material is the likely cause: say so on the same line.
+            let lost = repairs
+                .first_of(&[MTL_MISSING, NO_MTLLIB, UNKNOWN_MATERIAL])
+                .map(|w| format!(" (materials fell back to the default: {w})"))
+                .unwrap_or_default();
             anyhow!(
                 "{obj_label}: the scene has no light: no material has a positive Ke (area \
-                 lights are reframe's only lights; environment lighting is not supported yet)"
+                 lights are reframe's only lights; environment lighting is not supported \
+                 yet){lost}"
             )
         })?;
         Ok(Scene {

@@ -68,6 +68,15 @@ impl Repairs {
         Ok(())
     }
 
+    /// The warning about the first repair of one of `kinds`, if any (to explain a later error).
+    pub fn first_of(&self, kinds: &[Kind]) -> Option<String> {
+        let s = self.seen.iter().find(|s| kinds.contains(&s.kind))?;
+        Some(format!(
+            "{}: line {}: {}: {}",
+            s.file, s.line, s.detail, s.kind.one
+        ))
+    }
+
     /// One line per kind and file, for `Scene::warnings`.
     pub fn into_warnings(self) -> Vec<String> {
         self.seen
