@@ -643,7 +643,7 @@ fn mtl_paths(dir: &Path, rest: &[u8]) -> Vec<PathBuf> {
 
 /// Load the OBJ and the MTL files it names into a checked mesh, noting repairs.
 fn load_obj(label: &str, bytes: &[u8], files: &MtlSource, repairs: &mut Repairs) -> Result<Mesh> {
-    let parsed = obj::parse(label, bytes, repairs).map_err(|e| anyhow!("{label}: {e}"))?;
+    let parsed = obj::parse(label, bytes, repairs)?;
     let mut materials = Vec::new();
     let mut names = Vec::new();
     let mut by_name: HashMap<String, u32> = HashMap::new();
@@ -677,8 +677,7 @@ fn load_obj(label: &str, bytes: &[u8], files: &MtlSource, repairs: &mut Repairs)
             }
         };
         for (mtl_label, b) in loaded {
-            let mtl =
-                mtl::parse(&mtl_label, &b, repairs).map_err(|e| anyhow!("{mtl_label}: {e}"))?;
+            let mtl = mtl::parse(&mtl_label, &b, repairs)?;
             for m in &mtl.materials {
                 if by_name.contains_key(&m.name) {
                     repairs.note(&mtl_label, m.line, DEFINED_AGAIN, || {

@@ -64,12 +64,12 @@ pub struct Mtl {
     pub index: HashMap<String, usize>,
 }
 
-/// Read an MTL file; errors are "line N: 'statement': why" (the caller adds the file).
+/// Read an MTL file; `label` names it in errors ("label: line N: 'statement': why") and repairs.
 pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
     let mut out = Mtl::default();
-    for line in lines(bytes)? {
+    for line in lines(bytes).map_err(|e| anyhow!("{label}: {e}"))? {
         let (n, text) = (line.n, line.text.as_ref());
-        let err = |msg: String| anyhow!("line {n}: '{}': {msg}", quote(text));
+        let err = |msg: String| anyhow!("{label}: line {n}: '{}': {msg}", quote(text));
         let mut words = text.split_whitespace();
         let Some(key) = words.next() else { continue };
         if key.starts_with('#') {

@@ -68,16 +68,15 @@ pub struct Obj {
     pub usemtl: Vec<(usize, String)>,
 }
 
-/// Read an OBJ file; `label` names it in repairs (errors are "line N: 'statement': why" and
-/// get the label from the caller).
+/// Read an OBJ file; `label` names it in errors ("label: line N: 'statement': why") and repairs.
 pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
     let mut out = Obj::default();
     // Elements defined so far: positions, texture coordinates, normals.
     let mut count = [0usize; 3];
     let mut usemtl = None;
-    for line in lines(bytes)? {
+    for line in lines(bytes).map_err(|e| anyhow!("{label}: {e}"))? {
         let (n, text) = (line.n, line.text.as_ref());
-        let err = |msg: String| anyhow!("line {n}: '{}': {msg}", quote(text));
+        let err = |msg: String| anyhow!("{label}: line {n}: '{}': {msg}", quote(text));
         let mut words = text.split_whitespace();
         let Some(key) = words.next() else { continue };
         if key.starts_with('#') {
