@@ -790,4 +790,51 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn materials_fall_back_to_the_default_with_one_warning_per_kind() {
+        // No mtllib at all: every usemtl falls back (a scene file could not render this: it
+        // has no light, so the loader is called directly).
+        let obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\nusemtl b\nf 1 2 3\nf 3 2 1\n";
+        let dir = tempfile::tempdir().unwrap();
+        let files = MtlSource::Dir(dir.path().to_path_buf());
+        let mut r = Repairs::new(false);
+        let mesh = load_obj("a.obj", obj, &files, &mut r).unwrap();
+        assert_eq!(mesh.material_names, ["default"]);
+        assert_eq!(mesh.materials[0].kd, Vec3::splat(0.5));
+        assert_eq!(mesh.tri_material, [0, 0, 0]);
+        assert_eq!(
+            r.into_warnings(),
+            [
+                "a.obj: 2 usemtl lines without any mtllib: grey default material (Kd 0.5) (first \
+              at line 4: 'usemtl a')"
+            ]
+        );
+        let e = load_obj("a.obj", obj, &files, &mut Repairs::new(true))
+            .err()
+            .unwrap();
+        assert_eq!(
+            e.to_string(),
+            "a.obj: line 4: 'usemtl a': usemtl without any mtllib: grey default material (Kd \
+             0.5) (refused: strict loading)"
+        );
+    }
+
+    #[test]
+    fn a_zero_normal_flattens_only_its_triangles() {
+        let obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nvn 0 0 0\n\
+                    f 1//1 2//1 3//1\nf 2//1 4//2 3//1\n";
+        let dir = tempfile::tempdir().unwrap();
+        let files = MtlSource::Dir(dir.path().to_path_buf());
+        let mut r = Repairs::new(false);
+        let mesh = load_obj("a.obj", obj, &files, &mut r).unwrap();
+        let normals = |t: usize| mesh.triangles[t].map(|i| mesh.normals[i as usize]);
+        assert_eq!(normals(0), [Vec3::Z; 3]);
+        assert_eq!(normals(1), [Vec3::ZERO; 3]);
+        assert_eq!(
+            r.into_warnings().len(),
+            2,
+            "the zero normal, the faces without usemtl"
+        );
+    }
 }
