@@ -230,13 +230,15 @@ impl Scene {
     pub fn load_with(name_or_path: &str, device: &Device, opts: &LoadOptions) -> Result<Scene> {
         let p = Path::new(name_or_path);
         // Anything at the path (a FIFO, a dangling link) is the user's file, for `read_input`
-        // to refuse with its reason; a shipped scene's name is the fallback.
-        let exists = std::fs::symlink_metadata(p).is_ok();
+        // to refuse with its reason; a shipped scene's name is the fallback, also over a
+        // folder of that name (an output folder called `vase`, say).
+        let builtin = BUILTIN.iter().position(|b| b.0 == name_or_path);
+        let exists = std::fs::symlink_metadata(p).is_ok() && !(builtin.is_some() && p.is_dir());
         let source = if exists {
             Source::Files {
                 toml: p.to_path_buf(),
             }
-        } else if let Some(i) = BUILTIN.iter().position(|b| b.0 == name_or_path) {
+        } else if let Some(i) = builtin {
             Source::Builtin(i)
         } else {
             bail!(

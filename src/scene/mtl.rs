@@ -144,13 +144,14 @@ impl MtlMaterial {
         let (mut kd, mut ks, mut ke) = (get(self.kd), get(self.ks), get(self.ke));
         let mut ns = self.ns.map_or(0.0, |v| v.0);
         let name = &self.name;
-        let sum = kd + ks;
+        // In f64: Kd + Ks of two values near f32::MAX is not finite in f32.
+        let sum = kd.as_dvec3() + ks.as_dvec3();
         if sum.max_element() > 1.0 + 1e-6 {
             // Scale both lobes in the channels above 1, keeping their ratio there.
-            let scale = Vec3::ONE / sum.max(Vec3::ONE);
+            let scale = sum.max(glam::DVec3::ONE).recip();
             let (kd0, ks0) = (kd, ks);
-            kd *= scale;
-            ks *= scale;
+            kd = (kd.as_dvec3() * scale).as_vec3();
+            ks = (ks.as_dvec3() * scale).as_vec3();
             repairs.note(label, self.line, ENERGY, || {
                 format!(
                     "material '{name}': Kd {} + Ks {} became Kd {} + Ks {}",
@@ -234,11 +235,13 @@ mod tests {
     #[test]
     fn clamps_warn_once_per_kind() {
         let text = "newmtl a\nKd 0.8\t0.2 0.2\nKs  0.5 0.5 0.5\nNs 1e30\nKe 1e38 1 1\n\
-                    newmtl b\nKd 1 1 1\nKs 1 1 1\n";
+                    newmtl b\nKd 1 1 1\nKs 1 1 1\nnewmtl c\nKd 3e38 0 0\nKs 3e38 0 0\n";
         let mut r = Repairs::new(false);
         let mtl = parse("a.mtl", text.as_bytes(), &mut r).unwrap();
         let a = mtl.materials[0].material("a.mtl", &mut r).unwrap();
         let b = mtl.materials[1].material("a.mtl", &mut r).unwrap();
+        let c = mtl.materials[2].material("a.mtl", &mut r).unwrap();
+        assert_eq!((c.kd.x, c.ks.x), (0.5, 0.5));
         assert!(((a.kd + a.ks).x - 1.0).abs() < 1e-6 && (a.kd.x / a.ks.x - 1.6).abs() < 1e-5);
         assert_eq!((a.kd.y, a.ks.y), (0.2, 0.5));
         assert_eq!(a.ns, MAX_NS);
@@ -246,7 +249,7 @@ mod tests {
         assert_eq!(b.kd + b.ks, Vec3::ONE);
         let w = r.into_warnings();
         assert_eq!(w.len(), 3, "{w:?}");
-        assert!(w[0].starts_with("a.mtl: 2 materials with Kd + Ks above 1 scaled down to 1"));
+        assert!(w[0].starts_with("a.mtl: 3 materials with Kd + Ks above 1 scaled down to 1"));
         assert_eq!(
             w[1],
             "a.mtl: line 4: material 'a': Ns 1e30 capped at 1e6: Ns capped (the Phong lobe is \
