@@ -57,7 +57,6 @@ mod obj;
 mod repairs;
 mod text;
 pub use input::{read_input, read_input_or_missing, InputError, MAX_INPUT_BYTES};
-pub use mesh::triangulate;
 use mesh::Mesh;
 pub use mtl::{MAX_KE, MAX_NS};
 use repairs::{Kind, Repairs};
@@ -654,7 +653,10 @@ fn load_obj(label: &str, bytes: &[u8], files: &MtlSource, repairs: &mut Repairs)
         let shown = String::from_utf8_lossy(rest);
         let at = format!("{label}: line {line}: mtllib '{}'", quote(&shown));
         let loaded: Vec<(String, Vec<u8>)> = match files {
+            // A shipped scene has one MTL, whatever its OBJ calls it: read it once.
+            MtlSource::Builtin(_) if !read.is_empty() => Vec::new(),
             MtlSource::Builtin(text) => {
+                read.push(PathBuf::from(shown.as_ref()));
                 vec![(format!("{shown} (built in)"), text.as_bytes().to_vec())]
             }
             MtlSource::Dir(dir) => {

@@ -12,7 +12,7 @@
 //! down in that channel, so the Phong model conserves energy), `Ns` above `MAX_NS`, `Ke` above
 //! `MAX_KE`.
 use super::repairs::{Kind, Repairs};
-use super::text::{lines, quote, rest};
+use super::text::{lines, quote, rest, NOT_UTF8};
 use crate::bsdf::Material;
 use anyhow::{anyhow, Result};
 use glam::Vec3;
@@ -29,10 +29,6 @@ pub const MAX_NS: f32 = 1e6;
 /// 1e9 leaves a factor 1e27 of head-room for sample counts and geometric gains.
 pub const MAX_KE: f32 = 1e9;
 
-pub const NOT_UTF8: Kind = Kind {
-    one: "line is not UTF-8, read as Latin-1",
-    many: "lines are not UTF-8, read as Latin-1",
-};
 const ENERGY: Kind = Kind {
     one: "Kd + Ks above 1 scaled down to 1 (energy conservation)",
     many: "materials with Kd + Ks above 1 scaled down to 1 (energy conservation)",

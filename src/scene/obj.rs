@@ -12,7 +12,7 @@
 //! past the elements defined above it, a face of more than `MAX_CORNERS` corners, and a
 //! `usemtl` or `mtllib` without a name.
 use super::repairs::{Kind, Repairs};
-use super::text::{latin1_bytes, lines, numbers, quote, rest, MAX_COORD};
+use super::text::{latin1_bytes, lines, numbers, quote, rest, MAX_COORD, NOT_UTF8};
 use anyhow::{anyhow, Result};
 use glam::Vec3;
 
@@ -20,10 +20,6 @@ use glam::Vec3;
 /// than linearly (9 s at 200,000), so a single hostile face could stall loading for minutes.
 pub const MAX_CORNERS: usize = 65_536;
 
-pub const NOT_UTF8: Kind = Kind {
-    one: "line is not UTF-8, read as Latin-1",
-    many: "lines are not UTF-8, read as Latin-1",
-};
 pub const BAD_NORMAL: Kind = Kind {
     one: "zero or non-finite normal: its triangles are flat-shaded",
     many: "zero or non-finite normals: their triangles are flat-shaded",

@@ -2,6 +2,7 @@
 //! format requires it), and the lenient reading of OBJ and MTL lines, whose exporters write
 //! whatever their platform's encoding was (a Latin-1 byte in a comment or a material name).
 //! Control characters other than whitespace mean a binary file, in either.
+use super::repairs::Kind;
 use anyhow::{anyhow, bail, Result};
 use std::borrow::Cow;
 
@@ -33,6 +34,12 @@ fn binary(bytes: &[u8]) -> Result<()> {
     }
     Ok(())
 }
+
+/// The repair of a line that is not UTF-8 (outside comments, which are not read).
+pub const NOT_UTF8: Kind = Kind {
+    one: "line is not UTF-8, read as Latin-1",
+    many: "lines are not UTF-8, read as Latin-1",
+};
 
 /// One line of an OBJ or MTL file: its number, its text, and whether it was not UTF-8 (then
 /// read as Latin-1, which maps every byte to one character, so that names stay distinct).
