@@ -2,8 +2,8 @@
 //! `tests/bad_input.rs`:
 //!
 //! - a named pipe (FIFO), a device, a directory or a symlink to a FIFO as the scene TOML, the
-//!   OBJ or an MTL is refused within a second with one line naming it (the binary, and the
-//!   library);
+//!   OBJ or an MTL is refused with one line naming it, by the binary (within 5 s, its start
+//!   included, where blocking would last until the 20 s kill) and by the library (within 1 s);
 //! - a concave polygon (an L) loads as exactly the L: the ear-clipped triangles have the L's
 //!   area and cover each point of it once and nothing outside, where tobj's fan did not; and it
 //!   renders like the same L split by hand (a paired z-test on the pixel differences of two
@@ -126,7 +126,9 @@ fn fifos_and_devices_are_refused_at_once() {
         let out = d.join("f_####.png").display().to_string();
         let (code, stderr, secs) = reframe(&["render", &toml, "--spp", "1", "--out", &out]);
         let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
-        assert!(secs < 1.0, "{file} as {by}: {secs:.2} s");
+        // Blocking would last until the 20 s kill; the process's own start (Embree, OIIO) can
+        // take a second on a loaded machine, so the 1 s bound is on the library call below.
+        assert!(secs < 5.0, "{file} as {by}: {secs:.2} s");
         assert_eq!(code, Some(1), "{file} as {by}: {stderr}");
         assert!(
             lines.len() == 1 && lines[0].contains(&want),
@@ -134,7 +136,8 @@ fn fifos_and_devices_are_refused_at_once() {
         );
         let start = Instant::now();
         let e = Scene::load(&toml, &device).err().expect("refused");
-        assert!(start.elapsed() < Duration::from_secs(1));
+        let secs = start.elapsed().as_secs_f64();
+        assert!(secs < 1.0, "{file} as {by}: the library took {secs:.2} s");
         assert!(format!("{e:#}").contains(&want), "{e:#}");
     }
 }
