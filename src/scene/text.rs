@@ -49,26 +49,23 @@ pub struct Line<'a> {
     pub latin1: bool,
 }
 
-/// The lines of an OBJ or MTL file, without a UTF-8 byte order mark or line ends (LF or CRLF).
-pub fn lines(bytes: &[u8]) -> Result<Vec<Line<'_>>> {
+/// The lines of an OBJ or MTL file, without a UTF-8 byte order mark or line ends (LF or CRLF),
+/// one at a time (a large OBJ is not copied).
+pub fn lines(bytes: &[u8]) -> Result<impl Iterator<Item = Line<'_>>> {
     binary(bytes)?;
     let bytes = bytes.strip_prefix(b"\xef\xbb\xbf").unwrap_or(bytes);
-    Ok(bytes
-        .split(|&b| b == b'\n')
-        .enumerate()
-        .map(|(i, l)| {
-            let l = l.strip_suffix(b"\r").unwrap_or(l);
-            let (text, latin1) = match std::str::from_utf8(l) {
-                Ok(t) => (Cow::Borrowed(t), false),
-                Err(_) => (Cow::Owned(l.iter().map(|&b| b as char).collect()), true),
-            };
-            Line {
-                n: i + 1,
-                text,
-                latin1,
-            }
-        })
-        .collect())
+    Ok(bytes.split(|&b| b == b'\n').enumerate().map(|(i, l)| {
+        let l = l.strip_suffix(b"\r").unwrap_or(l);
+        let (text, latin1) = match std::str::from_utf8(l) {
+            Ok(t) => (Cow::Borrowed(t), false),
+            Err(_) => (Cow::Owned(l.iter().map(|&b| b as char).collect()), true),
+        };
+        Line {
+            n: i + 1,
+            text,
+            latin1,
+        }
+    }))
 }
 
 /// The bytes of a line read as Latin-1 (for file names, which are bytes on Unix).
@@ -130,7 +127,9 @@ mod tests {
 
     #[test]
     fn obj_and_mtl_lines_are_lenient() {
-        let l = lines(b"\xef\xbb\xbfnewmtl a\r\n# caf\xe9\nnewmtl caf\xe9 2\n").unwrap();
+        let l: Vec<Line> = lines(b"\xef\xbb\xbfnewmtl a\r\n# caf\xe9\nnewmtl caf\xe9 2\n")
+            .unwrap()
+            .collect();
         assert_eq!(l[0].text, "newmtl a");
         assert!(!l[0].latin1 && l[1].latin1);
         assert_eq!(l[2].text, "newmtl caf\u{e9} 2");
