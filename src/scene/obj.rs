@@ -2,7 +2,8 @@
 //! `mtllib`), read the way production loaders read real exports, with every face keeping its
 //! line for messages.
 //!
-//! Lenient where a model is still unambiguous, each repair one counted warning (`Repairs`):
+//! A line ending in `\` goes on in the next, as the format allows. Lenient where a model is
+//! still unambiguous, each repair one counted warning (`Repairs`):
 //! any whitespace between words, lines that are not UTF-8 (read as Latin-1), a zero or
 //! non-finite `vn` (the triangles using it are flat-shaded), faces of fewer than three distinct
 //! vertices (skipped), points `p` and polylines `l` (ignored), vertex colours (ignored).
@@ -12,7 +13,7 @@
 //! past the elements defined above it, a face of more than `MAX_CORNERS` corners, and a
 //! `usemtl` or `mtllib` without a name.
 use super::repairs::{Kind, Repairs};
-use super::text::{latin1_bytes, lines, numbers, quote, rest, MAX_COORD, NOT_UTF8};
+use super::text::{latin1_bytes, lines, numbers, quote, rest, Line, MAX_COORD, NOT_UTF8};
 use anyhow::{anyhow, Result};
 use glam::Vec3;
 
@@ -75,7 +76,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
     // Elements defined so far: positions, texture coordinates, normals.
     let mut count = [0usize; 3];
     let mut usemtl = None;
-    for line in lines(bytes).map_err(|e| anyhow!("{label}: {e}"))? {
+    for line in joined(lines(bytes).map_err(|e| anyhow!("{label}: {e}"))?) {
         let (n, text) = (line.n, line.text.as_ref());
         let err = |msg: String| anyhow!("{label}: line {n}: '{}': {msg}", quote(text));
         let mut words = text.split_whitespace();
@@ -200,6 +201,31 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
     Ok(out)
 }
 
+/// The lines with continuations joined: a statement that ends in `\` goes on in the next line
+/// (the OBJ format's rule, used by exporters for long faces); the joined line keeps the number
+/// of its first. Comments are left alone, so that a comment ending in `\` (a Windows path)
+/// does not swallow the statement below it.
+fn joined<'a>(mut lines: impl Iterator<Item = Line<'a>>) -> impl Iterator<Item = Line<'a>> {
+    std::iter::from_fn(move || {
+        let mut line = lines.next()?;
+        loop {
+            let t = line.text.trim_end();
+            if !t.ends_with('\\') || t.trim_start().starts_with('#') {
+                return Some(line);
+            }
+            let mut s = t[..t.len() - 1].to_string();
+            let Some(next) = lines.next() else {
+                line.text = s.into();
+                return Some(line);
+            };
+            s.push(' ');
+            s.push_str(&next.text);
+            line.text = s.into();
+            line.latin1 |= next.latin1;
+        }
+    })
+}
+
 /// One face vertex `v`, `v/vt`, `v//vn` or `v/vt/vn`, checked against the elements defined
 /// above it (`count`: positions, texture coordinates, normals). A normal that is not usable
 /// (`normals[i]` is `None`) is left out, so its triangles are flat-shaded.
@@ -288,6 +314,17 @@ mod tests {
                 .to_string();
             assert!(e.contains(want), "{bad}: {e}");
         }
+    }
+
+    #[test]
+    fn long_lines_go_on_after_a_backslash() {
+        let obj =
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n# C:\\models\\\nf 1 2 \\\r\n  3 \\\n4\nf 1 2 3 \\";
+        let (o, w) = parse_ok(obj);
+        assert!(w.is_empty(), "{w:?}");
+        assert_eq!(o.faces.len(), 2);
+        assert_eq!((o.faces[0].line, o.faces[0].corners.len()), (6, 4));
+        assert_eq!((o.faces[1].line, o.faces[1].corners.len()), (9, 3));
     }
 
     #[test]
