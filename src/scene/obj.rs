@@ -2,11 +2,12 @@
 //! `mtllib`), read the way production loaders read real exports, with every face keeping its
 //! line for messages.
 //!
-//! A line ending in `\` goes on in the next, as the format allows. Lenient where a model is
-//! still unambiguous, each repair one counted warning (`Repairs`):
-//! any whitespace between words, lines that are not UTF-8 (read as Latin-1), a zero or
-//! non-finite `vn` (the triangles using it are flat-shaded), faces of fewer than three distinct
-//! vertices (skipped), points `p` and polylines `l` (ignored), vertex colours (ignored).
+//! Read as usual: any whitespace between words, CRLF line ends, a byte order mark, a statement
+//! continued after a `\` at the end of its line. Lenient where a model is still unambiguous,
+//! with one counted warning per kind (`Repairs`): lines that are not UTF-8 (read as Latin-1), a
+//! zero or non-finite `vn` (the triangles using it are flat-shaded), faces of fewer than three
+//! distinct vertices (skipped), points `p` and polylines `l` (ignored), vertex colours
+//! (ignored).
 //! Statements reframe does not draw (`vt` contents, `o`, `g`, `s`, `vp`, curves) are skipped
 //! silently. Refused, naming the line: a position that is not finite or is larger than
 //! `MAX_COORD`, a malformed `v`, `vt`, `vn` or face vertex, a face index of 0 or one that refers
