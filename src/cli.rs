@@ -57,6 +57,10 @@ pub struct ReferenceArgs {
     pub cache: PathBuf,
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
+    /// Refuse what loading would repair with a warning in a real model (degenerate faces, zero
+    /// normals, unknown materials, clamped values, ...), naming the file and line.
+    #[arg(long)]
+    pub strict: bool,
 }
 
 #[derive(clap::Args)]
@@ -177,6 +181,10 @@ pub struct RenderArgs {
     /// `<out folder>/<name>.chunk-K-of-N.partial` for `reframe merge`.
     #[arg(long, value_parser = parse_chunk)]
     pub chunk: Option<Chunk>,
+    /// Refuse what loading would repair with a warning in a real model (degenerate faces, zero
+    /// normals, unknown materials, clamped values, ...), naming the file and line.
+    #[arg(long)]
+    pub strict: bool,
 }
 
 pub fn parse_chunk(s: &str) -> Result<Chunk, String> {
@@ -228,6 +236,10 @@ pub struct BenchArgs {
     /// Write the figures as JSON.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Refuse what loading would repair with a warning in a real model (degenerate faces, zero
+    /// normals, unknown materials, clamped values, ...), naming the file and line.
+    #[arg(long)]
+    pub strict: bool,
 }
 
 pub fn parse_frames(s: &str) -> Result<(u32, u32), String> {

@@ -18,7 +18,7 @@ use cli::{Cli, Command, Visibility};
 use reframe::driver::{self, RenderOptions};
 use reframe::embree::Device;
 use reframe::eval::{compare, reference};
-use reframe::scene::Scene;
+use reframe::scene::{LoadOptions, Scene};
 use reframe::state::key::{default_checkpoint_dir, partial_path, Chunk};
 use reframe::util::fs::{check_file_target, write_json};
 use std::path::PathBuf;
@@ -52,6 +52,11 @@ fn main() {
         eprintln!("error: {msg}");
         std::process::exit(1);
     }
+}
+
+/// A scene by name or path; `strict` refuses what loading would repair.
+fn load(name: &str, device: &Device, strict: bool) -> Result<Scene> {
+    Scene::load_with(name, device, &LoadOptions { strict })
 }
 
 /// The scene's load warnings, once a command has succeeded (a failure stays one line).
@@ -106,7 +111,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Render(a) => {
             let scene_name = a.scene.unwrap_or_else(|| "vase".into());
             let device = Device::new()?;
-            let scene = Scene::load(&scene_name, &device)?;
+            let scene = load(&scene_name, &device, a.strict)?;
             let out = a
                 .out
                 .unwrap_or_else(|| format!("out/{}_####.exr", scene.name));
@@ -192,7 +197,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bench(a) => {
             let scene_name = a.scene.unwrap_or_else(|| "vase".into());
             let device = Device::new()?;
-            let scene = Scene::load(&scene_name, &device)?;
+            let scene = load(&scene_name, &device, a.strict)?;
             if let Some(p) = &a.json {
                 check_file_target("--json", p)?;
             }
@@ -218,7 +223,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Reference(a) => {
             let device = Device::new()?;
-            let scene = Scene::load(a.scene.as_deref().unwrap_or("vase-long"), &device)?;
+            let scene = load(a.scene.as_deref().unwrap_or("vase-long"), &device, a.strict)?;
             let range = match a.frames {
                 Some((x, y)) => x..=y,
                 None => compare::default_frames(&scene),
@@ -256,7 +261,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Compare(a) => {
             let device = Device::new()?;
             let r = a.reference;
-            let scene = Scene::load(r.scene.as_deref().unwrap_or("vase-long"), &device)?;
+            let scene = load(r.scene.as_deref().unwrap_or("vase-long"), &device, r.strict)?;
             let opts = compare::CompareOptions {
                 regime: a.regime,
                 frames: r.frames.map(|(x, y)| x..=y),

@@ -12,20 +12,29 @@
 //! fov = 50.0                  # vertical, degrees, in (0, 180)
 //! ```
 //!
-//! Materials: `Kd` Lambertian, `Ks`/`Ns` modified Phong (`Kd + Ks <= 1` per channel), `Ke`
-//! emission (one-sided, to the side of the counter-clockwise face normal). Every triangle with
-//! `Ke > 0` is an area light. Loading checks everything a render could trip over later and
-//! fails with a one-line error naming the file and the line (and the key or statement) at
-//! fault; the OBJ and MTL rules are in `scene/text.rs`. Limits: at most `MAX_FRAMES` frames and
-//! `MAX_PIXELS` pixels, coordinates (vertices, camera) at most 1e18 in magnitude, and every
-//! `usemtl` must name a material of an `mtllib` above it.
-//! The shipped scenes (`vase`, `cornell`, `furnace`) are embedded in the binary.
+//! Materials: `Kd` Lambertian, `Ks`/`Ns` modified Phong, `Ke` emission (one-sided, to the
+//! side of the counter-clockwise face normal). Every triangle with `Ke > 0` is an area light;
+//! a scene needs at least one (there is no environment light yet).
+//!
+//! Loading is strict where the input is unsafe or ambiguous and lenient, but loud, where a
+//! production loader would load a real model: what it refuses fails with a one-line error
+//! naming the file and the line (and the key or statement) at fault; what it repairs (a
+//! missing MTL, an unknown material, `Kd + Ks` above 1, a huge `Ns` or `Ke`, a zero normal, a
+//! degenerate triangle, polylines ...) becomes one warning per kind with a count, in
+//! `Scene::warnings`, or an error under `LoadOptions { strict: true }`. Every file is opened
+//! through `read_input` (regular files only, size capped). The OBJ and MTL rules are in
+//! `scene/obj.rs` and `scene/mtl.rs`, the triangulation in `scene/mesh.rs`. Limits: at most
+//! `MAX_FRAMES` frames and `MAX_PIXELS` pixels, coordinates (vertices, camera) at most 1e18
+//! in magnitude, files of at most `MAX_INPUT_BYTES`.
+//! The shipped scenes (`vase`, `vase-long`, `cornell`, `furnace`) are embedded in the binary.
 //!
 //! ```no_run
 //! use reframe::{embree::Device, scene::Scene};
 //! let device = Device::new()?;
 //! let scene = Scene::load("vase", &device)?;
 //! assert_eq!(scene.frames, 48);
+//! let strict = Scene::load_with("vase", &device, &reframe::scene::LoadOptions { strict: true })?;
+//! assert!(strict.warnings.is_empty());
 //! # anyhow::Ok(())
 //! ```
 use crate::bsdf::{luminance, Material};
@@ -34,14 +43,22 @@ use crate::embree::{Device, Hit, TriangleScene};
 use crate::sampling::uniform_triangle;
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{Vec2, Vec3};
-use serde::Deserialize;
-use std::cell::RefCell;
+use serde::{de, Deserialize, Deserializer};
 use std::collections::HashMap;
 use std::ops::Range;
+use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
 use toml::Spanned;
 
+mod mesh;
+mod mtl;
+mod obj;
+mod repairs;
 mod text;
+pub use crate::util::input::{read_input, read_input_or_missing, InputError, MAX_INPUT_BYTES};
+use mesh::Mesh;
+pub use mtl::{MAX_KE, MAX_NS};
+use repairs::{Kind, Repairs};
 use text::{as_text, line_at, quote, MAX_COORD};
 
 /// Most frames a scene may have: every frame of the camera path is checked when it loads.
@@ -81,13 +98,56 @@ pub fn builtin_names() -> Vec<&'static str> {
     BUILTIN.iter().map(|b| b.0).collect()
 }
 
+/// How to load a scene.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LoadOptions {
+    /// Refuse what the loader would otherwise repair with a warning (each warning becomes an
+    /// error naming the file and line).
+    pub strict: bool,
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct SceneFile {
     obj: Spanned<String>,
     frames: Spanned<u32>,
-    resolution: Spanned<[u32; 2]>,
+    resolution: Spanned<Exactly<u32, 2>>,
     keyframe: Vec<KeyframeFile>,
+}
+
+/// An array of exactly `N` values: serde's `[T; N]` takes the first `N` of a longer TOML array
+/// and ignores the rest, so `resolution = [16, 12, 3]` would load as 16x12.
+struct Exactly<T, const N: usize>([T; N]);
+
+impl<'de, T: Deserialize<'de>, const N: usize> Deserialize<'de> for Exactly<T, N> {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V<T, const N: usize>(std::marker::PhantomData<T>);
+        impl<'de, T: Deserialize<'de>, const N: usize> de::Visitor<'de> for V<T, N> {
+            type Value = Exactly<T, N>;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                write!(f, "an array of length {N}")
+            }
+            fn visit_seq<A: de::SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+                let mut v = Vec::with_capacity(N);
+                while let Some(x) = seq.next_element::<T>()? {
+                    if v.len() == N {
+                        // Count the rest without keeping it, for the message.
+                        let mut n = N + 1;
+                        while seq.next_element::<de::IgnoredAny>()?.is_some() {
+                            n += 1;
+                        }
+                        return Err(de::Error::invalid_length(n, &self));
+                    }
+                    v.push(x);
+                }
+                let n = v.len();
+                v.try_into()
+                    .map(Exactly)
+                    .map_err(|_| de::Error::invalid_length(n, &self))
+            }
+        }
+        d.deserialize_seq(V::<T, N>(std::marker::PhantomData))
+    }
 }
 
 /// Every value keeps its place in the file, so that an error can name its line.
@@ -95,9 +155,9 @@ struct SceneFile {
 #[serde(deny_unknown_fields)]
 struct KeyframeFile {
     frame: Spanned<u32>,
-    position: Spanned<[f32; 3]>,
-    look_at: Spanned<[f32; 3]>,
-    up: Spanned<[f32; 3]>,
+    position: Spanned<Exactly<f32, 3>>,
+    look_at: Spanned<Exactly<f32, 3>>,
+    up: Spanned<Exactly<f32, 3>>,
     fov: Spanned<f32>,
 }
 
@@ -165,14 +225,24 @@ enum Source {
 
 impl Scene {
     /// Load a scene by file path, or by the name of a shipped scene (`vase`, `cornell`,
-    /// `furnace`) when no such file exists.
+    /// `furnace`) when no such file exists; repairs are warnings (`LoadOptions::default()`).
     pub fn load(name_or_path: &str, device: &Device) -> Result<Scene> {
+        Scene::load_with(name_or_path, device, &LoadOptions::default())
+    }
+
+    /// `load`, with options (`strict`: refuse what would be repaired).
+    pub fn load_with(name_or_path: &str, device: &Device, opts: &LoadOptions) -> Result<Scene> {
         let p = Path::new(name_or_path);
-        let source = if p.is_file() {
+        // Anything at the path (a FIFO, a dangling link) is the user's file, for `read_input`
+        // to refuse with its reason; a shipped scene's name is the fallback, also over a
+        // folder of that name (an output folder called `vase`, say).
+        let builtin = BUILTIN.iter().position(|b| b.0 == name_or_path);
+        let exists = std::fs::symlink_metadata(p).is_ok() && !(builtin.is_some() && p.is_dir());
+        let source = if exists {
             Source::Files {
                 toml: p.to_path_buf(),
             }
-        } else if let Some(i) = BUILTIN.iter().position(|b| b.0 == name_or_path) {
+        } else if let Some(i) = builtin {
             Source::Builtin(i)
         } else {
             bail!(
@@ -180,10 +250,11 @@ impl Scene {
                 builtin_names().join(", ")
             );
         };
+        let mut repairs = Repairs::new(opts.strict);
         let (label, toml_bytes) = match &source {
             Source::Files { toml } => (
                 toml.display().to_string(),
-                std::fs::read(toml).map_err(|e| anyhow!("{}: cannot read: {e}", toml.display()))?,
+                read_input(toml, "scene file", MAX_INPUT_BYTES)?,
             ),
             Source::Builtin(i) => (
                 format!("{} (built in)", BUILTIN[*i].0),
@@ -205,36 +276,38 @@ impl Scene {
             line_at(toml_text.as_bytes(), file.obj.span().start),
             file.obj.get_ref()
         );
-        let (obj_label, obj_bytes, mtl_dir) = match &source {
+        let (obj_label, obj_bytes, files) = match &source {
             Source::Files { toml } => {
                 let dir = toml.parent().unwrap_or(Path::new(".")).to_path_buf();
                 let obj = dir.join(file.obj.get_ref());
-                let bytes = std::fs::read(&obj)
-                    .map_err(|e| anyhow!("{obj_at}: cannot read '{}': {e}", obj.display()))?;
-                (
-                    obj.display().to_string(),
-                    bytes,
-                    Some(obj.parent().unwrap_or(&dir).to_path_buf()),
-                )
+                let bytes = read_input(&obj, "OBJ", MAX_INPUT_BYTES)
+                    .map_err(|e| anyhow!("{obj_at}: {e}"))?;
+                let mtl_dir = obj.parent().unwrap_or(&dir).to_path_buf();
+                (obj.display().to_string(), bytes, MtlSource::Dir(mtl_dir))
             }
             Source::Builtin(i) => (
                 format!("{} (built in)", file.obj.get_ref()),
                 BUILTIN[*i].2.as_bytes().to_vec(),
-                None,
+                MtlSource::Builtin(BUILTIN[*i].3),
             ),
         };
-        let builtin_mtl = match &source {
-            Source::Builtin(i) => Some(BUILTIN[*i].3),
-            Source::Files { .. } => None,
-        };
-        let (mesh, warning) = load_obj(&obj_label, &obj_bytes, mtl_dir.as_deref(), builtin_mtl)?;
+        let mesh = load_obj(&obj_label, &obj_bytes, &files, &mut repairs)?;
         let geometry = TriangleScene::new(device, &mesh.positions, &mesh.triangles)
             .with_context(|| format!("{obj_label}: building the Embree scene"))?;
-        let lights = Lights::new(&mesh)?.ok_or_else(|| {
-            anyhow!("{obj_label}: the scene has no lights (no material with a positive Ke)")
+        let lights = Lights::new(&mesh).ok_or_else(|| {
+            // A light lost with its material is the likely cause: say so on the same line.
+            let lost = repairs
+                .first_of(&[MTL_MISSING, NO_MTLLIB, UNKNOWN_MATERIAL])
+                .map(|w| format!(" (materials fell back to the default: {w})"))
+                .unwrap_or_default();
+            anyhow!(
+                "{obj_label}: the scene has no light: no material has a positive Ke (area \
+                 lights are reframe's only lights; environment lighting is not supported \
+                 yet){lost}"
+            )
         })?;
         Ok(Scene {
-            warnings: warning.into_iter().collect(),
+            warnings: repairs.into_warnings(),
             name,
             frames: *file.frames.get_ref(),
             width,
@@ -365,7 +438,7 @@ impl Scene {
 }
 
 impl Lights {
-    fn new(mesh: &Mesh) -> Result<Option<Lights>> {
+    fn new(mesh: &Mesh) -> Option<Lights> {
         let mut tris = Vec::new();
         let mut power = Vec::new();
         for (t, &m) in mesh.tri_material.iter().enumerate() {
@@ -373,28 +446,30 @@ impl Lights {
             if ke.max_element() > 0.0 {
                 tris.push(t as u32);
                 // Luminance can be zero for a saturated colour; the max keeps it samplable.
-                power.push(mesh.tri_area[t] * luminance(ke).max(ke.max_element() * 1e-3));
+                // In f64: an area up to (2e18)^2 times `MAX_KE` is past f32.
+                let l = luminance(ke).max(ke.max_element() * 1e-3) as f64;
+                power.push(mesh.tri_area[t] as f64 * l);
             }
         }
         if tris.is_empty() {
-            return Ok(None);
+            return None;
         }
-        let total: f64 = power.iter().map(|&p| p as f64).sum();
+        let total: f64 = power.iter().sum();
         let mut acc = 0.0f64;
         let mut cdf = Vec::with_capacity(power.len());
         let mut pdf_area = vec![0.0f32; mesh.triangles.len()];
         for (k, &p) in power.iter().enumerate() {
-            acc += p as f64;
+            acc += p;
             cdf.push((acc / total) as f32);
             let t = tris[k] as usize;
-            pdf_area[t] = ((p as f64 / total) / mesh.tri_area[t] as f64) as f32;
+            pdf_area[t] = ((p / total) / mesh.tri_area[t] as f64) as f32;
         }
         *cdf.last_mut().unwrap() = 1.0;
-        Ok(Some(Lights {
+        Some(Lights {
             tris,
             cdf,
             pdf_area,
-        }))
+        })
     }
 }
 
@@ -424,7 +499,7 @@ fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
 
 fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, CameraPath)> {
     let line = |span: Range<usize>| line_at(text.as_bytes(), span.start);
-    let [w, h] = *f.resolution.get_ref();
+    let [w, h] = f.resolution.get_ref().0;
     let at = format!("{label}: line {}: resolution", line(f.resolution.span()));
     if w == 0 || h == 0 {
         bail!("{at} {w}x{h}: width and height must be positive");
@@ -473,7 +548,7 @@ fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, Cam
             ("look_at", &k.look_at),
             ("up", &k.up),
         ] {
-            let c = v.get_ref();
+            let c = &v.get_ref().0;
             if !c.iter().all(|c| c.is_finite()) {
                 bail!("{}: {key} {c:?} is not finite", at(v.span()));
             }
@@ -493,9 +568,9 @@ fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, Cam
         }
         keys.push(Keyframe {
             frame,
-            position: Vec3::from(*k.position.get_ref()),
-            look_at: Vec3::from(*k.look_at.get_ref()),
-            up: Vec3::from(*k.up.get_ref()),
+            position: Vec3::from(k.position.get_ref().0),
+            look_at: Vec3::from(k.look_at.get_ref().0),
+            up: Vec3::from(k.up.get_ref().0),
             fov,
         });
         key_line.push(line(k.position.span()));
@@ -530,268 +605,136 @@ fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, Cam
     Ok((w, h, path))
 }
 
-/// Triangle soup with per-triangle materials, as loaded from OBJ/MTL and checked.
-struct Mesh {
-    positions: Vec<Vec3>,
-    normals: Vec<Vec3>,
-    triangles: Vec<[u32; 3]>,
-    tri_material: Vec<u32>,
-    tri_normal: Vec<Vec3>,
-    tri_area: Vec<f32>,
-    materials: Vec<Material>,
-    material_names: Vec<String>,
+/// Where the MTL files an OBJ names come from.
+enum MtlSource {
+    /// The OBJ's folder.
+    Dir(PathBuf),
+    /// A shipped scene's one MTL, whatever the name.
+    Builtin(&'static str),
 }
 
-/// Where triangle `k` (1-based, in tobj's order) is: its OBJ line, quoted.
-fn triangle_at(text: &str, lines: &text::ObjLines, k: usize) -> String {
-    match lines.tri_line.get(k - 1) {
-        Some(&l) => format!(
-            "line {l}: '{}'",
-            quote(text.lines().nth(l - 1).unwrap_or(""))
-        ),
-        None => format!("triangle {k}"),
+const MTL_MISSING: Kind = Kind {
+    one: "mtllib names a missing file: its materials get the grey default (Kd 0.5)",
+    many: "mtllib lines name missing files: their materials get the grey default (Kd 0.5)",
+};
+const NO_MTLLIB: Kind = Kind {
+    one: "usemtl without any mtllib: grey default material (Kd 0.5)",
+    many: "usemtl lines without any mtllib: grey default material (Kd 0.5)",
+};
+const UNKNOWN_MATERIAL: Kind = Kind {
+    one: "usemtl names a material no MTL defines: grey default material (Kd 0.5)",
+    many: "usemtl lines name materials no MTL defines: grey default material (Kd 0.5)",
+};
+const NO_USEMTL: Kind = Kind {
+    one: "face before any usemtl: grey default material (Kd 0.5)",
+    many: "faces before any usemtl: grey default material (Kd 0.5)",
+};
+const DEFINED_AGAIN: Kind = Kind {
+    one: "material defined again in a later MTL: the first definition is used",
+    many: "materials defined again in a later MTL: the first definitions are used",
+};
+
+/// The files an `mtllib` line names: the whole rest of the line if there is such a file (names
+/// with spaces are common in exports), otherwise each word (the OBJ format's list).
+fn mtl_paths(dir: &Path, rest: &[u8]) -> Vec<PathBuf> {
+    let whole = dir.join(std::ffi::OsStr::from_bytes(rest));
+    if whole.exists() || !rest.iter().any(|b| b.is_ascii_whitespace()) {
+        return vec![whole];
     }
+    rest.split(|b| b.is_ascii_whitespace())
+        .filter(|w| !w.is_empty())
+        .map(|w| dir.join(std::ffi::OsStr::from_bytes(w)))
+        .collect()
 }
 
-/// One MTL file as the material loader read it: its name in messages, the line of each material.
-struct MtlFile {
-    label: String,
-    newmtl: HashMap<String, usize>,
-}
-
-/// Read and check the MTL file `p` that the OBJ line `at` names; its text, for tobj.
-fn read_mtl(
-    p: &Path,
-    dir: Option<&Path>,
-    builtin: Option<&str>,
-    at: &str,
-) -> Result<(MtlFile, String)> {
-    let (label, bytes) = match (builtin, dir) {
-        (Some(m), _) => (format!("{} (built in)", p.display()), m.as_bytes().to_vec()),
-        (None, Some(dir)) => {
-            let path = dir.join(p);
-            let bytes = std::fs::read(&path)
-                .map_err(|e| anyhow!("{at}: cannot read '{}': {e}", path.display()))?;
-            (path.display().to_string(), bytes)
-        }
-        (None, None) => unreachable!("a scene has either files or built-in text"),
-    };
-    let text = as_text(&bytes).map_err(|e| anyhow!("{label}: {e}"))?;
-    // tobj 4.0.5 panics on a colour with fewer than three numbers: check first.
-    let newmtl = text::check_mtl(text).map_err(|e| anyhow!("{label}: {e}"))?;
-    Ok((MtlFile { label, newmtl }, text.to_string()))
-}
-
-/// Load and check the OBJ and the MTL files it names. Also returns a warning, to be printed
-/// once the whole scene has loaded.
-fn load_obj(
-    label: &str,
-    bytes: &[u8],
-    mtl_dir: Option<&Path>,
-    builtin_mtl: Option<&str>,
-) -> Result<(Mesh, Option<String>)> {
-    let text = as_text(bytes).map_err(|e| anyhow!("{label}: {e}"))?;
-    let lines = text::check_obj(text).map_err(|e| anyhow!("{label}: {e}"))?;
-    let opts = tobj::LoadOptions {
-        triangulate: true,
-        single_index: true,
-        ignore_points: true,
-        ignore_lines: true,
-    };
-    // tobj keeps only an error kind from the material loader: keep the message here.
-    let mtl_files: RefCell<Vec<MtlFile>> = Default::default();
-    let mtl_error: RefCell<Option<anyhow::Error>> = Default::default();
-    let loaded = tobj::load_obj_buf(&mut text.as_bytes(), &opts, |p| {
-        let call = mtl_files.borrow().len();
-        let at = format!(
-            "{label}: line {}: mtllib '{}'",
-            lines.mtllib.get(call).copied().unwrap_or(0),
-            p.display()
-        );
-        let read = read_mtl(p, mtl_dir, builtin_mtl, &at).and_then(|(file, text)| {
-            let mats = tobj::load_mtl_buf(&mut text.as_bytes())
-                .map_err(|e| anyhow!("{}: {e}", file.label))?;
-            Ok((file, mats))
-        });
-        match read {
-            Ok((file, mats)) => {
-                mtl_files.borrow_mut().push(file);
-                Ok(mats)
-            }
-            Err(e) => {
-                mtl_error.borrow_mut().get_or_insert(e);
-                Err(tobj::LoadError::MaterialParseError)
-            }
-        }
-    });
-    if let Some(e) = mtl_error.into_inner() {
-        return Err(e);
-    }
-    // The checks above accept only what tobj reads: an error here is a gap in them.
-    let (models, materials) = loaded.map_err(|e| anyhow!("{label}: {e}"))?;
-    let tmats = materials.map_err(|e| anyhow!("{label}: materials: {e}"))?;
-    let files = mtl_files.into_inner();
-
-    // tobj gives faces after an unknown `usemtl` no material; say which line names it.
-    for (n, name) in &lines.usemtl {
-        let above: Vec<&MtlFile> = files
-            .iter()
-            .zip(&lines.mtllib)
-            .filter(|(_, &l)| l < *n)
-            .map(|(f, _)| f)
-            .collect();
-        if !above.iter().any(|f| f.newmtl.contains_key(name)) {
-            let why = if above.is_empty() {
-                "no mtllib above this line".to_string()
-            } else {
-                let names: Vec<&str> = above.iter().map(|f| f.label.as_str()).collect();
-                format!("no such material in {}", names.join(", "))
-            };
-            bail!("{label}: line {n}: 'usemtl {}': {why}", quote(name));
-        }
-    }
-
-    let mut mats = Vec::new();
+/// Load the OBJ and the MTL files it names into a checked mesh, noting repairs.
+fn load_obj(label: &str, bytes: &[u8], files: &MtlSource, repairs: &mut Repairs) -> Result<Mesh> {
+    let parsed = obj::parse(label, bytes, repairs)?;
+    let mut materials = Vec::new();
     let mut names = Vec::new();
-    for m in &tmats {
-        let kd = Vec3::from(m.diffuse.unwrap_or([0.0; 3]));
-        let ks = Vec3::from(m.specular.unwrap_or([0.0; 3]));
-        let ke = Vec3::from(m.emissive.unwrap_or([0.0; 3]));
-        let ns = m.shininess.unwrap_or(0.0);
-        let defined = files
-            .iter()
-            .rev()
-            .find_map(|f| {
-                f.newmtl
-                    .get(&m.name)
-                    .map(|l| format!("{}: line {l}", f.label))
-            })
-            .unwrap_or_else(|| label.to_string());
-        let at = format!("{defined}: material '{}'", m.name);
-        for (key, v) in [("Kd", kd), ("Ks", ks), ("Ke", ke)] {
-            if !v.is_finite() || v.min_element() < 0.0 {
-                bail!("{at}: {key} {v} must be finite and non-negative");
+    let mut by_name: HashMap<String, u32> = HashMap::new();
+    let mut read: Vec<PathBuf> = Vec::new();
+    for (line, rest) in &parsed.mtllib {
+        let shown = String::from_utf8_lossy(rest);
+        let at = format!("{label}: line {line}: mtllib '{}'", quote(&shown));
+        let loaded: Vec<(String, Vec<u8>)> = match files {
+            // A shipped scene has one MTL, whatever its OBJ calls it: read it once.
+            MtlSource::Builtin(_) if !read.is_empty() => Vec::new(),
+            MtlSource::Builtin(text) => {
+                read.push(PathBuf::from(shown.as_ref()));
+                vec![(format!("{shown} (built in)"), text.as_bytes().to_vec())]
             }
-        }
-        if !ns.is_finite() || ns < 0.0 {
-            bail!("{at}: Ns {ns} must be finite and non-negative");
-        }
-        if (kd + ks).max_element() > 1.0 + 1e-6 {
-            bail!(
-                "{at}: Kd + Ks = {} exceeds 1 (the Phong model must conserve energy)",
-                kd + ks
-            );
-        }
-        mats.push(Material { kd, ks, ns, ke });
-        names.push(m.name.clone());
-    }
-    let default_material = mats.len() as u32;
-    let mut need_default = false;
-
-    let mut mesh = Mesh {
-        positions: Vec::new(),
-        normals: Vec::new(),
-        triangles: Vec::new(),
-        tri_material: Vec::new(),
-        tri_normal: Vec::new(),
-        tri_area: Vec::new(),
-        materials: Vec::new(),
-        material_names: Vec::new(),
-    };
-    // Smooth shading, object by object: an object with a normal at every vertex is shaded with
-    // them; one without (tobj leaves out the normals of face vertices given without one, so a
-    // partial set cannot be aligned with the vertices) gets zero normals, which `surface` reads
-    // as "use the face normal". Scenes without any normals keep the array empty.
-    let smooth = |m: &tobj::Mesh| !m.normals.is_empty() && m.normals.len() == m.positions.len();
-    let any_smooth = models.iter().any(|m| smooth(&m.mesh));
-    let mut face = 0usize;
-    for model in &models {
-        let m = &model.mesh;
-        let base = mesh.positions.len() as u32;
-        let nv = m.positions.len() / 3;
-        for (i, c) in m.positions.chunks_exact(3).enumerate() {
-            let v = Vec3::new(c[0], c[1], c[2]);
-            if !v.is_finite() {
-                bail!(
-                    "{label}: object '{}': vertex {} is not finite ({v})",
-                    model.name,
-                    i + 1
-                );
-            }
-            mesh.positions.push(v);
-        }
-        if any_smooth && !smooth(m) {
-            mesh.normals.extend(std::iter::repeat_n(Vec3::ZERO, nv));
-        } else if any_smooth {
-            for (i, c) in m.normals.chunks_exact(3).enumerate() {
-                let n = Vec3::new(c[0], c[1], c[2]);
-                if !n.is_finite() || n.length() < 1e-12 {
-                    bail!(
-                        "{label}: object '{}': normal {} is zero or not finite ({n})",
-                        model.name,
-                        i + 1
-                    );
+            MtlSource::Dir(dir) => {
+                let mut v = Vec::new();
+                for path in mtl_paths(dir, rest) {
+                    // The same file named twice is read once.
+                    if read.contains(&path) {
+                        continue;
+                    }
+                    read.push(path.clone());
+                    match read_input_or_missing(&path, "MTL", MAX_INPUT_BYTES) {
+                        Ok(b) => v.push((path.display().to_string(), b)),
+                        Err(InputError::NotFound(_)) => {
+                            repairs.note(label, *line, MTL_MISSING, || {
+                                format!("'mtllib {}': no file '{}'", quote(&shown), path.display())
+                            })?;
+                        }
+                        Err(e) => bail!("{at}: {e}"),
+                    }
                 }
-                mesh.normals.push(n.normalize());
-            }
-        }
-        let mat = match m.material_id {
-            Some(id) if id < mats.len() => id as u32,
-            Some(id) => bail!(
-                "{label}: object '{}': material index {id} out of range",
-                model.name
-            ),
-            None => {
-                need_default = true;
-                default_material
+                v
             }
         };
-        for t in m.indices.chunks_exact(3) {
-            face += 1;
-            // Only on error: the OBJ line of this triangle, quoted.
-            let at = || triangle_at(text, &lines, face);
-            if let Some(&bad) = t.iter().find(|&&i| i as usize >= nv) {
-                bail!(
-                    "{label}: {}: vertex index {} out of range (1..{nv})",
-                    at(),
-                    bad as usize + 1
-                );
+        for (mtl_label, b) in loaded {
+            let mtl = mtl::parse(&mtl_label, &b, repairs)?;
+            for m in &mtl.materials {
+                if by_name.contains_key(&m.name) {
+                    repairs.note(&mtl_label, m.line, DEFINED_AGAIN, || {
+                        format!("material '{}'", m.name)
+                    })?;
+                    continue;
+                }
+                by_name.insert(m.name.clone(), materials.len() as u32);
+                materials.push(m.material(&mtl_label, repairs)?);
+                names.push(m.name.clone());
             }
-            let tri = [base + t[0], base + t[1], base + t[2]];
-            let (a, b, c) = (
-                mesh.positions[tri[0] as usize],
-                mesh.positions[tri[1] as usize],
-                mesh.positions[tri[2] as usize],
-            );
-            let cr = (b - a).cross(c - a);
-            let len = cr.length();
-            let scale = (b - a).length_squared().max((c - a).length_squared());
-            if !len.is_finite() || len <= 1e-7 * scale {
-                bail!("{label}: {}: zero-area triangle", at());
-            }
-            mesh.triangles.push(tri);
-            mesh.tri_material.push(mat);
-            mesh.tri_normal.push(cr / len);
-            mesh.tri_area.push(0.5 * len);
         }
     }
-    if mesh.triangles.is_empty() {
-        bail!("{label}: no faces");
+    // Faces with no material (or an unknown one) share one grey default, added if needed.
+    let default = materials.len() as u32;
+    let mut need_default = false;
+    let mut usemtl_material = Vec::with_capacity(parsed.usemtl.len());
+    for (line, name) in &parsed.usemtl {
+        let id = match by_name.get(name) {
+            Some(&id) => id,
+            None => {
+                let kind = if parsed.mtllib.is_empty() {
+                    NO_MTLLIB
+                } else {
+                    UNKNOWN_MATERIAL
+                };
+                repairs.note(label, *line, kind, || format!("'usemtl {}'", quote(name)))?;
+                need_default = true;
+                default
+            }
+        };
+        usemtl_material.push(id);
     }
-    let mut warning = None;
+    for f in parsed.faces.iter().filter(|f| f.usemtl.is_none()) {
+        repairs.note(label, f.line, NO_USEMTL, || text::quote_line(bytes, f.line))?;
+        need_default = true;
+    }
+    let mut mesh = mesh::build(label, bytes, &parsed, &usemtl_material, default, repairs)?;
     if need_default {
-        warning = Some(format!(
-            "{label}: faces without a material (before any usemtl) get a grey diffuse one (Kd 0.5)"
-        ));
-        mats.push(Material {
+        materials.push(Material {
             kd: Vec3::splat(0.5),
             ..Default::default()
         });
         names.push("default".into());
     }
-    mesh.materials = mats;
+    mesh.materials = materials;
     mesh.material_names = names;
-    Ok((mesh, warning))
+    Ok(mesh)
 }
 
 #[cfg(test)]
@@ -804,6 +747,7 @@ mod tests {
         for name in builtin_names() {
             let s = Scene::load(name, &d).unwrap_or_else(|e| panic!("{name}: {e:#}"));
             assert!(s.frames >= 1 && !s.lights.tris.is_empty(), "{name}");
+            assert!(s.warnings.is_empty(), "{name}: {:?}", s.warnings);
         }
     }
 
@@ -854,5 +798,52 @@ mod tests {
                 assert!((pdf / ls.pdf - 1.0).abs() < 1e-3, "{pdf} vs {}", ls.pdf);
             }
         }
+    }
+
+    #[test]
+    fn materials_fall_back_to_the_default_with_one_warning_per_kind() {
+        // No mtllib at all: every usemtl falls back (a scene file could not render this: it
+        // has no light, so the loader is called directly).
+        let obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\nusemtl b\nf 1 2 3\nf 3 2 1\n";
+        let dir = tempfile::tempdir().unwrap();
+        let files = MtlSource::Dir(dir.path().to_path_buf());
+        let mut r = Repairs::new(false);
+        let mesh = load_obj("a.obj", obj, &files, &mut r).unwrap();
+        assert_eq!(mesh.material_names, ["default"]);
+        assert_eq!(mesh.materials[0].kd, Vec3::splat(0.5));
+        assert_eq!(mesh.tri_material, [0, 0, 0]);
+        assert_eq!(
+            r.into_warnings(),
+            [
+                "a.obj: 2 usemtl lines without any mtllib: grey default material (Kd 0.5) (first \
+              at line 4: 'usemtl a')"
+            ]
+        );
+        let e = load_obj("a.obj", obj, &files, &mut Repairs::new(true))
+            .err()
+            .unwrap();
+        assert_eq!(
+            e.to_string(),
+            "a.obj: line 4: 'usemtl a': usemtl without any mtllib: grey default material (Kd \
+             0.5) (refused: strict loading)"
+        );
+    }
+
+    #[test]
+    fn a_zero_normal_flattens_only_its_triangles() {
+        let obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nvn 0 0 0\n\
+                    f 1//1 2//1 3//1\nf 2//1 4//2 3//1\n";
+        let dir = tempfile::tempdir().unwrap();
+        let files = MtlSource::Dir(dir.path().to_path_buf());
+        let mut r = Repairs::new(false);
+        let mesh = load_obj("a.obj", obj, &files, &mut r).unwrap();
+        let normals = |t: usize| mesh.triangles[t].map(|i| mesh.normals[i as usize]);
+        assert_eq!(normals(0), [Vec3::Z; 3]);
+        assert_eq!(normals(1), [Vec3::ZERO; 3]);
+        assert_eq!(
+            r.into_warnings().len(),
+            2,
+            "the zero normal, the faces without usemtl"
+        );
     }
 }

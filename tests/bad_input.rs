@@ -1,6 +1,7 @@
 //! Bad input through the real binary, from the corpus in `tests/corpus/`: every case must end
 //! with a one-line error that names the file and the line or key (or the flag), a non-zero exit,
-//! no panic, and no file written.
+//! no panic, and no file written; or, for input that loading repairs, render with exactly the
+//! warnings the case names (one line per kind of repair), and be refused by strict loading.
 //!
 //! `tests/corpus/base/` is a small valid scene (`s.toml`, `s.obj`, `s.mtl`). Each folder in
 //! `tests/corpus/cases/` holds the files that differ from it and a `case.toml`:
@@ -12,12 +13,20 @@
 //! scene = "no-such-scene"                    # the scene argument instead of s.toml (optional)
 //! ok = true                                  # the input is fine and must render (optional)
 //! expect = ["{dir}/s.obj: line 15: 'f 1 2 42': vertex index 42 is out of range"]
+//! warn = ["{dir}/s.obj: line 14: 'l 1 2 3': polyline (l) ignored"]   # with ok: the warnings
+//! strict = "{dir}/s.obj: line 14: 'l 1 2 3': polyline"                # with ok: strict's error
 //! ```
 //!
 //! `{dir}` is the folder the case runs in; each `expect` text must appear in the error line.
+//! A case that renders prints one `warning:` line per `warn` text, in order, each containing
+//! it (none if there is no `warn`). Each is then loaded through the library with
+//! `LoadOptions { strict: true }`: with `strict`, that must fail with an error containing it;
+//! without, it must load (a scene without warnings is fine under strict loading too).
 mod common;
 
 use common::{files_under, par_map, refusal, run_reframe};
+use reframe::embree::Device;
+use reframe::scene::{LoadOptions, Scene};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -35,6 +44,9 @@ struct Manifest {
     scene: Option<String>,
     #[serde(default)]
     ok: bool,
+    #[serde(default)]
+    warn: Vec<String>,
+    strict: Option<String>,
 }
 
 fn corpus() -> PathBuf {
@@ -92,14 +104,42 @@ fn check(case: &Path) -> Result<bool, String> {
                 o.code, o.stderr
             ));
         }
+        let d = dir.display().to_string();
+        let warnings: Vec<&str> = o
+            .stderr
+            .lines()
+            .filter(|l| l.starts_with("warning: "))
+            .collect();
+        let want: Vec<String> = m.warn.iter().map(|w| w.replace("{dir}", &d)).collect();
+        if warnings.len() != want.len() || !want.iter().zip(&warnings).all(|(w, l)| l.contains(w)) {
+            return Err(format!(
+                "{why}: warnings\n  want: {want:?}\n  got:  {warnings:?}"
+            ));
+        }
+        let scene = m.scene.clone().unwrap_or_else(|| format!("{d}/s.toml"));
+        let device = Device::new().unwrap();
+        let strict = Scene::load_with(&scene, &device, &LoadOptions { strict: true });
+        match (&m.strict, strict) {
+            (Some(t), Err(e)) if format!("{e:#}").contains(&t.replace("{dir}", &d)) => {}
+            (Some(t), r) => {
+                let got = r
+                    .map(|_| "loaded".to_string())
+                    .unwrap_or_else(|e| format!("{e:#}"));
+                return Err(format!("{why}: strict\n  want: {t}\n  got:  {got}"));
+            }
+            (None, Ok(_)) => {}
+            (None, Err(e)) => return Err(format!("{why}: strict loading refused it: {e:#}")),
+        }
         return Ok(false);
     }
     let line = refusal(&o).map_err(|e| format!("{why}: {e}"))?;
     if !written.is_empty() {
         return Err(format!("{why}: left files behind: {written:?}"));
     }
-    if m.expect.is_empty() {
-        return Err(format!("{why}: case.toml expects no text"));
+    if m.expect.is_empty() || !m.warn.is_empty() || m.strict.is_some() {
+        return Err(format!(
+            "{why}: case.toml expects no text (or has warn/strict without ok)"
+        ));
     }
     for e in &m.expect {
         let e = e.replace("{dir}", &dir.display().to_string());

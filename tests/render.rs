@@ -203,3 +203,41 @@ fn reuse_cli_stats_aov_and_determinism() {
     assert!((0.0..0.5).contains(&lost), "lost_reuse_fraction {lost}");
     assert_eq!(json["per_frame"].as_array().unwrap().len(), 5);
 }
+
+/// `--strict` on the command line: a model that loading repairs (here a polyline beside the
+/// faces) renders with one warning line, and is refused with `--strict`, one line, nothing
+/// written.
+#[test]
+fn strict_flag_turns_repairs_into_refusals() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let corpus = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/corpus");
+    for f in ["s.toml", "s.mtl"] {
+        std::fs::copy(format!("{corpus}/base/{f}"), d.join(f)).unwrap();
+    }
+    std::fs::copy(
+        format!("{corpus}/cases/obj-polyline/s.obj"),
+        d.join("s.obj"),
+    )
+    .unwrap();
+    let scene = d.join("s.toml").display().to_string();
+    let out = d.join("o/f_####.exr").display().to_string();
+    let args = [
+        "render", &scene, "--frames", "0", "--spp", "1", "--out", &out,
+    ];
+    let o = reframe_ok(&args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("warning:") && err.contains("polyline"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(d.join("o")).unwrap();
+    let o = common::reframe(&[&args[..], &["--strict"]].concat())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("strict loading"), "{err}");
+    assert!(!d.join("o").exists() || common::files_under(&d.join("o")).is_empty());
+}

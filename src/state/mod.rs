@@ -132,6 +132,9 @@ struct Header {
 /// Bytes of a record's fixed part, and of the CRC-32 that ends every record.
 const HEADER_BYTES: u64 = 4 * 5 + 4 + 4 + 4 + 24 + 8 + 128;
 const CRC_BYTES: u64 = 4;
+/// The largest state file opened (1 TiB): state files are as large as the frames they hold, so
+/// the cap only keeps what cannot be one out; each record is checked against its span anyway.
+const MAX_STATE_BYTES: u64 = 1 << 40;
 
 impl Header {
     fn write(&self, w: &mut impl Write) -> std::io::Result<()> {
@@ -496,7 +499,7 @@ impl StateFile {
     /// checked as they are read (`record`).
     pub fn open(path: &Path) -> Result<StateFile> {
         let label = path.display();
-        let mut f = crate::util::fs::open_regular(path, "state file")?;
+        let mut f = crate::util::input::open_input(path, "state file", MAX_STATE_BYTES)?;
         let len = f.metadata()?.len();
         let incomplete = || {
             anyhow!(

@@ -90,37 +90,3 @@ pub fn check_file_target(flag: &str, p: &Path) -> Result<()> {
     }
     check_writable_dir(&dir).with_context(|| format!("{flag} {}", p.display()))
 }
-
-/// Open `path` (a `what`, for messages) for reading if it is a regular file, after symlinks:
-/// a named pipe, a device, a socket or a folder is refused at once with one line, instead of
-/// blocking or reading forever.
-pub fn open_regular(path: &Path, what: &str) -> Result<std::fs::File> {
-    let kind = |m: &std::fs::Metadata| {
-        use std::os::unix::fs::FileTypeExt;
-        let t = m.file_type();
-        if t.is_dir() {
-            "a folder"
-        } else if t.is_fifo() {
-            "a named pipe"
-        } else if t.is_socket() {
-            "a socket"
-        } else if t.is_block_device() || t.is_char_device() {
-            "a device"
-        } else {
-            "not a regular file"
-        }
-    };
-    let m = std::fs::metadata(path)
-        .with_context(|| format!("{}: cannot read the {what}", path.display()))?;
-    if !m.is_file() {
-        anyhow::bail!("{}: the {what} is {}", path.display(), kind(&m));
-    }
-    let f = std::fs::File::open(path)
-        .with_context(|| format!("{}: cannot open the {what}", path.display()))?;
-    // It may have been replaced between the two looks.
-    let m = f.metadata()?;
-    if !m.is_file() {
-        anyhow::bail!("{}: the {what} is {}", path.display(), kind(&m));
-    }
-    Ok(f)
-}

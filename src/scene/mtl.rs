@@ -1,0 +1,267 @@
+//! The MTL reader: the values reframe's BSDF uses (`Kd`, `Ks`, `Ns`, `Ke`) of each `newmtl`,
+//! each with its line, turned into `Material`s clamped to where the BSDF is stable.
+//!
+//! Read as production loaders read them: any whitespace between words, lines that are not UTF-8
+//! (Latin-1), a colour of one number (grey, as the MTL format allows). Statements reframe does
+//! not use (`Ka`, `d`, `Ni`, `illum`, texture maps, ...) are skipped without a look. Refused,
+//! naming the line, because the material would be ambiguous or meaningless: a used value that
+//! is not a number, negative or not finite, a colour of two numbers, a value before any
+//! `newmtl`, and a material defined twice in one file.
+//!
+//! Repaired with one warning per kind (`Repairs`): `Kd + Ks` above 1 in a channel (both scaled
+//! down in that channel, so the Phong model conserves energy), `Ns` above `MAX_NS`, `Ke` above
+//! `MAX_KE`.
+use super::repairs::{Kind, Repairs};
+use super::text::{lines, quote, rest, NOT_UTF8};
+use crate::bsdf::Material;
+use anyhow::{anyhow, Result};
+use glam::Vec3;
+use std::collections::HashMap;
+
+/// Largest Phong exponent. `phong_lobe` draws `cos = u^(1 / (Ns + 1))`: above about 1.6e7 the
+/// exponent rounds that to 1 in f32 for most `u`, so the sampled lobe is no longer the lobe that
+/// `eval` and `pdf` describe; 1e6 keeps a factor 16 from there (a lobe about 0.1 degree wide,
+/// a mirror for any image). Before `eval` clamped its cosine to 1, `Ns` 1e10 and above gave NaN
+/// pixels on the corpus' base floor (1e8 did not): `cos^Ns` of a cosine rounded above 1
+/// overflowed, `1.0000001^Ns` does from `Ns` about 7.5e8.
+pub const MAX_NS: f32 = 1e6;
+/// Largest emitted radiance per channel. Pixel values are f32 sums over samples and eyes of
+/// `Ke` times path weights: with `Ke` 1e36 the vase scene's sums overflow to infinity (and NaN).
+/// 1e9 leaves a factor 1e27 of head-room for sample counts and geometric gains.
+pub const MAX_KE: f32 = 1e9;
+
+const ENERGY: Kind = Kind {
+    one: "Kd + Ks above 1 scaled down to 1 (energy conservation)",
+    many: "materials with Kd + Ks above 1 scaled down to 1 (energy conservation)",
+};
+const NS: Kind = Kind {
+    one: "Ns capped (the Phong lobe is unstable above it)",
+    many: "materials with Ns capped (the Phong lobe is unstable above it)",
+};
+const KE: Kind = Kind {
+    one: "Ke capped (radiance sums would overflow above it)",
+    many: "materials with Ke capped (radiance sums would overflow above it)",
+};
+
+/// One `newmtl` and the lines of the values it sets.
+#[derive(Clone, Debug, Default)]
+pub struct MtlMaterial {
+    pub name: String,
+    pub line: usize,
+    kd: Option<(Vec3, usize)>,
+    ks: Option<(Vec3, usize)>,
+    ke: Option<(Vec3, usize)>,
+    ns: Option<(f32, usize)>,
+}
+
+/// The materials of one MTL file, in order, and where each name is.
+#[derive(Debug, Default)]
+pub struct Mtl {
+    pub materials: Vec<MtlMaterial>,
+    pub index: HashMap<String, usize>,
+}
+
+/// Read an MTL file; `label` names it in errors ("label: line N: 'statement': why") and repairs.
+pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
+    let mut out = Mtl::default();
+    for line in lines(bytes).map_err(|e| anyhow!("{label}: {e}"))? {
+        let (n, text) = (line.n, line.text.as_ref());
+        let err = |msg: String| anyhow!("{label}: line {n}: '{}': {msg}", quote(text));
+        let mut words = text.split_whitespace();
+        let Some(key) = words.next() else { continue };
+        if key.starts_with('#') {
+            continue;
+        }
+        if line.latin1 {
+            repairs.note(label, n, NOT_UTF8, || format!("'{}'", quote(text)))?;
+        }
+        let args: Vec<&str> = words.collect();
+        if key == "newmtl" {
+            let name = rest(text);
+            if name.is_empty() {
+                return Err(err("expected 'newmtl name'".into()));
+            }
+            if let Some(&first) = out.index.get(name) {
+                return Err(err(format!(
+                    "material '{name}' is already defined at line {}",
+                    out.materials[first].line
+                )));
+            }
+            out.index.insert(name.to_string(), out.materials.len());
+            out.materials.push(MtlMaterial {
+                name: name.to_string(),
+                line: n,
+                ..Default::default()
+            });
+            continue;
+        }
+        if !matches!(key, "Kd" | "Ks" | "Ke" | "Ns") {
+            continue;
+        }
+        let Some(m) = out.materials.last_mut() else {
+            return Err(err(format!("'{key}' before any newmtl")));
+        };
+        let parsed: Option<Vec<f32>> = args.iter().map(|a| a.parse().ok()).collect();
+        let bad = |v: f32| !v.is_finite() || v < 0.0;
+        if key == "Ns" {
+            let [x] = parsed
+                .as_deref()
+                .and_then(|p| p.get(..1)?.try_into().ok())
+                .ok_or_else(|| err("expected 'Ns value'".into()))?;
+            if bad(x) {
+                return Err(err("Ns must be finite and non-negative".into()));
+            }
+            m.ns = Some((x, n));
+            continue;
+        }
+        // `Kd r [g b]`: one number is a grey. Two are neither a grey nor a colour.
+        let c = match parsed.as_deref() {
+            Some(&[r]) => Vec3::splat(r),
+            Some(&[r, g, b, ..]) => Vec3::new(r, g, b),
+            _ => return Err(err(format!("expected '{key} r g b' (or '{key} grey')"))),
+        };
+        if !c.is_finite() || c.min_element() < 0.0 {
+            return Err(err(format!("{key} must be finite and non-negative")));
+        }
+        let slot = match key {
+            "Kd" => &mut m.kd,
+            "Ks" => &mut m.ks,
+            _ => &mut m.ke,
+        };
+        *slot = Some((c, n));
+    }
+    Ok(out)
+}
+
+impl MtlMaterial {
+    /// The material as the BSDF uses it: missing values are zero (`Kd` too: a material that
+    /// gives none does not reflect diffusely), clamped values noted in `repairs`.
+    pub fn material(&self, label: &str, repairs: &mut Repairs) -> Result<Material> {
+        let get = |v: Option<(Vec3, usize)>| v.map_or(Vec3::ZERO, |v| v.0);
+        let (mut kd, mut ks, mut ke) = (get(self.kd), get(self.ks), get(self.ke));
+        let mut ns = self.ns.map_or(0.0, |v| v.0);
+        let name = &self.name;
+        // In f64: Kd + Ks of two values near f32::MAX is not finite in f32.
+        let sum = kd.as_dvec3() + ks.as_dvec3();
+        if sum.max_element() > 1.0 + 1e-6 {
+            // Scale both lobes in the channels above 1, keeping their ratio there.
+            let scale = sum.max(glam::DVec3::ONE).recip();
+            let (kd0, ks0) = (kd, ks);
+            kd = (kd.as_dvec3() * scale).as_vec3();
+            ks = (ks.as_dvec3() * scale).as_vec3();
+            repairs.note(label, self.line, ENERGY, || {
+                format!(
+                    "material '{name}': Kd {} + Ks {} became Kd {} + Ks {}",
+                    rgb(kd0),
+                    rgb(ks0),
+                    rgb(kd),
+                    rgb(ks)
+                )
+            })?;
+        }
+        if ns > MAX_NS {
+            let line = self.ns.map_or(self.line, |v| v.1);
+            repairs.note(label, line, NS, || {
+                format!("material '{name}': Ns {} capped at {MAX_NS:e}", num(ns))
+            })?;
+            ns = MAX_NS;
+        }
+        if ke.max_element() > MAX_KE {
+            let line = self.ke.map_or(self.line, |v| v.1);
+            let ke0 = ke;
+            ke = ke.min(Vec3::splat(MAX_KE));
+            repairs.note(label, line, KE, || {
+                format!("material '{name}': Ke {} capped at {MAX_KE:e}", rgb(ke0))
+            })?;
+        }
+        Ok(Material { kd, ks, ns, ke })
+    }
+}
+
+/// A number as a message shows it: short, in exponent form when large.
+fn num(x: f32) -> String {
+    if x.abs() >= 1e6 {
+        format!("{x:e}")
+    } else {
+        format!("{}", (x * 1e4).round() / 1e4)
+    }
+}
+
+fn rgb(c: Vec3) -> String {
+    format!("{} {} {}", num(c.x), num(c.y), num(c.z))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn statements_and_refusals() {
+        let ok = "# c\nnewmtl a\nKd 0.5 0.5 0.5\nillum 2\nnewmtl b\nKe 1 1 1\nKa x\n";
+        let m = parse("a.mtl", ok.as_bytes(), &mut Repairs::new(false)).unwrap();
+        assert_eq!(m.index["b"], 1);
+        assert_eq!(m.materials[1].line, 5);
+        for (bad, want) in [
+            (
+                "Kd 0.5 0.5",
+                "line 8: 'Kd 0.5 0.5': expected 'Kd r g b' (or 'Kd grey')",
+            ),
+            ("Ks 1 x 1", "expected 'Ks r g b'"),
+            ("Ke -1 0 0", "Ke must be finite and non-negative"),
+            ("Kd nan 0 0", "Kd must be finite"),
+            ("Ns", "expected 'Ns value'"),
+            ("Ns -5", "Ns must be finite and non-negative"),
+            ("newmtl a", "material 'a' is already defined at line 2"),
+            ("newmtl ", "expected 'newmtl name'"),
+        ] {
+            let e = parse(
+                "a.mtl",
+                format!("{ok}{bad}\n").as_bytes(),
+                &mut Repairs::new(false),
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains(want), "{bad}: {e}");
+        }
+        let e = parse("a.mtl", b"Kd 1 1 1\nnewmtl a\n", &mut Repairs::new(false))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("before any newmtl"), "{e}");
+    }
+
+    #[test]
+    fn clamps_warn_once_per_kind() {
+        let text = "newmtl a\nKd 0.8\t0.2 0.2\nKs  0.5 0.5 0.5\nNs 1e30\nKe 1e38 1 1\n\
+                    newmtl b\nKd 1 1 1\nKs 1 1 1\nnewmtl c\nKd 3e38 0 0\nKs 3e38 0 0\n";
+        let mut r = Repairs::new(false);
+        let mtl = parse("a.mtl", text.as_bytes(), &mut r).unwrap();
+        let a = mtl.materials[0].material("a.mtl", &mut r).unwrap();
+        let b = mtl.materials[1].material("a.mtl", &mut r).unwrap();
+        let c = mtl.materials[2].material("a.mtl", &mut r).unwrap();
+        assert_eq!((c.kd.x, c.ks.x), (0.5, 0.5));
+        assert!(((a.kd + a.ks).x - 1.0).abs() < 1e-6 && (a.kd.x / a.ks.x - 1.6).abs() < 1e-5);
+        assert_eq!((a.kd.y, a.ks.y), (0.2, 0.5));
+        assert_eq!(a.ns, MAX_NS);
+        assert_eq!(a.ke, Vec3::new(MAX_KE, 1.0, 1.0));
+        assert_eq!(b.kd + b.ks, Vec3::ONE);
+        let w = r.into_warnings();
+        assert_eq!(w.len(), 3, "{w:?}");
+        assert!(w[0].starts_with("a.mtl: 3 materials with Kd + Ks above 1 scaled down to 1"));
+        assert_eq!(
+            w[1],
+            "a.mtl: line 4: material 'a': Ns 1e30 capped at 1e6: Ns capped (the Phong lobe is \
+             unstable above it)"
+        );
+        assert!(
+            w[2].starts_with("a.mtl: line 5: material 'a': Ke 1e38 1 1 capped at 1e9"),
+            "{}",
+            w[2]
+        );
+        let mut strict = Repairs::new(true);
+        let e = mtl.materials[1].material("a.mtl", &mut strict).unwrap_err();
+        assert!(
+            e.to_string().starts_with("a.mtl: line 6: material 'b'"),
+            "{e}"
+        );
+    }
+}

@@ -1,0 +1,365 @@
+//! The OBJ reader: the statements a renderer of triangles needs (`v`, `vn`, `f`, `usemtl`,
+//! `mtllib`), read the way production loaders read real exports, with every face keeping its
+//! line for messages.
+//!
+//! Read as usual: any whitespace between words, CRLF line ends, a byte order mark, a statement
+//! continued after a `\` at the end of its line. Lenient where a model is still unambiguous,
+//! with one counted warning per kind (`Repairs`): lines that are not UTF-8 (read as Latin-1), a
+//! zero or non-finite `vn` (the triangles using it are flat-shaded), faces of fewer than three
+//! distinct vertices (skipped), points `p` and polylines `l` (ignored), vertex colours
+//! (ignored).
+//! Statements reframe does not draw (`vt` contents, `o`, `g`, `s`, `vp`, curves) are skipped
+//! silently. Refused, naming the line: a position that is not finite or is larger than
+//! `MAX_COORD`, a malformed `v`, `vt`, `vn` or face vertex, a face index of 0 or one that refers
+//! past the elements defined above it, a face of more than `MAX_CORNERS` corners, and a
+//! `usemtl` or `mtllib` without a name.
+use super::repairs::{Kind, Repairs};
+use super::text::{latin1_bytes, lines, numbers, quote, rest, Line, MAX_COORD, NOT_UTF8};
+use anyhow::{anyhow, Result};
+use glam::Vec3;
+
+/// Most corners of one face: ear clipping takes about 1 s for 50,000 corners and grows faster
+/// than linearly (9 s at 200,000), so a single hostile face could stall loading for minutes.
+pub const MAX_CORNERS: usize = 65_536;
+
+pub const BAD_NORMAL: Kind = Kind {
+    one: "zero or non-finite normal: its triangles are flat-shaded",
+    many: "zero or non-finite normals: their triangles are flat-shaded",
+};
+pub const SHORT_FACE: Kind = Kind {
+    one: "face of fewer than 3 distinct vertices skipped",
+    many: "faces of fewer than 3 distinct vertices skipped",
+};
+const POINTS: Kind = Kind {
+    one: "points (p) ignored: reframe renders faces only",
+    many: "points statements (p) ignored: reframe renders faces only",
+};
+const POLYLINES: Kind = Kind {
+    one: "polyline (l) ignored: reframe renders faces only",
+    many: "polylines (l) ignored: reframe renders faces only",
+};
+const COLOURS: Kind = Kind {
+    one: "vertex colour ignored",
+    many: "vertex colours ignored",
+};
+
+/// One corner of a face: a position index and, if given and usable, a normal index (0-based).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Corner {
+    pub v: u32,
+    pub vn: Option<u32>,
+}
+
+/// A face: its line, the `usemtl` in force (an index into `Obj::usemtl`), its corners.
+#[derive(Clone, Debug)]
+pub struct Face {
+    pub line: usize,
+    pub usemtl: Option<u32>,
+    pub corners: std::ops::Range<usize>,
+}
+
+#[derive(Default, Debug)]
+pub struct Obj {
+    pub positions: Vec<Vec3>,
+    /// Unit normals; `None` for a zero or non-finite `vn` (already warned about).
+    pub normals: Vec<Option<Vec3>>,
+    pub corners: Vec<Corner>,
+    pub faces: Vec<Face>,
+    /// Each `mtllib`: its line and the rest of the line (file names, as bytes).
+    pub mtllib: Vec<(usize, Vec<u8>)>,
+    /// Each `usemtl`: its line and the material's name.
+    pub usemtl: Vec<(usize, String)>,
+}
+
+/// Read an OBJ file; `label` names it in errors ("label: line N: 'statement': why") and repairs.
+pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
+    let mut out = Obj::default();
+    // Elements defined so far: positions, texture coordinates, normals.
+    let mut count = [0usize; 3];
+    let mut usemtl = None;
+    for line in joined(lines(bytes).map_err(|e| anyhow!("{label}: {e}"))?) {
+        let (n, text) = (line.n, line.text.as_ref());
+        let err = |msg: String| anyhow!("{label}: line {n}: '{}': {msg}", quote(text));
+        let mut words = text.split_whitespace();
+        let Some(key) = words.next() else { continue };
+        if key.starts_with('#') {
+            continue;
+        }
+        if line.latin1 {
+            repairs.note(label, n, NOT_UTF8, || format!("'{}'", quote(text)))?;
+        }
+        let args: Vec<&str> = words.collect();
+        match key {
+            "v" => {
+                let shape = "expected 'v x y z', 'v x y z w' or 'v x y z r g b'";
+                let mut p = numbers::<3>(&args).ok_or_else(|| err(shape.into()))?;
+                match args.len() {
+                    3 => {}
+                    4 => {
+                        let w: f32 = args[3].parse().map_err(|_| err(shape.into()))?;
+                        if w == 0.0 || !w.is_finite() {
+                            return Err(err(format!("w = {w}: x, y, z are divided by w")));
+                        }
+                        p = p.map(|c| c / w);
+                    }
+                    6 => {
+                        numbers::<3>(&args[3..])
+                            .ok_or_else(|| err("the vertex colour must be three numbers".into()))?;
+                        repairs.note(label, n, COLOURS, || format!("'{}'", quote(text)))?;
+                    }
+                    _ => return Err(err(shape.into())),
+                }
+                count[0] += 1;
+                if !p.iter().all(|c| c.is_finite()) {
+                    return Err(err(format!("vertex {} is not finite", count[0])));
+                }
+                if let Some(c) = p.iter().find(|c| c.abs() > MAX_COORD) {
+                    return Err(err(format!(
+                        "vertex {}: coordinate {c:e} is too large (at most {MAX_COORD:e})",
+                        count[0]
+                    )));
+                }
+                out.positions.push(Vec3::from(p));
+            }
+            "vt" => {
+                // Only counted (reframe has no textures); `v` and `w` are optional.
+                if args.is_empty()
+                    || args.len() > 3
+                    || args.iter().any(|a| a.parse::<f32>().is_err())
+                {
+                    return Err(err("expected 'vt u [v [w]]'".into()));
+                }
+                count[1] += 1;
+            }
+            "vn" => {
+                let v = numbers::<3>(&args).ok_or_else(|| err("expected 'vn x y z'".into()))?;
+                count[2] += 1;
+                // In f64: a finite normal of huge components still has a direction.
+                let d = glam::DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64);
+                let len = d.length();
+                if len.is_finite() && len > 0.0 {
+                    out.normals.push(Some((d / len).as_vec3()));
+                } else {
+                    repairs.note(label, n, BAD_NORMAL, || {
+                        format!("'{}' (normal {})", quote(text), count[2])
+                    })?;
+                    out.normals.push(None);
+                }
+            }
+            "f" => {
+                if args.len() > MAX_CORNERS {
+                    return Err(err(format!(
+                        "a face of {} corners: at most {MAX_CORNERS} (split it into smaller \
+                         faces)",
+                        args.len()
+                    )));
+                }
+                let start = out.corners.len();
+                for r in &args {
+                    let c = corner(r, &count, &out.normals).map_err(&err)?;
+                    out.corners.push(c);
+                }
+                // A polygon that comes back to the vertex it left (or stays on one) has fewer
+                // sides than it has corners.
+                let face = &mut out.corners[start..];
+                let mut distinct: Vec<u32> = face.iter().map(|c| c.v).collect();
+                distinct.sort_unstable();
+                distinct.dedup();
+                if distinct.len() < 3 {
+                    out.corners.truncate(start);
+                    repairs.note(label, n, SHORT_FACE, || format!("'{}'", quote(text)))?;
+                    continue;
+                }
+                out.faces.push(Face {
+                    line: n,
+                    usemtl,
+                    corners: start..out.corners.len(),
+                });
+            }
+            "p" => repairs.note(label, n, POINTS, || format!("'{}'", quote(text)))?,
+            "l" => repairs.note(label, n, POLYLINES, || format!("'{}'", quote(text)))?,
+            "usemtl" | "mtllib" => {
+                let name = rest(text);
+                if name.is_empty() {
+                    let what = if key == "usemtl" { "name" } else { "file" };
+                    return Err(err(format!("expected '{key} {what}'")));
+                }
+                if key == "usemtl" {
+                    usemtl = Some(out.usemtl.len() as u32);
+                    out.usemtl.push((n, name.to_string()));
+                } else {
+                    let bytes = if line.latin1 {
+                        latin1_bytes(name)
+                    } else {
+                        name.as_bytes().to_vec()
+                    };
+                    out.mtllib.push((n, bytes));
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(out)
+}
+
+/// The lines with continuations joined: a statement that ends in `\` goes on in the next line
+/// (the OBJ format's rule, used by exporters for long faces); the joined line keeps the number
+/// of its first. Comments are left alone, so that a comment ending in `\` (a Windows path)
+/// does not swallow the statement below it.
+fn joined<'a>(mut lines: impl Iterator<Item = Line<'a>>) -> impl Iterator<Item = Line<'a>> {
+    std::iter::from_fn(move || {
+        let mut line = lines.next()?;
+        loop {
+            let t = line.text.trim_end();
+            if !t.ends_with('\\') || t.trim_start().starts_with('#') {
+                return Some(line);
+            }
+            let mut s = t[..t.len() - 1].to_string();
+            let Some(next) = lines.next() else {
+                line.text = s.into();
+                return Some(line);
+            };
+            s.push(' ');
+            s.push_str(&next.text);
+            line.text = s.into();
+            line.latin1 |= next.latin1;
+        }
+    })
+}
+
+/// One face vertex `v`, `v/vt`, `v//vn` or `v/vt/vn`, checked against the elements defined
+/// above it (`count`: positions, texture coordinates, normals). A normal that is not usable
+/// (`normals[i]` is `None`) is left out, so its triangles are flat-shaded.
+fn corner(r: &str, count: &[usize; 3], normals: &[Option<Vec3>]) -> Result<Corner, String> {
+    let shape = || format!("'{r}': expected v, v/vt, v//vn or v/vt/vn (1-based indices)");
+    let parts: Vec<&str> = r.split('/').collect();
+    if parts.len() > 3 || parts[0].is_empty() {
+        return Err(shape());
+    }
+    let mut c = Corner { v: 0, vn: None };
+    for (k, p) in parts.iter().enumerate() {
+        if p.is_empty() {
+            continue;
+        }
+        let x: i64 = p.parse().map_err(|_| shape())?;
+        let (what, n) = (["vertex", "texture coordinate", "normal"][k], count[k]);
+        let i = match x {
+            0 => return Err(format!("{what} index 0: OBJ indices start at 1")),
+            x if x > 0 && (x as u64) <= n as u64 => x as usize - 1,
+            x if x < 0 && x.unsigned_abs() <= n as u64 => n - x.unsigned_abs() as usize,
+            x if x > 0 => {
+                return Err(format!(
+                    "{what} index {x} is out of range: {n} defined above this line"
+                ))
+            }
+            x => {
+                return Err(format!(
+                    "{what} index {x} reaches back before the first: {n} defined above this line"
+                ))
+            }
+        };
+        match k {
+            0 => c.v = i as u32,
+            2 => c.vn = normals[i].map(|_| i as u32),
+            _ => {}
+        }
+    }
+    Ok(c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse_ok(text: &str) -> (Obj, Vec<String>) {
+        let mut r = Repairs::new(false);
+        let o = parse("a.obj", text.as_bytes(), &mut r).unwrap();
+        (o, r.into_warnings())
+    }
+
+    #[test]
+    fn faces_relative_indices_and_refusals() {
+        let obj = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n# quad\nf 1 2 3 4\nf -4 -3 -2\n";
+        let (o, w) = parse_ok(obj);
+        assert!(w.is_empty(), "{w:?}");
+        assert_eq!(o.faces.len(), 2);
+        assert_eq!(o.faces[0].line, 6);
+        assert_eq!(o.corners[o.faces[1].corners.clone()][0].v, 0);
+        for (bad, want) in [
+            (
+                "f 1 2 5",
+                "line 8: 'f 1 2 5': vertex index 5 is out of range: 4 defined",
+            ),
+            ("f -5 1 2", "index -5 reaches back before the first"),
+            ("f 0 1 2", "index 0"),
+            (
+                "f 1/1 2 3",
+                "texture coordinate index 1 is out of range: 0 defined",
+            ),
+            ("f 1 2 x", "'x': expected v"),
+            ("v 1 nan 0", "vertex 5 is not finite"),
+            ("v 1 2", "expected 'v x y z'"),
+            ("v 1 2 3 0", "w = 0"),
+            ("v 1e30 0 0", "too large"),
+            ("vt", "expected 'vt u [v [w]]'"),
+            ("usemtl", "expected 'usemtl name'"),
+            ("mtllib  ", "expected 'mtllib file'"),
+            (
+                &format!("f{}", " 1 2 3".repeat(30_000)),
+                "a face of 90000 corners",
+            ),
+        ] {
+            let mut r = Repairs::new(false);
+            let e = parse("a.obj", format!("{obj}{bad}\n").as_bytes(), &mut r)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(want), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn long_lines_go_on_after_a_backslash() {
+        let obj =
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n# C:\\models\\\nf 1 2 \\\r\n  3 \\\n4\nf 1 2 3 \\";
+        let (o, w) = parse_ok(obj);
+        assert!(w.is_empty(), "{w:?}");
+        assert_eq!(o.faces.len(), 2);
+        assert_eq!((o.faces[0].line, o.faces[0].corners.len()), (6, 4));
+        assert_eq!((o.faces[1].line, o.faces[1].corners.len()), (9, 3));
+    }
+
+    #[test]
+    fn real_model_habits_are_repaired_once_each() {
+        let obj: &[u8] = b"v\t0 0 0\nv  1 0 0\nv 1 1 0 0.5 0.5 0.5\nvn 0 0 0\nvn 0 0 1\nvt 0.5\n\
+                   usemtl\tmy  stone\nf 1//1 2//2 3//2\nf 1 2 1\nf 1 1 1\nl 1 2 3\np 1\n\
+                   # caf\xe9\no caf\xe9\n";
+        let mut r = Repairs::new(false);
+        let o = parse("a.obj", obj, &mut r).unwrap();
+        assert_eq!(o.usemtl, [(7, "my  stone".to_string())]);
+        assert_eq!(o.faces.len(), 1);
+        // The zero normal is left out; the good one kept.
+        assert_eq!(o.corners[0].vn, None);
+        assert_eq!(o.corners[1].vn, Some(1));
+        let w = r.into_warnings();
+        assert_eq!(
+            w,
+            [
+                "a.obj: line 3: 'v 1 1 0 0.5 0.5 0.5': vertex colour ignored",
+                "a.obj: line 4: 'vn 0 0 0' (normal 1): zero or non-finite normal: its triangles \
+                 are flat-shaded",
+                "a.obj: 2 faces of fewer than 3 distinct vertices skipped (first at line 9: \
+                 'f 1 2 1')",
+                "a.obj: line 11: 'l 1 2 3': polyline (l) ignored: reframe renders faces only",
+                "a.obj: line 12: 'p 1': points (p) ignored: reframe renders faces only",
+                "a.obj: line 14: 'o caf\u{e9}': line is not UTF-8, read as Latin-1",
+            ]
+        );
+        let e = parse("a.obj", obj, &mut Repairs::new(true))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.ends_with("vertex colour ignored (refused: strict loading)"),
+            "{e}"
+        );
+    }
+}

@@ -1,0 +1,197 @@
+//! The one way reframe opens a file it reads as input (a scene TOML, an OBJ, an MTL, and state
+//! files such as a partial render): a regular file, found through symlinks, no larger than a
+//! cap that is checked before a byte is read, read whole.
+//!
+//! Why not `std::fs::read`: it blocks for ever on a named pipe with no writer, reads a device
+//! such as `/dev/zero` until memory runs out, and says "Is a directory (os error 21)" without
+//! naming the path. Here the type is checked with `metadata` (which follows symlinks) before
+//! opening; the open itself is non-blocking (`O_NONBLOCK`), so that a FIFO swapped in between
+//! the check and the open cannot block it either, and the opened handle is checked again; the
+//! size is checked against the cap from that handle, and the read stops one byte past the cap
+//! in case the file grows meanwhile.
+//!
+//! ```
+//! use reframe::util::input::read_input;
+//! let dir = tempfile::tempdir()?;
+//! let p = dir.path().join("a.obj");
+//! std::fs::write(&p, "v 0 0 0\n")?;
+//! assert_eq!(read_input(&p, "OBJ", 1 << 20)?, b"v 0 0 0\n");
+//! let e = read_input(dir.path(), "OBJ", 1 << 20).unwrap_err().to_string();
+//! assert!(e.ends_with("is a directory, not a regular file"), "{e}");
+//! # anyhow::Ok(())
+//! ```
+use anyhow::Result;
+use std::fs::{File, FileType, OpenOptions};
+use std::io::{ErrorKind, Read};
+use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+use std::path::Path;
+
+/// The largest scene TOML, OBJ or MTL file reframe reads (1 GiB): a larger one is refused before
+/// it is read, rather than filling memory.
+pub const MAX_INPUT_BYTES: u64 = 1 << 30;
+
+/// Why an input could not be read: it is not there (a caller may go on without it), or it
+/// cannot be used (the message says why).
+#[derive(Debug)]
+pub enum InputError {
+    /// No file at the path (nor at the end of its symlinks).
+    NotFound(String),
+    Refused(String),
+}
+
+impl std::fmt::Display for InputError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            InputError::NotFound(m) | InputError::Refused(m) => f.write_str(m),
+        }
+    }
+}
+
+impl std::error::Error for InputError {}
+
+/// What a file of type `t` is, in words.
+fn kind(t: FileType) -> &'static str {
+    if t.is_dir() {
+        "a directory"
+    } else if t.is_fifo() {
+        "a named pipe (FIFO)"
+    } else if t.is_socket() {
+        "a socket"
+    } else if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else {
+        "not a regular file"
+    }
+}
+
+/// Open the regular file at `path` for reading, as `read_input` does, without reading it (for
+/// files read piece by piece, such as state files).
+pub fn open_input(path: &Path, what: &str, max_bytes: u64) -> Result<File> {
+    Ok(open_input_or_missing(path, what, max_bytes)?)
+}
+
+fn open_input_or_missing(path: &Path, what: &str, max_bytes: u64) -> Result<File, InputError> {
+    let p = path.display();
+    let refuse = |why: String| InputError::Refused(format!("{what} '{p}': {why}"));
+    let io = |e: std::io::Error| match e.kind() {
+        ErrorKind::NotFound => InputError::NotFound(format!("{what} '{p}': no such file")),
+        _ => refuse(format!("cannot read: {e}")),
+    };
+    let check = |t: FileType, len: u64| -> Result<(), InputError> {
+        if !t.is_file() {
+            let k = kind(t);
+            return Err(refuse(format!("is {k}, not a regular file")));
+        }
+        if len > max_bytes {
+            return Err(refuse(format!(
+                "{len} bytes, over the limit of {max_bytes} bytes"
+            )));
+        }
+        Ok(())
+    };
+    let m = std::fs::metadata(path).map_err(io)?;
+    check(m.file_type(), m.len())?;
+    // Non-blocking, in case a FIFO took the file's place since `metadata`.
+    let file: File = OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK)
+        .open(path)
+        .map_err(io)?;
+    let m = file.metadata().map_err(io)?;
+    check(m.file_type(), m.len())?;
+    Ok(file)
+}
+
+/// Read the regular file at `path` whole; `what` names it in messages ("scene file", "OBJ",
+/// "MTL", "partial file"). Refuses, with one line naming the path, anything that is not a
+/// regular file and any file larger than `max_bytes`.
+pub fn read_input(path: &Path, what: &str, max_bytes: u64) -> Result<Vec<u8>> {
+    Ok(read_input_or_missing(path, what, max_bytes)?)
+}
+
+/// `read_input`, telling a missing file apart from one that cannot be used.
+pub fn read_input_or_missing(
+    path: &Path,
+    what: &str,
+    max_bytes: u64,
+) -> Result<Vec<u8>, InputError> {
+    let p = path.display();
+    let refuse = |why: String| InputError::Refused(format!("{what} '{p}': {why}"));
+    let io = |e: std::io::Error| match e.kind() {
+        ErrorKind::NotFound => InputError::NotFound(format!("{what} '{p}': no such file")),
+        _ => refuse(format!("cannot read: {e}")),
+    };
+    let mut file = open_input_or_missing(path, what, max_bytes)?;
+    let len = file.metadata().map_or(0, |m| m.len());
+    let mut bytes = Vec::with_capacity(len as usize);
+    (&mut file)
+        .take(max_bytes + 1)
+        .read_to_end(&mut bytes)
+        .map_err(io)?;
+    if bytes.len() as u64 > max_bytes {
+        return Err(refuse(format!(
+            "grew past the limit of {max_bytes} bytes while it was read"
+        )));
+    }
+    Ok(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::{Duration, Instant};
+
+    #[test]
+    fn refuses_what_is_not_a_regular_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let e = read_input(d, "scene file", 100).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            format!(
+                "scene file '{}': is a directory, not a regular file",
+                d.display()
+            )
+        );
+        let fifo = d.join("pipe.obj");
+        let ok = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(ok.success());
+        let start = Instant::now();
+        let e = read_input(&fifo, "OBJ", 100).unwrap_err().to_string();
+        assert!(start.elapsed() < Duration::from_secs(1));
+        assert!(
+            e.ends_with("is a named pipe (FIFO), not a regular file"),
+            "{e}"
+        );
+        let e = read_input(Path::new("/dev/null"), "MTL", 100)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("'/dev/null': is a character device"), "{e}");
+    }
+
+    #[test]
+    fn size_is_capped_and_symlinks_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("a.mtl");
+        std::fs::write(&f, "0123456789").unwrap();
+        let link = dir.path().join("b.mtl");
+        std::os::unix::fs::symlink(&f, &link).unwrap();
+        assert_eq!(read_input(&link, "MTL", 10).unwrap(), b"0123456789");
+        let e = read_input(&f, "MTL", 9).unwrap_err().to_string();
+        assert!(e.ends_with("10 bytes, over the limit of 9 bytes"), "{e}");
+        let gone = dir.path().join("c.mtl");
+        assert!(matches!(
+            read_input_or_missing(&gone, "MTL", 9),
+            Err(InputError::NotFound(_))
+        ));
+        // A dangling symlink is a missing file.
+        std::os::unix::fs::symlink(&gone, dir.path().join("d.mtl")).unwrap();
+        let e = read_input(&dir.path().join("d.mtl"), "MTL", 9).unwrap_err();
+        assert!(e.to_string().ends_with("d.mtl': no such file"), "{e}");
+    }
+}
