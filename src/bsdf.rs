@@ -19,6 +19,14 @@ use crate::sampling::{cosine_hemisphere, phong_lobe, phong_lobe_pdf, to_world};
 use glam::{Vec2, Vec3};
 use std::f32::consts::{FRAC_1_PI, PI};
 
+/// Largest Phong exponent. `phong_lobe` draws `cos = u^(1 / (Ns + 1))`: above about 1.6e7 the
+/// exponent rounds that to 1 in f32 for most `u`, so the sampled lobe is no longer the lobe that
+/// `eval` and `pdf` describe; 1e6 keeps a factor 16 from there (a lobe about 0.1 degree wide,
+/// a mirror for any image). Before `eval` clamped its cosine to 1, `Ns` 1e10 and above gave NaN
+/// pixels on the corpus' base floor (1e8 did not): `cos^Ns` of a cosine rounded above 1
+/// overflowed, `1.0000001^Ns` does from `Ns` about 7.5e8.
+pub const MAX_NS: f32 = 1e6;
+
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Material {
     pub kd: Vec3,
@@ -349,7 +357,6 @@ mod tests {
 
     #[test]
     fn phong_is_finite_and_faithful_up_to_the_cap() {
-        use crate::scene::MAX_NS;
         // Sampling stays the lobe that eval and pdf describe up to the cap: for cos = u^(1/(n+1))
         // the mean of 1 - cos is 1 / (n + 2), which f32 resolves at MAX_NS (it rounds cos to 1
         // about 16 times further out, where the lobe degenerates to the mirror direction).

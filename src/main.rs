@@ -143,11 +143,22 @@ fn run(cli: Cli) -> Result<()> {
             };
             let stats = driver::render(&scene, &opts)?;
             print_warnings(&scene);
+            if let Ok(out) = reframe::image::OutputPattern::parse(&opts.out) {
+                for w in opts.flag_warnings(&out) {
+                    eprintln!("warning: {w}");
+                }
+            }
             eprintln!("{}", cli::render_summary(&stats));
             if stats.nonfinite_pixels > 0 {
                 eprintln!(
                     "warning: {} pixels are NaN or infinite",
                     stats.nonfinite_pixels
+                );
+            }
+            if stats.nonfinite_samples > 0 {
+                eprintln!(
+                    "warning: {} samples came out NaN or infinite and were left out",
+                    stats.nonfinite_samples
                 );
             }
             println!("{}", cli::wrote(&stats.outputs));

@@ -215,6 +215,9 @@ pub struct Scene {
     /// What loading found odd but not wrong (e.g. faces without a material). The command line
     /// prints them once the command has succeeded, so that a failure stays one line.
     pub warnings: Vec<String>,
+    /// The files the scene was read from (TOML, OBJ, MTLs; none for a shipped scene): a command
+    /// never writes over them.
+    pub inputs: Vec<PathBuf>,
 }
 
 /// Where a scene's files come from: the file system or the binary.
@@ -291,7 +294,17 @@ impl Scene {
                 MtlSource::Builtin(BUILTIN[*i].3),
             ),
         };
-        let mesh = load_obj(&obj_label, &obj_bytes, &files, &mut repairs)?;
+        let (mesh, mtls) = load_obj_files(&obj_label, &obj_bytes, &files, &mut repairs)?;
+        let inputs = match &source {
+            Source::Files { toml } => {
+                let dir = toml.parent().unwrap_or(Path::new("."));
+                [toml.clone(), dir.join(file.obj.get_ref())]
+                    .into_iter()
+                    .chain(mtls)
+                    .collect()
+            }
+            Source::Builtin(_) => Vec::new(),
+        };
         let geometry = TriangleScene::new(device, &mesh.positions, &mesh.triangles)
             .with_context(|| format!("{obj_label}: building the Embree scene"))?;
         let lights = Lights::new(&mesh).ok_or_else(|| {
@@ -307,6 +320,7 @@ impl Scene {
             )
         })?;
         Ok(Scene {
+            inputs,
             warnings: repairs.into_warnings(),
             name,
             frames: *file.frames.get_ref(),
@@ -648,7 +662,18 @@ fn mtl_paths(dir: &Path, rest: &[u8]) -> Vec<PathBuf> {
 }
 
 /// Load the OBJ and the MTL files it names into a checked mesh, noting repairs.
+#[cfg(test)]
 fn load_obj(label: &str, bytes: &[u8], files: &MtlSource, repairs: &mut Repairs) -> Result<Mesh> {
+    load_obj_files(label, bytes, files, repairs).map(|(mesh, _)| mesh)
+}
+
+/// `load_obj`, and the MTL files it read from the file system.
+fn load_obj_files(
+    label: &str,
+    bytes: &[u8],
+    files: &MtlSource,
+    repairs: &mut Repairs,
+) -> Result<(Mesh, Vec<PathBuf>)> {
     let parsed = obj::parse(label, bytes, repairs)?;
     let mut materials = Vec::new();
     let mut names = Vec::new();
@@ -734,7 +759,11 @@ fn load_obj(label: &str, bytes: &[u8], files: &MtlSource, repairs: &mut Repairs)
     }
     mesh.materials = materials;
     mesh.material_names = names;
-    Ok(mesh)
+    let read = match files {
+        MtlSource::Dir(_) => read,
+        MtlSource::Builtin(_) => Vec::new(),
+    };
+    Ok((mesh, read))
 }
 
 #[cfg(test)]

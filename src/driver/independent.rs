@@ -17,10 +17,12 @@ use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::time::Instant;
 
-/// A rendered frame: linear RGB pixels, ray counts, and (benchmark only) each tile's rays.
+/// A rendered frame: linear RGB pixels, ray counts, samples dropped as NaN or infinite, and
+/// (benchmark only) each tile's rays.
 pub struct FrameResult {
     pub pixels: Vec<Vec3>,
     pub counts: RayCounts,
+    pub nonfinite_samples: u64,
     pub ray_logs: Vec<Vec<(crate::embree::Ray, bool)>>,
 }
 
@@ -36,7 +38,7 @@ pub fn render_frame_independent(
 ) -> FrameResult {
     let (w, h) = (cam.width, cam.height);
     let tiles = tiles(w, h);
-    let results: Vec<(Vec<Vec3>, Tally)> = tiles
+    let results: Vec<(Vec<Vec3>, Tally, u64)> = tiles
         .par_iter()
         .map(|&(x0, y0, x1, y1)| {
             let mut t = if log_rays {
@@ -45,6 +47,7 @@ pub fn render_frame_independent(
                 Tally::default()
             };
             let mut px = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
+            let mut bad = 0u64;
             for y in y0..y1 {
                 for x in x0..x1 {
                     let pixel = y * w + x;
@@ -52,26 +55,35 @@ pub fn render_frame_independent(
                     for s in 0..spp {
                         let mut sampler = Sampler::new(seed, frame, pixel, s);
                         let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
-                        sum += integrator.sample_pixel(cam, r, &mut sampler, &mut t);
+                        let v = integrator.sample_pixel(cam, r, &mut sampler, &mut t);
+                        // A NaN or infinite sample is dropped and counted, never written.
+                        if v.is_finite() {
+                            sum += v;
+                        } else {
+                            bad += 1;
+                        }
                     }
                     px.push(sum / spp as f32);
                 }
             }
             on_tile(&t.counts);
-            (px, t)
+            (px, t, bad)
         })
         .collect();
     let mut pixels = vec![Vec3::ZERO; (w * h) as usize];
     let mut counts = RayCounts::default();
     let mut ray_logs = Vec::new();
-    for (&tile, (px, t)) in tiles.iter().zip(results) {
+    let mut nonfinite_samples = 0;
+    for (&tile, (px, t, bad)) in tiles.iter().zip(results) {
         place_tile(&mut pixels, w, tile, &px);
         counts.add(&t.counts);
         ray_logs.extend(t.log);
+        nonfinite_samples += bad;
     }
     FrameResult {
         pixels,
         counts,
+        nonfinite_samples,
         ray_logs,
     }
 }
@@ -122,6 +134,7 @@ pub fn run_independent(
         };
         let f = render_frame_independent(integrator, &cam, frame, spp, seed, false, &on_tile);
         run.counters.counts.add(&f.counts);
+        run.counters.nonfinite_samples += f.nonfinite_samples;
         let d = Developed::from_pixels(
             View::of(frame, &cam),
             &f.pixels,

@@ -115,6 +115,14 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
     let range = key.first_frame..=key.last_frame;
     let pattern = out.unwrap_or(&t0.out);
     let out = check_output(pattern, &range)?;
+    let lock = super::lock_path(pattern, None);
+    let inputs: Vec<PathBuf> = files.iter().map(|f| f.path.clone()).collect();
+    let outputs = range
+        .clone()
+        .map(|f| ("--out", out.path(f)))
+        .chain([("--out", lock.clone())]);
+    super::guard::check_not_inputs(outputs, &inputs)?;
+    let _lock = super::guard::OutputLock::acquire(&lock, pattern)?;
     // Where each frame's shares are: frame -> (file, offset).
     let mut shares: BTreeMap<u32, Vec<(usize, u64)>> = BTreeMap::new();
     for (i, f) in files.iter().enumerate() {

@@ -18,6 +18,7 @@
 //! # anyhow::Ok(())
 //! ```
 pub mod groups;
+pub mod guard;
 pub mod independent;
 pub mod merge;
 pub mod options;
@@ -35,7 +36,7 @@ use crate::integrator::Integrator;
 use crate::reuse::Params;
 use crate::scene::Scene;
 use crate::state::checkpoint::{Checkpointer, Counters};
-use crate::state::key::{scene_and_build_hashes, RunKey};
+use crate::state::key::{output_stem, partial_path, scene_and_build_hashes, Chunk, RunKey};
 use crate::state::Trailer;
 use crate::util::fs::{parent_dir, remove_stale_tmp, write_json};
 use anyhow::{Context, Result};
@@ -43,11 +44,21 @@ use groups::{run_groups, GroupSettings};
 use indicatif::{ProgressBar, ProgressStyle};
 use run::Run;
 use sink::{FileSink, FrameMeta};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
+
+/// The lock file of a render writing `pattern` (or of its chunk), beside its frames.
+pub fn lock_path(pattern: &str, chunk: Option<Chunk>) -> PathBuf {
+    let (dir, stem) = output_stem(pattern);
+    match chunk {
+        Some(c) => dir.join(format!(".{stem}.chunk-{}-of-{}.lock", c.k, c.n)),
+        None => dir.join(format!(".{stem}.lock")),
+    }
+}
 
 /// A rayon pool whose workers set FTZ/DAZ, as Embree asks of every tracing thread.
 pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
+    options::check_threads(threads)?;
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .start_handler(|_| crate::embree::set_flush_denormals())
@@ -154,6 +165,25 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     let startup_rss_bytes = crate::util::mem::rss_bytes();
     let plan = opts.validate(scene)?;
     let out = opts.check_files(&plan)?;
+    // One render per output, and never over its own inputs.
+    let lock = lock_path(&opts.out, opts.chunk);
+    let mut outputs: Vec<(&str, PathBuf)> = match opts.chunk {
+        Some(c) => vec![("--out", partial_path(&opts.out, c))],
+        None => plan
+            .frames
+            .clone()
+            .map(|f| ("--out", out.path(f)))
+            .collect(),
+    };
+    outputs.extend(opts.stats.iter().map(|p| ("--stats", p.clone())));
+    outputs.extend(
+        opts.checkpoint
+            .iter()
+            .map(|d| ("--checkpoint", d.join("state"))),
+    );
+    outputs.push(("--out", lock.clone()));
+    guard::check_not_inputs(outputs, &scene.inputs)?;
+    let _lock = guard::OutputLock::acquire(&lock, &opts.out)?;
     let (ckpt, resumed) = if opts.checkpoint.is_some() || opts.chunk.is_some() {
         let key = run_key(scene, opts, &plan)?;
         let template = Trailer::new(

@@ -128,6 +128,36 @@ pub fn check_resolution((w, h): (u32, u32)) -> Result<()> {
     }
 }
 
+/// The most samples per pixel a run (or, for reuse, a group) takes: 2^20, far beyond any
+/// render that ends, and inside every counter.
+pub const MAX_SPP: u32 = 1 << 20;
+/// The longest interval between checkpoints, in seconds: a year.
+pub const MAX_CHECKPOINT_EVERY: f64 = 365.0 * 24.0 * 3600.0;
+
+/// A sample count (`flag` names it) must be at least 1 and at most `MAX_SPP`.
+pub fn check_spp(flag: &str, spp: u32) -> Result<()> {
+    if spp == 0 {
+        bail!("{flag} 0: at least one sample per pixel is needed");
+    }
+    if spp > MAX_SPP {
+        bail!("{flag} {spp}: at most {MAX_SPP} samples per pixel");
+    }
+    Ok(())
+}
+
+/// Worker threads: 0 (one per core) or at most 8 per core; more only thrash.
+pub fn check_threads(threads: usize) -> Result<()> {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    if threads > 8 * cores {
+        bail!(
+            "--threads {threads}: at most 8 per core ({} on this machine with {cores} cores), \
+             or 0 for one per core",
+            8 * cores
+        );
+    }
+    Ok(())
+}
+
 /// Paths need at least one bounce.
 pub fn check_max_depth(max_depth: u32) -> Result<()> {
     if max_depth == 0 {
@@ -145,9 +175,7 @@ impl RenderOptions {
         check_frames(scene, &range)?;
         let (w, h) = self.resolution.unwrap_or((scene.width, scene.height));
         check_resolution((w, h))?;
-        if self.spp == 0 {
-            bail!("--spp 0: at least one sample per pixel is needed");
-        }
+        check_spp("--spp", self.spp)?;
         let n = range.end() - range.start() + 1;
         if self.window.is_multiple_of(2) {
             bail!(
@@ -179,12 +207,20 @@ impl RenderOptions {
                 self.window
             );
         }
-        if !self.checkpoint_every.is_finite() || self.checkpoint_every < 0.0 {
+        if !(0.0..=MAX_CHECKPOINT_EVERY).contains(&self.checkpoint_every) {
             bail!(
-                "--checkpoint-every {}: seconds must be 0 or more",
+                "--checkpoint-every {:e}: seconds from 0 to {MAX_CHECKPOINT_EVERY} (a year)",
                 self.checkpoint_every
             );
         }
+        if self.spp as u64 * self.window as u64 > MAX_SPP as u64 {
+            bail!(
+                "--spp {} with --window {}: at most {MAX_SPP} samples per pixel per group",
+                self.spp,
+                self.window
+            );
+        }
+        check_threads(self.threads)?;
         check_max_depth(self.max_depth)?;
         let units = *range.start()..=range.end() + 1 - self.window;
         let units = match self.chunk {
@@ -219,6 +255,28 @@ impl RenderOptions {
             check_file_target("--stats", p)?;
         }
         Ok(out)
+    }
+}
+
+impl RenderOptions {
+    /// Flags given that change nothing for this render, in words (the command line warns).
+    pub fn flag_warnings(&self, out: &OutputPattern) -> Vec<String> {
+        let mut w = Vec::new();
+        if self.aov && !self.method.reuses() {
+            w.push("--aov: the independent tracer has no reuse channels; ignored".into());
+        } else if self.aov && !out.is_exr() {
+            w.push(format!(
+                "--aov: {} holds RGB only; the extra channels were not written (use .exr)",
+                self.out
+            ));
+        }
+        if self.exr_float && !out.is_exr() {
+            w.push(format!("--exr-float: {} is not EXR; ignored", self.out));
+        }
+        if !self.packets && !self.method.reuses() {
+            w.push("--visibility: the independent tracer tests no reuse; ignored".into());
+        }
+        w
     }
 }
 

@@ -6,7 +6,8 @@ use super::errors::{
     errors, loglog_fit, time_for, FrameError, FLICKER_FORMULA, RELMSE_FORMULA, RMSE_FORMULA,
 };
 use super::reference::{reference, PASSES};
-use crate::driver::options::{check_max_depth, check_resolution};
+use crate::driver::guard::{check_not_inputs, OutputLock};
+use crate::driver::options::{check_max_depth, check_resolution, check_spp, check_threads};
 use crate::driver::{check_frames, progress_bar, render_frames, thread_pool, RenderOptions};
 use crate::film::Developed;
 use crate::image::Image;
@@ -171,6 +172,10 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     check_resolution((w, h))?;
     check_max_depth(opts.max_depth)?;
     let n_frames = last - first + 1;
+    for &b in opts.budgets.iter().chain(&opts.reuse_budgets) {
+        check_spp("--budgets", b)?;
+    }
+    check_threads(opts.threads)?;
     if opts.budgets.contains(&0) || opts.reuse_budgets.contains(&0) {
         bail!("a budget of 0 samples per pixel: every run needs at least one");
     }
@@ -180,8 +185,14 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     if opts.methods.contains(&Method::Independent) && opts.budgets.is_empty() {
         bail!("--budgets: the independent tracer needs at least one budget");
     }
-    let crop = opts.crop.unwrap_or([w / 2 - h / 4, h / 4, h / 2, h / 2]);
-    if crop[2] == 0 || crop[3] == 0 || crop[0] + crop[2] > w || crop[1] + crop[3] > h {
+    // The default crop: a centred square of half the shorter side.
+    let side = (w.min(h) / 2).max(1);
+    let crop = opts
+        .crop
+        .unwrap_or([(w - side) / 2, (h - side) / 2, side, side]);
+    let inside =
+        |x: u32, cw: u32, limit: u32| cw > 0 && x.checked_add(cw).is_some_and(|e| e <= limit);
+    if !inside(crop[0], crop[2], w) || !inside(crop[1], crop[3], h) {
         bail!(
             "--crop {},{},{},{}: not inside the {w}x{h} frame",
             crop[0],
@@ -193,6 +204,25 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     std::fs::create_dir_all(&opts.out)
         .with_context(|| format!("--out {}: cannot create the folder", opts.out.display()))?;
     check_writable_dir(&opts.out).with_context(|| format!("--out {}", opts.out.display()))?;
+    let lock = opts.out.join(".compare.lock");
+    let written = [
+        "compare.json",
+        "compare.csv",
+        "error_vs_time.png",
+        "error_vs_time.svg",
+        "speedup_vs_nf.png",
+        "speedup_vs_nf.svg",
+        "flicker.png",
+        "flicker.svg",
+        "crops.png",
+        "crops.svg",
+        ".compare.lock",
+    ];
+    check_not_inputs(
+        written.iter().map(|n| ("--out", opts.out.join(n))),
+        &scene.inputs,
+    )?;
+    let _lock = OutputLock::acquire(&lock, &opts.out.display().to_string())?;
     let pool = thread_pool(opts.threads)?;
     let threads = pool.current_num_threads();
     crate::embree::set_flush_denormals();

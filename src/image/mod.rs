@@ -236,6 +236,11 @@ impl OutputPattern {
         check_writable_dir(&dir)
     }
 
+    /// Whether frames are written as EXR (every channel, half or float).
+    pub fn is_exr(&self) -> bool {
+        matches!(FileKind::of(&self.path(0)), Ok(FileKind::Exr))
+    }
+
     /// Whether frames are written as 8-bit sRGB (PNG, JPEG, TIFF, ...) rather than float.
     pub fn is_ldr(&self) -> bool {
         matches!(FileKind::of(&self.path(0)), Ok(FileKind::Ldr))

@@ -18,13 +18,7 @@ use anyhow::{anyhow, Result};
 use glam::Vec3;
 use std::collections::HashMap;
 
-/// Largest Phong exponent. `phong_lobe` draws `cos = u^(1 / (Ns + 1))`: above about 1.6e7 the
-/// exponent rounds that to 1 in f32 for most `u`, so the sampled lobe is no longer the lobe that
-/// `eval` and `pdf` describe; 1e6 keeps a factor 16 from there (a lobe about 0.1 degree wide,
-/// a mirror for any image). Before `eval` clamped its cosine to 1, `Ns` 1e10 and above gave NaN
-/// pixels on the corpus' base floor (1e8 did not): `cos^Ns` of a cosine rounded above 1
-/// overflowed, `1.0000001^Ns` does from `Ns` about 7.5e8.
-pub const MAX_NS: f32 = 1e6;
+pub use crate::bsdf::MAX_NS;
 /// Largest emitted radiance per channel. Pixel values are f32 sums over samples and eyes of
 /// `Ke` times path weights: with `Ke` 1e36 the vase scene's sums overflow to infinity (and NaN).
 /// 1e9 leaves a factor 1e27 of head-room for sample counts and geometric gains.

@@ -80,6 +80,9 @@ pub fn write_json<T: Serialize>(p: &Path, v: &T) -> Result<()> {
 
 /// The folder of a JSON or stats file must exist and be writable before the work starts.
 pub fn check_file_target(flag: &str, p: &Path) -> Result<()> {
+    if p.is_dir() {
+        anyhow::bail!("{flag} {}: that is a folder, not a file", p.display());
+    }
     let dir = parent_dir(p);
     if !dir.is_dir() {
         anyhow::bail!(

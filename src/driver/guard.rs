@@ -1,0 +1,106 @@
+//! What keeps a command from damaging what it should not touch: one command per output (an
+//! exclusive advisory lock, `flock` through `std::fs::File::try_lock`, released by the kernel
+//! when its holder dies, so no stale lock survives a SIGKILL), and inputs that are never outputs.
+use crate::util::fs::parent_dir;
+use anyhow::{bail, Context, Result};
+use std::fs::{File, OpenOptions};
+use std::io::{Read, Seek, Write};
+use std::os::unix::fs::MetadataExt;
+use std::path::{Path, PathBuf};
+
+/// An exclusive lock on a lock file, held until dropped; the file (which holds the holder's pid)
+/// is removed on release.
+pub struct OutputLock {
+    path: PathBuf,
+    file: Option<File>,
+}
+
+impl OutputLock {
+    /// Take the lock `path` for `what` (an output, in messages), or refuse at once, naming the
+    /// process that holds it.
+    pub fn acquire(path: &Path, what: &str) -> Result<OutputLock> {
+        loop {
+            let mut f = OpenOptions::new()
+                .read(true)
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .open(path)
+                .with_context(|| format!("creating the lock file {}", path.display()))?;
+            if f.try_lock().is_err() {
+                let mut pid = String::new();
+                let _ = f.read_to_string(&mut pid);
+                let pid = pid.trim();
+                bail!(
+                    "another reframe{} is writing {what} (its lock is {}): wait for it to \
+                     finish, or stop it",
+                    if pid.is_empty() {
+                        String::new()
+                    } else {
+                        format!(" (pid {pid})")
+                    },
+                    path.display()
+                );
+            }
+            // A holder that finished removes the file after this process opened it: then this
+            // lock is on a file nobody else will find, and it starts again.
+            let same = match (f.metadata(), std::fs::metadata(path)) {
+                (Ok(a), Ok(b)) => a.ino() == b.ino() && a.dev() == b.dev(),
+                _ => false,
+            };
+            if !same {
+                continue;
+            }
+            f.set_len(0)?;
+            f.rewind()?;
+            write!(f, "{}", std::process::id())?;
+            return Ok(OutputLock {
+                path: path.to_path_buf(),
+                file: Some(f),
+            });
+        }
+    }
+}
+
+impl Drop for OutputLock {
+    fn drop(&mut self) {
+        // Removed while still held, so that nobody locks the file being removed unseen.
+        let _ = std::fs::remove_file(&self.path);
+        self.file.take();
+    }
+}
+
+/// `p` as it will resolve once written: its folder canonicalised (symlinks, `..`), its name
+/// kept. `None` if the folder does not exist.
+fn resolved(p: &Path) -> Option<PathBuf> {
+    if let Ok(c) = p.canonicalize() {
+        return Some(c);
+    }
+    let dir = parent_dir(p).canonicalize().ok()?;
+    Some(dir.join(p.file_name()?))
+}
+
+/// Refuse any output (`flag`, the path) that resolves to one of `inputs`.
+pub fn check_not_inputs<'a>(
+    outputs: impl IntoIterator<Item = (&'a str, PathBuf)>,
+    inputs: &[PathBuf],
+) -> Result<()> {
+    let inputs: Vec<(PathBuf, &PathBuf)> = inputs
+        .iter()
+        .filter_map(|p| Some((p.canonicalize().ok()?, p)))
+        .collect();
+    if inputs.is_empty() {
+        return Ok(());
+    }
+    for (flag, out) in outputs {
+        let Some(r) = resolved(&out) else { continue };
+        if let Some((_, input)) = inputs.iter().find(|(c, _)| *c == r) {
+            bail!(
+                "{flag} {}: that is an input of this command ({}); nothing was written",
+                out.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(())
+}
