@@ -384,15 +384,15 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     let key = |r: &Run| (r.method, r.window);
     let mut lines: Vec<(Method, u32)> = runs.iter().map(key).collect();
     lines.dedup();
-    let fit_of = |m: Method, n_f: u32, y: fn(&Run) -> f64| {
+    let fit_of = |m: Method, n_f: u32, y: fn(&Run) -> f64, single: f64| {
         let pts: Vec<(f64, f64)> = runs
             .iter()
             .filter(|r| key(r) == (m, n_f))
             .map(|r| (r.seconds, y(r)))
             .collect();
-        loglog_fit(&pts)
+        loglog_fit(&pts, single)
     };
-    let indep_fit = fit_of(Method::Independent, 1, |r| r.relmse);
+    let indep_fit = fit_of(Method::Independent, 1, |r| r.relmse, -1.0);
     let mut equal_error_speedup: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
     for &(m, n_f) in lines.iter().filter(|l| l.0 != Method::Independent) {
         let own: Vec<f64> = runs
@@ -400,7 +400,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             .filter(|r| key(r) == (m, n_f) && r.relmse > 0.0)
             .map(|r| r.relmse.ln())
             .collect();
-        let (Some(fi), Some(fm)) = (indep_fit, fit_of(m, n_f, |r| r.relmse)) else {
+        let (Some(fi), Some(fm)) = (indep_fit, fit_of(m, n_f, |r| r.relmse, -1.0)) else {
             continue;
         };
         if own.is_empty() {
@@ -482,7 +482,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         .collect();
     let mut equal_time_flicker = BTreeMap::new();
     for &(m, n_f) in &widest {
-        if let Some((a, b)) = fit_of(m, n_f, |r| r.flicker) {
+        if let Some((a, b)) = fit_of(m, n_f, |r| r.flicker, -0.5) {
             equal_time_flicker.insert(m.name().to_string(), (a + b * equal_time.ln()).exp());
         }
     }

@@ -12,7 +12,8 @@
 //! `flicker_t` over consecutive pairs.
 //!
 //! **Equal-error speed-up**: `log relmse = a + b log t` is fitted by least squares to each
-//! method's runs (`loglog_fit`; a single run assumes `b = -1`, the Monte Carlo rate). At a common
+//! method's runs (`loglog_fit`; a single run assumes `b = -1`, the Monte Carlo rate of a mean
+//! squared error, and `b = -0.5` for flicker, an RMS figure). At a common
 //! error, the time the independent line needs over the time the method's line needs is the
 //! speed-up (`time_for`).
 use super::reference::Reference;
@@ -86,8 +87,9 @@ pub fn errors(frames: &[Vec<Vec3>], r: &Reference) -> (Vec<FrameError>, f64, f64
 }
 
 /// Least-squares line through `(ln x, ln y)`: `(a, b)` with `ln y = a + b ln x`. A single point
-/// gets the Monte Carlo slope `b = -1`. `None` without a usable point.
-pub fn loglog_fit(points: &[(f64, f64)]) -> Option<(f64, f64)> {
+/// (or points at one x) gets the Monte Carlo slope `single`: -1 for a mean squared error, -0.5
+/// for an RMS figure such as flicker. `None` without a usable point.
+pub fn loglog_fit(points: &[(f64, f64)], single: f64) -> Option<(f64, f64)> {
     let p: Vec<(f64, f64)> = points
         .iter()
         .filter(|(x, y)| *x > 0.0 && *y > 0.0 && x.is_finite() && y.is_finite())
@@ -95,7 +97,7 @@ pub fn loglog_fit(points: &[(f64, f64)]) -> Option<(f64, f64)> {
         .collect();
     match p.len() {
         0 => None,
-        1 => Some((p[0].1 + p[0].0, -1.0)),
+        1 => Some((p[0].1 - single * p[0].0, single)),
         n => {
             let n = n as f64;
             let (mx, my) = (
@@ -105,7 +107,7 @@ pub fn loglog_fit(points: &[(f64, f64)]) -> Option<(f64, f64)> {
             let sxx: f64 = p.iter().map(|q| (q.0 - mx).powi(2)).sum();
             let sxy: f64 = p.iter().map(|q| (q.0 - mx) * (q.1 - my)).sum();
             if sxx < 1e-12 {
-                return Some((my + mx, -1.0));
+                return Some((my - single * mx, single));
             }
             let b = sxy / sxx;
             Some((my - b * mx, b))
@@ -127,16 +129,19 @@ mod tests {
     #[test]
     fn loglog_fit_recovers_a_power_law() {
         let pts: Vec<(f64, f64)> = [1.0, 2.0, 4.0, 8.0].iter().map(|&t| (t, 0.3 / t)).collect();
-        let (a, b) = loglog_fit(&pts).unwrap();
+        let (a, b) = loglog_fit(&pts, -1.0).unwrap();
         assert!((b + 1.0).abs() < 1e-12 && (a - 0.3f64.ln()).abs() < 1e-12);
         assert!((time_for((a, b), 0.03).unwrap() - 10.0).abs() < 1e-9);
         // One point: the Monte Carlo slope through it.
-        let (a1, b1) = loglog_fit(&[(2.0, 0.5)]).unwrap();
+        let (a1, b1) = loglog_fit(&[(2.0, 0.5)], -1.0).unwrap();
         assert_eq!(b1, -1.0);
         assert!((time_for((a1, b1), 0.25).unwrap() - 4.0).abs() < 1e-9);
         // An error that does not fall with time has no time for a lower error.
         assert!(time_for((0.0, 0.0), 0.1).is_none());
-        assert!(loglog_fit(&[(1.0, 0.0)]).is_none());
+        assert!(loglog_fit(&[(1.0, 0.0)], -1.0).is_none());
+        // An RMS figure falls with the root of the time: 0.2 at 4 s is 0.1 at 16 s.
+        let (a2, b2) = loglog_fit(&[(4.0, 0.2)], -0.5).unwrap();
+        assert!(((a2 + b2 * 16f64.ln()).exp() - 0.1).abs() < 1e-12);
     }
 
     fn reference_of(mean: Vec<Vec<Vec3>>, var: f32) -> Reference {
