@@ -13,13 +13,14 @@
 //! - strict loading refuses each repair, the default loads with one warning per kind;
 //! - proptest: random byte flips, truncations and insertions in the shipped scenes' files,
 //!   loaded through `Scene::load`, never panic nor hang.
+mod common;
+
 use proptest::prelude::*;
 use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
 use reframe::embree::Device;
 use reframe::scene::{LoadOptions, Scene, MAX_KE, MAX_NS};
-use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
@@ -44,31 +45,9 @@ fn mkfifo(p: &Path) {
 /// Run `reframe` with `args`; (exit code, stderr, seconds). Killed after 20 s.
 fn reframe(args: &[&str]) -> (Option<i32>, String, f64) {
     let start = Instant::now();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_reframe"))
-        .args(args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start reframe");
-    let mut pipe = child.stderr.take().unwrap();
-    let reader = std::thread::spawn(move || {
-        let mut s = String::new();
-        let _ = pipe.read_to_string(&mut s);
-        s
-    });
-    let status = loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            break s;
-        }
-        if start.elapsed() > Duration::from_secs(20) {
-            let _ = child.kill();
-            break child.wait().unwrap();
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    };
-    let secs = start.elapsed().as_secs_f64();
-    (status.code(), reader.join().unwrap(), secs)
+    let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+    let o = common::run_reframe(&args, Duration::from_secs(20));
+    (o.code, o.stderr, start.elapsed().as_secs_f64())
 }
 
 #[test]

@@ -63,6 +63,15 @@ fn reuse_render(
     render_in_memory(integ, &opts).0
 }
 
+/// A scene written into `d` as `NAME.obj`, `NAME.mtl`, `NAME.toml` (in that order in `files`),
+/// and loaded.
+fn scene_in(d: &std::path::Path, name: &str, files: [&str; 3], device: &Device) -> Scene {
+    for (ext, text) in ["obj", "mtl", "toml"].iter().zip(files) {
+        std::fs::write(d.join(format!("{name}.{ext}")), text).unwrap();
+    }
+    Scene::load(d.join(format!("{name}.toml")).to_str().unwrap(), device).unwrap()
+}
+
 #[test]
 fn window_one_is_the_independent_tracer() {
     let device = Device::new().unwrap();
@@ -282,27 +291,21 @@ fn reuse_methods_agree_on_diffuse_scene_without_occlusion() {
     let device = Device::new().unwrap();
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    std::fs::write(
-        d.join("box.obj"),
+    let scene = scene_in(
+        d,
+        "box",
+        [
         "mtllib box.mtl\nv -1 0 -1\nv 1 0 -1\nv 1 2 -1\nv -1 2 -1\nv -1 0 1\nv 1 0 1\nv 1 2 1\nv -1 2 1\n\
          v -0.3 1.99 -0.3\nv 0.3 1.99 -0.3\nv 0.3 1.99 0.3\nv -0.3 1.99 0.3\n\
          usemtl white\nf 1 2 6 5\nf 4 8 7 3\nf 1 4 3 2\nusemtl red\nf 1 5 8 4\nusemtl green\nf 2 3 7 6\n\
          usemtl light\nf 9 10 11 12\n",
-    )
-    .unwrap();
-    std::fs::write(
-        d.join("box.mtl"),
         "newmtl white\nKd 0.7 0.7 0.7\nnewmtl red\nKd 0.6 0.1 0.1\nnewmtl green\nKd 0.1 0.5 0.1\nnewmtl light\nKd 0 0 0\nKe 10 10 10\n",
-    )
-    .unwrap();
-    std::fs::write(
-        d.join("box.toml"),
         "obj = \"box.obj\"\nframes = 9\nresolution = [32, 32]\n\
          [[keyframe]]\nframe = 0\nposition = [-0.15, 1.0, 3.0]\nlook_at = [0.0, 1.0, 0.0]\nup = [0.0, 1.0, 0.0]\nfov = 40.0\n\
          [[keyframe]]\nframe = 8\nposition = [0.15, 1.0, 3.0]\nlook_at = [0.0, 1.0, 0.0]\nup = [0.0, 1.0, 0.0]\nfov = 40.0\n",
-    )
-    .unwrap();
-    let scene = Scene::load(d.join("box.toml").to_str().unwrap(), &device).unwrap();
+        ],
+        &device,
+    );
     let integ = Integrator::new(&scene, 8);
     let pool = thread_pool(0).unwrap();
     let k = 32;
@@ -531,8 +534,10 @@ fn control_variate_is_unbiased_where_pixels_see_the_background() {
     let device = Device::new().unwrap();
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    std::fs::write(
-        d.join("open.obj"),
+    let scene = scene_in(
+        d,
+        "open",
+        [
         "mtllib open.mtl\n\
          v -3 0 -4\nv 3 0 -4\nv 3 0 2\nv -3 0 2\n\
          v -3 0 -3\nv 3 0 -3\nv 3 1.2 -3\nv -3 1.2 -3\n\
@@ -540,23 +545,15 @@ fn control_variate_is_unbiased_where_pixels_see_the_background() {
          v -0.4 2.5 -1.4\nv 0.4 2.5 -1.4\nv 0.4 2.5 -0.6\nv -0.4 2.5 -0.6\n\
          usemtl floor\nf 1 4 3 2\nusemtl wall\nf 5 6 7 8\nusemtl box\nf 9 10 11 12\n\
          usemtl light\nf 13 14 15 16\n",
-    )
-    .unwrap();
-    std::fs::write(
-        d.join("open.mtl"),
         "newmtl floor\nKd 0.6 0.6 0.6\nnewmtl wall\nKd 0.7 0.5 0.3\n\
          newmtl box\nKd 0.2 0.3 0.6\nKs 0.3 0.3 0.3\nNs 40\n\
          newmtl light\nKd 0 0 0\nKe 12 12 12\n",
-    )
-    .unwrap();
-    std::fs::write(
-        d.join("open.toml"),
         "obj = \"open.obj\"\nframes = 9\nresolution = [48, 36]\n\
          [[keyframe]]\nframe = 0\nposition = [-0.6, 1.0, 2.5]\nlook_at = [-0.3, 0.9, -2.0]\nup = [0.0, 1.0, 0.0]\nfov = 50.0\n\
          [[keyframe]]\nframe = 8\nposition = [0.6, 1.1, 2.2]\nlook_at = [0.3, 0.9, -2.0]\nup = [0.0, 1.0, 0.0]\nfov = 44.0\n",
-    )
-    .unwrap();
-    let scene = Scene::load(d.join("open.toml").to_str().unwrap(), &device).unwrap();
+        ],
+        &device,
+    );
     let integ = Integrator::new(&scene, 8);
     let pool = thread_pool(0).unwrap();
     let (w, h, b, target) = (48usize, 36usize, 4, 4);
