@@ -507,7 +507,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         y_label: "relMSE".into(),
         log_x: true,
         log_y: true,
-        // Every method at its widest window, solid; mis-exact's narrower windows dashed.
+        // Every method at its widest window, solid; the unbiased methods' narrower windows dashed.
         series: lines
             .iter()
             .filter(|l| l.0 == Method::Independent || l.1 == max_window)
@@ -515,7 +515,9 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             .chain(
                 lines
                     .iter()
-                    .filter(|l| l.0 == Method::MisExact && l.1 != max_window)
+                    .filter(|l| {
+                        matches!(l.0, Method::MisExact | Method::MisCv) && l.1 != max_window
+                    })
                     .map(|&l| (l, true)),
             )
             .map(|((m, n_f), dashed)| Series {
