@@ -431,9 +431,9 @@ pub fn develop(a: &FrameAccum) -> Developed {
     let n = a.view.pixels();
     let totals = a.sum.totals();
     let weights = a.weights.as_ref().map(FixedSums::totals);
-    let landed: Option<Vec<u32>> = a.landed_counts().map(|c| c.collect());
-    let loss: Option<(Vec<u32>, Vec<u32>)> =
-        a.loss_counts().map(|(t, l)| (t.collect(), l.collect()));
+    // The per-pixel counts, read in place.
+    let landed = a.landed.as_deref();
+    let loss = a.loss.as_ref();
     let aov = loss.is_some();
     let mut channels = vec!["R", "G", "B"];
     if aov {
@@ -443,7 +443,7 @@ pub fn develop(a: &FrameAccum) -> Developed {
     let mut data = Vec::with_capacity(n * nc);
     let unit = a.layout.unit;
     for i in 0..n {
-        let count = landed.as_ref().map_or(0, |l| l[i]);
+        let count = landed.map_or(0, |l| l[i].load(Relaxed));
         match (a.layout.norm, &weights) {
             (Norm::ControlVariate, Some(w)) => {
                 let sum = |f: usize, c: usize| totals[6 * i + 3 * f + c] as f64 / FIXED;
@@ -465,9 +465,9 @@ pub fn develop(a: &FrameAccum) -> Developed {
                 }
             }
         }
-        if let Some((tried, lost)) = &loss {
+        if let Some((tried, lost)) = loss {
             data.push(count as f32);
-            let (t, l) = (tried[i], lost[i]);
+            let (t, l) = (tried[i].load(Relaxed), lost[i].load(Relaxed));
             data.push(if t > 0 { l as f32 / t as f32 } else { 0.0 });
         }
     }

@@ -12,13 +12,14 @@
 //! down in that channel, so the Phong model conserves energy), `Ns` above `MAX_NS`, `Ke` above
 //! `MAX_KE`.
 use super::repairs::{Kind, Repairs};
-use super::text::{lines, quote, rest, NOT_UTF8};
+use super::text::{lines, quote, rest};
 use crate::bsdf::Material;
+/// Largest Phong exponent: the BSDF's own bound (`bsdf::MAX_NS`).
+pub use crate::bsdf::MAX_NS;
 use anyhow::{anyhow, Result};
 use glam::Vec3;
 use std::collections::HashMap;
 
-pub use crate::bsdf::MAX_NS;
 /// Largest emitted radiance per channel. Pixel values are f32 sums over samples and eyes of
 /// `Ke` times path weights: with `Ke` 1e36 the vase scene's sums overflow to infinity (and NaN).
 /// 1e9 leaves a factor 1e27 of head-room for sample counts and geometric gains.
@@ -61,15 +62,9 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
     for line in lines(bytes).map_err(|e| anyhow!("{label}: {e}"))? {
         let (n, text) = (line.n, line.text.as_ref());
         let err = |msg: String| anyhow!("{label}: line {n}: '{}': {msg}", quote(text));
-        let mut words = text.split_whitespace();
-        let Some(key) = words.next() else { continue };
-        if key.starts_with('#') {
+        let Some((key, args)) = line.statement(label, repairs)? else {
             continue;
-        }
-        if line.latin1 {
-            repairs.note(label, n, NOT_UTF8, || format!("'{}'", quote(text)))?;
-        }
-        let args: Vec<&str> = words.collect();
+        };
         if key == "newmtl" {
             let name = rest(text);
             if name.is_empty() {

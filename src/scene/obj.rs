@@ -14,7 +14,7 @@
 //! past the elements defined above it, a face of more than `MAX_CORNERS` corners, and a
 //! `usemtl` or `mtllib` without a name.
 use super::repairs::{Kind, Repairs};
-use super::text::{latin1_bytes, lines, numbers, quote, rest, Line, MAX_COORD, NOT_UTF8};
+use super::text::{latin1_bytes, lines, numbers, quote, rest, Line, MAX_COORD};
 use anyhow::{anyhow, Result};
 use glam::Vec3;
 
@@ -80,15 +80,9 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
     for line in joined(lines(bytes).map_err(|e| anyhow!("{label}: {e}"))?) {
         let (n, text) = (line.n, line.text.as_ref());
         let err = |msg: String| anyhow!("{label}: line {n}: '{}': {msg}", quote(text));
-        let mut words = text.split_whitespace();
-        let Some(key) = words.next() else { continue };
-        if key.starts_with('#') {
+        let Some((key, args)) = line.statement(label, repairs)? else {
             continue;
-        }
-        if line.latin1 {
-            repairs.note(label, n, NOT_UTF8, || format!("'{}'", quote(text)))?;
-        }
-        let args: Vec<&str> = words.collect();
+        };
         match key {
             "v" => {
                 let shape = "expected 'v x y z', 'v x y z w' or 'v x y z r g b'";

@@ -2,7 +2,7 @@
 //! format requires it), and the lenient reading of OBJ and MTL lines, whose exporters write
 //! whatever their platform's encoding was (a Latin-1 byte in a comment or a material name).
 //! Control characters other than whitespace mean a binary file, in either.
-use super::repairs::Kind;
+use super::repairs::{Kind, Repairs};
 use anyhow::{anyhow, bail, Result};
 use std::borrow::Cow;
 
@@ -66,6 +66,30 @@ pub fn lines(bytes: &[u8]) -> Result<impl Iterator<Item = Line<'_>>> {
             latin1,
         }
     }))
+}
+
+impl Line<'_> {
+    /// The line as a statement of the file `label`: its keyword and its words (any whitespace
+    /// between them); `None` for a blank line or a comment. A line read as Latin-1 is noted as a
+    /// repair (a refusal under strict loading).
+    pub fn statement(
+        &self,
+        label: &str,
+        repairs: &mut Repairs,
+    ) -> Result<Option<(&str, Vec<&str>)>> {
+        let text = self.text.as_ref();
+        let mut words = text.split_whitespace();
+        let Some(key) = words.next() else {
+            return Ok(None);
+        };
+        if key.starts_with('#') {
+            return Ok(None);
+        }
+        if self.latin1 {
+            repairs.note(label, self.n, NOT_UTF8, || format!("'{}'", quote(text)))?;
+        }
+        Ok(Some((key, words.collect())))
+    }
 }
 
 /// The bytes of a line read as Latin-1 (for file names, which are bytes on Unix).
