@@ -106,11 +106,12 @@ pub fn run_groups(
             .map(|(cam, film)| Target { cam, film })
             .collect();
         debug_assert_eq!(group.len(), n_f as usize);
-        let work: Vec<(usize, usize)> = (0..group.len())
-            .flat_map(|m| (0..tile_list.len()).map(move |t| (m, t)))
-            .collect();
         let (native_counts, pilot_rays) = match s.adaptive {
             Some(target) => {
+                // Pilot rays per (frame of the group, tile).
+                let work: Vec<(usize, usize)> = (0..group.len())
+                    .flat_map(|m| (0..tile_list.len()).map(move |t| (m, t)))
+                    .collect();
                 let (c, r) =
                     adaptive_counts(integrator, &group, s.params.spp, target, &work, &tile_list);
                 (Some(c), r)
@@ -118,16 +119,15 @@ pub fn run_groups(
             None => (None, RayCounts::default()),
         };
         run.counters.counts.add(&pilot_rays);
-        let group_counts: RayCounts = work
+        let group_counts: RayCounts = tile_list
             .par_iter()
-            .map(|&(m, t)| {
+            .map(|&tile| {
                 let mut tally = Tally::default();
                 let bad = shade_tile(
                     integrator,
                     &s.params,
                     &group,
-                    m,
-                    tile_list[t],
+                    tile,
                     g0,
                     native_counts.as_deref(),
                     &mut tally,

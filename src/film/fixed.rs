@@ -15,6 +15,16 @@ use std::sync::Mutex;
 /// Fixed-point scale of the accumulators: 2^20 steps per unit of (pre-scaled) radiance.
 pub const FIXED: f64 = (1u64 << 20) as f64;
 
+/// `floor(v 2^20 + u)`, saturating at the ends of i64 (as `f64::floor` followed by `as i64`,
+/// to the bit): stochastic rounding of `v` with the dither `u` in [0, 1). Written out because
+/// `f64::floor` is a call into libm on x86-64 without SSE4.1, and every splat rounds.
+#[inline]
+pub fn quantize(v: f32, u: f64) -> i64 {
+    let x = v as f64 * FIXED + u;
+    let t = x as i64; // rounds towards zero, saturates, NaN to 0
+    t.saturating_sub(((t as f64) > x) as i64)
+}
+
 pub struct FixedSums {
     cells: Vec<AtomicI32>,
     carry: Mutex<HashMap<usize, i64>>,
@@ -48,7 +58,7 @@ impl FixedSums {
     /// Quantise `v` (in steps of 1/FIXED) with the dither `u` in [0, 1) and add it to cell `i`.
     #[inline]
     pub fn add_value(&self, i: usize, v: f32, u: f64) {
-        self.add(i, (v as f64 * FIXED + u).floor() as i64);
+        self.add(i, quantize(v, u));
     }
 
     /// Add the already quantised `q` (any size) to cell `i`.
@@ -128,6 +138,40 @@ mod tests {
         let c = FixedSums::from_parts(vec![i32::MAX], &[(0, -(1 << 32))]);
         c.absorb(&a);
         assert_eq!(c.totals()[0], exact + i32::MAX as i64 - (1 << 32));
+    }
+
+    #[test]
+    fn quantize_is_floor() {
+        // Against `f64::floor` on values around every power of two in range, their neighbours,
+        // both signs, and the ends: NaN, infinities, values past i64.
+        let mut cases = vec![
+            0.0f32,
+            -0.0,
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MAX,
+            f32::MIN,
+        ];
+        for e in -40..64 {
+            let x = (2.0f32).powi(e) / FIXED as f32;
+            for v in [
+                x,
+                -x,
+                x * 1.5,
+                -x * 1.5,
+                f32::from_bits(x.to_bits() + 1),
+                -f32::from_bits(x.to_bits() - 1),
+            ] {
+                cases.push(v);
+            }
+        }
+        for v in cases {
+            for u in [0.0, 0.25, 0.5, 0.999_999_9, 1.0 - f64::EPSILON] {
+                let want = (v as f64 * FIXED + u).floor() as i64;
+                assert_eq!(quantize(v, u), want, "v {v:e} u {u}");
+            }
+        }
     }
 
     #[test]

@@ -12,6 +12,7 @@
 //! - `Developed` and `Sink`: a finished frame and where it goes (the driver writes files; the
 //!   comparisons and tests keep frames in memory).
 pub mod fixed;
+pub mod local;
 pub mod tiles;
 
 use crate::camera::Camera;
@@ -229,17 +230,39 @@ impl FrameAccum {
     /// stochastically with the bits of `dither`; false (and nothing added) if `v` is not finite.
     #[inline]
     pub fn splat(&self, i: usize, fold: usize, v: Vec3, dither: u64) -> bool {
-        if !v.is_finite() {
+        let Some(q) = self.quantize_rgb(v, dither) else {
             return false;
-        }
-        let v = v / self.layout.unit;
-        let base = 3 * (self.layout.norm.folds() * i + fold);
-        for c in 0..3 {
-            // 21 bits of the hash per channel: u in [0, 1).
-            let u = ((dither >> (21 * c)) & 0x1f_ffff) as f64 / (1u64 << 21) as f64;
-            self.sum.add_value(base + c, v[c], u);
+        };
+        let base = self.rgb_cell(i, fold);
+        for (c, q) in q.into_iter().enumerate() {
+            self.sum.add(base + c, q);
         }
         true
+    }
+
+    /// The first of the three RGB cells of pixel `i`, fold `fold`.
+    #[inline]
+    fn rgb_cell(&self, i: usize, fold: usize) -> usize {
+        3 * (self.layout.norm.folds() * i + fold)
+    }
+
+    /// `v` in units of the layout, quantised per channel with 21 bits of `dither` each; `None`
+    /// if `v` is not finite.
+    #[inline]
+    fn quantize_rgb(&self, v: Vec3, dither: u64) -> Option<[i64; 3]> {
+        if !v.is_finite() {
+            return None;
+        }
+        let v = v / self.layout.unit;
+        // 21 bits of the hash per channel: u in [0, 1).
+        let u = |c: usize| ((dither >> (21 * c)) & 0x1f_ffff) as f64 / (1u64 << 21) as f64;
+        Some([0, 1, 2].map(|c| fixed::quantize(v[c], u(c))))
+    }
+
+    /// A control-variate weight quantised with the top 53 bits of `dither`.
+    #[inline]
+    fn quantize_weight(w: f32, dither: u64) -> i64 {
+        fixed::quantize(w, (dither >> 11) as f64 / (1u64 << 53) as f64)
     }
 
     /// Add the weight `w` to the control variate's sum of pixel `i`, fold `fold` (nothing where
@@ -247,8 +270,7 @@ impl FrameAccum {
     #[inline]
     pub fn splat_weight(&self, i: usize, fold: usize, w: f32, dither: u64) {
         if let Some(ws) = &self.weights {
-            let u = (dither >> 11) as f64 / (1u64 << 53) as f64;
-            ws.add_value(2 * i + fold, w, u);
+            ws.add(2 * i + fold, Self::quantize_weight(w, dither));
         }
     }
 

@@ -2,14 +2,20 @@
 //! each hit lands in every eye of the group, and splat its weighted value into each of those
 //! frames' films.
 //!
-//! Streaming and determinism: contributions are splatted as they are made into per-frame
-//! fixed-point accumulators (`film::FrameAccum`) with a hashed rounding dither: integer addition
-//! is associative, so the frames are bitwise identical for any thread count.
+//! The unit of work is one tile of every frame of the group: the samples that the group's eyes
+//! reuse into a frame around that tile are summed in a window private to the worker
+//! (`film::local::LocalFilm`) and added into the frame once, at the end, instead of with atomic
+//! adds splat by splat.
+//!
+//! Streaming and determinism: contributions are quantised as they are made into fixed-point
+//! sums with a hashed rounding dither: integer addition is associative, so the frames are
+//! bitwise identical for any thread count and any window.
 use super::visibility::{visibility, Landing, NativeHit};
 use super::weights::{EyeTerms, Weighing};
 use super::Params;
 use crate::camera::Camera;
 use crate::embree::Ray;
+use crate::film::local::LocalFilm;
 use crate::film::tiles::Tile;
 use crate::film::FrameAccum;
 use crate::integrator::{Integrator, Tally};
@@ -23,12 +29,57 @@ pub struct Target<'a> {
     pub film: &'a FrameAccum,
 }
 
-/// Trace the native samples of tile `tile` of frame `group[m]` (the group starts at frame `g0`)
-/// and splat every reuse of them into the group's films. `counts`: per frame of the group, the
-/// adaptive native count of each pixel (`None`: `n_r` everywhere). Returns the number of
+/// Trace the native samples of tile `tile` of every frame of a group (the group starts at frame
+/// `g0`) and splat every reuse of them into the group's films. `counts`: per frame of the group,
+/// the adaptive native count of each pixel (`None`: `n_r` everywhere). Returns the number of
 /// non-finite contributions dropped.
-#[allow(clippy::too_many_arguments)]
 pub fn shade_tile(
+    integrator: &Integrator,
+    p: &Params,
+    group: &[Target],
+    tile: Tile,
+    g0: u32,
+    counts: Option<&[Vec<u16>]>,
+    tally: &mut Tally,
+) -> u64 {
+    let mut films: Vec<LocalFilm> = group.iter().map(|t| LocalFilm::new(t.film, tile)).collect();
+    let mut scratch = Scratch::default();
+    let mut bad = 0;
+    for m in 0..group.len() {
+        bad += shade_eye(
+            integrator,
+            p,
+            group,
+            m,
+            tile,
+            g0,
+            counts,
+            &mut films,
+            &mut scratch,
+            tally,
+        );
+    }
+    for f in films {
+        f.flush();
+    }
+    bad
+}
+
+/// What `shade_eye` needs room for, kept from one eye to the next.
+#[derive(Default)]
+struct Scratch {
+    hits: Vec<NativeHit>,
+    /// Camera samples that left the scene: (pixel, sample index, direction); kept for the
+    /// control variate only, whose weights must cover every direction a pixel sees.
+    escapes: Vec<(u32, u32, Vec3)>,
+    land: Vec<Landing>,
+    eyes: Vec<EyeTerms>,
+}
+
+/// The native samples of tile `(x0, y0, x1, y1)` of frame `group[m]`, splatted into `films`
+/// (the worker's windows of the group's films, in the group's order).
+#[allow(clippy::too_many_arguments)]
+fn shade_eye(
     integrator: &Integrator,
     p: &Params,
     group: &[Target],
@@ -36,6 +87,8 @@ pub fn shade_tile(
     (x0, y0, x1, y1): Tile,
     g0: u32,
     counts: Option<&[Vec<u16>]>,
+    films: &mut [LocalFilm],
+    scratch: &mut Scratch,
     tally: &mut Tally,
 ) -> u64 {
     let native = group[m];
@@ -61,15 +114,19 @@ pub fn shade_tile(
     };
     let cv = film.weight_sums().is_some();
     let mut landed_native = 0u64;
-    let mut hits: Vec<NativeHit> = Vec::new();
-    // Camera samples that left the scene: (pixel, sample index, direction); kept for the control
-    // variate only, whose weights must cover every direction a pixel sees.
-    let mut escapes: Vec<(u32, u32, Vec3)> = Vec::new();
+    let Scratch {
+        hits,
+        escapes,
+        land,
+        eyes,
+    } = scratch;
+    hits.clear();
+    escapes.clear();
     for y in y0..y1 {
         for x in x0..x1 {
             let pixel = y * w + x;
             let n_p = n_at(m, pixel);
-            native.film.land(pixel as usize, n_p);
+            films[m].land(pixel as usize, n_p);
             landed_native += n_p as u64;
             for s in 0..n_p {
                 // Sample index: the frame's position in the group keeps each group's samples of a
@@ -87,7 +144,8 @@ pub fn shade_tile(
         }
     }
     // Where each hit lands in each eye of the group (None: occluded or off the film).
-    let mut land: Vec<Landing> = vec![None; hits.len() * n_f];
+    land.clear();
+    land.resize(hits.len() * n_f, None);
     for (k, t) in group.iter().enumerate() {
         if k == m {
             for (hi, (pixel, _, _)) in hits.iter().enumerate() {
@@ -95,9 +153,7 @@ pub fn shade_tile(
             }
             continue;
         }
-        visibility(
-            integrator, t.cam, &hits, k, n_f, p.packets, &mut land, tally,
-        );
+        visibility(integrator, t.cam, hits, k, n_f, p.packets, land, tally);
     }
     let weights = p.method.weights();
     let mut bad = 0u64;
@@ -105,7 +161,6 @@ pub fn shade_tile(
     let mut loss = vec![(0u64, 0u64); n_f];
     let mut landed = vec![0u64; n_f];
     landed[m] = landed_native;
-    let mut eyes: Vec<EyeTerms> = Vec::with_capacity(n_f);
     for (hi, (pixel, index, fh)) in hits.iter().enumerate() {
         let x = fh.sp.p;
         eyes.clear();
@@ -120,7 +175,7 @@ pub fn shade_tile(
             };
             eyes.push(EyeTerms { wo, j_over_a, n });
         }
-        let weighing = Weighing::new(weights, integrator, fh, &eyes, spp);
+        let weighing = Weighing::new(weights, integrator, fh, eyes, spp);
         for (k, t) in group.iter().enumerate() {
             let Some(i) = land[hi * n_f + k] else {
                 if k != m {
@@ -129,7 +184,7 @@ pub fn shade_tile(
                     // Only reuses lost to occlusion fall on a pixel of the target.
                     if t.film.layout.loss {
                         if let Some(i) = t.cam.pixel_of(x) {
-                            t.film.try_reuse(i as usize, true);
+                            films[k].try_reuse(i as usize, true);
                         }
                     }
                 }
@@ -139,28 +194,27 @@ pub fn shade_tile(
             if k != m {
                 loss[k].0 += 1;
                 landed[k] += 1;
-                t.film.land(i, 1);
-                t.film.try_reuse(i, false);
+                films[k].land(i, 1);
+                films[k].try_reuse(i, false);
             }
             let v = weighing.value(t.cam.eye, &eyes[k]);
             let dither = dither(p.seed, native_frame, *pixel, *index, t.film.frame());
-            if !t.film.splat(i, fold, v, dither) {
+            if !films[k].splat(i, fold, v, dither) {
                 bad += 1;
             }
             if cv {
                 // The sample's weight in eye k, `(J_k / A_pix,k) / sum_k' D_k'`.
                 let d = weighing.denominators().emit;
                 if d > 0.0 {
-                    t.film
-                        .splat_weight(i, fold, eyes[k].j_over_a / d, mix64(dither));
+                    films[k].splat_weight(i, fold, eyes[k].j_over_a / d, mix64(dither));
                 }
             }
         }
     }
-    for ((t, (tried, lost)), n) in group.iter().zip(loss).zip(landed) {
-        t.film.add_counts(n, tried, lost);
+    for ((f, (tried, lost)), n) in films.iter_mut().zip(loss).zip(landed) {
+        f.add_counts(n, tried, lost);
     }
-    for &(pixel, index, dir) in &escapes {
+    for &(pixel, index, dir) in escapes.iter() {
         splat_escape(
             integrator,
             p,
@@ -169,6 +223,7 @@ pub fn shade_tile(
             fold,
             (pixel, index, dir),
             &n_at,
+            films,
             tally,
         );
     }
@@ -198,6 +253,7 @@ fn splat_escape(
     fold: usize,
     (pixel, index, dir): (u32, u32, Vec3),
     n_at: &dyn Fn(usize, u32) -> u32,
+    films: &mut [LocalFilm],
     tally: &mut Tally,
 ) {
     let geometry = &integrator.scene.geometry;
@@ -228,10 +284,10 @@ fn splat_escape(
         return;
     }
     let native_frame = group[m].film.frame();
-    for (t, s) in group.iter().zip(&seen) {
+    for (f, s) in films.iter_mut().zip(&seen) {
         if let Some((i, j)) = *s {
-            let d = dither(p.seed, native_frame, pixel, index, t.film.frame());
-            t.film.splat_weight(i as usize, fold, j / total, mix64(d));
+            let d = dither(p.seed, native_frame, pixel, index, f.film().frame());
+            f.splat_weight(i as usize, fold, j / total, mix64(d));
         }
     }
 }
