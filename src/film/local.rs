@@ -209,3 +209,84 @@ impl<'a> LocalFilm<'a> {
         film.add_counts(landed, tried, lost);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::film::{develop, Layout, Norm, View};
+    use crate::sampling::mix64;
+
+    fn film(norm: Norm, aov: bool) -> FrameAccum {
+        let view = View {
+            frame: 3,
+            width: 40,
+            height: 30,
+            world_to_camera: [0.0; 16],
+            world_to_ndc: [0.0; 16],
+        };
+        let layout = Layout {
+            unit: 1.0,
+            norm,
+            landed: aov || norm == Norm::Count,
+            loss: aov,
+        };
+        FrameAccum::new(view, layout)
+    }
+
+    #[test]
+    fn a_window_sums_to_the_bit_what_direct_splats_sum() {
+        // Splats inside and outside the window of a tile, some so large that a window cell
+        // overflows i32 or a single splat passes 2^31 steps: the developed frames and the raw
+        // totals agree with splats made directly into the frame.
+        for (norm, aov) in [
+            (Norm::Groups, false),
+            (Norm::Count, true),
+            (Norm::ControlVariate, true),
+        ] {
+            let (direct, windowed) = (film(norm, aov), film(norm, aov));
+            let mut local = LocalFilm::new(&windowed, (16, 8, 32, 24));
+            let folds = norm.folds();
+            for k in 0..20_000u64 {
+                let h = mix64(k);
+                let i = (h % 1200) as usize;
+                let fold = (h >> 20) as usize % folds;
+                // 1500: one splat fits an i32 cell, two do not.
+                let scale = match k % 100 {
+                    0..=9 => 1500.0,
+                    10 => 1e9,
+                    _ => 1.0,
+                };
+                let v = Vec3::new(
+                    (h >> 32) as f32 / u32::MAX as f32,
+                    (h >> 40) as f32 / 1e7,
+                    0.25,
+                ) * scale;
+                let d = mix64(h);
+                assert_eq!(direct.splat(i, fold, v, d), local.splat(i, fold, v, d));
+                direct.splat_weight(i, fold, v.x, d);
+                local.splat_weight(i, fold, v.x, d);
+                direct.land(i, 2);
+                local.land(i, 2);
+                direct.try_reuse(i, k % 3 == 0);
+                local.try_reuse(i, k % 3 == 0);
+            }
+            let nan = Vec3::new(f32::NAN, 0.0, 0.0);
+            assert!(!local.splat(20 * 40 + 20, 0, nan, 1));
+            direct.add_counts(5, 6, 7);
+            local.add_counts(5, 6, 7);
+            local.flush();
+            assert_eq!(direct.sum.totals(), windowed.sum.totals());
+            assert_eq!(
+                direct.weights.as_ref().map(FixedSums::totals),
+                windowed.weights.as_ref().map(FixedSums::totals)
+            );
+            assert_eq!(direct.counts(), windowed.counts());
+            let (a, b) = (develop(&direct), develop(&windowed));
+            assert!(a
+                .data
+                .iter()
+                .zip(&b.data)
+                .all(|(x, y)| x.to_bits() == y.to_bits()));
+        }
+    }
+}
