@@ -124,14 +124,16 @@ fn mis_weights_sum_to_one() {
         let terms: Vec<EyeTerms> = eyes
             .iter()
             .enumerate()
-            .map(|(k, e)| EyeTerms {
-                wo: (e.eye - fh.sp.p).normalize(),
-                j_over_a: if e.project(fh.sp.p).is_some() {
-                    e.jacobian(fh.sp.p, fh.sp.ng) / e.pixel_area()
-                } else {
-                    0.0
-                },
-                n: (spp + k as u32 % 3) as f32,
+            .map(|(k, e)| {
+                EyeTerms::new(
+                    (e.eye - fh.sp.p).normalize(),
+                    if e.project(fh.sp.p).is_some() {
+                        e.jacobian(fh.sp.p, fh.sp.ng) / e.pixel_area()
+                    } else {
+                        0.0
+                    },
+                    (spp + k as u32 % 3) as f32,
+                )
             })
             .collect();
         for method in [Method::MisExact, Method::Mis] {

@@ -173,7 +173,7 @@ fn shade_eye(
                 ),
                 None => (0.0, 0.0),
             };
-            eyes.push(EyeTerms { wo, j_over_a, n });
+            eyes.push(EyeTerms::new(wo, j_over_a, n));
         }
         let weighing = Weighing::new(weights, integrator, fh, eyes, spp);
         for (k, t) in group.iter().enumerate() {

@@ -30,6 +30,21 @@ pub struct EyeTerms {
     /// `n_k(pi_k(x))`: native samples eye k shot in the pixel x projects to (`--spp`, or the
     /// adaptive count of that pixel; docs/estimators.md, "adaptive counts").
     pub n: f32,
+    /// The BSDF towards this eye for `w` and for the light sample's direction (zero below the
+    /// surface), evaluated once per hit by `denominators` beside the pdfs, for the eyes that
+    /// see x; `None` until then.
+    pub f: Option<(Vec3, Vec3)>,
+}
+
+impl EyeTerms {
+    pub fn new(wo: Vec3, j_over_a: f32, n: f32) -> EyeTerms {
+        EyeTerms {
+            wo,
+            j_over_a,
+            n,
+            f: None,
+        }
+    }
 }
 
 /// MIS denominators of one native sample over the eyes of its group (eq. 13's denominator).
@@ -58,31 +73,45 @@ pub fn density(weights: Weights, e: &EyeTerms, spp: u32) -> f32 {
     }
 }
 
-/// Eq. 13's denominators for `fh` given each eye's terms.
+/// Eq. 13's denominators for `fh` given each eye's terms; fills each seeing eye's BSDF values
+/// (`EyeTerms::f`) on the way, from the same evaluations as its pdfs.
 pub fn denominators(
     integrator: &Integrator,
     fh: &FirstHit,
-    eyes: &[EyeTerms],
+    eyes: &mut [EyeTerms],
     spp: u32,
     weights: Weights,
 ) -> Denominators {
     let m = integrator.scene.material(&fh.sp);
     let mut q = Denominators::default();
-    for e in eyes {
+    for e in eyes.iter_mut() {
         let d = density(weights, e, spp);
         if d == 0.0 {
             continue;
         }
-        let pdf_k = |w: Vec3| eye_pdf(m, fh, e, w);
+        // The eye's lobe, on its side of the surface.
+        let (ng, ns) = facing(&fh.sp, e.wo);
+        let eval_pdf = |w: Vec3| {
+            if ng.dot(w) > 0.0 {
+                m.eval_and_pdf(ns, e.wo, w)
+            } else {
+                (Vec3::ZERO, 0.0)
+            }
+        };
+        let (mut f_w, mut f_l) = (Vec3::ZERO, Vec3::ZERO);
         q.emit += d;
         if let Some(w) = fh.w {
-            let p = pdf_k(w);
+            let (f, p) = eval_pdf(w);
+            f_w = f;
             q.ind += d * p;
             q.dir_w += d * (p + fh.pdf_light_w);
         }
         if let Some(l) = &fh.light {
-            q.dir_l += d * (pdf_k(l.wi) + l.pdf);
+            let (f, p) = eval_pdf(l.wi);
+            f_l = f;
+            q.dir_l += d * (p + l.pdf);
         }
+        e.f = Some((f_w, f_l));
     }
     q
 }
@@ -103,7 +132,7 @@ impl<'a> Weighing<'a> {
         weights: Weights,
         integrator: &'a Integrator<'a>,
         fh: &'a FirstHit,
-        eyes: &[EyeTerms],
+        eyes: &mut [EyeTerms],
         spp: u32,
     ) -> Weighing<'a> {
         let q = match weights {
@@ -130,17 +159,18 @@ impl<'a> Weighing<'a> {
             // Estimator (7) with the native eye's densities.
             Weights::None | Weights::OwnEye => self.fh.radiance(self.integrator.scene, eye),
             // `n_r n_v` times eq. 15.
-            Weights::Paper => self.balance(eye, e.wo, self.paper_scale),
+            Weights::Paper => self.balance(eye, e, self.paper_scale),
             // Eq. 13 with exact densities: `J_j / A_pix,j` times the balance-heuristic sum.
-            Weights::Exact => self.balance(eye, e.wo, e.j_over_a),
+            Weights::Exact => self.balance(eye, e, e.j_over_a),
         }
     }
 
     /// `scale` times the balance-heuristic contribution of the sample to the eye at `eye`
-    /// (unit direction `wo`): self-emission, the light sample, the emitter reached along `w`
-    /// and the rest of the walk, each over its denominator.
-    fn balance(&self, eye: Vec3, wo: Vec3, scale: f32) -> Vec3 {
+    /// (terms `e`): self-emission, the light sample, the emitter reached along `w` and the rest
+    /// of the walk, each over its denominator.
+    fn balance(&self, eye: Vec3, e: &EyeTerms, scale: f32) -> Vec3 {
         let (scene, fh, q) = (self.integrator.scene, self.fh, &self.q);
+        let wo = e.wo;
         let sp = &fh.sp;
         let m = scene.material(sp);
         let (ng, ns) = facing(sp, wo);
@@ -150,12 +180,14 @@ impl<'a> Weighing<'a> {
         }
         if let Some(ls) = &fh.light {
             if ls.le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 && q.dir_l > 0.0 {
-                l += m.eval(ns, wo, ls.wi) * ns.dot(ls.wi) * ls.le / q.dir_l;
+                let f = e.f.map_or_else(|| m.eval(ns, wo, ls.wi), |(_, f_l)| f_l);
+                l += f * ns.dot(ls.wi) * ls.le / q.dir_l;
             }
         }
         if let Some(w) = fh.w {
             if ng.dot(w) > 0.0 {
-                let fc = m.eval(ns, wo, w) * ns.dot(w);
+                let f = e.f.map_or_else(|| m.eval(ns, wo, w), |(f_w, _)| f_w);
+                let fc = f * ns.dot(w);
                 if q.dir_w > 0.0 {
                     l += fc * fh.le_w / q.dir_w;
                 }
@@ -178,7 +210,7 @@ pub fn indirect_weights(
     spp: u32,
     weights: Weights,
 ) -> Vec<f32> {
-    let q = denominators(integrator, fh, eyes, spp, weights);
+    let q = denominators(integrator, fh, &mut eyes.to_vec(), spp, weights);
     let m = integrator.scene.material(&fh.sp);
     let Some(w) = fh.w else {
         return vec![0.0; eyes.len()];
