@@ -20,7 +20,7 @@ use reframe::embree::Device;
 use reframe::eval::{compare, reference};
 use reframe::scene::{LoadOptions, Scene};
 use reframe::state::key::{default_checkpoint_dir, partial_path, Chunk};
-use reframe::util::fs::{check_file_target, write_json};
+use reframe::util::fs::{check_file_target, exit_removing_temporaries, exit_with, write_json};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -40,18 +40,22 @@ fn main() {
         }
     };
     if let Err(e) = run(cli) {
+        if reframe::util::fs::stopping() {
+            exit_with(130); // the signal handler's exit, and its line
+        }
         if let Some(i) = e.downcast_ref::<driver::Interrupted>() {
             eprintln!("{i}");
             if i.checkpoint.is_some() {
                 eprintln!("resume with: {}", resume_command());
             }
-            std::process::exit(130);
+            exit_with(130);
         }
         // One line: the chain of contexts, outermost first.
         let msg = format!("{e:#}").replace('\n', " ");
         eprintln!("error: {msg}");
-        std::process::exit(1);
+        exit_with(1);
     }
+    exit_with(0);
 }
 
 /// A scene by name or path; `strict` refuses what loading would repair.
@@ -86,27 +90,37 @@ fn resume_command() -> String {
         .join(" ")
 }
 
-/// Ctrl-C, SIGTERM (Slurm's `scancel`, a scheduler's time limit) and SIGHUP: the first stops the
-/// render at the next group or frame, after a checkpoint; the second stops at once (the last
-/// checkpoint stays valid: every file is written under a temporary name and renamed).
+/// Ctrl-C, SIGTERM (Slurm's `scancel`, a scheduler's time limit) and SIGHUP, for every command
+/// and in every phase. Inside a render's loop of groups or frames the first stops the render at
+/// the next group or frame, after a checkpoint; anywhere else (loading, merge, bench, reference,
+/// compare), and for a second signal, the process stops at once, after removing the temporary
+/// files it was writing (every file is written under a temporary name and renamed, so what is
+/// in place is whole, and the last checkpoint stays valid).
 fn install_signal_handler() -> Result<Arc<AtomicBool>> {
     let flag = Arc::new(AtomicBool::new(false));
     let f = flag.clone();
     ctrlc::set_handler(move || {
-        if f.swap(true, Ordering::SeqCst) {
-            eprintln!("\nstopping now; the last checkpoint is kept");
-            std::process::exit(130);
+        let again = f.swap(true, Ordering::SeqCst);
+        if !again && driver::run::stops_gracefully() {
+            eprintln!(
+                "\ninterrupt: finishing the current group of frames and writing a checkpoint \
+                 (interrupt again to stop at once)"
+            );
+            return;
         }
-        eprintln!(
-            "\ninterrupt: finishing the current group of frames and writing a checkpoint \
-             (interrupt again to stop at once)"
-        );
+        if again {
+            eprintln!("\nstopping now; the last checkpoint is kept");
+        } else {
+            eprintln!("\ninterrupted: stopped at once; nothing is left half-written");
+        }
+        exit_removing_temporaries(130);
     })
     .context("installing the signal handler")?;
     Ok(flag)
 }
 
 fn run(cli: Cli) -> Result<()> {
+    let interrupt = install_signal_handler()?;
     match cli.command {
         Command::Render(a) => {
             let scene_name = a.scene.unwrap_or_else(|| "vase".into());
@@ -138,7 +152,7 @@ fn run(cli: Cli) -> Result<()> {
                 resume: a.resume,
                 adaptive: a.adaptive,
                 chunk: a.chunk,
-                interrupt: Some(install_signal_handler()?),
+                interrupt: Some(interrupt),
                 out,
             };
             let stats = driver::render(&scene, &opts)?;

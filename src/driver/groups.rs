@@ -6,7 +6,7 @@
 //! chunk's log). Memory therefore grows with width x height x n_f: 12 bytes per pixel per frame
 //! in flight (16 for the methods that average by count, 24 with `--aov`).
 use super::progress_bar;
-use super::run::Run;
+use super::run::{Graceful, Run};
 use crate::film::tiles::tiles;
 use crate::film::{develop, FrameAccum, Layout, Sink, View};
 use crate::integrator::{Integrator, RayCounts, Tally};
@@ -87,6 +87,7 @@ pub fn run_groups(
     let nonfinite = AtomicU64::new(0);
     let tile_list = tiles(w, h);
     let mut written = 0;
+    let _graceful = Graceful::begin(run);
     for g0 in run.next..=last_group {
         if run.interrupted() {
             run.save(active.iter().map(|(_, a)| a))?;

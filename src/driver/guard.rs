@@ -1,7 +1,7 @@
 //! What keeps a command from damaging what it should not touch: one command per output (an
 //! exclusive advisory lock, `flock` through `std::fs::File::try_lock`, released by the kernel
 //! when its holder dies, so no stale lock survives a SIGKILL), and inputs that are never outputs.
-use crate::util::fs::parent_dir;
+use crate::util::fs::{parent_dir, Temporary};
 use anyhow::{bail, Context, Result};
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Seek, Write};
@@ -13,6 +13,8 @@ use std::path::{Path, PathBuf};
 pub struct OutputLock {
     path: PathBuf,
     file: Option<File>,
+    /// Registered once held, so that a stop by signal removes it too.
+    _live: Temporary,
 }
 
 impl OutputLock {
@@ -57,6 +59,7 @@ impl OutputLock {
             return Ok(OutputLock {
                 path: path.to_path_buf(),
                 file: Some(f),
+                _live: Temporary::new(path),
             });
         }
     }

@@ -4,7 +4,7 @@
 //! sample), each tile's pixels are summed in sample order, and tiles are placed into the frame by
 //! index, so the frames are bitwise identical for any thread count.
 use super::progress_bar;
-use super::run::Run;
+use super::run::{Graceful, Run};
 use crate::camera::Camera;
 use crate::film::tiles::{place_tile, tiles};
 use crate::film::{Developed, Sink, View};
@@ -113,6 +113,7 @@ pub fn run_independent(
     pb.set_position((run.next - a) as u64 * tiles_per_frame);
     let start = Instant::now();
     let total_rays = AtomicU64::new(0);
+    let _graceful = Graceful::begin(run);
     for frame in run.next..=b {
         if run.interrupted() {
             run.save([])?;

@@ -5,8 +5,40 @@ use crate::state::checkpoint::{Checkpointer, Counters};
 use anyhow::Result;
 use std::ops::RangeInclusive;
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
+
+/// Runs in this process that are inside their unit loop and watch their interrupt flag.
+static GRACEFUL: AtomicUsize = AtomicUsize::new(0);
+
+/// Whether a first signal can stop this process gracefully (a render inside its loop of groups
+/// or frames, which stops at the next boundary after a checkpoint). Elsewhere (loading, merge,
+/// bench, reference, compare, writing statistics) a signal stops the process at once
+/// (`util::fs::exit_removing_temporaries`).
+pub fn stops_gracefully() -> bool {
+    GRACEFUL.load(Ordering::SeqCst) > 0
+}
+
+/// Held by a frame loop for as long as it watches its run's interrupt flag.
+pub struct Graceful(bool);
+
+impl Graceful {
+    pub fn begin(run: &Run) -> Graceful {
+        let watched = run.interrupt.is_some();
+        if watched {
+            GRACEFUL.fetch_add(1, Ordering::SeqCst);
+        }
+        Graceful(watched)
+    }
+}
+
+impl Drop for Graceful {
+    fn drop(&mut self) {
+        if self.0 {
+            GRACEFUL.fetch_sub(1, Ordering::SeqCst);
+        }
+    }
+}
 
 pub struct Run {
     pub ckpt: Checkpointer,

@@ -329,6 +329,7 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
         )),
         keep: false,
     };
+    let _live = crate::util::fs::Temporary::new(&tmp.path);
     let tmp_str = path_str(&tmp.path)?;
     let mut attrs = attributes(meta, kind)?;
     if kind == FileKind::Ldr {

@@ -21,7 +21,7 @@ pub mod key;
 
 use crate::film::fixed::FixedSums;
 use crate::film::{AccumParts, Developed, FrameAccum, Layout, Norm, RawSums, View};
-use crate::util::fs::tmp_name;
+use crate::util::fs::{tmp_name, Temporary};
 use anyhow::{anyhow, bail, Context, Result};
 use checkpoint::Counters;
 use key::{Chunk, RunKey};
@@ -662,6 +662,7 @@ pub fn write_state<'a>(
     records: impl IntoIterator<Item = &'a FrameAccum>,
 ) -> Result<()> {
     let tmp = tmp_name(path);
+    let _live = Temporary::new(&tmp);
     let result = (|| -> Result<()> {
         let mut w = BufWriter::new(File::create(&tmp)?);
         let mut offset = 0u64;

@@ -1,10 +1,67 @@
 //! Files written so that a crash never leaves half of one: a temporary name in the same folder,
 //! then a rename; the temporary names a killed process leaves behind, and how to clear them;
+//! the files a stop by signal removes before it exits (`Temporary`, `exit_removing_temporaries`);
 //! and the checks made before a long run that it will be able to write at its end.
 use anyhow::{anyhow, Context, Result};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Mutex, MutexGuard};
+
+/// The temporary and lock files of this process that exist (or are about to) and are not yet
+/// renamed into place or removed.
+static LIVE: Mutex<Vec<(u64, PathBuf)>> = Mutex::new(Vec::new());
+
+fn live() -> MutexGuard<'static, Vec<(u64, PathBuf)>> {
+    LIVE.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// A file this process is writing under a temporary name (or holds as a lock), registered
+/// before the file is created and until the guard is dropped (after the rename), so that a
+/// stop by signal at any moment can remove it (`exit_removing_temporaries`).
+pub struct Temporary(u64);
+
+impl Temporary {
+    pub fn new(path: &Path) -> Temporary {
+        let id = unique();
+        live().push((id, path.to_path_buf()));
+        Temporary(id)
+    }
+}
+
+impl Drop for Temporary {
+    fn drop(&mut self) {
+        live().retain(|(id, _)| *id != self.0);
+    }
+}
+
+static STOPPING: AtomicBool = AtomicBool::new(false);
+
+/// Whether a stop by signal has begun: an error another thread meets now (a temporary file
+/// removed under it) is that stop's doing, not worth a line of its own.
+pub fn stopping() -> bool {
+    STOPPING.load(Ordering::SeqCst)
+}
+
+/// Exit with `code`, unless a stop by signal has begun (then that stop's exit is the one that
+/// happens): two threads must not run the process's exit at once, and the status must be the
+/// one that was printed.
+pub fn exit_with(code: i32) -> ! {
+    let _files = live();
+    std::process::exit(code)
+}
+
+/// Remove every registered temporary file and exit with `code`. The registry stays locked
+/// until the process is gone, so no other thread can register (and then create) a new one in
+/// between; a writer that has the file open loses it, which is the point.
+pub fn exit_removing_temporaries(code: i32) -> ! {
+    STOPPING.store(true, Ordering::SeqCst);
+    let files = live();
+    for (_, p) in files.iter() {
+        let _ = std::fs::remove_file(p);
+    }
+    std::process::exit(code)
+}
 
 /// The folder of `path`, `.` for a bare file name.
 pub fn parent_dir(path: &Path) -> PathBuf {
@@ -28,6 +85,7 @@ pub fn check_writable_dir(dir: &Path) -> Result<()> {
         std::process::id(),
         unique()
     ));
+    let _live = Temporary::new(&probe);
     std::fs::OpenOptions::new()
         .write(true)
         .create_new(true)
@@ -65,6 +123,7 @@ pub fn remove_stale_tmp(dir: &Path, ours: impl Fn(&str) -> bool) {
 /// Write a file atomically: a temporary name in the same folder, then a rename.
 pub fn write_atomic(p: &Path, bytes: &[u8]) -> Result<()> {
     let tmp = tmp_name(p);
+    let _live = Temporary::new(&tmp);
     std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
     std::fs::rename(&tmp, p).with_context(|| {
         let _ = std::fs::remove_file(&tmp);

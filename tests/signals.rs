@@ -1,0 +1,217 @@
+//! Signals in every phase of every command: `reference`, `bench` and `compare` (in its
+//! reference and in its runs) stop at once on SIGINT or SIGTERM with one line and exit status 130, leaving no
+//! temporary or lock file; two SIGINTs in quick succession during a render that writes frames
+//! and checkpoints all the time leave no temporary file either, and its checkpoint resumes.
+mod common;
+
+use common::{files_under, reframe};
+use std::path::Path;
+use std::process::{Child, Stdio};
+use std::time::{Duration, Instant};
+
+/// Send `sig` (`INT`, `TERM`) to `child`; whether it was still there to receive it.
+fn signal(child: &Child, sig: &str) -> bool {
+    std::process::Command::new("kill")
+        .args([&format!("-{sig}"), &child.id().to_string()])
+        .stderr(Stdio::null())
+        .status()
+        .unwrap()
+        .success()
+}
+
+/// Wait for `child` at most `limit`; its exit code and stderr.
+fn wait(mut child: Child, limit: Duration) -> (Option<i32>, String) {
+    let start = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            let mut err = String::new();
+            use std::io::Read;
+            child
+                .stderr
+                .take()
+                .unwrap()
+                .read_to_string(&mut err)
+                .unwrap();
+            return (status.code(), err);
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            panic!("still running {limit:?} after the signal");
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// Files whose names say they are temporary (`.tmp-`), probes or locks.
+fn leftovers(d: &Path) -> Vec<String> {
+    files_under(d)
+        .into_iter()
+        .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".tmp-") || n.contains("probe") || n.ends_with(".lock"))
+        .collect()
+}
+
+/// Run `args` in `dir`, send `sig` once it has run `after`, and check that it stops within two
+/// seconds with status 130, a last line saying so, and no temporary file.
+fn stops_at_once(dir: &Path, args: &[&str], after: Duration, sig: &str) {
+    std::fs::create_dir_all(dir).unwrap();
+    let child = reframe(args)
+        .current_dir(dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(after);
+    assert!(signal(&child, sig), "{args:?} ended before the signal");
+    let sent = Instant::now();
+    let (code, err) = wait(child, Duration::from_secs(5));
+    let took = sent.elapsed();
+    assert_eq!(code, Some(130), "{args:?}: {err}");
+    assert!(took < Duration::from_secs(2), "{args:?} took {took:?}");
+    // What it printed before (compare's lines per run), then one line saying it stopped.
+    let last = err.lines().rfind(|l| !l.trim().is_empty()).unwrap_or("");
+    assert!(
+        last.starts_with("interrupted: stopped at once"),
+        "{args:?}: {err}"
+    );
+    assert!(!err.contains("error"), "{args:?}: {err}");
+    assert_eq!(leftovers(dir), Vec::<String>::new(), "{args:?}");
+}
+
+#[test]
+fn every_command_stops_at_once_outside_a_render_loop() {
+    let d = tempfile::tempdir().unwrap();
+    let d = d.path();
+    let second = Duration::from_millis(1000);
+    // The reference: a long one, interrupted while it renders.
+    stops_at_once(
+        &d.join("reference"),
+        &[
+            "reference",
+            "vase",
+            "--res",
+            "64x48",
+            "--frames",
+            "10-12",
+            "--reference-spp",
+            "8192",
+            "--cache",
+            "cache",
+        ],
+        second,
+        "INT",
+    );
+    // bench, while it measures.
+    stops_at_once(
+        &d.join("bench"),
+        &[
+            "bench", "vase", "--spp", "64", "--res", "64x48", "--json", "b.json",
+        ],
+        second,
+        "TERM",
+    );
+    // compare, in its reference and then in its runs (a cached reference).
+    let compare = [
+        "compare",
+        "vase",
+        "--res",
+        "48x36",
+        "--frames",
+        "20-22",
+        "--regime",
+        "range",
+        "--methods",
+        "independent,mis-cv",
+        "--budgets",
+        "1,2,4,8,16,32,64,128,256,512,1024",
+        "--reuse-budgets",
+        "64",
+        "--windows",
+        "3",
+        "--reference-spp",
+        "512",
+        "--cache",
+        "cache",
+        "--out",
+        "out",
+    ];
+    stops_at_once(&d.join("compare"), &compare, second, "INT");
+    common::reframe_ok(&[
+        "reference",
+        "vase",
+        "--res",
+        "48x36",
+        "--frames",
+        "20-22",
+        "--reference-spp",
+        "512",
+        "--cache",
+        d.join("compare/cache").to_str().unwrap(),
+    ]);
+    stops_at_once(&d.join("compare"), &compare, second, "INT");
+}
+
+#[test]
+fn two_quick_interrupts_leave_no_temporary_file() {
+    // A render that writes a frame and a checkpoint every few milliseconds; the second SIGINT
+    // 50 ms after the first lands, now and then, while one of them is being written.
+    let d = tempfile::tempdir().unwrap();
+    for attempt in 0..6 {
+        let dir = d.path().join(format!("r{attempt}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        let args = [
+            "render",
+            "vase",
+            "--method",
+            "mis-cv",
+            "--window",
+            "3",
+            "--spp",
+            "1",
+            "--res",
+            "160x120",
+            "--out",
+            "out/f_####.exr",
+            "--checkpoint-every",
+            "0",
+            "--exr-float",
+        ];
+        let child = reframe(&args)
+            .current_dir(&dir)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Wait until frames are being written.
+        let start = Instant::now();
+        while !dir.join("out/f_0002.exr").exists() {
+            assert!(
+                start.elapsed() < Duration::from_secs(60),
+                "no frame written"
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        std::thread::sleep(Duration::from_millis(7 * attempt as u64));
+        assert!(signal(&child, "INT"));
+        std::thread::sleep(Duration::from_millis(50));
+        // It may have stopped cleanly already; then there is nothing to interrupt again.
+        signal(&child, "INT");
+        let (code, err) = wait(child, Duration::from_secs(10));
+        assert_eq!(code, Some(130), "{err}");
+        assert_eq!(
+            leftovers(&dir),
+            Vec::<String>::new(),
+            "attempt {attempt}: {err}"
+        );
+        // Whatever checkpoint is there is whole: the render resumes from it and finishes.
+        let mut resume = args.map(String::from).to_vec();
+        resume.push("--resume".into());
+        let out = reframe(&resume).current_dir(&dir).output().unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(dir.join("out/f_0047.exr").exists());
+    }
+}
