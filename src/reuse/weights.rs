@@ -19,6 +19,7 @@ use super::Weights;
 use crate::bsdf::Material;
 use crate::integrator::{facing, FirstHit, Integrator};
 use glam::Vec3;
+use std::f32::consts::FRAC_1_PI;
 
 /// The per-eye quantities of one native hit that every method's weights are built from.
 #[derive(Clone, Copy, Debug)]
@@ -84,6 +85,24 @@ pub fn denominators(
 ) -> Denominators {
     let m = integrator.scene.material(&fh.sp);
     let mut q = Denominators::default();
+    if let Some(lambert) = Lambert::of(m, fh) {
+        for e in eyes.iter() {
+            let d = density(weights, e, spp);
+            if d == 0.0 {
+                continue;
+            }
+            let (p_w, p_l) = lambert.pdfs(e.wo);
+            q.emit += d;
+            if fh.w.is_some() {
+                q.ind += d * p_w;
+                q.dir_w += d * (p_w + fh.pdf_light_w);
+            }
+            if let Some(l) = &fh.light {
+                q.dir_l += d * (p_l + l.pdf);
+            }
+        }
+        return q;
+    }
     for e in eyes.iter_mut() {
         let d = density(weights, e, spp);
         if d == 0.0 {
@@ -116,6 +135,105 @@ pub fn denominators(
     q
 }
 
+/// A first hit on a Lambertian surface that does not emit: its BSDF `Kd / pi` and its pdf
+/// `cos / pi` are the same for every eye on one side of the surface whose shading normal faces
+/// it, so the pdfs of `w` and of the light sample's direction, and the balance-heuristic sum
+/// before its scale, are computed once per side and hit instead of once per eye (the same
+/// operations in the same order as the general path, so the same bits).
+#[derive(Clone, Copy)]
+struct Lambert {
+    ng: Vec3,
+    ns: Vec3,
+    kd_pi: Vec3,
+    /// Per side (0: the side `ng` points to, 1: the other): `p(w)` and `p(w_l)`, each zero where
+    /// the direction is below the surface or the shading normal.
+    pdf_w: [f32; 2],
+    pdf_l: [f32; 2],
+}
+
+impl Lambert {
+    fn of(m: &Material, fh: &FirstHit) -> Option<Lambert> {
+        if m.ks.max_element() > 0.0 || m.is_emissive() {
+            return None;
+        }
+        let (ng, ns) = (fh.sp.ng, fh.sp.ns);
+        // As `facing` and `Material::pdf` for an eye on side `s` (with the diffuse weight 1).
+        let pdf = |s: usize, w: Option<Vec3>| {
+            let (ng, ns) = if s == 0 { (ng, ns) } else { (-ng, -ns) };
+            match w {
+                Some(w) if ng.dot(w) > 0.0 && ns.dot(w) > 0.0 => 1.0 * ns.dot(w) * FRAC_1_PI,
+                _ => 0.0,
+            }
+        };
+        let wl = fh.light.map(|l| l.wi);
+        Some(Lambert {
+            ng,
+            ns,
+            kd_pi: m.kd * FRAC_1_PI,
+            pdf_w: [pdf(0, fh.w), pdf(1, fh.w)],
+            pdf_l: [pdf(0, wl), pdf(1, wl)],
+        })
+    }
+
+    /// The side of the eye in direction `wo`, and whether the shading normal on that side
+    /// faces it (else the BSDF and its pdfs are zero for that eye).
+    #[inline]
+    fn side(&self, wo: Vec3) -> (usize, bool) {
+        if self.ng.dot(wo) >= 0.0 {
+            (0, self.ns.dot(wo) > 0.0)
+        } else {
+            (1, (-self.ns).dot(wo) > 0.0)
+        }
+    }
+
+    /// `(p(w), p(w_l))` for the eye in direction `wo`.
+    #[inline]
+    fn pdfs(&self, wo: Vec3) -> (f32, f32) {
+        match self.side(wo) {
+            (s, true) => (self.pdf_w[s], self.pdf_l[s]),
+            (_, false) => (0.0, 0.0),
+        }
+    }
+
+    /// The balance-heuristic sum of `balance` before its scale, for an eye on side `s` whose
+    /// shading normal faces it.
+    fn sum(&self, fh: &FirstHit, q: &Denominators, s: usize) -> Vec3 {
+        let (ng, ns) = if s == 0 {
+            (self.ng, self.ns)
+        } else {
+            (-self.ng, -self.ns)
+        };
+        let mut l = Vec3::ZERO;
+        if let Some(ls) = &fh.light {
+            if ls.le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 && q.dir_l > 0.0 {
+                let f = if ns.dot(ls.wi) > 0.0 {
+                    self.kd_pi
+                } else {
+                    Vec3::ZERO
+                };
+                l += f * ns.dot(ls.wi) * ls.le / q.dir_l;
+            }
+        }
+        if let Some(w) = fh.w {
+            if ng.dot(w) > 0.0 {
+                let f = if ns.dot(w) > 0.0 {
+                    self.kd_pi
+                } else {
+                    Vec3::ZERO
+                };
+                let fc = f * ns.dot(w);
+                if q.dir_w > 0.0 {
+                    l += fc * fh.le_w / q.dir_w;
+                }
+                if q.ind > 0.0 {
+                    l += fc * fh.li_w / q.ind;
+                }
+            }
+        }
+        l
+    }
+}
+
 /// The weights of one native hit over the eyes of its group, ready to give its value in any
 /// of them.
 pub struct Weighing<'a> {
@@ -125,6 +243,8 @@ pub struct Weighing<'a> {
     q: Denominators,
     /// `n_r n_v`: the paper's count average (see the module note).
     paper_scale: f32,
+    /// A Lambertian hit's per-eye facts and its balance sum per side.
+    lambert: Option<(Lambert, [Vec3; 2])>,
 }
 
 impl<'a> Weighing<'a> {
@@ -140,12 +260,18 @@ impl<'a> Weighing<'a> {
             Weights::None | Weights::OwnEye => Denominators::default(),
         };
         let visible = eyes.iter().filter(|e| e.j_over_a > 0.0).count();
+        let lambert = match weights {
+            Weights::Paper | Weights::Exact => Lambert::of(integrator.scene.material(&fh.sp), fh)
+                .map(|l| (l, [l.sum(fh, &q, 0), l.sum(fh, &q, 1)])),
+            Weights::None | Weights::OwnEye => None,
+        };
         Weighing {
             weights,
             integrator,
             fh,
             q,
             paper_scale: (spp as usize * visible) as f32,
+            lambert,
         }
     }
 
@@ -169,6 +295,12 @@ impl<'a> Weighing<'a> {
     /// (terms `e`): self-emission, the light sample, the emitter reached along `w` and the rest
     /// of the walk, each over its denominator.
     fn balance(&self, eye: Vec3, e: &EyeTerms, scale: f32) -> Vec3 {
+        if let Some((lambert, sums)) = &self.lambert {
+            return match lambert.side(e.wo) {
+                (s, true) => sums[s] * scale,
+                (_, false) => Vec3::ZERO * scale,
+            };
+        }
         let (scene, fh, q) = (self.integrator.scene, self.fh, &self.q);
         let wo = e.wo;
         let sp = &fh.sp;
