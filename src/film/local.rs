@@ -19,9 +19,13 @@ use super::FrameAccum;
 use glam::Vec3;
 use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
 
-/// Pixels of margin around the tile that a window covers: reprojected samples of a group's
-/// frames mostly land within a few pixels of where their native pixel is.
+/// Pixels of margin around the tile that a window starts with, and that it grows by beyond a
+/// splat that falls outside it: the reprojected samples of a group's frames land near their
+/// native pixel, farther the farther apart the frames are and the faster the camera moves.
 pub const MARGIN: u32 = 8;
+
+/// The most pixels a window grows to (256 x 256); splats beyond go to the frame directly.
+pub const MAX_PIXELS: usize = 1 << 16;
 
 /// A window of one frame's sums, private to one worker.
 pub struct LocalFilm<'a> {
@@ -77,13 +81,47 @@ impl<'a> LocalFilm<'a> {
         self.film
     }
 
-    /// The window pixel of frame pixel `i`, if the window holds it.
+    /// The window pixel of frame pixel `i`: the window grows to hold it (by at least `MARGIN`
+    /// more on that side) unless it would pass `MAX_PIXELS`; then `None`.
     #[inline]
-    fn local(&self, i: usize) -> Option<usize> {
+    fn local(&mut self, i: usize) -> Option<usize> {
         let fw = self.film.view.width as usize;
         let (x, y) = ((i % fw) as u32, (i / fw) as u32);
         let (dx, dy) = (x.wrapping_sub(self.x0), y.wrapping_sub(self.y0));
-        (dx < self.w && dy < self.h).then(|| (dy * self.w + dx) as usize)
+        if dx < self.w && dy < self.h {
+            return Some((dy * self.w + dx) as usize);
+        }
+        self.grow(x, y)?;
+        self.local(i)
+    }
+
+    /// Grow the window to hold pixel (x, y) and `MARGIN` beyond it, keeping what it holds;
+    /// `None` (and no change) if it would cover more than `MAX_PIXELS`.
+    #[cold]
+    fn grow(&mut self, x: u32, y: u32) -> Option<()> {
+        let (fw, fh) = (self.film.view.width, self.film.view.height);
+        let x0 = self.x0.min(x.saturating_sub(MARGIN));
+        let y0 = self.y0.min(y.saturating_sub(MARGIN));
+        let x1 = (self.x0 + self.w).max((x + 1 + MARGIN).min(fw));
+        let y1 = (self.y0 + self.h).max((y + 1 + MARGIN).min(fh));
+        let (w, h) = (x1 - x0, y1 - y0);
+        if (w * h) as usize > MAX_PIXELS {
+            return None;
+        }
+        let mut cells = vec![0; (w * h) as usize * self.cells_px];
+        let mut counts = vec![0; (w * h) as usize * self.counts_px];
+        for row in 0..self.h {
+            let from = (row * self.w) as usize;
+            let to = ((self.y0 + row - y0) * w + self.x0 - x0) as usize;
+            let n = self.w as usize;
+            cells[to * self.cells_px..(to + n) * self.cells_px]
+                .copy_from_slice(&self.cells[from * self.cells_px..(from + n) * self.cells_px]);
+            counts[to * self.counts_px..(to + n) * self.counts_px]
+                .copy_from_slice(&self.counts[from * self.counts_px..(from + n) * self.counts_px]);
+        }
+        (self.x0, self.y0, self.w, self.h) = (x0, y0, w, h);
+        (self.cells, self.counts) = (cells, counts);
+        Some(())
     }
 
     /// Add the quantised `q` to window cell `cell`, whose cell in `sums` is `global`.
@@ -219,8 +257,8 @@ mod tests {
     fn film(norm: Norm, aov: bool) -> FrameAccum {
         let view = View {
             frame: 3,
-            width: 40,
-            height: 30,
+            width: 300,
+            height: 250,
             world_to_camera: [0.0; 16],
             world_to_ndc: [0.0; 16],
         };
@@ -235,9 +273,10 @@ mod tests {
 
     #[test]
     fn a_window_sums_to_the_bit_what_direct_splats_sum() {
-        // Splats inside and outside the window of a tile, some so large that a window cell
-        // overflows i32 or a single splat passes 2^31 steps: the developed frames and the raw
-        // totals agree with splats made directly into the frame.
+        // Splats inside the window of a tile, outside it (it grows) and beyond the largest
+        // window (a frame of 75000 pixels), some so large that a window cell overflows i32 or a
+        // single splat passes 2^31 steps: the developed frames and the raw totals agree with
+        // splats made directly into the frame.
         for (norm, aov) in [
             (Norm::Groups, false),
             (Norm::Count, true),
@@ -246,13 +285,22 @@ mod tests {
             let (direct, windowed) = (film(norm, aov), film(norm, aov));
             let mut local = LocalFilm::new(&windowed, (16, 8, 32, 24));
             let folds = norm.folds();
-            for k in 0..20_000u64 {
+            for k in 0..200_000u64 {
                 let h = mix64(k);
-                let i = (h % 1200) as usize;
+                // First inside the window it starts with (the tile and its margin), then around
+                // it (it grows, on every side, with data in it), later now and then anywhere.
+                let (x, y) = if k < 2000 {
+                    (8 + h % 32, (h >> 8) % 32)
+                } else if k % 8 == 0 && k > 5000 {
+                    (h % 300, (h >> 16) % 250)
+                } else {
+                    (h % 60, (h >> 8) % 70)
+                };
+                let i = (y * 300 + x) as usize;
                 let fold = (h >> 20) as usize % folds;
                 // 1500: one splat fits an i32 cell, two do not.
                 let scale = match k % 100 {
-                    0..=9 => 1500.0,
+                    1..=9 => 1500.0,
                     10 => 1e9,
                     _ => 1.0,
                 };
@@ -271,7 +319,9 @@ mod tests {
                 local.try_reuse(i, k % 3 == 0);
             }
             let nan = Vec3::new(f32::NAN, 0.0, 0.0);
-            assert!(!local.splat(20 * 40 + 20, 0, nan, 1));
+            assert!(!local.splat(20 * 300 + 20, 0, nan, 1));
+            assert!(local.w * local.h > 32 * 32, "the window never grew");
+            assert!((local.w * local.h) as usize <= MAX_PIXELS);
             direct.add_counts(5, 6, 7);
             local.add_counts(5, 6, 7);
             local.flush();
