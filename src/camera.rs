@@ -112,6 +112,19 @@ impl Camera {
         cos_x / (cos_t * cos_t * cos_t * d2)
     }
 
+    /// The unit direction from `x` to the eye and `jacobian(x, n)`, sharing their distance (the
+    /// same operations as `(eye - x).normalize()` and `jacobian`, so the same bits).
+    #[inline]
+    pub fn view_terms(&self, x: Vec3, n: Vec3) -> (Vec3, f32) {
+        let c = x - self.eye;
+        let d2 = c.length_squared();
+        let d = d2.sqrt();
+        let wo = (self.eye - x) * d.recip();
+        let cos_t = c.dot(self.forward) / d;
+        let cos_x = n.dot(-c).abs() / d;
+        (wo, cos_x / (cos_t * cos_t * cos_t * d2))
+    }
+
     /// `dA_film / dw = f^2 / cos_t^3` for the unit direction `d` from the eye: the film density
     /// of a direction (a point at infinity; docs/estimators.md, "Control variate"), 0 behind the
     /// eye. Without the inside-the-film factor.

@@ -161,20 +161,20 @@ fn shade_eye(
     let mut loss = vec![(0u64, 0u64); n_f];
     let mut landed = vec![0u64; n_f];
     landed[m] = landed_native;
+    let pixel_areas: Vec<f32> = group.iter().map(|t| t.cam.pixel_area()).collect();
     for (hi, (pixel, index, fh)) in hits.iter().enumerate() {
         let x = fh.sp.p;
         eyes.clear();
         for (k, t) in group.iter().enumerate() {
-            let wo = (t.cam.eye - x).normalize();
-            let (j_over_a, n) = match land[hi * n_f + k] {
-                Some(i) => (
-                    t.cam.jacobian(x, fh.sp.ng) / t.cam.pixel_area(),
-                    n_at(k, i) as f32,
-                ),
-                None => (0.0, 0.0),
-            };
-            eyes.push(EyeTerms::new(wo, j_over_a, n));
+            eyes.push(match land[hi * n_f + k] {
+                Some(i) => {
+                    let (wo, j) = t.cam.view_terms(x, fh.sp.ng);
+                    EyeTerms::new(wo, j / pixel_areas[k], n_at(k, i) as f32)
+                }
+                None => EyeTerms::new((t.cam.eye - x).normalize(), 0.0, 0.0),
+            });
         }
+        let sample_dither = Dither::of(p.seed, native_frame, *pixel, *index);
         let weighing = Weighing::new(weights, integrator, fh, eyes, spp);
         for (k, t) in group.iter().enumerate() {
             let Some(i) = land[hi * n_f + k] else {
@@ -198,7 +198,7 @@ fn shade_eye(
                 films[k].try_reuse(i, false);
             }
             let v = weighing.value(t.cam.eye, &eyes[k]);
-            let dither = dither(p.seed, native_frame, *pixel, *index, t.film.frame());
+            let dither = sample_dither.to(t.film.frame());
             if !films[k].splat(i, fold, v, dither) {
                 bad += 1;
             }
@@ -230,12 +230,22 @@ fn shade_eye(
     bad
 }
 
-/// The rounding dither of a splat: a hash of the native sample and the target frame.
-fn dither(seed: u64, native_frame: u32, pixel: u32, index: u32, target: u32) -> u64 {
-    mix64(
-        mix64(seed ^ ((native_frame as u64) << 32 | pixel as u64))
-            ^ ((index as u64) << 32 | target as u64),
-    )
+/// The rounding dither of a native sample's splats: a hash of the sample and the target frame,
+/// `mix64(mix64(seed ^ (frame << 32 | pixel)) ^ (index << 32 | target))`, of which the part that
+/// names the sample is hashed once per sample.
+#[derive(Clone, Copy)]
+struct Dither(u64);
+
+impl Dither {
+    fn of(seed: u64, native_frame: u32, pixel: u32, index: u32) -> Dither {
+        Dither(mix64(seed ^ ((native_frame as u64) << 32 | pixel as u64)) ^ ((index as u64) << 32))
+    }
+
+    /// The dither of the splat into frame `target`.
+    #[inline]
+    fn to(self, target: u32) -> u64 {
+        mix64(self.0 ^ target as u64)
+    }
 }
 
 /// A camera sample of eye `group[m]` that left the scene along `dir`, as the control variate
@@ -286,7 +296,7 @@ fn splat_escape(
     let native_frame = group[m].film.frame();
     for (f, s) in films.iter_mut().zip(&seen) {
         if let Some((i, j)) = *s {
-            let d = dither(p.seed, native_frame, pixel, index, f.film().frame());
+            let d = Dither::of(p.seed, native_frame, pixel, index).to(f.film().frame());
             f.splat_weight(i as usize, fold, j / total, mix64(d));
         }
     }
