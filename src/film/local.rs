@@ -24,8 +24,10 @@ use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
 /// native pixel, farther the farther apart the frames are and the faster the camera moves.
 pub const MARGIN: u32 = 8;
 
-/// The most pixels a window grows to (256 x 256); splats beyond go to the frame directly.
-pub const MAX_PIXELS: usize = 1 << 16;
+/// The most pixels a window grows to (128 x 128); splats beyond go to the frame directly. A
+/// worker holds one window per frame of the group: at most `n_f` x 16384 x 32 bytes (`mis-cv`;
+/// 12 for `mis-exact`), 17 MB at n_f = 33; on `vase` they grow to about 4400 pixels.
+pub const MAX_PIXELS: usize = 1 << 14;
 
 /// A window of one frame's sums, private to one worker.
 pub struct LocalFilm<'a> {
