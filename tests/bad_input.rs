@@ -1,6 +1,6 @@
 //! Bad input through the real binary, from the corpus in `tests/corpus/`: every case must end
 //! with a one-line error that names the file and the line or key (or the flag), a non-zero exit,
-//! no panic, and no file written; or, for input that loading repairs, render with exactly the
+//! no panic, and its folder exactly as it was (every path, size and modification time); or, for input that loading repairs, render with exactly the
 //! warnings the case names (one line per kind of repair), and be refused by strict loading.
 //!
 //! `tests/corpus/base/` is a small valid scene (`s.toml`, `s.obj`, `s.mtl`). Each folder in
@@ -24,7 +24,7 @@
 //! without, it must load (a scene without warnings is fine under strict loading too).
 mod common;
 
-use common::{files_under, par_map, refusal, run_reframe};
+use common::{files_under, par_map, refusal, run_reframe, snapshot};
 use reframe::embree::Device;
 use reframe::scene::{LoadOptions, Scene};
 use serde::Deserialize;
@@ -90,6 +90,7 @@ fn check(case: &Path) -> Result<bool, String> {
     let dir = tmp.path();
     let args = stage(case, &m, dir);
     let inputs = files_under(dir);
+    let before = snapshot(dir);
     let o = run_reframe(&args, Duration::from_secs(20));
     let written: Vec<PathBuf> = files_under(dir)
         .into_iter()
@@ -135,6 +136,13 @@ fn check(case: &Path) -> Result<bool, String> {
     let line = refusal(&o).map_err(|e| format!("{why}: {e}"))?;
     if !written.is_empty() {
         return Err(format!("{why}: left files behind: {written:?}"));
+    }
+    let after = snapshot(dir);
+    if after != before {
+        let changed: Vec<_> = after.iter().filter(|e| !before.contains(e)).collect();
+        return Err(format!(
+            "{why}: the folder changed (paths, sizes or times): {changed:?}"
+        ));
     }
     if m.expect.is_empty() || !m.warn.is_empty() || m.strict.is_some() {
         return Err(format!(

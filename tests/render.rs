@@ -241,3 +241,60 @@ fn strict_flag_turns_repairs_into_refusals() {
     assert!(err.contains("strict loading"), "{err}");
     assert!(!d.join("o").exists() || common::files_under(&d.join("o")).is_empty());
 }
+
+/// The memory a render is refused for passing (`RenderOptions::memory_estimate`) covers what a
+/// real render takes beyond the process at start: `mis-cv` with `--aov` at n_f = 9 (its
+/// accumulators, 40 bytes per pixel per frame in flight, are most of it), and the independent
+/// tracer; and it does not overstate it more than a few times.
+#[test]
+fn memory_estimate_covers_a_real_render() {
+    let d = tempfile::tempdir().unwrap();
+    let reuse: &[&str] = &[
+        "--method", "mis-cv", "--window", "9", "--aov", "--frames", "0-8",
+    ];
+    let independent: &[&str] = &["--frames", "0-1"];
+    for (k, flags) in [reuse, independent].into_iter().enumerate() {
+        let stats = d.path().join(format!("s{k}.json"));
+        let mut args: Vec<String> = [
+            "render",
+            "vase",
+            "--res",
+            "640x480",
+            "--spp",
+            "1",
+            "--threads",
+            "2",
+            "--out",
+        ]
+        .map(String::from)
+        .to_vec();
+        args.push(
+            d.path()
+                .join(format!("r{k}/f_####.exr"))
+                .display()
+                .to_string(),
+        );
+        args.extend(flags.iter().map(|s| s.to_string()));
+        args.extend(["--stats".into(), stats.display().to_string()]);
+        reframe_ok(&args);
+        let s: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+        let grew = s["peak_rss_bytes"].as_u64().unwrap() - s["startup_rss_bytes"].as_u64().unwrap();
+        let mut opts = RenderOptions {
+            resolution: Some((640, 480)),
+            spp: 1,
+            threads: 2,
+            ..RenderOptions::default()
+        };
+        if k == 0 {
+            opts.method = reframe::reuse::Method::MisCv;
+            opts.window = 9;
+            opts.aov = true;
+        }
+        let estimate = opts.memory_estimate((640, 480));
+        assert!(
+            estimate >= grew && estimate <= 4 * grew + (64 << 20),
+            "{flags:?}: estimated {estimate} bytes, the render grew by {grew}"
+        );
+    }
+}

@@ -114,7 +114,7 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
         .ok_or_else(|| anyhow!("{}: unknown method '{}'", label(&files[0]), key.method))?;
     let range = key.first_frame..=key.last_frame;
     let pattern = out.unwrap_or(&t0.out);
-    let out = check_output(pattern, &range)?;
+    let (out, created) = check_output(pattern, &range)?;
     let lock = super::lock_path(pattern, None);
     let inputs: Vec<PathBuf> = files.iter().map(|f| f.path.clone()).collect();
     let outputs = range
@@ -180,6 +180,8 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
     for (frame, list) in &shares {
         combine(*frame, list)?;
     }
+    // Every check has passed: the output folder stays.
+    created.keep();
     let mut nonfinite_pixels = 0;
     for (frame, list) in &shares {
         let d = combine(*frame, list)?;

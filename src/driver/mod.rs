@@ -164,7 +164,7 @@ pub fn render_frames(
 pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     let startup_rss_bytes = crate::util::mem::rss_bytes();
     let plan = opts.validate(scene)?;
-    let out = opts.check_files(&plan)?;
+    let (out, created) = opts.check_files(&plan)?;
     // One render per output, and never over its own inputs.
     let lock = lock_path(&opts.out, opts.chunk);
     let mut outputs: Vec<(&str, PathBuf)> = match opts.chunk {
@@ -204,6 +204,8 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     } else {
         (Checkpointer::none(), None)
     };
+    // Every check has passed: the output folder stays.
+    created.keep();
     let (counters, next, active) = match resumed {
         Some(r) => {
             // Frame files a killed process was writing when it died.

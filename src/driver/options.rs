@@ -5,7 +5,7 @@ use crate::image::OutputPattern;
 use crate::reuse::Method;
 use crate::scene::{Scene, MAX_PIXELS};
 use crate::state::key::Chunk;
-use crate::util::fs::check_file_target;
+use crate::util::fs::{check_file_target, CreatedDirs};
 use anyhow::{bail, Context, Result};
 use std::ops::RangeInclusive;
 use std::path::PathBuf;
@@ -203,7 +203,7 @@ impl RenderOptions {
         }
         if !self.method.reuses() && self.window != 1 {
             bail!(
-                "--window {}: only the reuse methods (havran, mis, mis-exact) take a window",
+                "--window {}: only the reuse methods (havran, mis, mis-exact, mis-cv) take a window",
                 self.window
             );
         }
@@ -222,6 +222,7 @@ impl RenderOptions {
         }
         check_threads(self.threads)?;
         check_max_depth(self.max_depth)?;
+        self.check_memory((w, h), crate::util::mem::available_bytes())?;
         let units = *range.start()..=range.end() + 1 - self.window;
         let units = match self.chunk {
             Some(c) => c.share(units).with_context(|| {
@@ -247,14 +248,78 @@ impl RenderOptions {
         })
     }
 
+    /// Bytes a render at `(w, h)` holds at its peak, estimated before it starts: the
+    /// accumulators of the frames in flight (`n_f` of them for the reuse methods, one for the
+    /// independent tracer), the adaptive counts, a developed frame and its copy for the file
+    /// writer, every worker's windows of the group's frames (`film::local`, at their largest),
+    /// and 32 MB for the rest. The process as it starts (the scene, and mostly OpenImageIO's
+    /// libraries) is not counted.
+    pub fn memory_estimate(&self, (w, h): (u32, u32)) -> u64 {
+        let pixels = w as u64 * h as u64;
+        let layout = self.method.layout(self.spp, self.window, self.aov);
+        let folds = layout.norm.folds() as u64;
+        let per_pixel = 4 * (3 * folds)
+            + if layout.norm == crate::film::Norm::ControlVariate {
+                4 * folds
+            } else {
+                0
+            }
+            + if layout.landed { 4 } else { 0 }
+            + if layout.loss { 8 } else { 0 };
+        let n_f = self.window as u64;
+        let threads = match self.threads {
+            0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+            t => t,
+        } as u64;
+        let frames = if self.method.reuses() {
+            n_f * per_pixel * pixels
+                + threads * n_f * per_pixel * (crate::film::local::MAX_PIXELS as u64).min(pixels)
+        } else {
+            12 * pixels // the frame's RGB
+        };
+        let adaptive = if self.adaptive.is_some() {
+            2 * n_f * pixels
+        } else {
+            0
+        };
+        // A developed frame (RGB and `--aov`'s two channels, f32), and the writer's copies.
+        let develop = 3 * 4 * 5 * pixels;
+        // Thread stacks, Embree's and the image library's working memory.
+        let rest = 32 << 20;
+        frames + adaptive + develop + rest
+    }
+
+    /// Refuse a render whose `memory_estimate` passes `available` (where known), naming the
+    /// flags that change it.
+    pub fn check_memory(&self, (w, h): (u32, u32), available: Option<u64>) -> Result<()> {
+        let need = self.memory_estimate((w, h));
+        match available {
+            Some(a) if need > a => bail!(
+                "--res {w}x{h} with --method {} --window {}: the frames in flight need about \
+                 {:.1} GB, but {:.1} GB of memory is available; lower --res{}",
+                self.method.name(),
+                self.window,
+                need as f64 / 1e9,
+                a as f64 / 1e9,
+                if self.method.reuses() {
+                    " or --window, or use fewer --threads"
+                } else {
+                    ""
+                }
+            ),
+            _ => Ok(()),
+        }
+    }
+
     /// The output pattern and the stats file, checked before anything is traced: a long render
     /// must not fail at its end.
-    pub fn check_files(&self, plan: &Plan) -> Result<OutputPattern> {
-        let out = check_output(&self.out, &plan.frames)?;
+    /// The folders it created go again unless the caller keeps them.
+    pub fn check_files(&self, plan: &Plan) -> Result<(OutputPattern, CreatedDirs)> {
+        let (out, created) = check_output(&self.out, &plan.frames)?;
         if let Some(p) = &self.stats {
             check_file_target("--stats", p)?;
         }
-        Ok(out)
+        Ok((out, created))
     }
 }
 
@@ -282,13 +347,16 @@ impl RenderOptions {
 
 /// An output pattern that can take `frames`: parsed, with a frame field if it is more than one,
 /// in a format OIIO writes, in a folder where files can be created.
-pub fn check_output(pattern: &str, frames: &RangeInclusive<u32>) -> Result<OutputPattern> {
+pub fn check_output(
+    pattern: &str,
+    frames: &RangeInclusive<u32>,
+) -> Result<(OutputPattern, CreatedDirs)> {
     let out = OutputPattern::parse(pattern)?;
     if frames.start() != frames.end() && !out.has_frame_field() {
         bail!(
             "--out {pattern}: several frames need a frame number field such as '####' in the name"
         );
     }
-    out.validate()?;
-    Ok(out)
+    let created = out.validate()?;
+    Ok((out, created))
 }

@@ -14,7 +14,7 @@ use crate::image::Image;
 use crate::integrator::Integrator;
 use crate::reuse::Method;
 use crate::scene::Scene;
-use crate::util::fs::{check_writable_dir, write_atomic, write_json};
+use crate::util::fs::{check_writable_dir, write_atomic, write_json, CreatedDirs};
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use serde::Serialize;
@@ -201,7 +201,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             crop[3]
         );
     }
-    std::fs::create_dir_all(&opts.out)
+    let created = CreatedDirs::create(&opts.out)
         .with_context(|| format!("--out {}: cannot create the folder", opts.out.display()))?;
     check_writable_dir(&opts.out).with_context(|| format!("--out {}", opts.out.display()))?;
     let lock = opts.out.join(".compare.lock");
@@ -223,6 +223,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         &scene.inputs,
     )?;
     let _lock = OutputLock::acquire(&lock, &opts.out.display().to_string())?;
+    created.keep();
     let pool = thread_pool(opts.threads)?;
     let threads = pool.current_num_threads();
     crate::embree::set_flush_denormals();

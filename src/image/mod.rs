@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, bail, Result};
 use rayon::prelude::*;
 
-use crate::util::fs::{check_writable_dir, parent_dir, unique};
+use crate::util::fs::{check_writable_dir, parent_dir, unique, CreatedDirs};
 use bridge::ffi;
 
 /// A float image, interleaved channels, row-major, top row first.
@@ -224,16 +224,17 @@ impl OutputPattern {
 
     /// Checks everything that could make a write fail later, so that it fails before any
     /// rendering: OIIO can write the format, the folder exists (it is created if need be) and a
-    /// file can be created in it.
-    pub fn validate(&self) -> Result<()> {
+    /// file can be created in it. The folders it created go again unless the caller keeps them.
+    pub fn validate(&self) -> Result<CreatedDirs> {
         let target = self.path(0);
         let target_str = path_str(&target)?;
         ffi::check_output_format(target_str)
             .map_err(|e| anyhow!("cannot write {}: {}", self.original, e.what()))?;
         let dir = parent_dir(&target);
-        fs::create_dir_all(&dir)
+        let created = CreatedDirs::create(&dir)
             .map_err(|e| anyhow!("cannot create output folder {}: {e}", dir.display()))?;
-        check_writable_dir(&dir)
+        check_writable_dir(&dir)?;
+        Ok(created)
     }
 
     /// Whether frames are written as EXR (every channel, half or float).

@@ -78,6 +78,40 @@ pub fn unique() -> u64 {
     COUNTER.fetch_add(1, Ordering::Relaxed)
 }
 
+/// Folders this process created for an output, removed again (deepest first, each only if still
+/// empty) when the guard is dropped, unless `keep` was called first: a command refused after
+/// it created its output folder leaves no folder behind.
+#[derive(Debug)]
+#[must_use = "dropping it removes the folders again"]
+pub struct CreatedDirs(Vec<PathBuf>);
+
+impl CreatedDirs {
+    /// Create `dir` and its missing parents.
+    pub fn create(dir: &Path) -> std::io::Result<CreatedDirs> {
+        let mut missing = Vec::new();
+        let mut d = Some(dir);
+        while let Some(p) = d.filter(|p| !p.as_os_str().is_empty() && !p.exists()) {
+            missing.push(p.to_path_buf());
+            d = p.parent();
+        }
+        std::fs::create_dir_all(dir)?;
+        Ok(CreatedDirs(missing))
+    }
+
+    /// The command goes ahead: the folders stay.
+    pub fn keep(mut self) {
+        self.0.clear();
+    }
+}
+
+impl Drop for CreatedDirs {
+    fn drop(&mut self) {
+        for d in &self.0 {
+            let _ = std::fs::remove_dir(d);
+        }
+    }
+}
+
 /// Fail unless a file can be created (and removed) in `dir`: creates and deletes a probe file.
 pub fn check_writable_dir(dir: &Path) -> Result<()> {
     let probe = dir.join(format!(

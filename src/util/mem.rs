@@ -1,4 +1,6 @@
-//! The process's resident memory, from Linux `/proc/self/status` (0 where unavailable).
+//! The process's resident memory, from Linux `/proc/self/status` (0 where unavailable), and the
+//! memory a run may still take: the machine's available memory, or less where the process's
+//! control group sets a lower limit.
 
 /// Peak resident set size (`VmHWM`).
 pub fn peak_rss_bytes() -> u64 {
@@ -20,4 +22,39 @@ fn proc_status_bytes(key: &str) -> u64 {
                 .and_then(|kb| kb.parse::<u64>().ok())
         })
         .map_or(0, |kb| kb * 1024)
+}
+
+/// Memory this process can still take: `MemAvailable` of `/proc/meminfo`, or less where the
+/// cgroup (v2) limit `memory.max` minus `memory.current` is lower. `None` where neither is known.
+pub fn available_bytes() -> Option<u64> {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok().and_then(|s| {
+        s.lines()
+            .find(|l| l.starts_with("MemAvailable:"))
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|kb| kb.parse::<u64>().ok())
+            .map(|kb| kb * 1024)
+    });
+    let read = |f: &str| {
+        std::fs::read_to_string(format!("/sys/fs/cgroup/{f}"))
+            .ok()
+            .and_then(|s| s.trim().parse::<u64>().ok())
+    };
+    // "max" (no limit) does not parse: no cgroup bound.
+    let cgroup =
+        read("memory.max").map(|max| max.saturating_sub(read("memory.current").unwrap_or(0)));
+    match (meminfo, cgroup) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn available_memory_is_known_and_plausible() {
+        // Linux always has MemAvailable; a machine that runs the tests has more than 64 MB free
+        // and less than 64 TB.
+        let a = super::available_bytes().expect("MemAvailable");
+        assert!(a > 64 << 20 && a < 64 << 40, "{a}");
+    }
 }

@@ -80,6 +80,26 @@ pub fn refusal(o: &Outcome) -> Result<String, String> {
     }
 }
 
+/// Every file and folder below `d`, recursively, with its size and modification time: what a
+/// refused command must leave exactly as it was.
+pub fn snapshot(d: &Path) -> Vec<(PathBuf, u64, std::time::SystemTime)> {
+    let mut v = Vec::new();
+    let Ok(entries) = std::fs::read_dir(d) else {
+        return v;
+    };
+    for e in entries.flatten() {
+        let p = e.path();
+        if let Ok(m) = std::fs::symlink_metadata(&p) {
+            v.push((p.clone(), m.len(), m.modified().unwrap()));
+            if m.is_dir() {
+                v.extend(snapshot(&p));
+            }
+        }
+    }
+    v.sort();
+    v
+}
+
 /// Every file below `d`, recursively.
 pub fn files_under(d: &Path) -> Vec<PathBuf> {
     let mut v = Vec::new();
