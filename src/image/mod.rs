@@ -1049,12 +1049,17 @@ mod tests {
     fn validate_creates_the_folder_and_leaves_no_probe() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("new/deeper/vase_####.exr");
-        OutputPattern::parse(p.to_str().unwrap())
-            .unwrap()
-            .validate()
-            .unwrap();
+        let pattern = OutputPattern::parse(p.to_str().unwrap()).unwrap();
+        // Not kept (a refusal after the check): both folders it created go again.
+        drop(pattern.validate().unwrap());
+        assert!(!dir.path().join("new").exists());
+        // Kept (the render goes ahead): they stay, empty.
+        pattern.validate().unwrap().keep();
         assert!(dir.path().join("new/deeper").is_dir());
         assert!(files_in(&dir.path().join("new/deeper")).is_empty());
+        // A folder that was there already is never removed.
+        drop(pattern.validate().unwrap());
+        assert!(dir.path().join("new/deeper").is_dir());
     }
 
     #[test]
