@@ -1,4 +1,4 @@
-//! The reuse kernel: trace the native samples of one tile of one frame of a group, find where
+//! The reuse kernel: trace the native samples of one tile of each frame of a group, find where
 //! each hit lands in every eye of the group, and splat its weighted value into each of those
 //! frames' films.
 //!
