@@ -146,8 +146,13 @@ pub fn check_spp(flag: &str, spp: u32) -> Result<()> {
 }
 
 /// Worker threads: 0 (one per core) or at most 8 per core; more only thrash.
+/// The machine's cores (what `--threads 0` means), 1 where unknown.
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
 pub fn check_threads(threads: usize) -> Result<()> {
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let cores = cores();
     if threads > 8 * cores {
         bail!(
             "--threads {threads}: at most 8 per core ({} on this machine with {cores} cores), \
@@ -256,19 +261,13 @@ impl RenderOptions {
     /// libraries) is not counted.
     pub fn memory_estimate(&self, (w, h): (u32, u32)) -> u64 {
         let pixels = w as u64 * h as u64;
-        let layout = self.method.layout(self.spp, self.window, self.aov);
-        let folds = layout.norm.folds() as u64;
-        let per_pixel = 4 * (3 * folds)
-            + if layout.norm == crate::film::Norm::ControlVariate {
-                4 * folds
-            } else {
-                0
-            }
-            + if layout.landed { 4 } else { 0 }
-            + if layout.loss { 8 } else { 0 };
+        let per_pixel = self
+            .method
+            .layout(self.spp, self.window, self.aov)
+            .bytes_per_pixel() as u64;
         let n_f = self.window as u64;
         let threads = match self.threads {
-            0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+            0 => cores(),
             t => t,
         } as u64;
         let frames = if self.method.reuses() {

@@ -58,11 +58,9 @@ impl<'a> LocalFilm<'a> {
         let y0 = ty0.saturating_sub(MARGIN);
         let w = (tx1 + MARGIN).min(fw).saturating_sub(x0);
         let h = (ty1 + MARGIN).min(fh).saturating_sub(y0);
-        let folds = film.layout.norm.folds();
-        let rgb = 3 * folds;
-        let cells_px = rgb + if film.weights.is_some() { folds } else { 0 };
-        let counts_px =
-            usize::from(film.landed.is_some()) + if film.loss.is_some() { 2 } else { 0 };
+        let rgb = film.layout.sum_cells();
+        let cells_px = rgb + film.layout.weight_cells();
+        let counts_px = film.layout.count_cells();
         let px = (w * h) as usize;
         LocalFilm {
             film,

@@ -63,6 +63,31 @@ pub struct Layout {
     pub loss: bool,
 }
 
+impl Layout {
+    /// 32-bit sum cells per pixel: RGB for each fold.
+    pub fn sum_cells(&self) -> usize {
+        3 * self.norm.folds()
+    }
+
+    /// 32-bit weight cells per pixel: one per fold for the control variate, else none.
+    pub fn weight_cells(&self) -> usize {
+        match self.norm {
+            Norm::ControlVariate => self.norm.folds(),
+            Norm::Groups | Norm::Count => 0,
+        }
+    }
+
+    /// 32-bit count cells per pixel: samples landed, reuses tried and lost, where kept.
+    pub fn count_cells(&self) -> usize {
+        usize::from(self.landed) + if self.loss { 2 } else { 0 }
+    }
+
+    /// Bytes per pixel of a frame's accumulator.
+    pub fn bytes_per_pixel(&self) -> usize {
+        4 * (self.sum_cells() + self.weight_cells() + self.count_cells())
+    }
+}
+
 /// Elapsed seconds that survive a resume: those of earlier processes plus this one's.
 #[derive(Clone, Copy, Debug)]
 pub struct Clock {
@@ -167,12 +192,11 @@ pub struct AccumParts {
 impl FrameAccum {
     pub fn new(view: View, layout: Layout) -> FrameAccum {
         let p = view.pixels();
-        let folds = layout.norm.folds();
         FrameAccum {
             view,
             layout,
-            sum: FixedSums::new(3 * folds * p),
-            weights: (layout.norm == Norm::ControlVariate).then(|| FixedSums::new(folds * p)),
+            sum: FixedSums::new(layout.sum_cells() * p),
+            weights: (layout.weight_cells() > 0).then(|| FixedSums::new(layout.weight_cells() * p)),
             landed: layout.landed.then(|| zeros(p)),
             loss: layout.loss.then(|| (zeros(p), zeros(p))),
             landed_total: AtomicU64::new(0),

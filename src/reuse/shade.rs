@@ -43,7 +43,10 @@ pub fn shade_tile(
     tally: &mut Tally,
 ) -> u64 {
     let mut films: Vec<LocalFilm> = group.iter().map(|t| LocalFilm::new(t.film, tile)).collect();
-    let mut scratch = Scratch::default();
+    let mut scratch = Scratch {
+        pixel_areas: group.iter().map(|t| t.cam.pixel_area()).collect(),
+        ..Scratch::default()
+    };
     let mut bad = 0;
     for m in 0..group.len() {
         bad += shade_eye(
@@ -74,6 +77,8 @@ struct Scratch {
     escapes: Vec<(u32, u32, Vec3)>,
     land: Vec<Landing>,
     eyes: Vec<EyeTerms>,
+    /// `A_pix,k` of each eye of the group.
+    pixel_areas: Vec<f32>,
 }
 
 /// The native samples of tile `(x0, y0, x1, y1)` of frame `group[m]`, splatted into `films`
@@ -119,6 +124,7 @@ fn shade_eye(
         escapes,
         land,
         eyes,
+        pixel_areas,
     } = scratch;
     hits.clear();
     escapes.clear();
@@ -157,11 +163,7 @@ fn shade_eye(
     }
     let weights = p.method.weights();
     let mut bad = 0u64;
-    // Reuse bookkeeping summed locally and added once per tile: (tried, lost) per target eye.
-    let mut loss = vec![(0u64, 0u64); n_f];
-    let mut landed = vec![0u64; n_f];
-    landed[m] = landed_native;
-    let pixel_areas: Vec<f32> = group.iter().map(|t| t.cam.pixel_area()).collect();
+    films[m].add_counts(landed_native, 0, 0);
     for (hi, (pixel, index, fh)) in hits.iter().enumerate() {
         let x = fh.sp.p;
         eyes.clear();
@@ -179,8 +181,7 @@ fn shade_eye(
         for (k, t) in group.iter().enumerate() {
             let Some(i) = land[hi * n_f + k] else {
                 if k != m {
-                    loss[k].0 += 1;
-                    loss[k].1 += 1;
+                    films[k].add_counts(0, 1, 1);
                     // Only reuses lost to occlusion fall on a pixel of the target.
                     if t.film.layout.loss {
                         if let Some(i) = t.cam.pixel_of(x) {
@@ -192,8 +193,7 @@ fn shade_eye(
             };
             let i = i as usize;
             if k != m {
-                loss[k].0 += 1;
-                landed[k] += 1;
+                films[k].add_counts(1, 1, 0);
                 films[k].land(i, 1);
                 films[k].try_reuse(i, false);
             }
@@ -210,9 +210,6 @@ fn shade_eye(
                 }
             }
         }
-    }
-    for ((f, (tried, lost)), n) in films.iter_mut().zip(loss).zip(landed) {
-        f.add_counts(n, tried, lost);
     }
     for &(pixel, index, dir) in escapes.iter() {
         splat_escape(
