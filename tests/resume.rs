@@ -41,12 +41,7 @@ fn interrupt_when(child: &mut Child, signal: &str, ready: impl Fn() -> bool) {
         std::thread::sleep(Duration::from_millis(5));
     }
     assert!(child.try_wait().unwrap().is_none(), "finished too early");
-    let ok = Command::new("kill")
-        .args([&format!("-{signal}"), &child.id().to_string()])
-        .status()
-        .unwrap()
-        .success();
-    assert!(ok, "kill -{signal}");
+    assert!(common::signal(child, signal), "kill -{signal}");
 }
 
 const REUSE: [&str; 13] = [

@@ -4,20 +4,10 @@
 //! and checkpoints all the time leave no temporary file either, and its checkpoint resumes.
 mod common;
 
-use common::{files_under, reframe};
+use common::{files_under, reframe, signal};
 use std::path::Path;
 use std::process::{Child, Stdio};
 use std::time::{Duration, Instant};
-
-/// Send `sig` (`INT`, `TERM`) to `child`; whether it was still there to receive it.
-fn signal(child: &Child, sig: &str) -> bool {
-    std::process::Command::new("kill")
-        .args([&format!("-{sig}"), &child.id().to_string()])
-        .stderr(Stdio::null())
-        .status()
-        .unwrap()
-        .success()
-}
 
 /// Wait for `child` at most `limit`; its exit code and stderr.
 fn wait(mut child: Child, limit: Duration) -> (Option<i32>, String) {

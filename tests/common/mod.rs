@@ -144,6 +144,16 @@ pub fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec
     out.into_iter().map(|(_, r)| r).collect()
 }
 
+/// Send `sig` (`INT`, `TERM`, `KILL`, ...) to `child`; whether it was still there to receive it.
+pub fn signal(child: &std::process::Child, sig: &str) -> bool {
+    Command::new("kill")
+        .args([&format!("-{sig}"), &child.id().to_string()])
+        .stderr(Stdio::null())
+        .status()
+        .unwrap()
+        .success()
+}
+
 /// The `reframe` command with `args`, ready to run (standard input closed).
 pub fn reframe<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_reframe"));
