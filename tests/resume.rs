@@ -199,11 +199,14 @@ fn chunks_merge_to_identical_frames_for_any_n() {
         "--exr-float",
         "--aov",
     ];
-    // mis-cv's two folds merge the same way: its accumulators carry both.
-    let cv_base: Vec<&str> = base
+    // mis-cv's two folds merge the same way: its accumulators carry both. With 2 native
+    // samples, so that the range's first and last frames (one group each) fold by sample
+    // index: every chunk must fold them as the whole run does.
+    let mut cv_base: Vec<&str> = base
         .iter()
         .map(|a| if *a == "mis-exact" { "mis-cv" } else { a })
         .collect();
+    cv_base[7] = "2";
     let cv_whole = d.join("cv-whole");
     let cv_out = format!("{}/f_####.exr", cv_whole.display());
     run(&with(&cv_base, &["--out", &cv_out])

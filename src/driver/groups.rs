@@ -17,6 +17,7 @@ use crate::state::Record;
 use anyhow::{bail, Result};
 use rayon::prelude::*;
 use std::collections::VecDeque;
+use std::ops::RangeInclusive;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 
 /// What the group loop needs besides the estimator's parameters.
@@ -29,6 +30,16 @@ pub struct GroupSettings {
     pub width: u32,
     pub height: u32,
     pub progress: bool,
+    /// Every group of the run, of which `run.units` may be a chunk's share: whether a frame is
+    /// reached by one group only depends on the whole run (`Method::sample_folds`).
+    pub all_groups: RangeInclusive<u32>,
+}
+
+/// How many groups of `all` (first frames, `n_f` frames each) contain frame `f`.
+fn coverage(all: &RangeInclusive<u32>, n_f: u32, f: u32) -> u32 {
+    let first = (f + 1).saturating_sub(n_f).max(*all.start());
+    let last = f.min(*all.end());
+    (last + 1).saturating_sub(first)
 }
 
 /// The groups `run.units` from `run.next` on, starting from the frames in flight `active` (a
@@ -44,6 +55,10 @@ pub fn run_groups(
     let scene = integrator.scene;
     let (w, h, n_f) = (s.width, s.height, s.window);
     let layout: Layout = s.params.method.layout(s.params.spp, n_f, s.aov);
+    let sample_folds = s
+        .params
+        .method
+        .sample_folds(s.params.spp, n_f, s.adaptive.is_some());
     let last_group = *run.units.end();
     let chunked = run.ckpt.chunked();
     let pb = progress_bar(
@@ -104,7 +119,11 @@ pub fn run_groups(
         let group: Vec<Target> = active
             .iter()
             .filter(|(_, a)| a.frame() >= g0 && a.frame() < g0 + n_f)
-            .map(|(cam, film)| Target { cam, film })
+            .map(|(cam, film)| Target {
+                cam,
+                film,
+                split: sample_folds.is_some() && coverage(&s.all_groups, n_f, film.frame()) == 1,
+            })
             .collect();
         debug_assert_eq!(group.len(), n_f as usize);
         let (native_counts, pilot_rays) = match s.adaptive {
@@ -159,7 +178,7 @@ pub fn run_groups(
             if chunked {
                 run.ckpt.retire(&Record::Sums(Box::new(a)))?;
             } else {
-                let d = develop(&a);
+                let d = develop(&a, sample_folds);
                 drop(a);
                 run.counters.nonfinite_pixels += d.nonfinite;
                 sink.put(d)?;
@@ -178,4 +197,23 @@ pub fn run_groups(
     }
     pb.finish_and_clear();
     Ok(true)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::coverage;
+
+    #[test]
+    fn coverage_counts_the_groups_that_contain_a_frame() {
+        // Against enumerating the groups: ranges of one group, of a few, windows of one.
+        for (all, n_f) in [(0..=8, 5), (3..=3, 7), (10..=30, 1), (2..=4, 9)] {
+            for f in 0..all.end() + n_f + 2 {
+                let brute = all.clone().filter(|g| (*g..*g + n_f).contains(&f)).count();
+                assert_eq!(coverage(&all, n_f, f) as usize, brute, "{all:?} {n_f} {f}");
+            }
+        }
+        assert_eq!(coverage(&(0..=8), 5, 0), 1);
+        assert_eq!(coverage(&(0..=8), 5, 12), 1);
+        assert_eq!(coverage(&(0..=8), 5, 6), 5);
+    }
 }

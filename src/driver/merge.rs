@@ -151,6 +151,7 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
         .map(|f| std::fs::metadata(&f.path).map_or(0, |m| m.len()))
         .sum();
     let norm = method.norm();
+    let sample_folds = method.sample_folds(key.spp, key.window, key.adaptive != 0.0);
     // A frame from its shares: read (each record checked), added, its groups counted.
     let mut combine = |frame: u32, list: &[(usize, u64)]| -> Result<Developed> {
         let mut shares = list.iter().map(|&(i, off)| {
@@ -171,7 +172,7 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
                     absorb(&mut acc, r).with_context(|| format!("merging {label}"))?;
                 }
                 check_groups(&acc, key.first_frame, key.last_frame, key.window, method)?;
-                develop(&acc)
+                develop(&acc, sample_folds)
             }
         })
     };

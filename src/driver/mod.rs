@@ -139,6 +139,7 @@ fn frame_loop(
         width: w,
         height: h,
         progress: opts.progress,
+        all_groups: *plan.frames.start()..=plan.frames.end() + 1 - opts.window,
     };
     run_groups(integrator, &settings, run, active, sink)
 }

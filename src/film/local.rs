@@ -331,7 +331,7 @@ mod tests {
                 windowed.weights.as_ref().map(FixedSums::totals)
             );
             assert_eq!(direct.counts(), windowed.counts());
-            let (a, b) = (develop(&direct), develop(&windowed));
+            let (a, b) = (develop(&direct, None), develop(&windowed, None));
             assert!(a
                 .data
                 .iter()

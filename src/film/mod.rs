@@ -472,8 +472,10 @@ pub fn count_nonfinite(data: &[f32], nc: usize) -> u64 {
 /// The frame's final pixels from its accumulator, and with `--aov` (`aov`, which the layout's
 /// loss counts imply) its extra channels: RGB is the mean over the frame's groups (`Norm::Groups`)
 /// or over everything that landed (`Norm::Count`); `spp_eff` is the landed count and
-/// `lost_reuse` the share of tried reuses lost.
-pub fn develop(a: &FrameAccum) -> Developed {
+/// `lost_reuse` the share of tried reuses lost. `sample_folds`: the run's
+/// `Method::sample_folds`, the folds' expected weight shares of a frame that one group reached
+/// (the kernel folded its splats by sample index, `reuse::shade::Target::split`).
+pub fn develop(a: &FrameAccum, sample_folds: Option<[f64; 2]>) -> Developed {
     let n = a.view.pixels();
     let totals = a.sum.totals();
     let weights = a.weights.as_ref().map(FixedSums::totals);
@@ -494,7 +496,11 @@ pub fn develop(a: &FrameAccum) -> Developed {
             (Norm::ControlVariate, Some(w)) => {
                 let sum = |f: usize, c: usize| totals[6 * i + 3 * f + c] as f64 / FIXED;
                 let w = [w[2 * i] as f64 / FIXED, w[2 * i + 1] as f64 / FIXED];
-                let g = a.groups.map(f64::from);
+                // The weights a fold expects: one per group, or a share of the one group.
+                let g = match sample_folds {
+                    Some(shares) if a.group_count() == 1 => shares,
+                    _ => a.groups.map(f64::from),
+                };
                 for c in 0..3 {
                     let s = [sum(0, c), sum(1, c)];
                     data.push(control_variate(s, w, g) as f32 * unit);
@@ -527,10 +533,10 @@ pub fn develop(a: &FrameAccum) -> Developed {
 }
 
 /// The cross-fitted control-variate estimate of one pixel channel from its two folds' sums `s`,
-/// weight sums `w` (expectation one per group) and group counts `g` (docs/estimators.md,
-/// "Control variate"): each fold's self-normalised estimate `s_F / w_F` is the other fold's
-/// coefficient, so the coefficient is independent of the samples it multiplies. A fold without
-/// weight (no group, or nothing landed) gives coefficient 0.
+/// weight sums `w` and the weight sums they expect `g` (one per group, or a share of one group;
+/// docs/estimators.md, "Control variate"): each fold's self-normalised estimate `s_F / w_F` is
+/// the other fold's coefficient, so the coefficient is independent of the samples it
+/// multiplies. A fold without weight (no group, or nothing landed) gives coefficient 0.
 pub fn control_variate(s: [f64; 2], w: [f64; 2], g: [f64; 2]) -> f64 {
     let groups = g[0] + g[1];
     if groups == 0.0 {

@@ -107,6 +107,23 @@ impl Method {
         self.weights() == Weights::Exact
     }
 
+    /// `mis-cv`'s folds for a frame that only one group reaches (the first and last frames of a
+    /// range, every frame of a range of one group): its splats are folded by the parity of the
+    /// sample index within the pixel instead of the group's, and each fold is then a complete
+    /// sampling with `ceil(n_r / 2)` or `floor(n_r / 2)` samples per pixel of every eye, whose
+    /// weight sums expect those shares of one (docs/estimators.md, "Frames that one group
+    /// reaches"). Returns the two expected shares, or `None` where that is not exact or not
+    /// useful: other methods, one native sample, a window of one (nothing lands from other eyes:
+    /// the weights sum to one exactly), adaptive counts (a pixel's count may be odd, and the
+    /// shares would differ from pixel to pixel).
+    pub fn sample_folds(&self, spp: u32, window: u32, adaptive: bool) -> Option<[f64; 2]> {
+        if self.norm() != Norm::ControlVariate || spp < 2 || window < 2 || adaptive {
+            return None;
+        }
+        let n = spp as f64;
+        Some([spp.div_ceil(2) as f64 / n, (spp / 2) as f64 / n])
+    }
+
     /// The accumulator layout of a frame for `n_r` native samples and `n_f` frames per group:
     /// the methods that average by count splat whole radiance estimates, so one unit of their
     /// sums is worth `n_r n_f` (the count expected without losses) to keep the sums small.

@@ -27,6 +27,25 @@ use glam::{Vec2, Vec3};
 pub struct Target<'a> {
     pub cam: &'a Camera,
     pub film: &'a FrameAccum,
+    /// `mis-cv`: this group is the only one that reaches the frame, so its splats are folded by
+    /// the parity of the sample index within the pixel, not the group's
+    /// (`Method::sample_folds`).
+    pub split: bool,
+}
+
+impl Target<'_> {
+    /// The control variate's fold of the splats of sample `s` (its index within its pixel) of
+    /// the group starting at frame `g0` into this frame (0 where the film has one fold).
+    #[inline]
+    fn fold(&self, g0: u32, s: u32) -> usize {
+        if self.film.layout.norm.folds() < 2 {
+            0
+        } else if self.split {
+            (s % 2) as usize
+        } else {
+            (g0 % 2) as usize
+        }
+    }
 }
 
 /// Trace the native samples of tile `tile` of every frame of a group (the group starts at frame
@@ -110,14 +129,10 @@ fn shade_eye(
     } else {
         spp
     };
-    // The control variate's fold (the parity of the group) and whether the film keeps weights.
-    let film = native.film;
-    let fold = if film.layout.norm.folds() == 2 {
-        (g0 % 2) as usize
-    } else {
-        0
-    };
-    let cv = film.weight_sums().is_some();
+    // Whether the film keeps the control variate's weights (and folds, `Target::fold`).
+    let cv = native.film.weight_sums().is_some();
+    // The sample index of the frame's first sample in a pixel (see `index` below).
+    let first_index = (native_frame - g0) * stride;
     let mut landed_native = 0u64;
     let Scratch {
         hits,
@@ -137,7 +152,7 @@ fn shade_eye(
             for s in 0..n_p {
                 // Sample index: the frame's position in the group keeps each group's samples of a
                 // frame independent; with one frame per group this is the independent tracer's.
-                let index = (native_frame - g0) * stride + s;
+                let index = first_index + s;
                 let mut sampler = Sampler::new(p.seed, native_frame, pixel, index);
                 let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                 let dir = cam_m.direction(r);
@@ -199,6 +214,7 @@ fn shade_eye(
             }
             let v = weighing.value(t.cam.eye, &eyes[k]);
             let dither = sample_dither.to(t.film.frame());
+            let fold = t.fold(g0, index - first_index);
             if !films[k].splat(i, fold, v, dither) {
                 bad += 1;
             }
@@ -217,7 +233,7 @@ fn shade_eye(
             p,
             group,
             m,
-            fold,
+            (g0, first_index),
             (pixel, index, dir),
             &n_at,
             films,
@@ -257,7 +273,7 @@ fn splat_escape(
     p: &Params,
     group: &[Target],
     m: usize,
-    fold: usize,
+    (g0, first_index): (u32, u32),
     (pixel, index, dir): (u32, u32, Vec3),
     n_at: &dyn Fn(usize, u32) -> u32,
     films: &mut [LocalFilm],
@@ -291,10 +307,15 @@ fn splat_escape(
         return;
     }
     let native_frame = group[m].film.frame();
-    for (f, s) in films.iter_mut().zip(&seen) {
+    for ((f, s), t) in films.iter_mut().zip(&seen).zip(group) {
         if let Some((i, j)) = *s {
             let d = Dither::of(p.seed, native_frame, pixel, index).to(f.film().frame());
-            f.splat_weight(i as usize, fold, j / total, mix64(d));
+            f.splat_weight(
+                i as usize,
+                t.fold(g0, index - first_index),
+                j / total,
+                mix64(d),
+            );
         }
     }
 }

@@ -801,7 +801,7 @@ mod tests {
         assert_eq!(a.landed_counts().unwrap().next(), Some(6));
         assert_eq!(a.counts(), [36, 24, 12]);
         // Developed by count: pixel 0's red is 2 * (-5) steps, times the unit, over 6 landed.
-        let d = crate::film::develop(&a);
+        let d = crate::film::develop(&a, None);
         assert_eq!(d.data[0], (-10.0 / FIXED) as f32 * 7.0 / 6.0);
         let other = FrameAccum::new(
             view(1),
