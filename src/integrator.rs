@@ -11,6 +11,9 @@
 //! balance heuristic (Veach 1997, eq. 9.13): a light sample contributes `f cos Le / (p_l + p_b)`,
 //! an emitter hit by the BSDF direction `f cos Le / (p_b + p_l)`, which is the form whose
 //! denominator the reuse estimator extends over the eyes of a group (docs/estimators.md, "Direct light and self-emission").
+//! Rays that leave the scene see the environment light (`scene::environment`), which is an
+//! emitter like any other for MIS: its light samples are weighted against BSDF sampling and the
+//! BSDF directions that escape against its light sampling.
 //! Paths end by Russian roulette after `RR_DEPTH` bounces, or at `max_depth`.
 use crate::bsdf::Material;
 use crate::embree::{Hit, Ray};
@@ -198,7 +201,7 @@ impl<'a> Integrator<'a> {
         if f == Vec3::ZERO {
             return Vec3::ZERO;
         }
-        let ray = Ray::between(sp.p, sp.ng, ls.p, ls.n);
+        let ray = ls.shadow_ray(sp.p, sp.ng);
         t.shadow(&ray);
         if self.scene.geometry.occluded1(&ray) {
             return Vec3::ZERO;
@@ -250,7 +253,7 @@ impl<'a> Integrator<'a> {
             let mut le = ls.le;
             // A light behind the surface cannot contribute for any eye on this side; skip the ray.
             if le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 {
-                let ray = Ray::between(sp.p, sp.ng, ls.p, ls.n);
+                let ray = ls.shadow_ray(sp.p, sp.ng);
                 t.shadow(&ray);
                 if scene.geometry.occluded1(&ray) {
                     le = Vec3::ZERO;
@@ -280,6 +283,11 @@ impl<'a> Integrator<'a> {
         let ray = Ray::spawn(sp.p, sp.ng, bs.wi);
         t.path(&ray);
         let Some(h2) = scene.geometry.intersect1(&ray) else {
+            // Out of the scene: the environment is the emitter reached along `w`.
+            rec.le_w = scene.env_radiance(bs.wi);
+            if rec.le_w != Vec3::ZERO {
+                rec.pdf_light_w = scene.env_pdf(bs.wi);
+            }
             return rec;
         };
         let y = scene.surface(&h2);
@@ -330,6 +338,12 @@ impl<'a> Integrator<'a> {
             let ray = Ray::spawn(sp.p, sp.ng, bs.wi);
             t.path(&ray);
             let Some(h) = scene.geometry.intersect1(&ray) else {
+                // Out of the scene: the environment, weighted against its light sampling.
+                let le = scene.env_radiance(bs.wi);
+                if le != Vec3::ZERO {
+                    let pl = scene.env_pdf(bs.wi);
+                    l += beta * le * (bs.pdf / (bs.pdf + pl));
+                }
                 break;
             };
             let next = scene.surface(&h);
@@ -361,9 +375,10 @@ impl<'a> Integrator<'a> {
         s: &mut Sampler,
         t: &mut Tally,
     ) -> Vec3 {
-        match self.trace_first_hit(cam.eye, cam.direction(r), s, t) {
+        let dir = cam.direction(r);
+        match self.trace_first_hit(cam.eye, dir, s, t) {
             Some(fh) => fh.radiance(self.scene, cam.eye),
-            None => Vec3::ZERO,
+            None => self.scene.env_radiance(dir),
         }
     }
 }

@@ -39,9 +39,10 @@
 //! ```
 use crate::bsdf::{luminance, Material};
 use crate::camera::{Camera, CameraPath, Keyframe};
-use crate::embree::{Device, Hit, TriangleScene};
+use crate::embree::{Device, Hit, Ray, TriangleScene};
 use crate::sampling::uniform_triangle;
 use anyhow::{anyhow, bail, Context, Result};
+use environment::Environment;
 use glam::{Vec2, Vec3};
 use serde::{de, Deserialize, Deserializer};
 use std::collections::HashMap;
@@ -50,6 +51,7 @@ use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
 use toml::Spanned;
 
+pub mod environment;
 mod mesh;
 mod mtl;
 mod obj;
@@ -113,6 +115,17 @@ struct SceneFile {
     frames: Spanned<u32>,
     resolution: Spanned<Exactly<u32, 2>>,
     keyframe: Vec<KeyframeFile>,
+    environment: Option<Spanned<EnvironmentFile>>,
+}
+
+/// `[environment]`: a lat-long image or one colour, scaled and turned about +Y.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct EnvironmentFile {
+    image: Option<Spanned<String>>,
+    radiance: Option<Spanned<Exactly<f32, 3>>>,
+    intensity: Option<Spanned<f32>>,
+    rotation: Option<Spanned<f32>>,
 }
 
 /// An array of exactly `N` values: serde's `[T; N]` takes the first `N` of a longer TOML array
@@ -171,7 +184,8 @@ pub struct Lights {
     pdf_area: Vec<f32>,
 }
 
-/// A point sampled on a light, seen from a shading point.
+/// A point sampled on a light, seen from a shading point (for the environment: a direction, with
+/// `dist` infinite).
 #[derive(Clone, Copy, Debug)]
 pub struct LightSample {
     pub p: Vec3,
@@ -182,6 +196,19 @@ pub struct LightSample {
     pub le: Vec3,
     /// Solid-angle density at the shading point.
     pub pdf: f32,
+}
+
+impl LightSample {
+    /// The shadow ray from surface point `p` (geometric normal `ng`) to the sampled point, or
+    /// out to infinity along `wi` for the environment.
+    #[inline]
+    pub fn shadow_ray(&self, p: Vec3, ng: Vec3) -> Ray {
+        if self.dist.is_infinite() {
+            Ray::spawn(p, ng, self.wi)
+        } else {
+            Ray::between(p, ng, self.p, self.n)
+        }
+    }
 }
 
 /// The geometry at a hit, built from Embree's minimal hit only when it is shaded.
@@ -211,6 +238,11 @@ pub struct Scene {
     pub materials: Vec<Material>,
     pub material_names: Vec<String>,
     pub lights: Lights,
+    /// The environment light, if the scene has one (`[environment]`).
+    pub environment: Option<Environment>,
+    /// Probability that light sampling picks the environment rather than an area light: 1/2
+    /// when both emit, 1 or 0 when only one does.
+    env_select: f32,
     pub geometry: TriangleScene,
     /// What loading found odd but not wrong (e.g. faces without a material). The command line
     /// prints them once the command has succeeded, so that a failure stays one line.
@@ -274,6 +306,17 @@ impl Scene {
             Source::Builtin(i) => BUILTIN[*i].0.to_string(),
         };
         let (width, height, path) = check_camera(&label, toml_text, &file)?;
+        let (environment, env_input) = match &file.environment {
+            None => (None, None),
+            Some(e) => {
+                let dir = match &source {
+                    Source::Files { toml } => Some(toml.parent().unwrap_or(Path::new("."))),
+                    Source::Builtin(_) => None,
+                };
+                let (env, input) = load_environment(&label, toml_text, e, dir)?;
+                (Some(env), input)
+            }
+        };
         let obj_at = format!(
             "{label}: line {}: obj '{}'",
             line_at(toml_text.as_bytes(), file.obj.span().start),
@@ -301,24 +344,35 @@ impl Scene {
                 [toml.clone(), dir.join(file.obj.get_ref())]
                     .into_iter()
                     .chain(mtls)
+                    .chain(env_input)
                     .collect()
             }
             Source::Builtin(_) => Vec::new(),
         };
         let geometry = TriangleScene::new(device, &mesh.positions, &mesh.triangles)
             .with_context(|| format!("{obj_label}: building the Embree scene"))?;
-        let lights = Lights::new(&mesh).ok_or_else(|| {
+        let lights = Lights::new(&mesh);
+        let env_emits = environment.as_ref().is_some_and(Environment::emits);
+        if lights.tris.is_empty() && !env_emits {
             // A light lost with its material is the likely cause: say so on the same line.
             let lost = repairs
                 .first_of(&[MTL_MISSING, NO_MTLLIB, UNKNOWN_MATERIAL])
                 .map(|w| format!(" (materials fell back to the default: {w})"))
                 .unwrap_or_default();
-            anyhow!(
-                "{obj_label}: the scene has no light: no material has a positive Ke (area \
-                 lights are reframe's only lights; environment lighting is not supported \
-                 yet){lost}"
-            )
-        })?;
+            let env = if environment.is_some() {
+                "its [environment] is black"
+            } else {
+                "it has no [environment]"
+            };
+            bail!(
+                "{obj_label}: the scene has no light: no material has a positive Ke, and {env}{lost}"
+            );
+        }
+        let env_select = match (env_emits, lights.tris.is_empty()) {
+            (false, _) => 0.0,
+            (true, true) => 1.0,
+            (true, false) => 0.5,
+        };
         Ok(Scene {
             inputs,
             warnings: repairs.into_warnings(),
@@ -336,6 +390,8 @@ impl Scene {
             materials: mesh.materials,
             material_names: mesh.material_names,
             lights,
+            environment,
+            env_select,
             geometry,
         })
     }
@@ -395,9 +451,30 @@ impl Scene {
         }
     }
 
-    /// Sample a point on a light as seen from `x`.
+    /// Sample a point on a light (or a direction towards the environment) as seen from `x`: the
+    /// environment with probability `env_select`, else an area light by power.
     pub fn sample_light(&self, x: Vec3, u_sel: f32, u: Vec2) -> Option<LightSample> {
+        let mut u_sel = u_sel;
+        let p_env = self.env_select;
+        if p_env > 0.0 {
+            if u_sel < p_env {
+                let es = self.environment.as_ref()?.sample(u)?;
+                return Some(LightSample {
+                    p: x + es.wi,
+                    n: -es.wi,
+                    wi: es.wi,
+                    dist: f32::INFINITY,
+                    le: es.le,
+                    pdf: p_env * es.pdf,
+                });
+            }
+            // The rest of [0, 1) picks among the area lights.
+            u_sel = ((u_sel - p_env) / (1.0 - p_env)).min(1.0 - f32::EPSILON);
+        }
         let l = &self.lights;
+        if l.tris.is_empty() {
+            return None;
+        }
         let i = l.cdf.partition_point(|&c| c <= u_sel).min(l.tris.len() - 1);
         let tri = l.tris[i] as usize;
         let [i0, i1, i2] = self.triangles[tri];
@@ -422,7 +499,7 @@ impl Scene {
         } else {
             Vec3::ZERO
         };
-        let pdf = l.pdf_area[tri] * dist2 / cos_l.abs();
+        let pdf = l.pdf_area[tri] * (1.0 - p_env) * dist2 / cos_l.abs();
         Some(LightSample {
             p,
             n,
@@ -447,12 +524,32 @@ impl Scene {
         if cos_l <= 1e-7 {
             return 0.0;
         }
-        pa * dist2 / cos_l
+        pa * (1.0 - self.env_select) * dist2 / cos_l
+    }
+
+    /// Radiance arriving from the environment along unit direction `d` (zero without one): what
+    /// a ray that leaves the scene sees.
+    #[inline]
+    pub fn env_radiance(&self, d: Vec3) -> Vec3 {
+        self.environment
+            .as_ref()
+            .map_or(Vec3::ZERO, |e| e.radiance(d))
+    }
+
+    /// Solid-angle density with which `sample_light` picks direction `d` towards the
+    /// environment (0 without one).
+    #[inline]
+    pub fn env_pdf(&self, d: Vec3) -> f32 {
+        match &self.environment {
+            Some(e) if self.env_select > 0.0 => self.env_select * e.pdf(d),
+            _ => 0.0,
+        }
     }
 }
 
 impl Lights {
-    fn new(mesh: &Mesh) -> Option<Lights> {
+    /// The emitting triangles of `mesh` (none, if no material emits).
+    fn new(mesh: &Mesh) -> Lights {
         let mut tris = Vec::new();
         let mut power = Vec::new();
         for (t, &m) in mesh.tri_material.iter().enumerate() {
@@ -466,7 +563,11 @@ impl Lights {
             }
         }
         if tris.is_empty() {
-            return None;
+            return Lights {
+                tris,
+                cdf: Vec::new(),
+                pdf_area: vec![0.0; mesh.triangles.len()],
+            };
         }
         let total: f64 = power.iter().sum();
         let mut acc = 0.0f64;
@@ -479,11 +580,11 @@ impl Lights {
             pdf_area[t] = ((p / total) / mesh.tri_area[t] as f64) as f32;
         }
         *cdf.last_mut().unwrap() = 1.0;
-        Some(Lights {
+        Lights {
             tris,
             cdf,
             pdf_area,
-        })
+        }
     }
 }
 
@@ -617,6 +718,99 @@ fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, Cam
         bail!("{label}: frame {frame} ({at}): {fails}");
     }
     Ok((w, h, path))
+}
+
+/// Most texels of an environment image (16384 x 4096): 24 bytes each once loaded.
+pub const MAX_ENV_TEXELS: u64 = 1 << 26;
+
+/// The `[environment]` table, checked, and the image file it read (none for a colour).
+fn load_environment(
+    label: &str,
+    text: &str,
+    e: &Spanned<EnvironmentFile>,
+    dir: Option<&Path>,
+) -> Result<(Environment, Option<PathBuf>)> {
+    let line = |span: Range<usize>| line_at(text.as_bytes(), span.start);
+    let at =
+        |span: Range<usize>, key: &str| format!("{label}: line {}: environment {key}", line(span));
+    let f = e.get_ref();
+    let intensity = match &f.intensity {
+        Some(i) => {
+            let v = *i.get_ref();
+            if !((0.0..=MAX_KE).contains(&v)) {
+                bail!(
+                    "{} {v}: must be a finite number in [0, {MAX_KE:e}]",
+                    at(i.span(), "intensity")
+                );
+            }
+            v
+        }
+        None => 1.0,
+    };
+    let rotation = match &f.rotation {
+        Some(r) => {
+            let v = *r.get_ref();
+            if !(v.is_finite() && v.abs() <= 1e6) {
+                bail!(
+                    "{} {v}: must be finite degrees (at most 1e6 in magnitude)",
+                    at(r.span(), "rotation")
+                );
+            }
+            v
+        }
+        None => 0.0,
+    };
+    match (&f.image, &f.radiance) {
+        (Some(_), Some(r)) => bail!(
+            "{}: give either image or radiance, not both",
+            at(r.span(), "radiance")
+        ),
+        (None, None) => bail!(
+            "{label}: line {}: [environment] needs an image (a lat-long file) or a radiance \
+             (one colour)",
+            line(e.span())
+        ),
+        (None, Some(r)) => {
+            let c = r.get_ref().0;
+            if !c.iter().all(|c| c.is_finite() && *c >= 0.0 && *c <= MAX_KE) {
+                bail!(
+                    "{} {c:?}: each must be a finite number in [0, {MAX_KE:e}]",
+                    at(r.span(), "radiance")
+                );
+            }
+            Ok((Environment::uniform(Vec3::from(c) * intensity), None))
+        }
+        (Some(img), None) => {
+            let Some(dir) = dir else {
+                bail!(
+                    "{}: a shipped scene cannot name an image",
+                    at(img.span(), "image")
+                );
+            };
+            let path = dir.join(img.get_ref());
+            let at = format!("{label}: line {}", line(img.span()));
+            // Regular file, size-capped, before OIIO opens it (a FIFO must not block the load).
+            crate::util::input::open_input(&path, "environment image", MAX_INPUT_BYTES)
+                .map_err(|e| anyhow!("{at}: {e}"))?;
+            let image = crate::image::read_linear_rgb(&path, MAX_ENV_TEXELS)
+                .map_err(|e| anyhow!("{at}: environment image: {e}"))?;
+            let at = format!("{at}: environment image {}", path.display());
+            let mut texels = Vec::with_capacity(image.data.len() / 3);
+            for (i, c) in image.data.chunks_exact(3).enumerate() {
+                let t = Vec3::new(c[0], c[1], c[2]);
+                if !t.is_finite() || t.min_element() < 0.0 {
+                    let (x, y) = (i as u32 % image.width, i as u32 / image.width);
+                    bail!(
+                        "{at}: pixel ({x}, {y}) is {t}: environment radiance must be finite and \
+                         non-negative"
+                    );
+                }
+                texels.push((t * intensity).min(Vec3::splat(MAX_KE)));
+            }
+            let env = Environment::from_texels(image.width, image.height, texels, rotation);
+            Ok((env, Some(path)))
+        }
+    }
 }
 
 /// Where the MTL files an OBJ names come from.

@@ -573,6 +573,65 @@ pub fn read_image(path: &Path) -> Result<Image> {
     read().map_err(|e| anyhow!("cannot read {}: {e}", path.display()))
 }
 
+/// Reads a colour input (an environment map, a texture) as linear RGB: refuses images of more
+/// than `max_pixels` pixels before reading their pixels; takes the channels named R, G, B, or
+/// the first three, or a single channel as grey; decodes sRGB where the file says its pixels are
+/// sRGB (OIIO's `oiio:ColorSpace`, which it sets for 8-bit PNG and JPEG), so that an 8-bit file
+/// gives the same linear values as the HDR it was made from.
+pub fn read_linear_rgb(path: &Path, max_pixels: u64) -> Result<Image> {
+    let read = || -> Result<Image> {
+        let mut reader = ffi::open_reader(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
+        let info = reader.info();
+        let pixels = info.width as u64 * info.height as u64;
+        if pixels == 0 || info.channels.is_empty() {
+            bail!("the image has no pixels");
+        }
+        if pixels > max_pixels {
+            bail!(
+                "{}x{} pixels, more than the {max_pixels} reframe reads",
+                info.width,
+                info.height
+            );
+        }
+        let srgb = reader.attributes().into_iter().any(|a| {
+            a.name.eq_ignore_ascii_case("oiio:ColorSpace")
+                && a.text.to_ascii_lowercase().contains("srgb")
+        });
+        let nch = info.channels.len();
+        let mut data = vec![0.0f32; pixels as usize * nch];
+        reader
+            .pin_mut()
+            .read_f32(&mut data)
+            .map_err(|e| anyhow!("{}", e.what()))?;
+        let named = ["R", "G", "B"].map(|c| info.channels.iter().position(|n| n == c));
+        let pick: [usize; 3] = match named {
+            [Some(r), Some(g), Some(b)] => [r, g, b],
+            _ if nch >= 3 => [0, 1, 2],
+            _ => [0, 0, 0],
+        };
+        let decode = |v: f32| {
+            if !srgb {
+                v
+            } else if v <= 0.04045 {
+                v / 12.92
+            } else {
+                ((v + 0.055) / 1.055).powf(2.4)
+            }
+        };
+        let mut rgb = Vec::with_capacity(pixels as usize * 3);
+        for px in data.chunks_exact(nch) {
+            rgb.extend(pick.map(|c| decode(px[c])));
+        }
+        Ok(Image {
+            width: info.width,
+            height: info.height,
+            channels: vec!["R".into(), "G".into(), "B".into()],
+            data: rgb,
+        })
+    };
+    read().map_err(|e| anyhow!("cannot read {}: {e}", path.display()))
+}
+
 /// reframe's metadata as found in the file, as (name, value) pairs: the "reframe:*" attributes
 /// with their full names, and the camera matrices under their EXR names ("worldToCamera",
 /// "worldToNDC") as 16 space-separated numbers in file order. Numbers are formatted so that they

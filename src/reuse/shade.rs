@@ -12,7 +12,7 @@
 //! bitwise identical for any thread count and any window.
 use super::visibility::{visibility, Landing, NativeHit};
 use super::weights::{EyeTerms, Weighing};
-use super::Params;
+use super::{Params, Weights};
 use crate::camera::Camera;
 use crate::embree::Ray;
 use crate::film::local::LocalFilm;
@@ -131,6 +131,9 @@ fn shade_eye(
     };
     // Whether the film keeps the control variate's weights (and folds, `Target::fold`).
     let cv = native.film.weight_sums().is_some();
+    // Camera samples that leave the scene are kept where they count: as points at infinity for
+    // the control variate's weights, and for the environment's radiance where there is one.
+    let keep_escapes = cv || integrator.scene.environment.is_some();
     // The sample index of the frame's first sample in a pixel (see `index` below).
     let first_index = (native_frame - g0) * stride;
     let mut landed_native = 0u64;
@@ -158,7 +161,7 @@ fn shade_eye(
                 let dir = cam_m.direction(r);
                 match integrator.trace_first_hit(cam_m.eye, dir, &mut sampler, tally) {
                     Some(fh) => hits.push((pixel, index, fh)),
-                    None if cv => escapes.push((pixel, index, dir)),
+                    None if keep_escapes => escapes.push((pixel, index, dir)),
                     None => {}
                 }
             }
@@ -228,17 +231,29 @@ fn shade_eye(
         }
     }
     for &(pixel, index, dir) in escapes.iter() {
-        splat_escape(
-            integrator,
-            p,
-            group,
-            m,
-            (g0, first_index),
-            (pixel, index, dir),
-            &n_at,
-            films,
-            tally,
-        );
+        if weights == Weights::Exact {
+            bad += splat_escape(
+                integrator,
+                p,
+                group,
+                m,
+                (g0, first_index),
+                (pixel, index, dir),
+                &n_at,
+                films,
+                tally,
+            );
+            continue;
+        }
+        // The ratio estimators average what lands by count, and the sample is already counted
+        // in its own pixel: it adds the environment's radiance there.
+        let le = integrator.scene.env_radiance(dir);
+        if le != Vec3::ZERO {
+            let d = Dither::of(p.seed, native_frame, pixel, index).to(native_frame);
+            if !films[m].splat(pixel as usize, 0, le, d) {
+                bad += 1;
+            }
+        }
     }
     bad
 }
@@ -261,12 +276,14 @@ impl Dither {
     }
 }
 
-/// A camera sample of eye `group[m]` that left the scene along `dir`, as the control variate
-/// weighs it (docs/estimators.md, "Background pixels"): a point at infinity, which eye k sees
+/// A camera sample of eye `group[m]` that left the scene along `dir`, reused with the exact
+/// weights (docs/estimators.md, "Background pixels"): a point at infinity, which eye k sees
 /// where `dir` projects onto its film if the ray from its eye along `dir` escapes too, with the
-/// film density of a direction `J_k = 1 / cos_t^3`. It carries no radiance (nothing is there),
-/// only its weight `(J_k / A_pix,k) / sum_k' D_k'` in every eye that sees it, so that the weights
-/// landing in a pixel sum to one in expectation also where the pixel sees the background.
+/// film density of a direction `J_k = 1 / cos_t^3`. Its weight `(J_k / A_pix,k) / sum_k' D_k'` in
+/// every eye that sees it goes into the control variate's weight sums (so that the weights
+/// landing in a pixel sum to one in expectation also where the pixel sees the background), and
+/// that weight times the environment's radiance along `dir` (the same for every eye) into the
+/// sums. Returns the number of non-finite contributions dropped.
 #[allow(clippy::too_many_arguments)]
 fn splat_escape(
     integrator: &Integrator,
@@ -278,7 +295,7 @@ fn splat_escape(
     n_at: &dyn Fn(usize, u32) -> u32,
     films: &mut [LocalFilm],
     tally: &mut Tally,
-) {
+) -> u64 {
     let geometry = &integrator.scene.geometry;
     // Per eye: the pixel `dir` lands in and `J_k / A_pix,k`, where the eye sees it.
     let seen: Vec<Option<(u32, f32)>> = group
@@ -304,18 +321,20 @@ fn splat_escape(
         .filter_map(|(k, s)| s.map(|(i, j)| n_at(k, i) as f32 * j))
         .sum();
     if total <= 0.0 {
-        return;
+        return 0;
     }
+    let le = integrator.scene.env_radiance(dir);
     let native_frame = group[m].film.frame();
+    let mut bad = 0;
     for ((f, s), t) in films.iter_mut().zip(&seen).zip(group) {
         if let Some((i, j)) = *s {
             let d = Dither::of(p.seed, native_frame, pixel, index).to(f.film().frame());
-            f.splat_weight(
-                i as usize,
-                t.fold(g0, index - first_index),
-                j / total,
-                mix64(d),
-            );
+            let fold = t.fold(g0, index - first_index);
+            if le != Vec3::ZERO && !f.splat(i as usize, fold, le * (j / total), d) {
+                bad += 1;
+            }
+            f.splat_weight(i as usize, fold, j / total, mix64(d));
         }
     }
+    bad
 }
