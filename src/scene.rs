@@ -38,7 +38,7 @@
 //! # anyhow::Ok(())
 //! ```
 use crate::bsdf::{luminance, Material};
-use crate::camera::{Camera, CameraPath, Keyframe};
+use crate::camera::{Camera, CameraPath, Cameras, Interpolation, Keyframe, Pose};
 use crate::embree::{Device, Hit, TriangleScene};
 use crate::sampling::uniform_triangle;
 use anyhow::{anyhow, bail, Context, Result};
@@ -50,6 +50,7 @@ use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
 use toml::Spanned;
 
+mod camera_file;
 mod mesh;
 mod mtl;
 mod obj;
@@ -112,7 +113,11 @@ struct SceneFile {
     obj: Spanned<String>,
     frames: Spanned<u32>,
     resolution: Spanned<Exactly<u32, 2>>,
-    keyframe: Vec<KeyframeFile>,
+    /// `[[keyframe]]` tables, or else `camera`: a camera file.
+    keyframe: Option<Vec<KeyframeFile>>,
+    camera: Option<Spanned<String>>,
+    /// How the keyframes are interpolated (linear if not given).
+    interpolation: Option<Spanned<Interpolation>>,
 }
 
 /// An array of exactly `N` values: serde's `[T; N]` takes the first `N` of a longer TOML array
@@ -201,7 +206,8 @@ pub struct Scene {
     pub frames: u32,
     pub width: u32,
     pub height: u32,
-    pub path: CameraPath,
+    /// The camera of every frame: keyframes interpolated, or a camera file's.
+    pub cameras: Cameras,
     pub positions: Vec<Vec3>,
     pub normals: Vec<Vec3>,
     pub triangles: Vec<[u32; 3]>,
@@ -215,8 +221,8 @@ pub struct Scene {
     /// What loading found odd but not wrong (e.g. faces without a material). The command line
     /// prints them once the command has succeeded, so that a failure stays one line.
     pub warnings: Vec<String>,
-    /// The files the scene was read from (TOML, OBJ, MTLs; none for a shipped scene): a command
-    /// never writes over them.
+    /// The files the scene was read from (TOML, camera file, OBJ, MTLs; none for a shipped
+    /// scene): a command never writes over them.
     pub inputs: Vec<PathBuf>,
 }
 
@@ -273,7 +279,28 @@ impl Scene {
                 .unwrap_or_default(),
             Source::Builtin(i) => BUILTIN[*i].0.to_string(),
         };
-        let (width, height, path) = check_camera(&label, toml_text, &file)?;
+        let dir = match &source {
+            Source::Files { toml } => Some(toml.parent().unwrap_or(Path::new(".")).to_path_buf()),
+            Source::Builtin(_) => None,
+        };
+        let camera_path = |name: &str| dir.as_ref().map(|d| d.join(name));
+        let read_camera = |name: &Spanned<String>, frames: u32| -> Result<Vec<Pose>> {
+            let at = format!(
+                "{label}: line {}: camera '{}'",
+                line_at(toml_text.as_bytes(), name.span().start),
+                quote(name.get_ref())
+            );
+            let Some(format) = camera_file::Format::of(name.get_ref()) else {
+                bail!("{at}: a camera file's name ends in .json or .csv");
+            };
+            let Some(path) = camera_path(name.get_ref()) else {
+                bail!("{at}: a shipped scene has no camera file");
+            };
+            let bytes = read_input(&path, "camera file", MAX_INPUT_BYTES)
+                .map_err(|e| anyhow!("{at}: {e}"))?;
+            camera_file::parse(&path.display().to_string(), &bytes, format, frames)
+        };
+        let (width, height, cameras) = check_camera(&label, toml_text, &file, read_camera)?;
         let obj_at = format!(
             "{label}: line {}: obj '{}'",
             line_at(toml_text.as_bytes(), file.obj.span().start),
@@ -300,6 +327,7 @@ impl Scene {
                 let dir = toml.parent().unwrap_or(Path::new("."));
                 [toml.clone(), dir.join(file.obj.get_ref())]
                     .into_iter()
+                    .chain(file.camera.as_ref().and_then(|c| camera_path(c.get_ref())))
                     .chain(mtls)
                     .collect()
             }
@@ -326,7 +354,7 @@ impl Scene {
             frames: *file.frames.get_ref(),
             width,
             height,
-            path,
+            cameras,
             positions: mesh.positions,
             normals: mesh.normals,
             triangles: mesh.triangles,
@@ -342,7 +370,7 @@ impl Scene {
 
     /// The camera of frame `frame`, at `width` x `height`.
     pub fn camera(&self, frame: u32, width: u32, height: u32) -> Camera {
-        Camera::new(&self.path.at(frame), width, height)
+        Camera::from_pose(&self.cameras.pose(frame), width, height)
     }
 
     /// Shading data for Embree's hit.
@@ -511,7 +539,14 @@ fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
     })
 }
 
-fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, CameraPath)> {
+/// Check the resolution, the frames and the cameras of every frame: the keyframes, interpolated
+/// as the scene says, or the camera file `camera` names (read by `read_camera`).
+fn check_camera(
+    label: &str,
+    text: &str,
+    f: &SceneFile,
+    read_camera: impl FnOnce(&Spanned<String>, u32) -> Result<Vec<Pose>>,
+) -> Result<(u32, u32, Cameras)> {
     let line = |span: Range<usize>| line_at(text.as_bytes(), span.start);
     let [w, h] = f.resolution.get_ref().0;
     let at = format!("{label}: line {}: resolution", line(f.resolution.span()));
@@ -529,12 +564,34 @@ fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, Cam
     if frames > MAX_FRAMES {
         bail!("{at}: at most {MAX_FRAMES}");
     }
-    if f.keyframe.is_empty() {
+    let keyframes = match (&f.camera, &f.keyframe) {
+        (Some(c), Some(_)) => bail!(
+            "{label}: line {}: camera = '{}' and [[keyframe]] tables: give one or the other",
+            line(c.span()),
+            quote(c.get_ref())
+        ),
+        (Some(c), None) => {
+            if let Some(i) = &f.interpolation {
+                bail!(
+                    "{label}: line {}: interpolation with a camera file: a camera file gives \
+                     every frame, there is nothing to interpolate",
+                    line(i.span())
+                );
+            }
+            let poses = read_camera(c, frames)?;
+            return Ok((w, h, Cameras::PerFrame(poses)));
+        }
+        (None, None) => bail!(
+            "{label}: no camera: give [[keyframe]] tables or camera = \"file.json\" (or .csv)"
+        ),
+        (None, Some(k)) => k,
+    };
+    if keyframes.is_empty() {
         bail!("{label}: no [[keyframe]]: the camera path needs at least one");
     }
     let mut keys = Vec::new();
     let mut key_line = Vec::new();
-    for (i, k) in f.keyframe.iter().enumerate() {
+    for (i, k) in keyframes.iter().enumerate() {
         let frame = *k.frame.get_ref();
         let at = |span: Range<usize>| format!("{label}: line {}: keyframe {}", line(span), i + 1);
         if i == 0 && frame != 0 {
@@ -543,11 +600,11 @@ fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, Cam
                 at(k.frame.span())
             );
         }
-        if i > 0 && frame <= *f.keyframe[i - 1].frame.get_ref() {
+        if i > 0 && frame <= *keyframes[i - 1].frame.get_ref() {
             bail!(
                 "{}: frame {frame}: keyframe frames must increase strictly (the one before is at {})",
                 at(k.frame.span()),
-                f.keyframe[i - 1].frame.get_ref()
+                keyframes[i - 1].frame.get_ref()
             );
         }
         if frame >= frames {
@@ -589,17 +646,32 @@ fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, Cam
         });
         key_line.push(line(k.position.span()));
     }
-    let path = CameraPath { keyframes: keys };
+    let interpolation = f
+        .interpolation
+        .as_ref()
+        .map_or(Interpolation::default(), |i| *i.get_ref());
+    let path = CameraPath {
+        keyframes: keys,
+        interpolation,
+    };
     // Interpolation can make a valid pair of keyframes degenerate in between: check every frame.
+    // A spline can also overshoot: past the keyframes' fov range or coordinates.
     for frame in 0..frames {
         let k = path.at(frame);
-        let view = k.look_at - k.position;
-        let fails = if view.length() <= 1e-6 {
-            "look_at coincides with position".to_string()
-        } else if k.up.normalize_or_zero() == Vec3::ZERO {
-            "up has zero length".to_string()
-        } else if view.normalize().cross(k.up.normalize()).length() <= 1e-4 {
-            format!("up {} is parallel to the view direction", k.up)
+        let coords = [k.position, k.look_at, k.up];
+        let fails = if let Some(why) = k.pose().fault() {
+            why
+        } else if !(k.fov > 0.0 && k.fov < 180.0) {
+            format!(
+                "the spline overshoots to fov {} (outside (0, 180) degrees): add a keyframe or \
+                 use interpolation = \"linear\"",
+                k.fov
+            )
+        } else if coords
+            .iter()
+            .any(|c| !c.is_finite() || c.abs().max_element() > MAX_COORD)
+        {
+            format!("the spline overshoots past {MAX_COORD:e}")
         } else {
             continue;
         };
@@ -616,7 +688,7 @@ fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, Cam
         };
         bail!("{label}: frame {frame} ({at}): {fails}");
     }
-    Ok((w, h, path))
+    Ok((w, h, Cameras::Path(path)))
 }
 
 /// Where the MTL files an OBJ names come from.
