@@ -11,7 +11,8 @@
 //! numbers through `RawValue`): serde_json reads numbers as f64, and decimal to f64 to f32 can
 //! round twice, so a file written from a render's own f32 cameras (`{}` prints the shortest
 //! text that reads back) could come back one bit off. Matrices are read in f64, checked, and
-//! turned into a pose there (`Pose::from_camera_to_world`).
+//! turned into a pose there (`Pose::from_camera_to_world`), with the eye, their translation,
+//! read as f32 like any coordinate.
 //!
 //! Every refusal is one line naming the file, the line and the frame (for JSON also the entry).
 use super::text::{line_at, quote, MAX_COORD};
@@ -43,8 +44,8 @@ impl Format {
 
 /// The camera of one frame as the file gives it, before the checks.
 enum Form {
-    /// Camera-to-world, row-major.
-    Matrix([f64; 16]),
+    /// Camera-to-world, row-major, and its translation read as f32 (the eye).
+    Matrix([f64; 16], [f32; 3]),
     LookAt {
         position: [f32; 3],
         look_at: [f32; 3],
@@ -143,9 +144,12 @@ fn pose(e: &Entry) -> Result<Pose, String> {
                 fov,
             }
         }
-        Form::Matrix(m) => {
+        Form::Matrix(m, eye) => {
             check_matrix(m)?;
-            Pose::from_camera_to_world(m, fov)
+            Pose {
+                eye: glam::Vec3::from(*eye),
+                ..Pose::from_camera_to_world(m, fov)
+            }
         }
     };
     match pose.fault() {
@@ -256,6 +260,19 @@ fn numbers<T: std::str::FromStr + Default + Copy, const N: usize>(
     Ok(out)
 }
 
+/// The translation (elements 3, 7 and 11) of a matrix whose element `i` is `text(i)`, read as
+/// f32 from the text (as every coordinate: see the module note), `name(i)` in messages.
+fn translation<'a>(
+    text: impl Fn(usize) -> &'a str,
+    name: impl Fn(usize) -> String,
+) -> Result<[f32; 3], String> {
+    let mut eye = [0.0f32; 3];
+    for (r, e) in eye.iter_mut().enumerate() {
+        *e = number(&name(4 * r + 3), text(4 * r + 3))?;
+    }
+    Ok(eye)
+}
+
 fn number<T: std::str::FromStr>(key: &str, text: &str) -> Result<T, String> {
     // Rust also reads `inf` and `NaN`, which are not JSON numbers (JSON parsing refused those
     // already; a CSV's are refused as not finite, naming the column).
@@ -306,7 +323,13 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
             )
         })?;
         let form = (|| match (&e.matrix, &e.position, &e.look_at, &e.up) {
-            (Some(m), None, None, None) => Ok(Form::Matrix(numbers("matrix", m)?)),
+            (Some(m), None, None, None) => Ok(Form::Matrix(
+                numbers("matrix", m)?,
+                translation(
+                    |i| m[i].0,
+                    |i| format!("matrix element m{}{}", i / 4, i % 4),
+                )?,
+            )),
             (None, Some(p), Some(l), Some(u)) => Ok(Form::LookAt {
                 position: numbers("position", p)?,
                 look_at: numbers("look_at", l)?,
@@ -385,7 +408,8 @@ fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
             for (i, v) in m.iter_mut().enumerate() {
                 *v = number(&matrix[i + 2], fields[i + 2]).map_err(fail)?;
             }
-            Form::Matrix(m)
+            let eye = translation(|i| fields[i + 2], |i| matrix[i + 2].clone()).map_err(fail)?;
+            Form::Matrix(m, eye)
         } else {
             let mut v = [[0.0f32; 3]; 3];
             for (i, x) in v.iter_mut().flatten().enumerate() {
