@@ -4,6 +4,7 @@
 //! obj = "vase.obj"            # relative to the TOML file
 //! frames = 48
 //! resolution = [320, 240]     # width, height
+//! interpolation = "linear"    # optional: "linear" (the default) or "catmull-rom"
 //! [[keyframe]]                # one or more; frames 0-based, strictly increasing
 //! frame = 0
 //! position = [0.0, 1.2, 4.0]
@@ -11,6 +12,12 @@
 //! up = [0.0, 1.0, 0.0]
 //! fov = 50.0                  # vertical, degrees, in (0, 180)
 //! ```
+//!
+//! Instead of `[[keyframe]]` tables (exactly one of the two), `camera = "shot.json"` (or `.csv`,
+//! relative to the TOML) names a camera file with one camera per frame, as animation packages
+//! export it: a camera-to-world matrix or position/look-at/up, and the vertical fov, for every
+//! frame in order, nothing interpolated (`scene/camera_file.rs`; formats and the Catmull-Rom
+//! spline in docs/camera.md). Every frame's camera is checked either way.
 //!
 //! Materials: `Kd` Lambertian, `Ks`/`Ns` modified Phong, `Ke` emission (one-sided, to the
 //! side of the counter-clockwise face normal). Every triangle with `Ke > 0` is an area light;
@@ -21,8 +28,9 @@
 //! naming the file and the line (and the key or statement) at fault; what it repairs (a
 //! missing MTL, an unknown material, `Kd + Ks` above 1, a huge `Ns` or `Ke`, a zero normal, a
 //! degenerate triangle, polylines ...) becomes one warning per kind with a count, in
-//! `Scene::warnings`, or an error under `LoadOptions { strict: true }`. Every file is opened
-//! through `read_input` (regular files only, size capped). The OBJ and MTL rules are in
+//! `Scene::warnings`, or an error under `LoadOptions { strict: true }`. Every file (TOML,
+//! camera file, OBJ, MTL) is opened through `read_input` (regular files only, size capped) and
+//! listed in `Scene::inputs`. The OBJ and MTL rules are in
 //! `scene/obj.rs` and `scene/mtl.rs`, the triangulation in `scene/mesh.rs`. Limits: at most
 //! `MAX_FRAMES` frames and `MAX_PIXELS` pixels, coordinates (vertices, camera) at most 1e18
 //! in magnitude, files of at most `MAX_INPUT_BYTES`.
