@@ -1,5 +1,11 @@
 //! Pinhole cameras and the camera path of an animation.
 //!
+//! A frame's camera comes from a `Pose` (eye, viewing direction, up hint, vertical fov): from
+//! `[[keyframe]]` tables interpolated linearly or by a Catmull-Rom spline over their frame
+//! numbers (`CameraPath`; the spline is derived in docs/camera.md), or from a camera file that
+//! gives every frame (`Cameras::PerFrame`, a pose per frame, e.g. from a camera-to-world matrix:
+//! `Pose::from_camera_to_world`).
+//!
 //! A `Camera` generates primary rays and, for frame reuse, does the reverse: projects a surface
 //! point into its film (`project`) and gives the film-to-surface Jacobian `J(x)` that turns a
 //! uniform density on the film into an area density on the surface (docs/estimators.md, "The camera's area density").
@@ -14,7 +20,8 @@
 //! let centre = cam.project(Vec3::ZERO).unwrap();
 //! assert!((centre.x - 32.0).abs() < 1e-3 && (centre.y - 24.0).abs() < 1e-3);
 //! ```
-use glam::{Mat4, Vec2, Vec3, Vec4};
+use glam::{DVec3, Mat4, Vec2, Vec3, Vec4};
+use serde::Deserialize;
 
 /// One camera keyframe of a scene file (fov: vertical, in degrees).
 #[derive(Clone, Debug, PartialEq)]
@@ -24,6 +31,61 @@ pub struct Keyframe {
     pub look_at: Vec3,
     pub up: Vec3,
     pub fov: f32,
+}
+
+impl Keyframe {
+    /// The pose of this keyframe: viewing direction `look_at - position`.
+    pub fn pose(&self) -> Pose {
+        Pose {
+            eye: self.position,
+            view: self.look_at - self.position,
+            up: self.up,
+            fov: self.fov,
+        }
+    }
+}
+
+/// Where a camera is and where it looks, what `Camera::new` builds a camera from (fov: vertical,
+/// in degrees).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Pose {
+    pub eye: Vec3,
+    /// The viewing direction, of any positive length.
+    pub view: Vec3,
+    /// Up hint: the camera's up is its part perpendicular to `view`.
+    pub up: Vec3,
+    pub fov: f32,
+}
+
+impl Pose {
+    /// The pose of a camera-to-world matrix `m` (row-major, translation in the last column, the
+    /// camera looking down its -Z with +Y up, as Blender's `matrix_world` of a camera): eye the
+    /// translation, view -Z, up hint +Y. Only rotation and translation are used: a scale of the
+    /// axes drops out, and a shear is removed the way `Camera::new` orthonormalises (the view
+    /// direction kept, up made perpendicular to it). The caller checks that the 3x3 part is
+    /// invertible and not mirrored.
+    pub fn from_camera_to_world(m: &[f64; 16], fov: f32) -> Pose {
+        let col = |c: usize| DVec3::new(m[c], m[4 + c], m[8 + c]);
+        Pose {
+            eye: col(3).as_vec3(),
+            view: (-col(2).normalize()).as_vec3(),
+            up: col(1).normalize().as_vec3(),
+            fov,
+        }
+    }
+
+    /// Why this pose makes no camera (view or up degenerate), if it does not.
+    pub fn fault(&self) -> Option<String> {
+        if self.view.length() <= 1e-6 {
+            Some("look_at coincides with position".to_string())
+        } else if self.up.normalize_or_zero() == Vec3::ZERO {
+            Some("up has zero length".to_string())
+        } else if self.view.normalize().cross(self.up.normalize()).length() <= 1e-4 {
+            Some(format!("up {} is parallel to the view direction", self.up))
+        } else {
+            None
+        }
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -41,15 +103,19 @@ pub struct Camera {
 
 impl Camera {
     pub fn new(k: &Keyframe, width: u32, height: u32) -> Camera {
-        let forward = (k.look_at - k.position).normalize();
-        let right = forward.cross(k.up).normalize();
+        Camera::from_pose(&k.pose(), width, height)
+    }
+
+    pub fn from_pose(p: &Pose, width: u32, height: u32) -> Camera {
+        let forward = p.view.normalize();
+        let right = forward.cross(p.up).normalize();
         let up = right.cross(forward);
         Camera {
-            eye: k.position,
+            eye: p.eye,
             forward,
             right,
             up,
-            tan_half_fov: (k.fov.to_radians() * 0.5).tan(),
+            tan_half_fov: (p.fov.to_radians() * 0.5).tan(),
             aspect: width as f32 / height as f32,
             width,
             height,
@@ -170,14 +236,35 @@ impl Camera {
     }
 }
 
-/// Keyframes interpolated linearly (position, look-at, up, fov) over the frames.
+/// How `[[keyframe]]` tables are interpolated between them (the scene TOML's `interpolation`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Interpolation {
+    /// Straight lines between keyframes, at constant speed.
+    #[default]
+    Linear,
+    /// A cubic Hermite spline through the keyframes whose tangents are Catmull-Rom's over the
+    /// keyframes' frame numbers; end tangents along the end segments (docs/camera.md).
+    CatmullRom,
+}
+
+/// Keyframes (position, look-at, up, fov) interpolated over the frames.
 #[derive(Clone, Debug)]
 pub struct CameraPath {
     pub keyframes: Vec<Keyframe>,
+    pub interpolation: Interpolation,
 }
 
 impl CameraPath {
+    /// The keyframe of `frame`: a keyframe's own at its frame, the last one's after it.
     pub fn at(&self, frame: u32) -> Keyframe {
+        match self.interpolation {
+            Interpolation::Linear => self.linear(frame),
+            Interpolation::CatmullRom => self.catmull_rom(frame),
+        }
+    }
+
+    fn linear(&self, frame: u32) -> Keyframe {
         let ks = &self.keyframes;
         let i = ks.partition_point(|k| k.frame <= frame).saturating_sub(1);
         let a = &ks[i];
@@ -191,6 +278,99 @@ impl CameraPath {
             look_at: a.look_at.lerp(b.look_at, t),
             up: a.up.lerp(b.up, t),
             fov: a.fov + (b.fov - a.fov) * t,
+        }
+    }
+
+    /// The spline's keyframe at `frame`: a keyframe's own at its frame (exactly: no rounding of
+    /// zero weights), the last one's after it.
+    fn catmull_rom(&self, frame: u32) -> Keyframe {
+        let ks = &self.keyframes;
+        let i = ks.partition_point(|k| k.frame <= frame).saturating_sub(1);
+        if ks[i].frame == frame || i + 1 == ks.len() {
+            return Keyframe {
+                frame,
+                ..ks[i].clone()
+            };
+        }
+        let v = self.spline(frame as f64);
+        let v3 = |c: usize| DVec3::new(v[c], v[c + 1], v[c + 2]).as_vec3();
+        Keyframe {
+            frame,
+            position: v3(0),
+            look_at: v3(3),
+            up: v3(6),
+            fov: v[9] as f32,
+        }
+    }
+
+    /// The spline at time `t` in frames (not only whole frames: the tests differentiate it), in
+    /// f64, for each of the ten numbers of a keyframe (position, look-at, up, fov) on its own.
+    /// docs/camera.md derives it: on the segment from keyframe `i` to `i+1`, `h` frames long,
+    /// `s = (t - t_i) / h`, `P(s) = h00(s) P_i + h10(s) h m_i + h01(s) P_i+1 + h11(s) h m_i+1`
+    /// (cubic Hermite), where the tangent `m_i` (per frame) is the slopes of the segments either
+    /// side weighted by the length of the other one (Catmull-Rom over the frame numbers), and,
+    /// at the first and last keyframes, the slope of the end segment.
+    fn spline(&self, t: f64) -> [f64; 10] {
+        let ks = &self.keyframes;
+        let i = ks
+            .partition_point(|k| k.frame as f64 <= t)
+            .saturating_sub(1);
+        let Some(b) = ks.get(i + 1) else {
+            return values(&ks[i]);
+        };
+        let a = &ks[i];
+        let slope = |j: usize| -> [f64; 10] {
+            let (p, q) = (values(&ks[j]), values(&ks[j + 1]));
+            let h = (ks[j + 1].frame - ks[j].frame) as f64;
+            std::array::from_fn(|c| (q[c] - p[c]) / h)
+        };
+        let tangent = |j: usize| -> [f64; 10] {
+            if j == 0 {
+                return slope(0);
+            }
+            if j + 1 == ks.len() {
+                return slope(j - 1);
+            }
+            let (d0, d1) = (slope(j - 1), slope(j));
+            let h0 = (ks[j].frame - ks[j - 1].frame) as f64;
+            let h1 = (ks[j + 1].frame - ks[j].frame) as f64;
+            std::array::from_fn(|c| (h1 * d0[c] + h0 * d1[c]) / (h0 + h1))
+        };
+        let h = (b.frame - a.frame) as f64;
+        let s = (t - a.frame as f64) / h;
+        let (s2, s3) = (s * s, s * s * s);
+        let (h00, h10, h01, h11) = (
+            2.0 * s3 - 3.0 * s2 + 1.0,
+            s3 - 2.0 * s2 + s,
+            -2.0 * s3 + 3.0 * s2,
+            s3 - s2,
+        );
+        let (pa, pb, ma, mb) = (values(a), values(b), tangent(i), tangent(i + 1));
+        std::array::from_fn(|c| h00 * pa[c] + h10 * h * ma[c] + h01 * pb[c] + h11 * h * mb[c])
+    }
+}
+
+/// A keyframe's numbers, as the spline interpolates them: position, look-at, up, fov.
+fn values(k: &Keyframe) -> [f64; 10] {
+    let (p, l, u) = (k.position, k.look_at, k.up);
+    [p.x, p.y, p.z, l.x, l.y, l.z, u.x, u.y, u.z, k.fov].map(|v| v as f64)
+}
+
+/// The cameras of a scene's frames: keyframes interpolated, or one pose per frame.
+#[derive(Clone, Debug)]
+pub enum Cameras {
+    /// `[[keyframe]]` tables of the scene TOML.
+    Path(CameraPath),
+    /// A camera file's poses, frame `i` at index `i`.
+    PerFrame(Vec<Pose>),
+}
+
+impl Cameras {
+    /// The pose of `frame` (past the last frame: the last one's).
+    pub fn pose(&self, frame: u32) -> Pose {
+        match self {
+            Cameras::Path(p) => p.at(frame).pose(),
+            Cameras::PerFrame(v) => v[(frame as usize).min(v.len() - 1)].clone(),
         }
     }
 }
@@ -283,10 +463,127 @@ mod tests {
         };
         let p = CameraPath {
             keyframes: vec![k0, k1],
+            interpolation: Interpolation::Linear,
         };
         let m = p.at(5);
         assert!((m.position.x - 0.5).abs() < 1e-6 && (m.fov - 30.0).abs() < 1e-5);
         assert_eq!(p.at(10).position, Vec3::X);
         assert_eq!(p.at(12).position, Vec3::X);
+    }
+
+    /// Three keyframes that turn a corner (position and fov change speed at frame 4).
+    fn corner(interpolation: Interpolation) -> CameraPath {
+        let k = |frame, position: Vec3, fov| Keyframe {
+            frame,
+            position,
+            look_at: Vec3::new(0.0, 0.0, -5.0),
+            up: Vec3::Y,
+            fov,
+        };
+        CameraPath {
+            keyframes: vec![
+                k(0, Vec3::ZERO, 40.0),
+                k(4, Vec3::new(2.0, 0.0, 0.0), 50.0),
+                k(14, Vec3::new(2.0, 3.0, 1.0), 30.0),
+                k(20, Vec3::new(-1.0, 3.0, 0.0), 30.0),
+            ],
+            interpolation,
+        }
+    }
+
+    #[test]
+    fn catmull_rom_passes_through_every_keyframe_exactly() {
+        let p = corner(Interpolation::CatmullRom);
+        for k in &p.keyframes {
+            assert_eq!(&p.at(k.frame), k);
+        }
+        assert_eq!(
+            p.at(25),
+            Keyframe {
+                frame: 25,
+                ..p.keyframes[3].clone()
+            }
+        );
+        // Between keyframes it is not the polyline.
+        let lin = corner(Interpolation::Linear);
+        assert!((p.at(9).position - lin.at(9).position).length() > 0.1);
+    }
+
+    /// Velocity (per frame) left and right of `t`, by finite differences of the spline.
+    fn velocities(p: &CameraPath, t: f64) -> ([f64; 10], [f64; 10]) {
+        let e = 1e-4;
+        let (l, m, r) = (p.spline(t - e), p.spline(t), p.spline(t + e));
+        (
+            std::array::from_fn(|c| (m[c] - l[c]) / e),
+            std::array::from_fn(|c| (r[c] - m[c]) / e),
+        )
+    }
+
+    #[test]
+    fn catmull_rom_is_c1_across_keyframes() {
+        let p = corner(Interpolation::CatmullRom);
+        for k in &p.keyframes[1..3] {
+            let (l, r) = velocities(&p, k.frame as f64);
+            for c in 0..10 {
+                // The second derivative is at most a few units per frame^2 here: over 1e-4
+                // frames the two one-sided differences move apart by less than 1e-3.
+                assert!(
+                    (l[c] - r[c]).abs() < 1e-3,
+                    "frame {}: {l:?} vs {r:?}",
+                    k.frame
+                );
+            }
+            // The tangent is the two neighbouring slopes weighted by the other segment's length.
+            let ks = &p.keyframes;
+            let j = ks.iter().position(|x| x.frame == k.frame).unwrap();
+            let (h0, h1) = (
+                (ks[j].frame - ks[j - 1].frame) as f64,
+                (ks[j + 1].frame - ks[j].frame) as f64,
+            );
+            let d0 = (ks[j].fov - ks[j - 1].fov) as f64 / h0;
+            let d1 = (ks[j + 1].fov - ks[j].fov) as f64 / h1;
+            let m = (h1 * d0 + h0 * d1) / (h0 + h1);
+            assert!((r[9] - m).abs() < 1e-3, "fov tangent {} vs {m}", r[9]);
+        }
+        // The same check fails for the linear path: its velocity jumps at the keyframes (by
+        // 0.5 per frame in x at frame 4).
+        let lin = corner(Interpolation::Linear);
+        let v = |t: u32| lin.at(t + 1).position - lin.at(t).position;
+        assert!((v(4) - v(3)).length() > 0.4);
+    }
+
+    #[test]
+    fn catmull_rom_of_two_keyframes_is_linear() {
+        // The end tangents are the end segments' slopes: with one segment, a straight line at
+        // constant speed (within rounding: the spline is evaluated in f64).
+        let mut p = corner(Interpolation::CatmullRom);
+        p.keyframes.truncate(2);
+        let mut lin = p.clone();
+        lin.interpolation = Interpolation::Linear;
+        for f in 0..=6 {
+            let (a, b) = (p.at(f), lin.at(f));
+            assert!((a.position - b.position).length() < 1e-6, "frame {f}");
+            assert!((a.fov - b.fov).abs() < 1e-5, "frame {f}");
+        }
+        // With a third keyframe the first segment bends towards it.
+        let three = corner(Interpolation::CatmullRom);
+        assert!((three.at(2).position - lin.at(2).position).length() > 0.05);
+    }
+
+    #[test]
+    fn a_camera_to_world_matrix_gives_the_look_at_camera() {
+        let c = cam();
+        // Blender's convention: columns right, up, back (-forward), eye; scaled by 2.5.
+        let (r, u, b, e) = (c.right * 2.5, c.up * 2.5, -c.forward * 2.5, c.eye);
+        let m = [
+            r.x, u.x, b.x, e.x, r.y, u.y, b.y, e.y, r.z, u.z, b.z, e.z, 0.0, 0.0, 0.0, 1.0,
+        ]
+        .map(|v| v as f64);
+        let d = Camera::from_pose(&Pose::from_camera_to_world(&m, 50.0), 80, 60);
+        for (x, y) in [(d.forward, c.forward), (d.right, c.right), (d.up, c.up)] {
+            assert!((x - y).length() < 1e-6, "{x} vs {y}");
+        }
+        assert_eq!(d.eye, c.eye);
+        assert_eq!(d.tan_half_fov, c.tan_half_fov);
     }
 }

@@ -4,6 +4,7 @@
 //! obj = "vase.obj"            # relative to the TOML file
 //! frames = 48
 //! resolution = [320, 240]     # width, height
+//! interpolation = "linear"    # optional: "linear" (the default) or "catmull-rom"
 //! [[keyframe]]                # one or more; frames 0-based, strictly increasing
 //! frame = 0
 //! position = [0.0, 1.2, 4.0]
@@ -11,6 +12,12 @@
 //! up = [0.0, 1.0, 0.0]
 //! fov = 50.0                  # vertical, degrees, in (0, 180)
 //! ```
+//!
+//! Instead of `[[keyframe]]` tables (exactly one of the two), `camera = "shot.json"` (or `.csv`,
+//! relative to the TOML) names a camera file with one camera per frame, as animation packages
+//! export it: a camera-to-world matrix or position/look-at/up, and the vertical fov, for every
+//! frame in order, nothing interpolated (`scene/camera_file.rs`; formats and the Catmull-Rom
+//! spline in docs/camera.md). Every frame's camera is checked either way.
 //!
 //! Materials: `Kd` Lambertian, `Ks`/`Ns` modified Phong, `Ke` emission (one-sided, to the
 //! side of the counter-clockwise face normal). Every triangle with `Ke > 0` is an area light;
@@ -21,8 +28,9 @@
 //! naming the file and the line (and the key or statement) at fault; what it repairs (a
 //! missing MTL, an unknown material, `Kd + Ks` above 1, a huge `Ns` or `Ke`, a zero normal, a
 //! degenerate triangle, polylines ...) becomes one warning per kind with a count, in
-//! `Scene::warnings`, or an error under `LoadOptions { strict: true }`. Every file is opened
-//! through `read_input` (regular files only, size capped). The OBJ and MTL rules are in
+//! `Scene::warnings`, or an error under `LoadOptions { strict: true }`. Every file (TOML,
+//! camera file, OBJ, MTL) is opened through `read_input` (regular files only, size capped) and
+//! listed in `Scene::inputs`. The OBJ and MTL rules are in
 //! `scene/obj.rs` and `scene/mtl.rs`, the triangulation in `scene/mesh.rs`. Limits: at most
 //! `MAX_FRAMES` frames and `MAX_PIXELS` pixels, coordinates (vertices, camera) at most 1e18
 //! in magnitude, files of at most `MAX_INPUT_BYTES`.
@@ -38,7 +46,7 @@
 //! # anyhow::Ok(())
 //! ```
 use crate::bsdf::{luminance, Material};
-use crate::camera::{Camera, CameraPath, Keyframe};
+use crate::camera::{Camera, CameraPath, Cameras, Interpolation, Keyframe, Pose};
 use crate::embree::{Device, Hit, Ray, TriangleScene};
 use crate::sampling::uniform_triangle;
 use anyhow::{anyhow, bail, Context, Result};
@@ -51,6 +59,7 @@ use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
 use toml::Spanned;
 
+mod camera_file;
 pub mod environment;
 mod mesh;
 mod mtl;
@@ -114,7 +123,11 @@ struct SceneFile {
     obj: Spanned<String>,
     frames: Spanned<u32>,
     resolution: Spanned<Exactly<u32, 2>>,
-    keyframe: Vec<KeyframeFile>,
+    /// `[[keyframe]]` tables, or else `camera`: a camera file.
+    keyframe: Option<Vec<KeyframeFile>>,
+    camera: Option<Spanned<String>>,
+    /// How the keyframes are interpolated (linear if not given).
+    interpolation: Option<Spanned<Interpolation>>,
     environment: Option<Spanned<EnvironmentFile>>,
 }
 
@@ -228,7 +241,8 @@ pub struct Scene {
     pub frames: u32,
     pub width: u32,
     pub height: u32,
-    pub path: CameraPath,
+    /// The camera of every frame: keyframes interpolated, or a camera file's.
+    pub cameras: Cameras,
     pub positions: Vec<Vec3>,
     pub normals: Vec<Vec3>,
     pub triangles: Vec<[u32; 3]>,
@@ -247,8 +261,8 @@ pub struct Scene {
     /// What loading found odd but not wrong (e.g. faces without a material). The command line
     /// prints them once the command has succeeded, so that a failure stays one line.
     pub warnings: Vec<String>,
-    /// The files the scene was read from (TOML, OBJ, MTLs; none for a shipped scene): a command
-    /// never writes over them.
+    /// The files the scene was read from (TOML, camera file, OBJ, MTLs; none for a shipped
+    /// scene): a command never writes over them.
     pub inputs: Vec<PathBuf>,
 }
 
@@ -305,15 +319,32 @@ impl Scene {
                 .unwrap_or_default(),
             Source::Builtin(i) => BUILTIN[*i].0.to_string(),
         };
-        let (width, height, path) = check_camera(&label, toml_text, &file)?;
+        let dir = match &source {
+            Source::Files { toml } => Some(toml.parent().unwrap_or(Path::new(".")).to_path_buf()),
+            Source::Builtin(_) => None,
+        };
+        let camera_path = |name: &str| dir.as_ref().map(|d| d.join(name));
+        let read_camera = |name: &Spanned<String>, frames: u32| -> Result<Vec<Pose>> {
+            let at = format!(
+                "{label}: line {}: camera '{}'",
+                line_at(toml_text.as_bytes(), name.span().start),
+                quote(name.get_ref())
+            );
+            let Some(format) = camera_file::Format::of(name.get_ref()) else {
+                bail!("{at}: a camera file's name ends in .json or .csv");
+            };
+            let Some(path) = camera_path(name.get_ref()) else {
+                bail!("{at}: a shipped scene has no camera file");
+            };
+            let bytes = read_input(&path, "camera file", MAX_INPUT_BYTES)
+                .map_err(|e| anyhow!("{at}: {e}"))?;
+            camera_file::parse(&path.display().to_string(), &bytes, format, frames)
+        };
+        let (width, height, cameras) = check_camera(&label, toml_text, &file, read_camera)?;
         let (environment, env_input) = match &file.environment {
             None => (None, None),
             Some(e) => {
-                let dir = match &source {
-                    Source::Files { toml } => Some(toml.parent().unwrap_or(Path::new("."))),
-                    Source::Builtin(_) => None,
-                };
-                let (env, input) = load_environment(&label, toml_text, e, dir)?;
+                let (env, input) = load_environment(&label, toml_text, e, dir.as_deref())?;
                 (Some(env), input)
             }
         };
@@ -343,6 +374,7 @@ impl Scene {
                 let dir = toml.parent().unwrap_or(Path::new("."));
                 [toml.clone(), dir.join(file.obj.get_ref())]
                     .into_iter()
+                    .chain(file.camera.as_ref().and_then(|c| camera_path(c.get_ref())))
                     .chain(mtls)
                     .chain(env_input)
                     .collect()
@@ -380,7 +412,7 @@ impl Scene {
             frames: *file.frames.get_ref(),
             width,
             height,
-            path,
+            cameras,
             positions: mesh.positions,
             normals: mesh.normals,
             triangles: mesh.triangles,
@@ -398,7 +430,7 @@ impl Scene {
 
     /// The camera of frame `frame`, at `width` x `height`.
     pub fn camera(&self, frame: u32, width: u32, height: u32) -> Camera {
-        Camera::new(&self.path.at(frame), width, height)
+        Camera::from_pose(&self.cameras.pose(frame), width, height)
     }
 
     /// Shading data for Embree's hit.
@@ -612,7 +644,14 @@ fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
     })
 }
 
-fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, CameraPath)> {
+/// Check the resolution, the frames and the cameras of every frame: the keyframes, interpolated
+/// as the scene says, or the camera file `camera` names (read by `read_camera`).
+fn check_camera(
+    label: &str,
+    text: &str,
+    f: &SceneFile,
+    read_camera: impl FnOnce(&Spanned<String>, u32) -> Result<Vec<Pose>>,
+) -> Result<(u32, u32, Cameras)> {
     let line = |span: Range<usize>| line_at(text.as_bytes(), span.start);
     let [w, h] = f.resolution.get_ref().0;
     let at = format!("{label}: line {}: resolution", line(f.resolution.span()));
@@ -630,12 +669,34 @@ fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, Cam
     if frames > MAX_FRAMES {
         bail!("{at}: at most {MAX_FRAMES}");
     }
-    if f.keyframe.is_empty() {
+    let keyframes = match (&f.camera, &f.keyframe) {
+        (Some(c), Some(_)) => bail!(
+            "{label}: line {}: camera = '{}' and [[keyframe]] tables: give one or the other",
+            line(c.span()),
+            quote(c.get_ref())
+        ),
+        (Some(c), None) => {
+            if let Some(i) = &f.interpolation {
+                bail!(
+                    "{label}: line {}: interpolation with a camera file: a camera file gives \
+                     every frame, there is nothing to interpolate",
+                    line(i.span())
+                );
+            }
+            let poses = read_camera(c, frames)?;
+            return Ok((w, h, Cameras::PerFrame(poses)));
+        }
+        (None, None) => bail!(
+            "{label}: no camera: give [[keyframe]] tables or camera = \"file.json\" (or .csv)"
+        ),
+        (None, Some(k)) => k,
+    };
+    if keyframes.is_empty() {
         bail!("{label}: no [[keyframe]]: the camera path needs at least one");
     }
     let mut keys = Vec::new();
     let mut key_line = Vec::new();
-    for (i, k) in f.keyframe.iter().enumerate() {
+    for (i, k) in keyframes.iter().enumerate() {
         let frame = *k.frame.get_ref();
         let at = |span: Range<usize>| format!("{label}: line {}: keyframe {}", line(span), i + 1);
         if i == 0 && frame != 0 {
@@ -644,11 +705,11 @@ fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, Cam
                 at(k.frame.span())
             );
         }
-        if i > 0 && frame <= *f.keyframe[i - 1].frame.get_ref() {
+        if i > 0 && frame <= *keyframes[i - 1].frame.get_ref() {
             bail!(
                 "{}: frame {frame}: keyframe frames must increase strictly (the one before is at {})",
                 at(k.frame.span()),
-                f.keyframe[i - 1].frame.get_ref()
+                keyframes[i - 1].frame.get_ref()
             );
         }
         if frame >= frames {
@@ -690,17 +751,32 @@ fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, Cam
         });
         key_line.push(line(k.position.span()));
     }
-    let path = CameraPath { keyframes: keys };
+    let interpolation = f
+        .interpolation
+        .as_ref()
+        .map_or(Interpolation::default(), |i| *i.get_ref());
+    let path = CameraPath {
+        keyframes: keys,
+        interpolation,
+    };
     // Interpolation can make a valid pair of keyframes degenerate in between: check every frame.
+    // A spline can also overshoot: past the keyframes' fov range or coordinates.
     for frame in 0..frames {
         let k = path.at(frame);
-        let view = k.look_at - k.position;
-        let fails = if view.length() <= 1e-6 {
-            "look_at coincides with position".to_string()
-        } else if k.up.normalize_or_zero() == Vec3::ZERO {
-            "up has zero length".to_string()
-        } else if view.normalize().cross(k.up.normalize()).length() <= 1e-4 {
-            format!("up {} is parallel to the view direction", k.up)
+        let coords = [k.position, k.look_at, k.up];
+        let fails = if let Some(why) = k.pose().fault() {
+            why
+        } else if !(k.fov > 0.0 && k.fov < 180.0) {
+            format!(
+                "the spline overshoots to fov {} (outside (0, 180) degrees): add a keyframe or \
+                 use interpolation = \"linear\"",
+                k.fov
+            )
+        } else if coords
+            .iter()
+            .any(|c| !c.is_finite() || c.abs().max_element() > MAX_COORD)
+        {
+            format!("the spline overshoots past {MAX_COORD:e}")
         } else {
             continue;
         };
@@ -717,7 +793,7 @@ fn check_camera(label: &str, text: &str, f: &SceneFile) -> Result<(u32, u32, Cam
         };
         bail!("{label}: frame {frame} ({at}): {fails}");
     }
-    Ok((w, h, path))
+    Ok((w, h, Cameras::Path(path)))
 }
 
 /// Most texels of an environment image (16384 x 4096): 24 bytes each once loaded.

@@ -16,7 +16,7 @@ pub fn hash_scene(f: &mut Fnv, scene: &Scene) {
     for m in &scene.tri_material {
         f.bytes(&m.to_le_bytes());
     }
-    f.bytes(format!("{:?}{:?}", scene.materials, scene.path).as_bytes());
+    f.bytes(format!("{:?}{:?}", scene.materials, scene.cameras).as_bytes());
     f.bytes(&scene.frames.to_le_bytes());
 }
 

@@ -1,0 +1,82 @@
+"""Export the scene camera of a .blend file as a reframe camera file (JSON).
+
+    blender scene.blend --background --python scripts/blender/export_camera.py -- out.json
+
+Writes one entry per frame from the scene's frame_start to frame_end (every frame_step-th),
+renumbered from 0:
+
+    {"frames": [
+    {"frame": 0, "fov": 39.6, "matrix": [16 numbers]},
+    ...]}
+
+"matrix" is the camera's matrix_world, row-major: camera to world, the camera looking down its
+-Z with +Y up, translation in the last column, the convention reframe reads (a scale on the
+camera object is harmless: reframe uses only rotation and translation). "fov" is the vertical
+field of view in degrees at the scene's render aspect, from the lens, the sensor and its fit
+(reframe has no lens shift, no orthographic or panoramic camera). Then prints the lines to put
+in the scene TOML. See the README, "Scenes", and docs/camera.md.
+"""
+import json
+import math
+import sys
+
+import bpy
+
+
+def vertical_fov(render, cam):
+    """Vertical field of view in degrees, as Blender frames the render (Camera > Sensor Fit)."""
+    w = render.resolution_x * render.pixel_aspect_x
+    h = render.resolution_y * render.pixel_aspect_y
+    fit = cam.sensor_fit
+    if fit == "AUTO":
+        # Auto: the sensor width spans the longer side of the image.
+        fit, size = ("HORIZONTAL" if w >= h else "VERTICAL"), cam.sensor_width
+    else:
+        size = cam.sensor_width if fit == "HORIZONTAL" else cam.sensor_height
+    tan_half = size / (2.0 * cam.lens)
+    if fit == "HORIZONTAL":
+        tan_half *= h / w
+    return math.degrees(2.0 * math.atan(tan_half))
+
+
+def main():
+    argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else []
+    if len(argv) != 1:
+        sys.exit("usage: blender FILE.blend --background --python export_camera.py -- OUT.json")
+    out = argv[0]
+    scene = bpy.context.scene
+    obj = scene.camera
+    if obj is None:
+        sys.exit(f"export_camera: scene '{scene.name}' has no active camera")
+    render = scene.render
+    entries = []
+    for i, f in enumerate(range(scene.frame_start, scene.frame_end + 1, scene.frame_step)):
+        scene.frame_set(f)
+        # The evaluated camera: parents, constraints, drivers and animated lenses applied.
+        cam = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        if cam.data.type != "PERSP":
+            sys.exit(f"export_camera: frame {f}: camera '{obj.name}' is {cam.data.type}, not PERSP")
+        if cam.data.shift_x or cam.data.shift_y:
+            print(f"export_camera: frame {f}: lens shift ignored (reframe has none)", file=sys.stderr)
+        m = cam.matrix_world
+        entries.append(
+            json.dumps(
+                {
+                    "frame": i,
+                    "fov": vertical_fov(render, cam.data),
+                    "matrix": [m[r][c] for r in range(4) for c in range(4)],
+                },
+                allow_nan=False,
+            )
+        )
+    with open(out, "w") as fh:
+        fh.write('{"frames": [\n' + ",\n".join(entries) + "\n]}\n")
+    if render.pixel_aspect_x != render.pixel_aspect_y:
+        print("export_camera: non-square pixels: reframe's are square", file=sys.stderr)
+    pct = render.resolution_percentage / 100.0
+    w, h = round(render.resolution_x * pct), round(render.resolution_y * pct)
+    print(f"export_camera: wrote {len(entries)} frames to {out}; in the scene TOML:")
+    print(f'frames = {len(entries)}\nresolution = [{w}, {h}]\ncamera = "{out}"')
+
+
+main()

@@ -1,0 +1,662 @@
+//! Camera files: one camera per frame, the form an animation package exports (the scene TOML's
+//! `camera = "shot.json"`; docs/camera.md has the formats, `scripts/blender/export_camera.py`
+//! writes one). Not keyframes: every frame of the scene is given, once, in order, and nothing
+//! is interpolated.
+//!
+//! JSON: `{"frames": [{"frame": 0, "fov": 40.0, "matrix": [16 numbers]}, ...]}`, each entry with
+//! either `matrix` (camera-to-world, row-major) or `position`, `look_at` and `up`. CSV: a header
+//! `frame,fov,m00,m01,...,m33` or `frame,fov,px,py,pz,lx,ly,lz,ux,uy,uz`, then one row per frame.
+//!
+//! Numbers that become the camera's f32 coordinates are parsed from their text as f32 (JSON
+//! numbers through `RawValue`): serde_json reads numbers as f64, and decimal to f64 to f32 can
+//! round twice, so a file written from a render's own f32 cameras (`{}` prints the shortest
+//! text that reads back) could come back one bit off. Matrices are read in f64, checked, and
+//! turned into a pose there (`Pose::from_camera_to_world`), with the eye, their translation,
+//! read as f32 like any coordinate.
+//!
+//! Every refusal is one line naming the file, the line and the frame (for JSON also the entry).
+use super::text::{line_at, quote, MAX_COORD};
+use crate::camera::Pose;
+use anyhow::{anyhow, bail, Result};
+use serde::Deserialize;
+use serde_json::value::RawValue;
+
+/// The two forms of camera file, by the file name's extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    Json,
+    Csv,
+}
+
+impl Format {
+    /// The format of a file named `name` (`.json` or `.csv`, in any case).
+    pub fn of(name: &str) -> Option<Format> {
+        let ext = std::path::Path::new(name).extension()?.to_str()?;
+        if ext.eq_ignore_ascii_case("json") {
+            Some(Format::Json)
+        } else if ext.eq_ignore_ascii_case("csv") {
+            Some(Format::Csv)
+        } else {
+            None
+        }
+    }
+}
+
+/// The camera of one frame as the file gives it, before the checks.
+enum Form {
+    /// Camera-to-world, row-major, and its translation read as f32 (the eye).
+    Matrix([f64; 16], [f32; 3]),
+    LookAt {
+        position: [f32; 3],
+        look_at: [f32; 3],
+        up: [f32; 3],
+    },
+}
+
+/// One entry (JSON) or row (CSV): where it is, for messages, and what it says.
+struct Entry {
+    /// "line 7" (CSV) or "line 7 (entry 3)" (JSON).
+    at: String,
+    frame: u32,
+    fov: f32,
+    form: Form,
+}
+
+/// The poses of frames `0..frames` from the camera file `label` (its bytes, in `format`).
+pub fn parse(label: &str, bytes: &[u8], format: Format, frames: u32) -> Result<Vec<Pose>> {
+    let text = super::text::as_text(bytes).map_err(|e| anyhow!("{label}: {e}"))?;
+    // A byte order mark, as spreadsheets write it, is not part of the first line.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    if text.trim().is_empty() {
+        bail!("{label}: the file is empty");
+    }
+    let entries = match format {
+        Format::Json => json_entries(label, text)?,
+        Format::Csv => csv_entries(label, text)?,
+    };
+    let mut poses: Vec<Pose> = Vec::with_capacity(entries.len());
+    for (i, e) in entries.iter().enumerate() {
+        let at = format!("{label}: {}: frame {}", e.at, e.frame);
+        let want = i as u32;
+        if e.frame != want {
+            // Entries 0..i are frames 0..i: a smaller frame is one of them again.
+            let later = || entries[i + 1..].iter().find(|l| l.frame == want);
+            let why = if e.frame < want {
+                format!("given twice (also at {})", entries[e.frame as usize].at)
+            } else if e.frame >= frames {
+                format!("past the last frame ({})", frames - 1)
+            } else if let Some(l) = later() {
+                format!("out of order: frame {want} comes after it, at {}", l.at)
+            } else {
+                format!(
+                    "frame {want} is missing (a camera file gives every frame 0, 1, 2, ... in \
+                     order)"
+                )
+            };
+            bail!("{at}: {why}");
+        }
+        if e.frame >= frames {
+            bail!(
+                "{at}: past the last frame ({}): the scene has {frames} frames",
+                frames - 1
+            );
+        }
+        poses.push(pose(e).map_err(|why| anyhow!("{at}: {why}"))?);
+    }
+    let n = poses.len() as u32;
+    if n < frames {
+        let last = entries.last().map_or(String::new(), |e| {
+            format!(" (the last entry, frame {}, is at {})", e.frame, e.at)
+        });
+        bail!(
+            "{label}: frame {n} is missing: the scene has {frames} frames, the file gives \
+             {n}{last}"
+        );
+    }
+    Ok(poses)
+}
+
+/// The checked pose of an entry, or why it is refused.
+fn pose(e: &Entry) -> Result<Pose, String> {
+    let fov = e.fov;
+    if !(fov > 0.0 && fov < 180.0) {
+        return Err(format!("fov {fov} must be in (0, 180) degrees"));
+    }
+    let pose = match &e.form {
+        Form::LookAt {
+            position,
+            look_at,
+            up,
+        } => {
+            for (key, c) in [("position", position), ("look_at", look_at), ("up", up)] {
+                if !c.iter().all(|c| c.is_finite()) {
+                    return Err(format!("{key} {c:?} is not finite"));
+                }
+                if c.iter().any(|c| c.abs() > MAX_COORD) {
+                    return Err(format!("{key} {c:?} is too large (at most {MAX_COORD:e})"));
+                }
+            }
+            let (position, look_at) = (glam::Vec3::from(*position), glam::Vec3::from(*look_at));
+            Pose {
+                eye: position,
+                view: look_at - position,
+                up: glam::Vec3::from(*up),
+                fov,
+            }
+        }
+        Form::Matrix(m, eye) => {
+            check_matrix(m)?;
+            Pose {
+                eye: glam::Vec3::from(*eye),
+                ..Pose::from_camera_to_world(m, fov)
+            }
+        }
+    };
+    match pose.fault() {
+        Some(why) => Err(why),
+        None => Ok(pose),
+    }
+}
+
+/// Smallest volume of the parallelepiped of the 3x3 part's unit columns: below it, two axes
+/// are nearly parallel (the sine of their angle is at most this), or all three in a plane.
+const MIN_UNIT_VOLUME: f64 = 1e-4;
+
+/// Refuse a camera-to-world matrix that is not finite, too large, not affine, or whose 3x3 part
+/// is singular, nearly so, or mirrored.
+fn check_matrix(m: &[f64; 16]) -> Result<(), String> {
+    let name = |i: usize| format!("m{}{}", i / 4, i % 4);
+    for (i, v) in m.iter().enumerate() {
+        if !v.is_finite() {
+            return Err(format!("matrix element {} = {v} is not finite", name(i)));
+        }
+        if v.abs() > MAX_COORD as f64 {
+            return Err(format!(
+                "matrix element {} = {v:e} is too large (at most {MAX_COORD:e})",
+                name(i)
+            ));
+        }
+    }
+    if m[12..] != [0.0, 0.0, 0.0, 1.0] {
+        return Err(format!(
+            "matrix bottom row {:?} is not [0, 0, 0, 1] (a camera-to-world matrix is affine)",
+            &m[12..]
+        ));
+    }
+    let col = |c: usize| glam::DVec3::new(m[c], m[4 + c], m[8 + c]);
+    let (x, y, z) = (col(0), col(1), col(2));
+    let det = x.dot(y.cross(z));
+    let lengths = x.length() * y.length() * z.length();
+    // Scale drops out: the volume of the unit columns measures how far from parallel they are.
+    let volume = if lengths > 0.0 { det / lengths } else { 0.0 };
+    if volume.abs() <= MIN_UNIT_VOLUME {
+        return Err(format!(
+            "matrix is singular or nearly so (determinant of its 3x3 part {det:e}): its axes are \
+             (nearly) parallel or zero"
+        ));
+    }
+    if volume < 0.0 {
+        return Err(format!(
+            "matrix is mirrored (determinant of its 3x3 part {det:e} < 0): a camera's axes are \
+             right-handed"
+        ));
+    }
+    Ok(())
+}
+
+/// A JSON number as written (any JSON value, refused later if not a number).
+struct Num<'a>(&'a str);
+
+impl<'de: 'a, 'a> Deserialize<'de> for Num<'a> {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        <&RawValue>::deserialize(d).map(|r| Num(r.get()))
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JsonFile<'a> {
+    #[serde(borrow)]
+    frames: Vec<&'a RawValue>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JsonEntry<'a> {
+    frame: u32,
+    #[serde(borrow)]
+    fov: Num<'a>,
+    #[serde(borrow)]
+    matrix: Option<Vec<Num<'a>>>,
+    #[serde(borrow)]
+    position: Option<Vec<Num<'a>>>,
+    #[serde(borrow)]
+    look_at: Option<Vec<Num<'a>>>,
+    #[serde(borrow)]
+    up: Option<Vec<Num<'a>>>,
+}
+
+/// serde_json's message without its " at line L column C" (the caller names the line).
+fn json_message(e: &serde_json::Error) -> String {
+    let m = e.to_string();
+    match m.rfind(" at line ") {
+        Some(i) => m[..i].to_string(),
+        None => m,
+    }
+}
+
+/// `N` numbers of `key`, parsed as `T` from their text.
+fn numbers<T: std::str::FromStr + Default + Copy, const N: usize>(
+    key: &str,
+    v: &[Num],
+) -> Result<[T; N], String> {
+    if v.len() != N {
+        return Err(format!("{key} has {} numbers, not {N}", v.len()));
+    }
+    let mut out = [T::default(); N];
+    for (o, n) in out.iter_mut().zip(v) {
+        *o = number(key, n.0)?;
+    }
+    Ok(out)
+}
+
+/// The translation (elements 3, 7 and 11) of a matrix whose element `i` is `text(i)`, read as
+/// f32 from the text (as every coordinate: see the module note), `name(i)` in messages.
+fn translation<'a>(
+    text: impl Fn(usize) -> &'a str,
+    name: impl Fn(usize) -> String,
+) -> Result<[f32; 3], String> {
+    let mut eye = [0.0f32; 3];
+    for (r, e) in eye.iter_mut().enumerate() {
+        *e = number(&name(4 * r + 3), text(4 * r + 3))?;
+    }
+    Ok(eye)
+}
+
+fn number<T: std::str::FromStr>(key: &str, text: &str) -> Result<T, String> {
+    // Rust also reads `inf` and `NaN`, which are not JSON numbers (JSON parsing refused those
+    // already; a CSV's are refused as not finite, naming the column).
+    text.trim()
+        .parse()
+        .map_err(|_| format!("{key} '{}' is not a number", quote(text)))
+}
+
+fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
+    // serde would read an array as the struct's fields in order, and complain about the first.
+    if text.trim_start().starts_with('[') {
+        bail!(
+            "{label}: line {}: the file is an array: a camera file is an object, \
+             {{\"frames\": [...]}}",
+            line_at(text.as_bytes(), text.len() - text.trim_start().len())
+        );
+    }
+    let file: JsonFile = serde_json::from_str(text).map_err(|e| {
+        // Python's json module writes NaN and Infinity, which JSON does not have: say so.
+        let here = text
+            .lines()
+            .nth(e.line().saturating_sub(1))
+            .and_then(|l| l.get(e.column().saturating_sub(1)..))
+            .unwrap_or("");
+        let here = here.trim_start_matches(['-', '+']);
+        let hint = if ["NaN", "nan", "Infinity", "inf"]
+            .iter()
+            .any(|w| here.starts_with(w))
+        {
+            " (NaN or Infinity: a camera's numbers must be finite, and JSON has no such numbers)"
+        } else {
+            ""
+        };
+        anyhow!("{label}: line {}: {}{hint}", e.line(), json_message(&e))
+    })?;
+    let mut entries = Vec::with_capacity(file.frames.len());
+    for (i, raw) in file.frames.iter().enumerate() {
+        // The entry's place in the file: `raw` borrows from `text`.
+        let offset = raw.get().as_ptr() as usize - text.as_ptr() as usize;
+        let line = line_at(text.as_bytes(), offset);
+        let at = format!("line {line} (entry {})", i + 1);
+        let e: JsonEntry = serde_json::from_str(raw.get()).map_err(|e| {
+            anyhow!(
+                "{label}: line {} (entry {}): {}",
+                line + e.line() - 1,
+                i + 1,
+                json_message(&e)
+            )
+        })?;
+        let form = (|| match (&e.matrix, &e.position, &e.look_at, &e.up) {
+            (Some(m), None, None, None) => Ok(Form::Matrix(
+                numbers("matrix", m)?,
+                translation(
+                    |i| m[i].0,
+                    |i| format!("matrix element m{}{}", i / 4, i % 4),
+                )?,
+            )),
+            (None, Some(p), Some(l), Some(u)) => Ok(Form::LookAt {
+                position: numbers("position", p)?,
+                look_at: numbers("look_at", l)?,
+                up: numbers("up", u)?,
+            }),
+            (Some(_), ..) => Err("both matrix and position/look_at/up: give one".to_string()),
+            _ => Err("needs matrix, or position, look_at and up".to_string()),
+        })();
+        let fov = number("fov", e.fov.0);
+        let (form, fov) = match (form, fov) {
+            (Ok(f), Ok(v)) => (f, v),
+            (Err(why), _) | (_, Err(why)) => {
+                bail!("{label}: {at}: frame {}: {why}", e.frame)
+            }
+        };
+        entries.push(Entry {
+            at,
+            frame: e.frame,
+            fov,
+            form,
+        });
+    }
+    Ok(entries)
+}
+
+/// The CSV headers, one per form.
+fn matrix_header() -> Vec<String> {
+    let mut h = vec!["frame".to_string(), "fov".to_string()];
+    h.extend((0..16).map(|i| format!("m{}{}", i / 4, i % 4)));
+    h
+}
+
+const LOOK_AT_HEADER: [&str; 11] = [
+    "frame", "fov", "px", "py", "pz", "lx", "ly", "lz", "ux", "uy", "uz",
+];
+
+fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
+    let mut rows = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + 1, l.trim_end_matches('\r')))
+        .filter(|(_, l)| !l.trim().is_empty());
+    let (hline, header) = rows.next().expect("the text is not blank");
+    let names: Vec<&str> = header.split(',').map(str::trim).collect();
+    let matrix = matrix_header();
+    let is_matrix = names == matrix;
+    if !is_matrix && names != LOOK_AT_HEADER {
+        bail!(
+            "{label}: line {hline}: header '{}' is neither '{}' nor '{}'",
+            quote(header),
+            "frame,fov,m00,m01,...,m33",
+            LOOK_AT_HEADER.join(",")
+        );
+    }
+    let mut entries = Vec::new();
+    for (n, row) in rows {
+        let fields: Vec<&str> = row.split(',').map(str::trim).collect();
+        let at = format!("line {n}");
+        if fields.len() != names.len() {
+            bail!(
+                "{label}: {at}: {} fields, but the header (line {hline}) names {}",
+                fields.len(),
+                names.len()
+            );
+        }
+        let frame: u32 = fields[0].parse().map_err(|_| {
+            anyhow!(
+                "{label}: {at}: frame '{}' is not a frame number (a whole number from 0)",
+                quote(fields[0])
+            )
+        })?;
+        let fail = |why: String| anyhow!("{label}: {at}: frame {frame}: {why}");
+        let fov = number("fov", fields[1]).map_err(fail)?;
+        let form = if is_matrix {
+            let mut m = [0.0f64; 16];
+            for (i, v) in m.iter_mut().enumerate() {
+                *v = number(&matrix[i + 2], fields[i + 2]).map_err(fail)?;
+            }
+            let eye = translation(|i| fields[i + 2], |i| matrix[i + 2].clone()).map_err(fail)?;
+            Form::Matrix(m, eye)
+        } else {
+            let mut v = [[0.0f32; 3]; 3];
+            for (i, x) in v.iter_mut().flatten().enumerate() {
+                *x = number(LOOK_AT_HEADER[i + 2], fields[i + 2]).map_err(fail)?;
+            }
+            Form::LookAt {
+                position: v[0],
+                look_at: v[1],
+                up: v[2],
+            }
+        };
+        entries.push(Entry {
+            at,
+            frame,
+            fov,
+            form,
+        });
+    }
+    Ok(entries)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    const ID: &str = "[1, 0, 0, 0.5, 0, 1, 0, 1.5, 0, 0, 1, 4, 0, 0, 0, 1]";
+
+    fn json(entries: &[String]) -> String {
+        format!("{{\"frames\": [\n{}\n]}}\n", entries.join(",\n"))
+    }
+
+    fn entry(frame: u32, matrix: &str) -> String {
+        format!("  {{\"frame\": {frame}, \"fov\": 40.0, \"matrix\": {matrix}}}")
+    }
+
+    /// The error of a file that must be refused: one line.
+    fn refused(name: &str, text: &str, frames: u32) -> String {
+        let format = Format::of(name).unwrap();
+        let e = parse(name, text.as_bytes(), format, frames)
+            .err()
+            .unwrap_or_else(|| panic!("{name} loaded:\n{text}"));
+        let e = format!("{e:#}");
+        assert!(!e.contains('\n'), "more than one line: {e}");
+        e
+    }
+
+    #[test]
+    fn both_forms_load() {
+        let text = json(&[
+            entry(0, ID),
+            "  {\"frame\": 1, \"fov\": 30, \"position\": [0.5, 1.5, 4], \"look_at\": [0.5, 1.5, 3], \
+             \"up\": [0, 1, 0]}"
+                .to_string(),
+        ]);
+        let poses = parse("c.json", text.as_bytes(), Format::Json, 2).unwrap();
+        let eye = Vec3::new(0.5, 1.5, 4.0);
+        assert_eq!(
+            poses[0],
+            Pose {
+                eye,
+                view: -Vec3::Z,
+                up: Vec3::Y,
+                fov: 40.0
+            }
+        );
+        assert_eq!(poses[1].view, -Vec3::Z);
+        assert_eq!(poses[1].fov, 30.0);
+        let csv =
+            "frame,fov,px,py,pz,lx,ly,lz,ux,uy,uz\r\n0, 40, 0.5,1.5,4, 0.5,1.5,3, 0,1,0\r\n\n";
+        let p = parse("c.csv", csv.as_bytes(), Format::Csv, 1).unwrap();
+        assert_eq!((p[0].eye, p[0].view, p[0].up), (eye, -Vec3::Z, Vec3::Y));
+        let m: Vec<String> = ["frame", "fov"]
+            .iter()
+            .map(|s| s.to_string())
+            .chain((0..16).map(|i| format!("m{}{}", i / 4, i % 4)))
+            .collect();
+        let row = ID.trim_matches(['[', ']']).replace(' ', "");
+        let csv = format!("\u{feff}{}\n0,40,{row}\n", m.join(","));
+        assert_eq!(
+            parse("c.csv", csv.as_bytes(), Format::Csv, 1).unwrap(),
+            poses[..1]
+        );
+    }
+
+    #[test]
+    fn coordinates_are_read_as_f32_from_their_text() {
+        // The shortest text of an f32 reads back as that f32 (through f64 it could round twice).
+        let x = 0.6893617f32;
+        let text = json(&[format!(
+            "{{\"frame\": 0, \"fov\": 40, \"position\": [{x}, 0, 0], \"look_at\": [0, 0, -1], \
+             \"up\": [0, 1, 0]}}"
+        )]);
+        let p = parse("c.json", text.as_bytes(), Format::Json, 1).unwrap();
+        assert_eq!(p[0].eye.x.to_bits(), x.to_bits());
+    }
+
+    #[test]
+    fn frames_must_be_each_frame_once_in_order() {
+        let f = |frames: &[u32]| json(&frames.iter().map(|&f| entry(f, ID)).collect::<Vec<_>>());
+        for (frames, n, want) in [
+            (&[0, 2][..], 3, "c.json: line 3 (entry 2): frame 2: frame 1 is missing"),
+            (&[1, 0], 2, "c.json: line 2 (entry 1): frame 1: out of order: frame 0 comes after it, at line 3 (entry 2)"),
+            (&[0, 2, 1], 3, "c.json: line 3 (entry 2): frame 2: out of order: frame 1 comes after it, at line 4 (entry 3)"),
+            (&[0, 1, 1], 3, "c.json: line 4 (entry 3): frame 1: given twice (also at line 3 (entry 2))"),
+            (&[0, 1, 2, 0], 4, "c.json: line 5 (entry 4): frame 0: given twice (also at line 2 (entry 1))"),
+            (&[0, 1, 2], 2, "c.json: line 4 (entry 3): frame 2: past the last frame (1)"),
+            (&[0, 5], 3, "c.json: line 3 (entry 2): frame 5: past the last frame (2)"),
+            (&[0, 1], 3, "c.json: frame 2 is missing: the scene has 3 frames, the file gives 2 (the last entry, frame 1, is at line 3 (entry 2))"),
+            (&[], 1, "c.json: frame 0 is missing: the scene has 1 frames, the file gives 0"),
+        ] {
+            let e = refused("c.json", &f(frames), n);
+            assert!(e.starts_with(want), "{frames:?}:\n  want {want}\n  got  {e}");
+        }
+    }
+
+    #[test]
+    fn bad_matrices_are_refused() {
+        let m = |s: &str| json(&[entry(0, s)]);
+        for (matrix, want) in [
+            (
+                "[0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1]",
+                "frame 0: matrix is singular or nearly so",
+            ),
+            // Y and Z the same axis.
+            (
+                "[1, 0, 0, 0, 0, 1, 1, 0, 0, 1, 1, 0, 0, 0, 0, 1]",
+                "matrix is singular",
+            ),
+            // Y and Z 1e-5 radians apart: nearly parallel.
+            (
+                "[1, 0, 0, 0, 0, 1, 1, 0, 0, 1, 1.00001, 0, 0, 0, 0, 1]",
+                "matrix is singular or nearly so",
+            ),
+            (
+                "[-1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]",
+                "matrix is mirrored",
+            ),
+            (
+                "[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 1, 1]",
+                "matrix bottom row [0.0, 0.0, 1.0, 1.0] is not [0, 0, 0, 1]",
+            ),
+            (
+                "[1, 0, 0, 1e19, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]",
+                "matrix element m03 = 1e19 is too large",
+            ),
+            (
+                "[1, 0, 0, 1e400, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]",
+                "matrix element m03 = inf is not finite",
+            ),
+            (
+                "[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0]",
+                "matrix has 15 numbers, not 16",
+            ),
+            (
+                "[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, \"1\"]",
+                "matrix '\"1\"' is not a number",
+            ),
+        ] {
+            let e = refused("c.json", &m(matrix), 1);
+            assert!(e.starts_with("c.json: line 2 (entry 1): frame 0: "), "{e}");
+            assert!(e.contains(want), "{matrix}:\n  want {want}\n  got  {e}");
+        }
+        // A scaled matrix is fine: only its rotation is used.
+        let scaled = "[3, 0, 0, 0, 0, 3, 0, 0, 0, 0, 3, 0, 0, 0, 0, 1]";
+        let p = parse("c.json", m(scaled).as_bytes(), Format::Json, 1).unwrap();
+        assert_eq!((p[0].view, p[0].up), (-Vec3::Z, Vec3::Y));
+    }
+
+    #[test]
+    fn malformed_json_is_refused_naming_the_line() {
+        for (text, want) in [
+            (
+                "{\"frames\": [\n{\"frame\": 0, \"fov\": NaN, \"matrix\": []}]}".to_string(),
+                "c.json: line 2: expected value (NaN or Infinity: a camera's numbers must be finite",
+            ),
+            (
+                format!("[{}]", entry(0, ID)),
+                "c.json: line 1: the file is an array: a camera file is an object, {\"frames\": [...]}",
+            ),
+            (json(&[entry(0, ID).replace("fov", "fvo")]), "c.json: line 2 (entry 1): unknown field `fvo`"),
+            (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 0.0")]), "c.json: line 2 (entry 1): invalid type: floating point `0.0`, expected u32"),
+            (json(&[entry(0, ID).replace("40.0", "180")]), "c.json: line 2 (entry 1): frame 0: fov 180 must be in (0, 180) degrees"),
+            (
+                json(&[entry(0, ID).replace('}', ", \"position\": [0, 0, 0]}")]),
+                "frame 0: both matrix and position/look_at/up: give one",
+            ),
+            (
+                json(&["{\"frame\": 0, \"fov\": 40, \"position\": [0, 0, 0], \"up\": [0, 1, 0]}".into()]),
+                "frame 0: needs matrix, or position, look_at and up",
+            ),
+            (
+                json(&["{\"frame\": 0, \"fov\": 40, \"position\": [0, 0, 0], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0]}".into()]),
+                "frame 0: look_at coincides with position",
+            ),
+            ("".into(), "c.json: the file is empty"),
+        ] {
+            let e = refused("c.json", &text, 1);
+            assert!(e.contains(want), "\n  want {want}\n  got  {e}");
+        }
+    }
+
+    #[test]
+    fn malformed_csv_is_refused_naming_the_line() {
+        let h = LOOK_AT_HEADER.join(",");
+        let ok = "0,40,0,0,3,0,0,0,0,1,0";
+        for (text, want) in [
+            (
+                format!("frame,fov,x,y,z\n{ok}\n"),
+                "c.csv: line 1: header 'frame,fov,x,y,z' is neither",
+            ),
+            (
+                format!("{h}\n0,40,0,0,3,0,0,0,0,1\n"),
+                "c.csv: line 2: 10 fields, but the header (line 1) names 11",
+            ),
+            (format!("{h}\n{ok},\n"), "c.csv: line 2: 12 fields"),
+            (
+                format!("{h}\n0,40,nan,0,3,0,0,0,0,1,0\n"),
+                "c.csv: line 2: frame 0: position [NaN, 0.0, 3.0] is not finite",
+            ),
+            (
+                format!("{h}\n0,40,0,0,3e19,0,0,0,0,1,0\n"),
+                "c.csv: line 2: frame 0: position [0.0, 0.0, 3e19] is too large",
+            ),
+            (
+                format!("{h}\n0,40,0,0,3,0,0,0,0,0,1\n"),
+                "c.csv: line 2: frame 0: up [0, 0, 1] is parallel to the view direction",
+            ),
+            (
+                format!("{h}\n0,40,0,0,3,0,zero,0,0,1,0\n"),
+                "c.csv: line 2: frame 0: ly 'zero' is not a number",
+            ),
+            (
+                format!("{h}\n0.5,40,0,0,3,0,0,0,0,1,0\n"),
+                "c.csv: line 2: frame '0.5' is not a frame number",
+            ),
+            (
+                format!("{h}\n{ok}\n\n0,40,0,0,3,0,0,0,0,1,0\n"),
+                "c.csv: line 4: frame 0: given twice (also at line 2)",
+            ),
+            (
+                format!("{h}\n"),
+                "c.csv: frame 0 is missing: the scene has 1 frames, the file gives 0",
+            ),
+        ] {
+            let e = refused("c.csv", &text, 1);
+            assert!(e.contains(want), "\n  want {want}\n  got  {e}");
+        }
+    }
+}

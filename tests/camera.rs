@@ -1,0 +1,308 @@
+//! Cameras from a file and Catmull-Rom keyframes, through `Scene::load` and the renderer:
+//!
+//! - a JSON and a CSV camera file that give `vase`'s cameras per frame (position, look-at, up,
+//!   written from its keyframe path) render frames bitwise identical to `vase`'s, with the
+//!   independent tracer and with `mis-cv` reuse;
+//! - the same cameras as camera-to-world matrices (scaled: only rotation and translation count)
+//!   give every frame's camera within float rounding of the keyframe path's;
+//! - `interpolation = "catmull-rom"` passes through every keyframe of `vase-long` exactly and
+//!   leaves the straight lines between them;
+//! - the scene TOML's misuses (both `camera` and `[[keyframe]]`, neither, `interpolation` with a
+//!   camera file, another extension, a missing file, a FIFO) are refused with one line naming
+//!   the file and line. Malformed camera files themselves are the unit tests' (in
+//!   `src/scene/camera_file.rs`) and the corpus' (`tests/corpus/cases/camera-file-*`).
+mod common;
+
+use common::render_in_memory;
+use reframe::camera::{Camera, Cameras, Keyframe};
+use reframe::driver::RenderOptions;
+use reframe::embree::Device;
+use reframe::integrator::Integrator;
+use reframe::reuse::Method;
+use reframe::scene::Scene;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+fn scenes() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes"))
+}
+
+/// `vase`'s keyframe of every frame.
+fn vase_keys(vase: &Scene) -> Vec<Keyframe> {
+    let Cameras::Path(path) = &vase.cameras else {
+        panic!("vase has keyframes")
+    };
+    (0..vase.frames).map(|f| path.at(f)).collect()
+}
+
+/// A scene in `dir` that is `vase` with `camera` (a camera file's name) for its keyframes and
+/// `text` as that file; the TOML's path.
+fn vase_with_camera_file(dir: &Path, camera: &str, text: &str) -> String {
+    for f in ["vase.obj", "vase.mtl"] {
+        std::fs::copy(scenes().join(f), dir.join(f)).unwrap();
+    }
+    std::fs::write(dir.join(camera), text).unwrap();
+    let toml = dir.join("shot.toml");
+    std::fs::write(
+        &toml,
+        format!(
+            "obj = \"vase.obj\"\nframes = 48\nresolution = [320, 240]\ncamera = \"{camera}\"\n"
+        ),
+    )
+    .unwrap();
+    toml.display().to_string()
+}
+
+fn v3(v: glam::Vec3) -> String {
+    format!("[{}, {}, {}]", v.x, v.y, v.z)
+}
+
+/// Camera-to-world of `c`, row-major, each axis scaled by `scale`: Blender's convention (the
+/// camera looks down -Z, +Y up).
+fn matrix(c: &Camera, scale: f32) -> [f32; 16] {
+    let (r, u, b, e) = (c.right * scale, c.up * scale, -c.forward * scale, c.eye);
+    [
+        r.x, u.x, b.x, e.x, r.y, u.y, b.y, e.y, r.z, u.z, b.z, e.z, 0.0, 0.0, 0.0, 1.0,
+    ]
+}
+
+fn render(scene: &Scene, method: Method) -> Vec<(u32, Vec<u32>)> {
+    let integ = Integrator::new(scene, 8);
+    let opts = RenderOptions {
+        method,
+        window: if method == Method::Independent { 1 } else { 3 },
+        spp: 2,
+        seed: 5,
+        frames: Some(20..=22),
+        resolution: Some((32, 24)),
+        threads: 2,
+        progress: false,
+        ..RenderOptions::default()
+    };
+    render_in_memory(&integ, &opts)
+        .0
+        .into_iter()
+        .map(|(f, d)| (f, d.data.iter().map(|v| v.to_bits()).collect()))
+        .collect()
+}
+
+#[test]
+fn camera_files_of_vase_render_vase_bitwise() {
+    let device = Device::new().unwrap();
+    let vase = Scene::load("vase", &device).unwrap();
+    let keys = vase_keys(&vase);
+    let entries: Vec<String> = keys
+        .iter()
+        .map(|k| {
+            format!(
+                "  {{\"frame\": {}, \"fov\": {}, \"position\": {}, \"look_at\": {}, \"up\": {}}}",
+                k.frame,
+                k.fov,
+                v3(k.position),
+                v3(k.look_at),
+                v3(k.up)
+            )
+        })
+        .collect();
+    let json = format!("{{\"frames\": [\n{}\n]}}\n", entries.join(",\n"));
+    let mut csv = "frame,fov,px,py,pz,lx,ly,lz,ux,uy,uz\n".to_string();
+    for k in &keys {
+        let (p, l, u) = (k.position, k.look_at, k.up);
+        csv += &format!(
+            "{},{},{},{},{},{},{},{},{},{},{}\n",
+            k.frame, k.fov, p.x, p.y, p.z, l.x, l.y, l.z, u.x, u.y, u.z
+        );
+    }
+    let want_indep = render(&vase, Method::Independent);
+    let want_reuse = render(&vase, Method::MisCv);
+    assert_eq!(want_indep.len(), 3);
+    assert!(want_indep.iter().all(|(_, d)| d.iter().any(|&v| v != 0)));
+    for (name, text) in [("shot.json", &json), ("shot.csv", &csv)] {
+        let dir = tempfile::tempdir().unwrap();
+        let toml = vase_with_camera_file(dir.path(), name, text);
+        let s = Scene::load(&toml, &device).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+        assert!(matches!(s.cameras, Cameras::PerFrame(ref v) if v.len() == 48));
+        // The camera file is an input: no command writes over it.
+        assert!(s.inputs.contains(&dir.path().join(name)), "{:?}", s.inputs);
+        for f in 0..vase.frames {
+            let (a, b) = (s.camera(f, 32, 24), vase.camera(f, 32, 24));
+            let bits = |c: &Camera| {
+                [c.eye, c.forward, c.right, c.up]
+                    .map(|v| v.to_array().map(f32::to_bits))
+                    .concat()
+            };
+            assert_eq!(bits(&a), bits(&b), "{name}: frame {f}");
+            assert_eq!(a.tan_half_fov.to_bits(), b.tan_half_fov.to_bits());
+        }
+        assert!(
+            render(&s, Method::Independent) == want_indep,
+            "{name}: independent"
+        );
+        assert!(render(&s, Method::MisCv) == want_reuse, "{name}: mis-cv");
+    }
+}
+
+#[test]
+fn matrix_camera_files_give_the_keyframe_cameras() {
+    let device = Device::new().unwrap();
+    let vase = Scene::load("vase", &device).unwrap();
+    let (w, h) = (320, 240);
+    let cams: Vec<Camera> = (0..vase.frames).map(|f| vase.camera(f, w, h)).collect();
+    let fov = |f: u32| vase_keys(&vase)[f as usize].fov;
+    let num = |m: [f32; 16]| m.map(|v| v.to_string()).join(", ");
+    // A scale of 2.5 on the axes: it must drop out.
+    let entries: Vec<String> = cams
+        .iter()
+        .enumerate()
+        .map(|(f, c)| {
+            format!(
+                "{{\"frame\": {f}, \"fov\": {}, \"matrix\": [{}]}}",
+                fov(f as u32),
+                num(matrix(c, 2.5))
+            )
+        })
+        .collect();
+    let json = format!("{{\"frames\": [\n{}\n]}}\n", entries.join(",\n"));
+    let mut csv = "frame,fov".to_string();
+    for i in 0..16 {
+        csv += &format!(",m{}{}", i / 4, i % 4);
+    }
+    csv += "\n";
+    for (f, c) in cams.iter().enumerate() {
+        csv += &format!(
+            "{f},{},{}\n",
+            fov(f as u32),
+            num(matrix(c, 1.0)).replace(' ', "")
+        );
+    }
+    for (name, text) in [("shot.json", &json), ("shot.csv", &csv)] {
+        let dir = tempfile::tempdir().unwrap();
+        let toml = vase_with_camera_file(dir.path(), name, text);
+        let s = Scene::load(&toml, &device).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        let mut worst = 0.0f32;
+        for (f, want) in cams.iter().enumerate() {
+            let got = s.camera(f as u32, w, h);
+            assert_eq!(got.eye, want.eye, "{name}: frame {f}");
+            assert_eq!(got.tan_half_fov, want.tan_half_fov, "{name}: frame {f}");
+            for (a, b) in [
+                (got.forward, want.forward),
+                (got.right, want.right),
+                (got.up, want.up),
+            ] {
+                worst = worst.max((a - b).abs().max_element());
+            }
+        }
+        // Rounding only: a few units in the last place of unit vectors.
+        assert!(worst < 1e-6, "{name}: axes differ by {worst:e}");
+        eprintln!("{name}: axes within {worst:e} of the keyframe path's");
+    }
+}
+
+#[test]
+fn catmull_rom_keyframes_pass_through_every_keyframe() {
+    let device = Device::new().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    for f in ["vase.obj", "vase.mtl"] {
+        std::fs::copy(scenes().join(f), dir.path().join(f)).unwrap();
+    }
+    // vase-long: four keyframes whose speed changes at the middle two.
+    let long = std::fs::read_to_string(scenes().join("vase-long.toml")).unwrap();
+    let toml = dir.path().join("spline.toml");
+    let text = long.replace(
+        "resolution = [320, 240]",
+        "resolution = [320, 240]\ninterpolation = \"catmull-rom\"",
+    );
+    assert_ne!(text, long);
+    std::fs::write(&toml, text).unwrap();
+    let spline = Scene::load(toml.to_str().unwrap(), &device).unwrap();
+    let linear = Scene::load("vase-long", &device).unwrap();
+    let mut apart = 0.0f32;
+    for f in 0..linear.frames {
+        let (a, b) = (spline.cameras.pose(f), linear.cameras.pose(f));
+        if [0, 36, 83, 119].contains(&f) {
+            assert_eq!(a, b, "frame {f} is a keyframe");
+        } else {
+            apart = apart.max((a.eye - b.eye).length());
+        }
+    }
+    // Around the keyframes at 36 and 83 the path rounds the corners: centimetres off the lines.
+    assert!(apart > 0.01, "{apart}");
+}
+
+/// The one-line error of loading `toml` (text) with a camera file `shot.json` beside it.
+fn refusal(toml: &str, device: &Device) -> (String, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for f in ["s.obj", "s.mtl"] {
+        let base = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/base");
+        std::fs::copy(base.join(f), d.join(f)).unwrap();
+    }
+    let entry = "{\"frame\": 0, \"fov\": 45, \"position\": [0, 1, 3], \"look_at\": [0, 0, 0], \
+                 \"up\": [0, 1, 0]}";
+    std::fs::write(d.join("shot.json"), format!("{{\"frames\": [{entry}]}}")).unwrap();
+    let fifo = d.join("fifo.json");
+    let ok = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let path = d.join("s.toml");
+    std::fs::write(&path, toml).unwrap();
+    let start = Instant::now();
+    let e = match Scene::load(path.to_str().unwrap(), device) {
+        Ok(_) => panic!("loaded:\n{toml}"),
+        Err(e) => format!("{e:#}"),
+    };
+    assert!(start.elapsed() < Duration::from_secs(1), "{e}");
+    assert!(!e.contains('\n'), "more than one line: {e}");
+    (e, d.display().to_string())
+}
+
+#[test]
+fn camera_key_misuse_is_refused_with_one_line() {
+    let device = Device::new().unwrap();
+    let head = "obj = \"s.obj\"\nframes = 1\nresolution = [16, 12]\n";
+    let key = "[[keyframe]]\nframe = 0\nposition = [0.0, 1.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\n\
+               up = [0.0, 1.0, 0.0]\nfov = 45.0\n";
+    for (toml, want) in [
+        (
+            format!("{head}camera = \"shot.json\"\n{key}"),
+            "{dir}/s.toml: line 4: camera = 'shot.json' and [[keyframe]] tables: give one or the other",
+        ),
+        (
+            head.to_string(),
+            "{dir}/s.toml: no camera: give [[keyframe]] tables or camera = \"file.json\" (or .csv)",
+        ),
+        (
+            format!("{head}camera = \"shot.json\"\ninterpolation = \"linear\"\n"),
+            "{dir}/s.toml: line 5: interpolation with a camera file",
+        ),
+        (
+            format!("{head}interpolation = \"cubic\"\n{key}"),
+            "{dir}/s.toml: line 4 ('interpolation = \"cubic\"'): unknown variant `cubic`, expected \
+             `linear` or `catmull-rom`",
+        ),
+        (
+            format!("{head}camera = \"shot.txt\"\n"),
+            "{dir}/s.toml: line 4: camera 'shot.txt': a camera file's name ends in .json or .csv",
+        ),
+        (
+            format!("{head}camera = \"gone.json\"\n"),
+            "{dir}/s.toml: line 4: camera 'gone.json': camera file '{dir}/gone.json': no such file",
+        ),
+        (
+            format!("{head}camera = \"fifo.json\"\n"),
+            "{dir}/s.toml: line 4: camera 'fifo.json': camera file '{dir}/fifo.json': is a named \
+             pipe (FIFO), not a regular file",
+        ),
+        (
+            format!("{head}camera = \"shot.json\"\n").replace("frames = 1", "frames = 2"),
+            "{dir}/shot.json: frame 1 is missing: the scene has 2 frames, the file gives 1",
+        ),
+    ] {
+        let (e, dir) = refusal(&toml, &device);
+        let want = want.replace("{dir}", &dir);
+        assert!(e.starts_with(&want), "\n  want {want}\n  got  {e}");
+    }
+}
