@@ -20,8 +20,9 @@
 //! spline in docs/camera.md). Every frame's camera is checked either way.
 //!
 //! Materials: `Kd` Lambertian, `Ks`/`Ns` modified Phong, `Ke` emission (one-sided, to the
-//! side of the counter-clockwise face normal). Every triangle with `Ke > 0` is an area light;
-//! a scene needs at least one (there is no environment light yet).
+//! side of the counter-clockwise face normal). Every triangle with `Ke > 0` is an area light.
+//! `[environment]` (an `image` or a `radiance`, `intensity`, `rotation`) adds the environment
+//! light of `scene/environment.rs`. A scene needs an area light or an environment that emits.
 //!
 //! Loading is strict where the input is unsafe or ambiguous and lenient, but loud, where a
 //! production loader would load a real model: what it refuses fails with a one-line error
