@@ -192,8 +192,7 @@ impl Material {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sampling::{phong_lobe, Sampler};
-    use statrs::distribution::{ChiSquared, ContinuousCDF};
+    use crate::sampling::{chi_square, phong_lobe, Sampler};
 
     #[test]
     fn eval_and_pdf_are_eval_and_pdf_to_the_bit() {
@@ -311,32 +310,7 @@ mod tests {
             "pdf integrates to {}",
             total_expected / N as f64
         );
-        // Pool sparse cells (sorted by expectation) until each pooled cell expects >= 5.
-        let mut idx: Vec<usize> = (0..NT * NP).collect();
-        idx.sort_by(|&a, &b| expected[a].partial_cmp(&expected[b]).unwrap());
-        let (mut chi2, mut dof) = (0.0, 0usize);
-        let (mut pe, mut po) = (0.0, 0.0);
-        for &i in &idx {
-            if expected[i] < 5.0 {
-                pe += expected[i];
-                po += observed[i];
-                if pe >= 5.0 {
-                    chi2 += (po - pe) * (po - pe) / pe;
-                    dof += 1;
-                    pe = 0.0;
-                    po = 0.0;
-                }
-            } else {
-                chi2 += (observed[i] - expected[i]).powi(2) / expected[i];
-                dof += 1;
-            }
-        }
-        if pe > 0.0 {
-            chi2 += (po - pe) * (po - pe) / pe.max(1e-9);
-            dof += 1;
-        }
-        let dist = ChiSquared::new((dof - 1) as f64).unwrap();
-        let p_value = 1.0 - dist.cdf(chi2);
+        let (chi2, dof, p_value) = chi_square(&expected, &observed);
         let alpha = 1.0 - (1.0f64 - 0.01).powf(1.0 / trials as f64); // Sidak
         assert!(
             p_value > alpha,

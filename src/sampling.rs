@@ -115,6 +115,40 @@ pub fn uniform_triangle(u: Vec2) -> (f32, f32) {
     (1.0 - su, u.y * su)
 }
 
+/// Pearson's chi-square of `observed` counts against `expected` ones (the sampling tests of the
+/// BSDFs and the environment; pbrt-v4 bsdfs_test, Mitsuba chi2.py): cells expecting fewer than 5
+/// are pooled, in order of expectation, until each pool expects 5. Returns the statistic, the
+/// degrees of freedom and the p-value.
+#[cfg(test)]
+pub(crate) fn chi_square(expected: &[f64], observed: &[f64]) -> (f64, usize, f64) {
+    use statrs::distribution::{ChiSquared, ContinuousCDF};
+    let mut idx: Vec<usize> = (0..expected.len()).collect();
+    idx.sort_by(|&a, &b| expected[a].partial_cmp(&expected[b]).unwrap());
+    let (mut chi2, mut dof) = (0.0, 0usize);
+    let (mut pe, mut po) = (0.0, 0.0);
+    for &i in &idx {
+        if expected[i] < 5.0 {
+            pe += expected[i];
+            po += observed[i];
+            if pe >= 5.0 {
+                chi2 += (po - pe) * (po - pe) / pe;
+                dof += 1;
+                pe = 0.0;
+                po = 0.0;
+            }
+        } else {
+            chi2 += (observed[i] - expected[i]).powi(2) / expected[i];
+            dof += 1;
+        }
+    }
+    if pe > 0.0 {
+        chi2 += (po - pe) * (po - pe) / pe.max(1e-9);
+        dof += 1;
+    }
+    let p = 1.0 - ChiSquared::new((dof - 1) as f64).unwrap().cdf(chi2);
+    (chi2, dof, p)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -228,8 +228,8 @@ fn pick(cdf: &[f64], u: f64) -> (usize, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sampling::chi_square;
     use crate::sampling::Sampler;
-    use statrs::distribution::{ChiSquared, ContinuousCDF};
 
     /// A small environment with structure: a bright spot, a dim gradient, black texels, and a
     /// saturated blue (zero red and green).
@@ -352,30 +352,7 @@ mod tests {
                 observed[ct * NP + cp] += 1.0;
             }
             assert!(none < 10, "{none} samples failed");
-            let mut idx: Vec<usize> = (0..NT * NP).collect();
-            idx.sort_by(|&a, &b| expected[a].partial_cmp(&expected[b]).unwrap());
-            let (mut chi2, mut dof) = (0.0, 0usize);
-            let (mut pe, mut po) = (0.0, 0.0);
-            for &i in &idx {
-                if expected[i] < 5.0 {
-                    pe += expected[i];
-                    po += observed[i];
-                    if pe >= 5.0 {
-                        chi2 += (po - pe) * (po - pe) / pe;
-                        dof += 1;
-                        pe = 0.0;
-                        po = 0.0;
-                    }
-                } else {
-                    chi2 += (observed[i] - expected[i]).powi(2) / expected[i];
-                    dof += 1;
-                }
-            }
-            if pe > 0.0 {
-                chi2 += (po - pe) * (po - pe) / pe.max(1e-9);
-                dof += 1;
-            }
-            let p = 1.0 - ChiSquared::new((dof - 1) as f64).unwrap().cdf(chi2);
+            let (chi2, dof, p) = chi_square(&expected, &observed);
             let alpha = 1.0 - (1.0f64 - 0.01).powf(1.0 / rotations.len() as f64);
             assert!(
                 p > alpha,
