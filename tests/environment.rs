@@ -14,6 +14,7 @@ use reframe::image::{write_image, Image, Metadata, WriteOptions};
 use reframe::integrator::Integrator;
 use reframe::reuse::Method;
 use reframe::scene::Scene;
+use reframe::state::key::scene_and_build_hashes;
 use stats::{block_moments, z_test};
 
 /// A unit cube resting on nothing, wound outwards, in material `box`.
@@ -56,6 +57,35 @@ fn white_furnace_under_a_uniform_environment() {
     let device = Device::new().unwrap();
     let scene = Scene::load(&path, &device).unwrap();
     assert!(scene.lights.tris.is_empty() && scene.environment.is_some());
+    // The environment is part of the scene's identity (cached references, checkpoints): a
+    // brighter or bluer one is another scene.
+    let hash = |env: &str| {
+        let d = tempfile::tempdir().unwrap();
+        let p = write_scene(
+            d.path(),
+            CUBE,
+            &format!("newmtl box\nKd {albedo} {albedo} {albedo}\n"),
+            &camera(7, env),
+        );
+        scene_and_build_hashes(&Scene::load(&p, &device).unwrap())
+            .unwrap()
+            .0
+    };
+    let base = hash("[environment]\nradiance = [0.5, 0.5, 0.5]\nintensity = 2.0");
+    assert_eq!(base, scene_and_build_hashes(&scene).unwrap().0);
+    assert_ne!(
+        base,
+        hash("[environment]\nradiance = [0.5, 0.6, 0.5]\nintensity = 2.0")
+    );
+    // Turning one colour changes nothing, and is the same scene.
+    assert_eq!(
+        base,
+        hash("[environment]\nradiance = [0.5, 0.5, 0.5]\nintensity = 2.0\nrotation = 10.0")
+    );
+    assert_ne!(
+        base,
+        hash("[environment]\nradiance = [0.5, 0.5, 0.5]\nintensity = 2.5")
+    );
     let integ = Integrator::new(&scene, 8);
     let pool = thread_pool(0).unwrap();
     let (w, h, target) = (48u32, 36u32, 3u32);

@@ -123,10 +123,15 @@ impl Environment {
         self.power > 0.0
     }
 
-    /// The luminance-weighted mean radiance over the sphere (what the light sampler compares
-    /// against the area lights' power).
-    pub fn mean_luminance(&self) -> f64 {
-        self.power / (4.0 * PI)
+    /// What a rendered pixel depends on, for the scene's hash: the image's size, the rotation's
+    /// cosine and sine, and the texels (intensity applied).
+    pub fn identity(&self) -> (u32, u32, [f32; 2], &[Vec3]) {
+        (
+            self.width,
+            self.height,
+            [self.rot.0, self.rot.1],
+            &self.texels,
+        )
     }
 
     /// The texel a world direction falls in.

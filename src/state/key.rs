@@ -6,7 +6,8 @@ use anyhow::{bail, Result};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// Everything about a scene that changes a rendered pixel: geometry, materials, camera path.
+/// Everything about a scene that changes a rendered pixel: geometry, materials, camera path,
+/// environment light.
 pub fn hash_scene(f: &mut Fnv, scene: &Scene) {
     f.f32s(scene.positions.iter().flat_map(|p| p.to_array()));
     f.f32s(scene.normals.iter().flat_map(|p| p.to_array()));
@@ -18,6 +19,14 @@ pub fn hash_scene(f: &mut Fnv, scene: &Scene) {
     }
     f.bytes(format!("{:?}{:?}", scene.materials, scene.cameras).as_bytes());
     f.bytes(&scene.frames.to_le_bytes());
+    // Nothing for a scene without one, so that its hash stays what it was.
+    if let Some(e) = &scene.environment {
+        let (w, h, rot, texels) = e.identity();
+        f.bytes(b"environment");
+        f.bytes(&[w.to_le_bytes(), h.to_le_bytes()].concat());
+        f.f32s(rot);
+        f.f32s(texels.iter().flat_map(|t| t.to_array()));
+    }
 }
 
 /// The hex hashes of `scene` and of this build, as a run key and a reference key carry them.
