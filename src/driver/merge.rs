@@ -17,7 +17,7 @@ use super::options::check_output;
 use super::sink::{FileSink, FrameMeta};
 use crate::film::{develop, Developed, FrameAccum, Sink};
 use crate::reuse::Method;
-use crate::state::key::{partial_path, Chunk};
+use crate::state::key::{partial_path, run_units, Chunk};
 use crate::state::{Kind, Record, StateFile};
 use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
@@ -88,7 +88,7 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
                 label(f)
             );
         }
-        let all = t.key.first_frame..=t.key.last_frame + 1 - t.key.window;
+        let all = run_units(t.key.first_frame, t.key.last_frame, t.key.window);
         let share = c.share(all).map_err(|e| anyhow!("{}: {e}", label(f)))?;
         if t.units != [*share.start(), *share.end()] || t.next_unit != share.end() + 1 {
             bail!(

@@ -139,7 +139,7 @@ fn frame_loop(
         width: w,
         height: h,
         progress: opts.progress,
-        all_groups: *plan.frames.start()..=plan.frames.end() + 1 - opts.window,
+        all_groups: plan.all_units.clone(),
     };
     run_groups(integrator, &settings, run, active, sink)
 }

@@ -4,7 +4,7 @@
 use crate::image::OutputPattern;
 use crate::reuse::Method;
 use crate::scene::{Scene, MAX_PIXELS};
-use crate::state::key::Chunk;
+use crate::state::key::{run_units, Chunk};
 use crate::util::fs::{check_file_target, CreatedDirs};
 use anyhow::{bail, Context, Result};
 use std::ops::RangeInclusive;
@@ -86,6 +86,8 @@ pub struct Plan {
     /// The units of work this process renders: groups of `window` frames sliding by one (group
     /// `g` is frames `g..g + window`), or single frames; a chunk's share of them.
     pub units: RangeInclusive<u32>,
+    /// Every unit of the run (`units` for a render that is not a chunk).
+    pub all_units: RangeInclusive<u32>,
 }
 
 impl Plan {
@@ -228,9 +230,9 @@ impl RenderOptions {
         check_threads(self.threads)?;
         check_max_depth(self.max_depth)?;
         self.check_memory((w, h), crate::util::mem::available_bytes())?;
-        let units = *range.start()..=range.end() + 1 - self.window;
+        let all_units = run_units(*range.start(), *range.end(), self.window);
         let units = match self.chunk {
-            Some(c) => c.share(units).with_context(|| {
+            Some(c) => c.share(all_units.clone()).with_context(|| {
                 format!(
                     "{} of frames {}-{} with window {}",
                     if self.method.reuses() {
@@ -243,13 +245,14 @@ impl RenderOptions {
                     self.window
                 )
             })?,
-            None => units,
+            None => all_units.clone(),
         };
         Ok(Plan {
             frames: range,
             width: w,
             height: h,
             units,
+            all_units,
         })
     }
 

@@ -324,11 +324,11 @@ fn splat_escape(
         return 0;
     }
     let le = integrator.scene.env_radiance(dir);
-    let native_frame = group[m].film.frame();
+    let sample_dither = Dither::of(p.seed, group[m].film.frame(), pixel, index);
     let mut bad = 0;
     for ((f, s), t) in films.iter_mut().zip(&seen).zip(group) {
         if let Some((i, j)) = *s {
-            let d = Dither::of(p.seed, native_frame, pixel, index).to(f.film().frame());
+            let d = sample_dither.to(f.film().frame());
             let fold = t.fold(g0, index - first_index);
             if le != Vec3::ZERO && !f.splat(i as usize, fold, le * (j / total), d) {
                 bad += 1;

@@ -76,6 +76,13 @@ impl RunKey {
     }
 }
 
+/// Every unit of work of a run of frames `first..=last`: the groups of `window` frames sliding
+/// by one (group `g` is frames `g..g + window`), or the frames themselves for `window` 1. A
+/// chunk renders a share of them (`Chunk::share`).
+pub fn run_units(first: u32, last: u32, window: u32) -> std::ops::RangeInclusive<u32> {
+    first..=last + 1 - window
+}
+
 /// `K/N` of `--chunk`, 1-based.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Chunk {

@@ -102,3 +102,20 @@ pub fn z_pass_fraction(test: &Moments, reference: &Moments) -> (f64, f64) {
     let z = z_test(test, reference);
     (z.pass, z.worst)
 }
+
+/// Print `z` for `what` and assert the reuse tests' criterion of unbiasedness: at least 99% of
+/// blocks pass and the whole image's mean within 4 sigma.
+pub fn assert_unbiased(what: &str, z: &ZTest) {
+    eprintln!(
+        "{what}: {:.1}% of blocks pass (worst z {:.1}), image mean z {:.2}",
+        100.0 * z.pass,
+        z.worst,
+        z.mean_z
+    );
+    assert!(
+        z.pass >= 0.99 && z.mean_z.abs() < 4.0,
+        "{what} fails the z-test: {:.1}% of blocks fail, image mean z {:.2}",
+        100.0 * (1.0 - z.pass),
+        z.mean_z
+    );
+}
