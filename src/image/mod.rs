@@ -463,6 +463,15 @@ fn srgb_oetf(v: f64) -> f64 {
     }
 }
 
+/// The inverse of `srgb_oetf`: an sRGB-encoded value in \[0, 1\] back to linear.
+fn srgb_eotf(e: f64) -> f64 {
+    if e <= 0.04045 {
+        e / 12.92
+    } else {
+        ((e + 0.055) / 1.055).powf(2.4)
+    }
+}
+
 /// Triangular noise in (-1, 1): the difference of two uniforms taken from one hash.
 fn triangular_dither(x: u32, y: u32, c: u32) -> f64 {
     let h = splitmix64(splitmix64(((y as u64) << 32) | x as u64) ^ c as u64);
@@ -555,14 +564,8 @@ fn attributes(meta: &Metadata, kind: FileKind) -> Result<Vec<ffi::Attribute>> {
 /// itself stores channels sorted by name), so look channels up by name.
 pub fn read_image(path: &Path) -> Result<Image> {
     let read = || -> Result<Image> {
-        let mut reader = ffi::open_reader(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
-        let info = reader.info();
-        let mut data =
-            vec![0.0f32; info.width as usize * info.height as usize * info.channels.len()];
-        reader
-            .pin_mut()
-            .read_f32(&mut data)
-            .map_err(|e| anyhow!("{}", e.what()))?;
+        let (mut reader, info) = open_checked(path, u64::MAX)?;
+        let data = read_all(&mut reader, &info)?;
         Ok(Image {
             width: info.width,
             height: info.height,
@@ -573,6 +576,37 @@ pub fn read_image(path: &Path) -> Result<Image> {
     read().map_err(|e| anyhow!("cannot read {}: {e}", path.display()))
 }
 
+/// `path` opened for reading, with its description; more than `max_pixels` pixels are refused
+/// before any is read.
+fn open_checked(
+    path: &Path,
+    max_pixels: u64,
+) -> Result<(cxx::UniquePtr<ffi::ImageReader>, ffi::ImageInfo)> {
+    let reader = ffi::open_reader(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
+    let info = reader.info();
+    if info.width as u64 * info.height as u64 > max_pixels {
+        bail!(
+            "{}x{} pixels, more than the {max_pixels} reframe reads",
+            info.width,
+            info.height
+        );
+    }
+    Ok((reader, info))
+}
+
+/// Every channel of the first subimage of an open file as f32.
+fn read_all(
+    reader: &mut cxx::UniquePtr<ffi::ImageReader>,
+    info: &ffi::ImageInfo,
+) -> Result<Vec<f32>> {
+    let mut data = vec![0.0f32; info.width as usize * info.height as usize * info.channels.len()];
+    reader
+        .pin_mut()
+        .read_f32(&mut data)
+        .map_err(|e| anyhow!("{}", e.what()))?;
+    Ok(data)
+}
+
 /// Reads a colour input (an environment map, a texture) as linear RGB: refuses images of more
 /// than `max_pixels` pixels before reading their pixels; takes the channels named R, G, B, or
 /// the first three, or a single channel as grey; decodes sRGB where the file says its pixels are
@@ -580,44 +614,24 @@ pub fn read_image(path: &Path) -> Result<Image> {
 /// gives the same linear values as the HDR it was made from.
 pub fn read_linear_rgb(path: &Path, max_pixels: u64) -> Result<Image> {
     let read = || -> Result<Image> {
-        let mut reader = ffi::open_reader(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
-        let info = reader.info();
+        let (mut reader, info) = open_checked(path, max_pixels)?;
         let pixels = info.width as u64 * info.height as u64;
         if pixels == 0 || info.channels.is_empty() {
             bail!("the image has no pixels");
-        }
-        if pixels > max_pixels {
-            bail!(
-                "{}x{} pixels, more than the {max_pixels} reframe reads",
-                info.width,
-                info.height
-            );
         }
         let srgb = reader.attributes().into_iter().any(|a| {
             a.name.eq_ignore_ascii_case("oiio:ColorSpace")
                 && a.text.to_ascii_lowercase().contains("srgb")
         });
         let nch = info.channels.len();
-        let mut data = vec![0.0f32; pixels as usize * nch];
-        reader
-            .pin_mut()
-            .read_f32(&mut data)
-            .map_err(|e| anyhow!("{}", e.what()))?;
+        let data = read_all(&mut reader, &info)?;
         let named = ["R", "G", "B"].map(|c| info.channels.iter().position(|n| n == c));
         let pick: [usize; 3] = match named {
             [Some(r), Some(g), Some(b)] => [r, g, b],
             _ if nch >= 3 => [0, 1, 2],
             _ => [0, 0, 0],
         };
-        let decode = |v: f32| {
-            if !srgb {
-                v
-            } else if v <= 0.04045 {
-                v / 12.92
-            } else {
-                ((v + 0.055) / 1.055).powf(2.4)
-            }
-        };
+        let decode = |v: f32| if srgb { srgb_eotf(v as f64) as f32 } else { v };
         let mut rgb = Vec::with_capacity(pixels as usize * 3);
         for px in data.chunks_exact(nch) {
             rgb.extend(pick.map(|c| decode(px[c])));
@@ -722,12 +736,37 @@ mod tests {
         names
     }
 
-    fn srgb_inverse(e: f64) -> f64 {
-        if e <= 0.04045 {
-            e / 12.92
-        } else {
-            ((e + 0.055) / 1.055).powf(2.4)
+    #[test]
+    fn colour_inputs_read_as_linear_rgb() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut img = Image::new(4, 2, &["R", "G", "B"]);
+        for (i, v) in img.data.iter_mut().enumerate() {
+            *v = 0.05 + 0.1 * (i % 9) as f32;
         }
+        // An 8-bit PNG holds sRGB codes: read back linear, within a code's step.
+        let png = dir.path().join("c.png");
+        write_image(&png, &img, &Metadata::default(), &WriteOptions::default()).unwrap();
+        let back = read_linear_rgb(&png, 1 << 20).unwrap();
+        assert_eq!((back.width, back.height, back.channels.len()), (4, 2, 3));
+        for (a, b) in img.data.iter().zip(&back.data) {
+            assert!((a - b).abs() < 0.01, "{a} read back as {b}");
+        }
+        // An EXR is linear already; its channels are found by name; a grey image is grey.
+        let exr = dir.path().join("c.exr");
+        let opts = WriteOptions { exr_float: true };
+        write_image(&exr, &img, &Metadata::default(), &opts).unwrap();
+        assert_eq!(read_linear_rgb(&exr, 1 << 20).unwrap().data, img.data);
+        let mut grey = Image::new(2, 1, &["Y"]);
+        grey.data = vec![0.25, 3.0];
+        let g = dir.path().join("g.exr");
+        write_image(&g, &grey, &Metadata::default(), &opts).unwrap();
+        assert_eq!(
+            read_linear_rgb(&g, 1 << 20).unwrap().data,
+            [0.25, 0.25, 0.25, 3.0, 3.0, 3.0]
+        );
+        // Too many pixels: refused before reading them.
+        let e = read_linear_rgb(&exr, 7).unwrap_err().to_string();
+        assert!(e.contains("4x2 pixels, more than the 7"), "{e}");
     }
 
     #[test]
@@ -906,7 +945,7 @@ mod tests {
                 let i = ((y * 64 + x) * 4) as usize;
                 for c in 0..3u32 {
                     let code = (x * 4 + c + y) % 256;
-                    img.data[i + c as usize] = srgb_inverse(code as f64 / 255.0) as f32;
+                    img.data[i + c as usize] = srgb_eotf(code as f64 / 255.0) as f32;
                     expected.push(code as f32 / 255.0);
                 }
                 img.data[i + 3] = 0.25; // alpha is not written to 8-bit files
