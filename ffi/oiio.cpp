@@ -6,6 +6,11 @@
 //     let reader = bridge::ffi::open_reader("frame.exr")?;
 #include "reframe/ffi/oiio.h"
 
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <mutex>
 #include <stdexcept>
 #include <string>
 
@@ -20,6 +25,43 @@ namespace {
 //
 // OIIO keeps its global error message per thread, so this must run on the thread whose call
 // failed, right after the failure: i.e. inside the failing bridged function, never later.
+// Some of the codec libraries under OIIO print their own complaint about a damaged file to
+// stderr (libpng's "libpng error: ...", libjpeg's "Corrupt JPEG data ...") besides handing it to
+// OIIO, whose message the caller reports; reframe's errors are one line. While a file is being
+// opened or read, stderr goes to /dev/null. This is process-wide, so it happens only while
+// inputs are read (loading, before any render thread prints), one reader at a time.
+class QuietStderr {
+public:
+    QuietStderr() : lock_(mutex()) {
+        std::fflush(stderr);
+        saved_ = ::dup(2);
+        int null = ::open("/dev/null", O_WRONLY | O_CLOEXEC);
+        if (saved_ >= 0 && null >= 0) {
+            ::dup2(null, 2);
+        }
+        if (null >= 0) {
+            ::close(null);
+        }
+    }
+    ~QuietStderr() {
+        std::fflush(stderr);
+        if (saved_ >= 0) {
+            ::dup2(saved_, 2);
+            ::close(saved_);
+        }
+    }
+    QuietStderr(const QuietStderr&) = delete;
+    QuietStderr& operator=(const QuietStderr&) = delete;
+
+private:
+    static std::mutex& mutex() {
+        static std::mutex m;
+        return m;
+    }
+    std::lock_guard<std::mutex> lock_;
+    int saved_ = -1;
+};
+
 [[noreturn]] void throw_global_error(const std::string& context) {
     std::string msg = OIIO::geterror();
     if (msg.empty()) {
@@ -157,7 +199,11 @@ ImageReader::ImageReader(std::unique_ptr<OIIO::ImageInput> in)
 
 std::unique_ptr<ImageReader> open_reader(rust::Str path) {
     const std::string p(path);
-    auto in = OIIO::ImageInput::open(p);
+    std::unique_ptr<OIIO::ImageInput> in;
+    {
+        QuietStderr quiet;
+        in = OIIO::ImageInput::open(p);
+    }
     if (!in) {
         throw_global_error("cannot open");
     }
@@ -219,9 +265,68 @@ void ImageReader::read_f32(rust::Slice<float> out) {
     if (out.size() != n) {
         throw std::runtime_error("output buffer size does not match the image");
     }
-    if (!in_->read_image(0, 0, 0, spec_.nchannels, OIIO::TypeDesc::FLOAT, out.data())) {
+    bool ok;
+    {
+        QuietStderr quiet;
+        ok = in_->read_image(0, 0, 0, spec_.nchannels, OIIO::TypeDesc::FLOAT, out.data());
+    }
+    if (!ok) {
         throw_input_error(*in_, "cannot read pixels");
     }
 }
+
+}  // namespace reframe
+
+namespace reframe {
+
+TextureSet::TextureSet() : ts_(OIIO::TextureSystem::create(/*shared=*/false)) {
+    if (ts_ == nullptr) {
+        throw std::runtime_error("could not create an OpenImageIO texture system");
+    }
+    // Scanline files (PNG, JPEG, plain EXR) are read whole into the cache; tiled, MIP-mapped
+    // files (.tx, tiled EXR) a tile at a time.
+    ts_->attribute("accept_untiled", 1);
+    ts_->attribute("max_memory_MB", 1024.0f);
+}
+
+TextureSet::~TextureSet() { OIIO::TextureSystem::destroy(ts_, /*teardown_imagecache=*/true); }
+
+uint32_t TextureSet::add(rust::Str path, uint32_t channels) {
+    OIIO::ustring name{std::string(path)};
+    OIIO::TextureSystem::TextureHandle* handle;
+    bool good;
+    {
+        QuietStderr quiet;
+        handle = ts_->get_texture_handle(name);
+        good = handle != nullptr && ts_->good(handle);
+    }
+    if (!good) {
+        std::string msg = ts_->geterror();
+        throw std::runtime_error(msg.empty() ? "the texture system could not open it" : msg);
+    }
+    handles_.push_back(handle);
+    channels_.push_back(static_cast<int>(channels));
+    return static_cast<uint32_t>(handles_.size() - 1);
+}
+
+bool TextureSet::lookup(uint32_t id, float s, float t, rust::Slice<float> out) const {
+    OIIO::TextureOpt opt;
+    opt.swrap = OIIO::TextureOpt::WrapPeriodic;
+    opt.twrap = OIIO::TextureOpt::WrapPeriodic;
+    opt.interpmode = OIIO::TextureOpt::InterpBilinear;
+    opt.mipmode = OIIO::TextureOpt::MipModeOneLevel;
+    int n = channels_[id];
+    bool ok = ts_->texture(handles_[id], ts_->get_perthread_info(), opt, s, t, 0.0f, 0.0f, 0.0f,
+                           0.0f, n, out.data());
+    if (!ok) {
+        (void)ts_->geterror();  // clear this thread's message; the caller counts the failure
+        for (int c = 0; c < n; ++c) {
+            out[c] = 0.0f;
+        }
+    }
+    return ok;
+}
+
+std::unique_ptr<TextureSet> new_texture_set() { return std::make_unique<TextureSet>(); }
 
 }  // namespace reframe

@@ -10,6 +10,8 @@
 #include <memory>
 
 #include <OpenImageIO/imageio.h>
+#include <OpenImageIO/texture.h>
+#include <vector>
 
 #include "rust/cxx.h"
 
@@ -33,6 +35,28 @@ private:
     std::unique_ptr<OIIO::ImageInput> in_;
     OIIO::ImageSpec spec_;
 };
+
+// A private OIIO::TextureSystem (its own image cache) and the textures a scene uses, each by
+// index. Lookups are thread-safe (the TextureSystem keeps per-thread state of its own).
+class TextureSet {
+public:
+    TextureSet();
+    ~TextureSet();
+    TextureSet(const TextureSet&) = delete;
+    TextureSet& operator=(const TextureSet&) = delete;
+    // Opens `path` through the cache and returns its index; `channels` (1 or 3) per lookup.
+    uint32_t add(rust::Str path, uint32_t channels);
+    // Bilinear lookup at (s, t) (t = 0 at the image's top row), repeating outside [0, 1);
+    // false (and `out` filled with 0) if the texture system failed.
+    bool lookup(uint32_t id, float s, float t, rust::Slice<float> out) const;
+
+private:
+    OIIO::TextureSystem* ts_;
+    std::vector<OIIO::TextureSystem::TextureHandle*> handles_;
+    std::vector<int> channels_;
+};
+
+std::unique_ptr<TextureSet> new_texture_set();
 
 rust::String oiio_version();
 void check_output_format(rust::Str path);

@@ -112,6 +112,8 @@ pub struct FirstLight {
 #[derive(Clone, Copy, Debug)]
 pub struct FirstHit {
     pub sp: SurfacePoint,
+    /// The material at `x`, its textures looked up once here (not once per eye).
+    pub m: Material,
     /// Unit direction from `x` to the native eye.
     pub wo: Vec3,
     /// BSDF-sampled direction at `x`, drawn for the native eye; `None` if sampling failed.
@@ -143,11 +145,11 @@ impl FirstHit {
     /// native eye's densities (estimator (7) of the paper): for the native eye it is the path
     /// tracer's estimate; for another eye it is what Havran et al. reuse, the BSDF re-evaluated
     /// for the new view but divided by the pdfs the native eye sampled with.
-    pub fn radiance(&self, scene: &Scene, eye: Vec3) -> Vec3 {
+    pub fn radiance(&self, eye: Vec3) -> Vec3 {
         let sp = &self.sp;
         let wo = (eye - sp.p).normalize();
-        let m = scene.material(sp);
-        let mut l = scene.emitted(sp, eye);
+        let m = &self.m;
+        let mut l = Scene::emitted_by(m, sp, eye);
         let (ng, ns) = facing(sp, wo);
         // Densities belong to the native eye's hemisphere and lobe.
         let (ng_n, ns_n) = facing(sp, self.wo);
@@ -228,11 +230,12 @@ impl<'a> Integrator<'a> {
     pub fn first_hit_at(&self, hit: &Hit, eye: Vec3, s: &mut Sampler, t: &mut Tally) -> FirstHit {
         let scene = self.scene;
         let sp = scene.surface(hit);
-        let m = *scene.material(&sp);
+        let m = scene.material(&sp);
         let wo = (eye - sp.p).normalize();
         let (ng, ns) = facing(&sp, wo);
         let mut rec = FirstHit {
             sp,
+            m,
             wo,
             w: None,
             pdf_w: 0.0,
@@ -319,7 +322,7 @@ impl<'a> Integrator<'a> {
             if depth > self.max_depth {
                 break;
             }
-            let m = *scene.material(&sp);
+            let m = scene.material(&sp);
             if !m.reflects() {
                 break;
             }
@@ -377,7 +380,7 @@ impl<'a> Integrator<'a> {
     ) -> Vec3 {
         let dir = cam.direction(r);
         match self.trace_first_hit(cam.eye, dir, s, t) {
-            Some(fh) => fh.radiance(self.scene, cam.eye),
+            Some(fh) => fh.radiance(cam.eye),
             None => self.scene.env_radiance(dir),
         }
     }

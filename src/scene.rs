@@ -21,6 +21,9 @@
 //!
 //! Materials: `Kd` Lambertian, `Ks`/`Ns` modified Phong, `Ke` emission (one-sided, to the
 //! side of the counter-clockwise face normal). Every triangle with `Ke > 0` is an area light.
+//! `map_Kd`, `map_Ks` and `map_Ke` multiply their colour by a texture at the OBJ's `vt`
+//! coordinates (`scene/maps.rs`, looked up through `image::Textures`); `Scene::material` gives
+//! the material at a point with its textures applied.
 //! `[environment]` (an `image` or a `radiance`, `intensity`, `rotation`) adds the environment
 //! light of `scene/environment.rs`. A scene needs an area light or an environment that emits.
 //!
@@ -49,10 +52,12 @@
 use crate::bsdf::{luminance, Material};
 use crate::camera::{Camera, CameraPath, Cameras, Interpolation, Keyframe, Pose};
 use crate::embree::{Device, Hit, Ray, TriangleScene};
+use crate::image::Textures;
 use crate::sampling::uniform_triangle;
 use anyhow::{anyhow, bail, Context, Result};
 use environment::Environment;
 use glam::{Vec2, Vec3};
+pub use maps::{Map, Maps};
 use serde::{de, Deserialize, Deserializer};
 use std::collections::HashMap;
 use std::ops::Range;
@@ -62,6 +67,7 @@ use toml::Spanned;
 
 mod camera_file;
 pub mod environment;
+mod maps;
 mod mesh;
 mod mtl;
 mod obj;
@@ -235,6 +241,8 @@ pub struct SurfacePoint {
     pub ns: Vec3,
     pub prim: u32,
     pub material: u32,
+    /// Texture coordinates (zero where the mesh has none).
+    pub uv: Vec2,
 }
 
 pub struct Scene {
@@ -246,11 +254,18 @@ pub struct Scene {
     pub cameras: Cameras,
     pub positions: Vec<Vec3>,
     pub normals: Vec<Vec3>,
+    /// Texture coordinates per vertex; empty when the OBJ has none.
+    pub uvs: Vec<Vec2>,
     pub triangles: Vec<[u32; 3]>,
     pub tri_material: Vec<u32>,
     pub tri_normal: Vec<Vec3>,
     pub tri_area: Vec<f32>,
+    /// Each material as the MTL gives it; `Scene::material` applies its texture maps.
     pub materials: Vec<Material>,
+    /// The texture maps of each material (`map_Kd`, `map_Ks`, `map_Ke`); empty when none has one.
+    maps: Vec<Maps>,
+    /// The textures the maps look up, if any material has one.
+    pub textures: Option<Textures>,
     pub material_names: Vec<String>,
     pub lights: Lights,
     /// The environment light, if the scene has one (`[environment]`).
@@ -369,7 +384,9 @@ impl Scene {
                 MtlSource::Builtin(BUILTIN[*i].3),
             ),
         };
-        let (mesh, mtls) = load_obj_files(&obj_label, &obj_bytes, &files, &mut repairs)?;
+        let mut textures = None;
+        let (mesh, mtls) =
+            load_obj_files(&obj_label, &obj_bytes, &files, &mut textures, &mut repairs)?;
         let inputs = match &source {
             Source::Files { toml } => {
                 let dir = toml.parent().unwrap_or(Path::new("."));
@@ -416,11 +433,14 @@ impl Scene {
             cameras,
             positions: mesh.positions,
             normals: mesh.normals,
+            uvs: mesh.uvs,
             triangles: mesh.triangles,
             tri_material: mesh.tri_material,
             tri_normal: mesh.tri_normal,
             tri_area: mesh.tri_area,
             materials: mesh.materials,
+            maps: mesh.maps,
+            textures,
             material_names: mesh.material_names,
             lights,
             environment,
@@ -460,23 +480,60 @@ impl Scene {
                 n
             }
         };
+        let uv = if self.uvs.is_empty() {
+            Vec2::ZERO
+        } else {
+            self.uvs[i0 as usize] * b0 + self.uvs[i1 as usize] * b1 + self.uvs[i2 as usize] * b2
+        };
         SurfacePoint {
             p,
             ng,
             ns,
             prim,
             material: self.tri_material[prim as usize],
+            uv,
         }
     }
 
-    pub fn material(&self, sp: &SurfacePoint) -> &Material {
-        &self.materials[sp.material as usize]
+    /// The material at `sp`, its texture maps looked up there. Look it up once per point: a
+    /// textured material costs a texture lookup per map.
+    #[inline]
+    pub fn material(&self, sp: &SurfacePoint) -> Material {
+        let m = &self.materials[sp.material as usize];
+        match (self.maps.get(sp.material as usize), &self.textures) {
+            (Some(maps), Some(t)) if !maps.is_empty() => maps.apply(m, t, sp.uv),
+            _ => *m,
+        }
+    }
+
+    /// Each material's texture maps (empty when no material has one).
+    pub fn texture_maps(&self) -> &[Maps] {
+        &self.maps
+    }
+
+    /// The emission of material `material` at texture coordinates `uv`.
+    #[inline]
+    fn ke(&self, material: u32, uv: Vec2) -> Vec3 {
+        let ke = self.materials[material as usize].ke;
+        match (self.maps.get(material as usize), &self.textures) {
+            (Some(maps), Some(t)) if ke != Vec3::ZERO => maps.ke(ke, t, uv),
+            _ => ke,
+        }
     }
 
     /// Radiance emitted by the triangle of `sp` towards `toward` (one-sided).
     #[inline]
     pub fn emitted(&self, sp: &SurfacePoint, toward: Vec3) -> Vec3 {
-        let m = self.material(sp);
+        if self.materials[sp.material as usize].is_emissive() && sp.ng.dot(toward - sp.p) > 0.0 {
+            self.ke(sp.material, sp.uv)
+        } else {
+            Vec3::ZERO
+        }
+    }
+
+    /// `emitted` for a point whose material `m` (textures applied) is already at hand.
+    #[inline]
+    pub fn emitted_by(m: &Material, sp: &SurfacePoint, toward: Vec3) -> Vec3 {
         if m.is_emissive() && sp.ng.dot(toward - sp.p) > 0.0 {
             m.ke
         } else {
@@ -528,7 +585,14 @@ impl Scene {
             return None;
         }
         let le = if cos_l > 0.0 {
-            self.materials[self.tri_material[tri] as usize].ke
+            let uv = if self.uvs.is_empty() {
+                Vec2::ZERO
+            } else {
+                self.uvs[i0 as usize] * (1.0 - b1 - b2)
+                    + self.uvs[i1 as usize] * b1
+                    + self.uvs[i2 as usize] * b2
+            };
+            self.ke(self.tri_material[tri], uv)
         } else {
             Vec3::ZERO
         };
@@ -935,30 +999,38 @@ fn mtl_paths(dir: &Path, rest: &[u8]) -> Vec<PathBuf> {
 /// Load the OBJ and the MTL files it names into a checked mesh, noting repairs.
 #[cfg(test)]
 fn load_obj(label: &str, bytes: &[u8], files: &MtlSource, repairs: &mut Repairs) -> Result<Mesh> {
-    load_obj_files(label, bytes, files, repairs).map(|(mesh, _)| mesh)
+    load_obj_files(label, bytes, files, &mut None, repairs).map(|(mesh, _)| mesh)
 }
 
-/// `load_obj`, and the MTL files it read from the file system.
+/// `load_obj`, and the MTL and texture files it read from the file system; the textures the
+/// materials' maps name are opened into `textures` (made when the first is).
 fn load_obj_files(
     label: &str,
     bytes: &[u8],
     files: &MtlSource,
+    textures: &mut Option<Textures>,
     repairs: &mut Repairs,
 ) -> Result<(Mesh, Vec<PathBuf>)> {
     let parsed = obj::parse(label, bytes, repairs)?;
     let mut materials = Vec::new();
+    let mut maps = Vec::new();
+    let mut texture_files = Vec::new();
     let mut names = Vec::new();
     let mut by_name: HashMap<String, u32> = HashMap::new();
     let mut read: Vec<PathBuf> = Vec::new();
     for (line, rest) in &parsed.mtllib {
         let shown = String::from_utf8_lossy(rest);
         let at = format!("{label}: line {line}: mtllib '{}'", quote(&shown));
-        let loaded: Vec<(String, Vec<u8>)> = match files {
+        let loaded: Vec<(String, Option<PathBuf>, Vec<u8>)> = match files {
             // A shipped scene has one MTL, whatever its OBJ calls it: read it once.
             MtlSource::Builtin(_) if !read.is_empty() => Vec::new(),
             MtlSource::Builtin(text) => {
                 read.push(PathBuf::from(shown.as_ref()));
-                vec![(format!("{shown} (built in)"), text.as_bytes().to_vec())]
+                vec![(
+                    format!("{shown} (built in)"),
+                    None,
+                    text.as_bytes().to_vec(),
+                )]
             }
             MtlSource::Dir(dir) => {
                 let mut v = Vec::new();
@@ -969,7 +1041,10 @@ fn load_obj_files(
                     }
                     read.push(path.clone());
                     match read_input_or_missing(&path, "MTL", MAX_INPUT_BYTES) {
-                        Ok(b) => v.push((path.display().to_string(), b)),
+                        Ok(b) => {
+                            let dir = path.parent().map(Path::to_path_buf);
+                            v.push((path.display().to_string(), dir, b))
+                        }
                         Err(InputError::NotFound(_)) => {
                             repairs.note(label, *line, MTL_MISSING, || {
                                 format!("'mtllib {}': no file '{}'", quote(&shown), path.display())
@@ -981,7 +1056,7 @@ fn load_obj_files(
                 v
             }
         };
-        for (mtl_label, b) in loaded {
+        for (mtl_label, mtl_dir, b) in loaded {
             let mtl = mtl::parse(&mtl_label, &b, repairs)?;
             for m in &mtl.materials {
                 if by_name.contains_key(&m.name) {
@@ -992,6 +1067,13 @@ fn load_obj_files(
                 }
                 by_name.insert(m.name.clone(), materials.len() as u32);
                 materials.push(m.material(&mtl_label, repairs)?);
+                maps.push(Maps::open(
+                    &mtl_label,
+                    mtl_dir.as_deref(),
+                    m,
+                    textures,
+                    &mut texture_files,
+                )?);
                 names.push(m.name.clone());
             }
         }
@@ -1028,10 +1110,14 @@ fn load_obj_files(
         });
         names.push("default".into());
     }
+    if maps.iter().any(|m| !m.is_empty()) {
+        maps.resize(materials.len(), Maps::default());
+        mesh.maps = maps;
+    }
     mesh.materials = materials;
     mesh.material_names = names;
     let read = match files {
-        MtlSource::Dir(_) => read,
+        MtlSource::Dir(_) => read.into_iter().chain(texture_files).collect(),
         MtlSource::Builtin(_) => Vec::new(),
     };
     Ok((mesh, read))

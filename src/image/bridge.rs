@@ -82,6 +82,14 @@ pub(crate) mod ffi {
             -> Result<()>;
 
         fn open_reader(path: &str) -> Result<UniquePtr<ImageReader>>;
+
+        /// A private `OIIO::TextureSystem` and the textures opened through it.
+        type TextureSet;
+        fn new_texture_set() -> Result<UniquePtr<TextureSet>>;
+        /// Opens `path` through the texture cache; its index. `channels`: 1 or 3 per lookup.
+        fn add(self: Pin<&mut TextureSet>, path: &str, channels: u32) -> Result<u32>;
+        /// Bilinear, repeating, finest level; `out` holds the texture's `channels` values.
+        fn lookup(self: &TextureSet, id: u32, s: f32, t: f32, out: &mut [f32]) -> bool;
         fn info(self: &ImageReader) -> ImageInfo;
         /// Every attribute of the first subimage's spec.
         fn attributes(self: &ImageReader) -> Vec<Attribute>;
@@ -89,3 +97,9 @@ pub(crate) mod ffi {
         fn read_f32(self: Pin<&mut ImageReader>, out: &mut [f32]) -> Result<()>;
     }
 }
+
+// SAFETY: an `OIIO::TextureSystem` is made for concurrent lookups from many threads (it keeps
+// per-thread state of its own, found by `get_perthread_info`); `lookup` takes `&self` and
+// `add` `Pin<&mut>`, so Rust's borrow rules keep `add` from running beside a lookup.
+unsafe impl Send for ffi::TextureSet {}
+unsafe impl Sync for ffi::TextureSet {}

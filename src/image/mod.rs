@@ -16,6 +16,8 @@
 //! ```
 
 mod bridge;
+mod texture;
+pub use texture::{TextureId, Textures, MAX_TEXELS};
 
 use std::fmt;
 use std::fs;

@@ -195,7 +195,7 @@ fn shade_eye(
             });
         }
         let sample_dither = Dither::of(p.seed, native_frame, *pixel, *index);
-        let weighing = Weighing::new(weights, integrator, fh, eyes, spp);
+        let weighing = Weighing::new(weights, fh, eyes, spp);
         for (k, t) in group.iter().enumerate() {
             let Some(i) = land[hi * n_f + k] else {
                 if k != m {

@@ -17,7 +17,7 @@
 //! self-emission of `x` divides by `sum_k D_k` (docs/estimators.md, "direct light").
 use super::Weights;
 use crate::bsdf::Material;
-use crate::integrator::{facing, FirstHit, Integrator};
+use crate::integrator::{facing, FirstHit};
 use glam::Vec3;
 use std::f32::consts::FRAC_1_PI;
 
@@ -77,13 +77,12 @@ pub fn density(weights: Weights, e: &EyeTerms, spp: u32) -> f32 {
 /// Eq. 13's denominators for `fh` given each eye's terms; fills each seeing eye's BSDF values
 /// (`EyeTerms::f`) on the way, from the same evaluations as its pdfs.
 pub fn denominators(
-    integrator: &Integrator,
     fh: &FirstHit,
     eyes: &mut [EyeTerms],
     spp: u32,
     weights: Weights,
 ) -> Denominators {
-    let m = integrator.scene.material(&fh.sp);
+    let m = &fh.m;
     let mut q = Denominators::default();
     if let Some(lambert) = Lambert::of(m, fh) {
         for e in eyes.iter() {
@@ -238,7 +237,6 @@ impl Lambert {
 /// of them.
 pub struct Weighing<'a> {
     weights: Weights,
-    integrator: &'a Integrator<'a>,
     fh: &'a FirstHit,
     q: Denominators,
     /// `n_r n_v`: the paper's count average (see the module note).
@@ -250,24 +248,23 @@ pub struct Weighing<'a> {
 impl<'a> Weighing<'a> {
     pub fn new(
         weights: Weights,
-        integrator: &'a Integrator<'a>,
         fh: &'a FirstHit,
         eyes: &mut [EyeTerms],
         spp: u32,
     ) -> Weighing<'a> {
         let q = match weights {
-            Weights::Paper | Weights::Exact => denominators(integrator, fh, eyes, spp, weights),
+            Weights::Paper | Weights::Exact => denominators(fh, eyes, spp, weights),
             Weights::None | Weights::OwnEye => Denominators::default(),
         };
         let visible = eyes.iter().filter(|e| e.j_over_a > 0.0).count();
         let lambert = match weights {
-            Weights::Paper | Weights::Exact => Lambert::of(integrator.scene.material(&fh.sp), fh)
-                .map(|l| (l, [l.sum(fh, &q, 0), l.sum(fh, &q, 1)])),
+            Weights::Paper | Weights::Exact => {
+                Lambert::of(&fh.m, fh).map(|l| (l, [l.sum(fh, &q, 0), l.sum(fh, &q, 1)]))
+            }
             Weights::None | Weights::OwnEye => None,
         };
         Weighing {
             weights,
-            integrator,
             fh,
             q,
             paper_scale: (spp as usize * visible) as f32,
@@ -283,7 +280,7 @@ impl<'a> Weighing<'a> {
     pub fn value(&self, eye: Vec3, e: &EyeTerms) -> Vec3 {
         match self.weights {
             // Estimator (7) with the native eye's densities.
-            Weights::None | Weights::OwnEye => self.fh.radiance(self.integrator.scene, eye),
+            Weights::None | Weights::OwnEye => self.fh.radiance(eye),
             // `n_r n_v` times eq. 15.
             Weights::Paper => self.balance(eye, e, self.paper_scale),
             // Eq. 13 with exact densities: `J_j / A_pix,j` times the balance-heuristic sum.
@@ -301,14 +298,14 @@ impl<'a> Weighing<'a> {
                 (_, false) => Vec3::ZERO * scale,
             };
         }
-        let (scene, fh, q) = (self.integrator.scene, self.fh, &self.q);
+        let (fh, q) = (self.fh, &self.q);
         let wo = e.wo;
         let sp = &fh.sp;
-        let m = scene.material(sp);
+        let m = &fh.m;
         let (ng, ns) = facing(sp, wo);
         let mut l = Vec3::ZERO;
         if q.emit > 0.0 {
-            l += scene.emitted(sp, eye) / q.emit;
+            l += crate::scene::Scene::emitted_by(m, sp, eye) / q.emit;
         }
         if let Some(ls) = &fh.light {
             if ls.le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 && q.dir_l > 0.0 {
@@ -335,15 +332,9 @@ impl<'a> Weighing<'a> {
 /// Each visible eye's balance weight for the indirect part, `D_k p_k(w) / sum_k' D_k' p_k'(w)`,
 /// as the estimator computes it (zero for the eyes that cannot see x). They sum to one wherever
 /// some eye can have drawn `w`: what the weights test checks.
-pub fn indirect_weights(
-    integrator: &Integrator,
-    fh: &FirstHit,
-    eyes: &[EyeTerms],
-    spp: u32,
-    weights: Weights,
-) -> Vec<f32> {
-    let q = denominators(integrator, fh, &mut eyes.to_vec(), spp, weights);
-    let m = integrator.scene.material(&fh.sp);
+pub fn indirect_weights(fh: &FirstHit, eyes: &[EyeTerms], spp: u32, weights: Weights) -> Vec<f32> {
+    let q = denominators(fh, &mut eyes.to_vec(), spp, weights);
+    let m = &fh.m;
     let Some(w) = fh.w else {
         return vec![0.0; eyes.len()];
     };

@@ -13,7 +13,7 @@ use super::repairs::{Kind, Repairs};
 use super::text::quote_line;
 use crate::bsdf::Material;
 use anyhow::{bail, Result};
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec2, Vec3};
 use std::collections::HashMap;
 
 pub const DEGENERATE: Kind = Kind {
@@ -31,11 +31,16 @@ pub struct Mesh {
     /// Unit normal per vertex, zero where the triangles use their face normal; empty when no
     /// vertex has one.
     pub normals: Vec<Vec3>,
+    /// Texture coordinates per vertex, zero where a corner has no `vt`; empty when no corner
+    /// has one.
+    pub uvs: Vec<Vec2>,
     pub triangles: Vec<[u32; 3]>,
     pub tri_material: Vec<u32>,
     pub tri_normal: Vec<Vec3>,
     pub tri_area: Vec<f32>,
     pub materials: Vec<Material>,
+    /// The texture maps of each material; empty when no material has one.
+    pub maps: Vec<super::maps::Maps>,
     pub material_names: Vec<String>,
 }
 
@@ -96,16 +101,20 @@ pub fn build(
     let mut mesh = Mesh {
         positions: Vec::new(),
         normals: Vec::new(),
+        uvs: Vec::new(),
         triangles: Vec::new(),
         tri_material: Vec::new(),
         tri_normal: Vec::new(),
         tri_area: Vec::new(),
         materials: Vec::new(),
+        maps: Vec::new(),
         material_names: Vec::new(),
     };
     let any_smooth = obj.corners.iter().any(|c| c.vn.is_some());
-    // One vertex per distinct (position, normal) of the faces; `u32::MAX`: no normal.
-    let mut vertex: HashMap<(u32, u32), u32> = HashMap::new();
+    let any_uv = obj.corners.iter().any(|c| c.vt.is_some());
+    // One vertex per distinct (position, normal, texture coordinate) of the faces; `u32::MAX`:
+    // none.
+    let mut vertex: HashMap<(u32, u32, u32), u32> = HashMap::new();
     let mut skipped = 0usize;
     let mut first_skipped = 0usize;
     let mut pts = Vec::new();
@@ -116,8 +125,9 @@ pub fn build(
         let smooth = corners.iter().all(|c| c.vn.is_some());
         let ids: Vec<u32> = corners
             .iter()
-            .map(|&Corner { v, vn }| {
-                let key = (v, if smooth { vn.unwrap() } else { u32::MAX });
+            .map(|&Corner { v, vt, vn }| {
+                let n = if smooth { vn.unwrap() } else { u32::MAX };
+                let key = (v, n, vt.unwrap_or(u32::MAX));
                 *vertex.entry(key).or_insert_with(|| {
                     mesh.positions.push(obj.positions[v as usize]);
                     if any_smooth {
@@ -127,6 +137,10 @@ pub fn build(
                         } else {
                             obj.normals[n as usize].unwrap()
                         });
+                    }
+                    if any_uv {
+                        mesh.uvs
+                            .push(vt.map_or(Vec2::ZERO, |t| obj.uvs[t as usize]));
                     }
                     mesh.positions.len() as u32 - 1
                 })

@@ -1,5 +1,13 @@
 //! The MTL reader: the values reframe's BSDF uses (`Kd`, `Ks`, `Ns`, `Ke`) of each `newmtl`,
-//! each with its line, turned into `Material`s clamped to where the BSDF is stable.
+//! each with its line, turned into `Material`s clamped to where the BSDF is stable, and the
+//! texture maps that scale them (`map_Kd`, `map_Ks`, `map_Ke`).
+//!
+//! A map multiplies its colour, as the MTL format defines it (`Kd` times the texture at the
+//! hit); a map whose colour line is missing takes the colour 1 (the texture as it is). Of a
+//! map's options, `-o u [v]` (offset) and `-s u [v]` (scale) of the texture coordinates are
+//! applied (`uv * s + o`); the others (`-blendu`, `-blendv`, `-bm`, `-boost`, `-cc`, `-clamp`,
+//! `-imfchan`, `-mm`, `-t`, `-texres`, `-type`) are read and ignored with one warning. The file
+//! name is the rest of the line (names with spaces are common), relative to the MTL's folder.
 //!
 //! Read as production loaders read them: any whitespace between words, lines that are not UTF-8
 //! (Latin-1), a colour of one number (grey, as the MTL format allows). Statements reframe does
@@ -17,7 +25,7 @@ use crate::bsdf::Material;
 /// Largest Phong exponent: the BSDF's own bound (`bsdf::MAX_NS`).
 pub use crate::bsdf::MAX_NS;
 use anyhow::{anyhow, Result};
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use std::collections::HashMap;
 
 /// Largest emitted radiance per channel. Pixel values are f32 sums over samples and eyes of
@@ -33,6 +41,10 @@ const NS: Kind = Kind {
     one: "Ns capped (the Phong lobe is unstable above it)",
     many: "materials with Ns capped (the Phong lobe is unstable above it)",
 };
+const MAP_OPTION: Kind = Kind {
+    one: "texture map option ignored (reframe applies -o and -s only)",
+    many: "texture map options ignored (reframe applies -o and -s only)",
+};
 const KE: Kind = Kind {
     one: "Ke capped (radiance sums would overflow above it)",
     many: "materials with Ke capped (radiance sums would overflow above it)",
@@ -47,6 +59,27 @@ pub struct MtlMaterial {
     ks: Option<(Vec3, usize)>,
     ke: Option<(Vec3, usize)>,
     ns: Option<(f32, usize)>,
+    /// `map_Kd`, `map_Ks`, `map_Ke`, in that order.
+    pub maps: [Option<MapSpec>; 3],
+}
+
+/// Which colour a texture map scales.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Slot {
+    Kd = 0,
+    Ks = 1,
+    Ke = 2,
+}
+
+/// A `map_K?` statement: the file (relative to the MTL's folder), the texture-coordinate
+/// transform `uv * scale + offset`, and its line (with the statement, for messages).
+#[derive(Clone, Debug)]
+pub struct MapSpec {
+    pub file: String,
+    pub scale: Vec2,
+    pub offset: Vec2,
+    pub line: usize,
+    pub statement: String,
 }
 
 /// The materials of one MTL file, in order, and where each name is.
@@ -82,6 +115,23 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
                 line: n,
                 ..Default::default()
             });
+            continue;
+        }
+        let slot = match key {
+            "map_Kd" => Some(Slot::Kd),
+            "map_Ks" => Some(Slot::Ks),
+            "map_Ke" => Some(Slot::Ke),
+            _ => None,
+        };
+        if let Some(slot) = slot {
+            let Some(m) = out.materials.last_mut() else {
+                return Err(err(format!("'{key}' before any newmtl")));
+            };
+            let (spec, ignored) = map_spec(n, text, &args).map_err(err)?;
+            if ignored {
+                repairs.note(label, n, MAP_OPTION, || format!("'{}'", quote(text)))?;
+            }
+            m.maps[slot as usize] = Some(spec);
             continue;
         }
         if !matches!(key, "Kd" | "Ks" | "Ke" | "Ns") {
@@ -126,8 +176,22 @@ impl MtlMaterial {
     /// The material as the BSDF uses it: missing values are zero (`Kd` too: a material that
     /// gives none does not reflect diffusely), clamped values noted in `repairs`.
     pub fn material(&self, label: &str, repairs: &mut Repairs) -> Result<Material> {
-        let get = |v: Option<(Vec3, usize)>| v.map_or(Vec3::ZERO, |v| v.0);
-        let (mut kd, mut ks, mut ke) = (get(self.kd), get(self.ks), get(self.ke));
+        // A map without its colour line is the texture as it is (colour 1).
+        let get = |v: Option<(Vec3, usize)>, slot: Slot| {
+            v.map_or(
+                if self.maps[slot as usize].is_some() {
+                    Vec3::ONE
+                } else {
+                    Vec3::ZERO
+                },
+                |v| v.0,
+            )
+        };
+        let (mut kd, mut ks, mut ke) = (
+            get(self.kd, Slot::Kd),
+            get(self.ks, Slot::Ks),
+            get(self.ke, Slot::Ke),
+        );
         let mut ns = self.ns.map_or(0.0, |v| v.0);
         let name = &self.name;
         // In f64: Kd + Ks of two values near f32::MAX is not finite in f32.
@@ -165,6 +229,68 @@ impl MtlMaterial {
         }
         Ok(Material { kd, ks, ns, ke })
     }
+}
+
+/// The options and file name of a `map_K?` line (`args`: its words after the key), and whether
+/// it has options reframe ignores.
+fn map_spec(n: usize, text: &str, args: &[&str]) -> std::result::Result<(MapSpec, bool), String> {
+    let mut ignored = false;
+    let mut spec = MapSpec {
+        file: String::new(),
+        scale: Vec2::ONE,
+        offset: Vec2::ZERO,
+        line: n,
+        statement: text.trim().to_string(),
+    };
+    let mut i = 0;
+    // Up to `most` numbers after an option (fewer if a word is not a number).
+    let numbers_after = |i: usize, most: usize| -> Vec<f32> {
+        args[i + 1..]
+            .iter()
+            .take(most)
+            .map_while(|w| w.parse::<f32>().ok())
+            .collect()
+    };
+    while i < args.len() && args[i].starts_with('-') && args[i].len() > 1 {
+        let opt = args[i];
+        let taken = match opt {
+            "-o" | "-s" => {
+                let v = numbers_after(i, 3);
+                if v.is_empty() || !v.iter().all(|x| x.is_finite()) {
+                    return Err(format!("'{opt}' expects 1 to 3 finite numbers"));
+                }
+                let uv = Vec2::new(
+                    v[0],
+                    v.get(1)
+                        .copied()
+                        .unwrap_or(if opt == "-s" { 1.0 } else { 0.0 }),
+                );
+                if opt == "-s" {
+                    spec.scale = uv;
+                } else {
+                    spec.offset = uv;
+                }
+                v.len()
+            }
+            "-t" => numbers_after(i, 3).len().max(1),
+            "-mm" => 2,
+            "-blendu" | "-blendv" | "-cc" | "-clamp" | "-bm" | "-boost" | "-texres"
+            | "-imfchan" | "-type" => 1,
+            _ => return Err(format!("unknown texture map option '{opt}'")),
+        };
+        if i + taken >= args.len() {
+            return Err(format!(
+                "'{opt}' needs its value(s) and a file name after it"
+            ));
+        }
+        ignored |= !matches!(opt, "-o" | "-s");
+        i += 1 + taken;
+    }
+    if i >= args.len() {
+        return Err("expected a file name".into());
+    }
+    spec.file = args[i..].join(" ");
+    Ok((spec, ignored))
 }
 
 /// A number as a message shows it: short, in exponent form when large.
@@ -252,5 +378,63 @@ mod tests {
             e.to_string().starts_with("a.mtl: line 6: material 'b'"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn texture_maps_and_their_options() {
+        let text = "newmtl a\nmap_Kd -s 2 3 -o 0.5 wood grain.png\nKs 0\n\
+                    map_Ks -blendu off -mm 0 1 -t 0.1 0.1 shine.exr\n\
+                    newmtl b\nKd 0.5\nmap_Ke -o 0.25 0.5 0 glow.png\n";
+        let mut r = Repairs::new(false);
+        let mtl = parse("a.mtl", text.as_bytes(), &mut r).unwrap();
+        let [kd, ks, ke] = &mtl.materials[0].maps;
+        let kd = kd.as_ref().unwrap();
+        assert_eq!(kd.file, "wood grain.png");
+        assert_eq!(
+            (kd.scale, kd.offset),
+            (Vec2::new(2.0, 3.0), Vec2::new(0.5, 0.0))
+        );
+        assert_eq!(kd.line, 2);
+        assert_eq!(ks.as_ref().unwrap().file, "shine.exr");
+        assert!(ke.is_none());
+        let glow = mtl.materials[1].maps[Slot::Ke as usize].as_ref().unwrap();
+        assert_eq!((glow.scale, glow.offset), (Vec2::ONE, Vec2::new(0.25, 0.5)));
+        // A map without its colour line is the texture as it is; with one, their product.
+        let a = mtl.materials[0].material("a.mtl", &mut r).unwrap();
+        let b = mtl.materials[1].material("a.mtl", &mut r).unwrap();
+        assert_eq!((a.kd, a.ks), (Vec3::ONE, Vec3::ZERO));
+        assert_eq!((b.kd, b.ke), (Vec3::splat(0.5), Vec3::ONE));
+        let w = r.into_warnings();
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].starts_with("a.mtl: line 4: 'map_Ks -blendu off"),
+            "{}",
+            w[0]
+        );
+        assert!(w[0].contains("texture map option ignored"), "{}", w[0]);
+        for (bad, want) in [
+            ("map_Kd -foo 1 a.png", "unknown texture map option '-foo'"),
+            ("map_Kd -s 2 2", "expected a file name"),
+            (
+                "map_Kd -clamp",
+                "'-clamp' needs its value(s) and a file name after it",
+            ),
+            ("map_Kd -o x a.png", "'-o' expects 1 to 3 finite numbers"),
+            ("map_Ke", "expected a file name"),
+        ] {
+            let e = parse(
+                "a.mtl",
+                format!("newmtl a\n{bad}\n").as_bytes(),
+                &mut Repairs::new(false),
+            )
+            .unwrap_err()
+            .to_string();
+            assert!(
+                e.contains(&format!("line 2: '{bad}': {want}")),
+                "{bad}: {e}"
+            );
+        }
+        let e = parse("a.mtl", b"map_Kd a.png\n", &mut Repairs::new(false)).unwrap_err();
+        assert!(e.to_string().contains("'map_Kd' before any newmtl"), "{e}");
     }
 }

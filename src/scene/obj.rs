@@ -8,15 +8,17 @@
 //! zero or non-finite `vn` (the triangles using it are flat-shaded), faces of fewer than three
 //! distinct vertices (skipped), points `p` and polylines `l` (ignored), vertex colours
 //! (ignored).
-//! Statements reframe does not draw (`vt` contents, `o`, `g`, `s`, `vp`, curves) are skipped
-//! silently. Refused, naming the line: a position that is not finite or is larger than
-//! `MAX_COORD`, a malformed `v`, `vt`, `vn` or face vertex, a face index of 0 or one that refers
+//! Texture coordinates (`vt u [v [w]]`, `v` 0 if left out, `w` ignored) are kept for the
+//! textures of `map_Kd`, `map_Ks` and `map_Ke`. Statements reframe does not draw (`o`, `g`, `s`,
+//! `vp`, curves) are skipped silently. Refused, naming the line: a position that is not finite
+//! or is larger than `MAX_COORD`, a texture coordinate that is not finite, a malformed `v`, `vt`,
+//! `vn` or face vertex, a face index of 0 or one that refers
 //! past the elements defined above it, a face of more than `MAX_CORNERS` corners, and a
 //! `usemtl` or `mtllib` without a name.
 use super::repairs::{Kind, Repairs};
 use super::text::{latin1_bytes, lines, numbers, quote, rest, Line, MAX_COORD};
 use anyhow::{anyhow, Result};
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 /// Most corners of one face: ear clipping takes about 1 s for 50,000 corners and grows faster
 /// than linearly (9 s at 200,000), so a single hostile face could stall loading for minutes.
@@ -43,10 +45,12 @@ const COLOURS: Kind = Kind {
     many: "vertex colours ignored",
 };
 
-/// One corner of a face: a position index and, if given and usable, a normal index (0-based).
+/// One corner of a face: a position index and, if given, a texture coordinate index and (if
+/// usable) a normal index (0-based).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Corner {
     pub v: u32,
+    pub vt: Option<u32>,
     pub vn: Option<u32>,
 }
 
@@ -61,6 +65,8 @@ pub struct Face {
 #[derive(Default, Debug)]
 pub struct Obj {
     pub positions: Vec<Vec3>,
+    /// Texture coordinates `(u, v)`, as given.
+    pub uvs: Vec<Vec2>,
     /// Unit normals; `None` for a zero or non-finite `vn` (already warned about).
     pub normals: Vec<Option<Vec3>>,
     pub corners: Vec<Corner>,
@@ -116,14 +122,21 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                 out.positions.push(Vec3::from(p));
             }
             "vt" => {
-                // Only counted (reframe has no textures); `v` and `w` are optional.
-                if args.is_empty()
-                    || args.len() > 3
-                    || args.iter().any(|a| a.parse::<f32>().is_err())
-                {
-                    return Err(err("expected 'vt u [v [w]]'".into()));
-                }
+                // `v` and `w` are optional; `w` (3D textures) is not used.
+                let t: Option<Vec<f32>> = args.iter().map(|a| a.parse().ok()).collect();
+                let t = match t {
+                    Some(t) if (1..=3).contains(&t.len()) => t,
+                    _ => return Err(err("expected 'vt u [v [w]]'".into())),
+                };
                 count[1] += 1;
+                if !t.iter().all(|c| c.is_finite()) {
+                    return Err(err(format!(
+                        "texture coordinate {} is not finite",
+                        count[1]
+                    )));
+                }
+                out.uvs
+                    .push(Vec2::new(t[0], t.get(1).copied().unwrap_or(0.0)));
             }
             "vn" => {
                 let v = numbers::<3>(&args).ok_or_else(|| err("expected 'vn x y z'".into()))?;
@@ -230,7 +243,11 @@ fn corner(r: &str, count: &[usize; 3], normals: &[Option<Vec3>]) -> Result<Corne
     if parts.len() > 3 || parts[0].is_empty() {
         return Err(shape());
     }
-    let mut c = Corner { v: 0, vn: None };
+    let mut c = Corner {
+        v: 0,
+        vt: None,
+        vn: None,
+    };
     for (k, p) in parts.iter().enumerate() {
         if p.is_empty() {
             continue;
@@ -254,8 +271,8 @@ fn corner(r: &str, count: &[usize; 3], normals: &[Option<Vec3>]) -> Result<Corne
         };
         match k {
             0 => c.v = i as u32,
-            2 => c.vn = normals[i].map(|_| i as u32),
-            _ => {}
+            1 => c.vt = Some(i as u32),
+            _ => c.vn = normals[i].map(|_| i as u32),
         }
     }
     Ok(c)

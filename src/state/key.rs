@@ -27,6 +27,14 @@ pub fn hash_scene(f: &mut Fnv, scene: &Scene) {
         f.f32s(rot);
         f.f32s(texels.iter().flat_map(|t| t.to_array()));
     }
+    // Likewise nothing for a scene without texture coordinates or textures.
+    if !scene.uvs.is_empty() {
+        f.bytes(b"uvs");
+        f.f32s(scene.uvs.iter().flat_map(|t| t.to_array()));
+    }
+    if let Some(t) = &scene.textures {
+        f.bytes(format!("textures{:?}{:?}", scene.texture_maps(), t.digests()).as_bytes());
+    }
 }
 
 /// The hex hashes of `scene` and of this build, as a run key and a reference key carry them.

@@ -1,0 +1,112 @@
+//! Textured materials: the maps of a material (`map_Kd`, `map_Ks`, `map_Ke` of its MTL) and the
+//! material they make at a point of a surface. The textures themselves are looked up through
+//! `image::Textures` (OpenImageIO's texture system).
+use super::mtl::{MapSpec, MtlMaterial, Slot};
+use super::text::quote;
+use crate::bsdf::Material;
+use crate::image::{TextureId, Textures};
+use anyhow::{anyhow, Result};
+use glam::{Vec2, Vec3};
+use std::path::{Path, PathBuf};
+
+/// One texture map: the texture and the transform of the texture coordinates, `uv * scale +
+/// offset` (the MTL's `-s` and `-o`).
+#[derive(Clone, Copy, Debug)]
+pub struct Map {
+    pub tex: TextureId,
+    pub scale: Vec2,
+    pub offset: Vec2,
+}
+
+/// The maps of one material; each multiplies the colour it names.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Maps {
+    pub kd: Option<Map>,
+    pub ks: Option<Map>,
+    pub ke: Option<Map>,
+}
+
+impl Maps {
+    /// Open the textures `m`'s MTL (`mtl_label`, in folder `dir`) names, refusing a texture
+    /// that cannot be used with one line naming the MTL file and line. `opened` gets each
+    /// texture's path.
+    pub fn open(
+        mtl_label: &str,
+        dir: Option<&Path>,
+        m: &MtlMaterial,
+        textures: &mut Option<Textures>,
+        opened: &mut Vec<PathBuf>,
+    ) -> Result<Maps> {
+        let mut open = |spec: &Option<MapSpec>| -> Result<Option<Map>> {
+            let Some(spec) = spec else {
+                return Ok(None);
+            };
+            let at = format!(
+                "{mtl_label}: line {}: '{}'",
+                spec.line,
+                quote(&spec.statement)
+            );
+            let Some(dir) = dir else {
+                return Err(anyhow!("{at}: a shipped scene has no texture files"));
+            };
+            let path = dir.join(&spec.file);
+            if !path.is_file() {
+                return Err(anyhow!("{at}: no file '{}'", path.display()));
+            }
+            let t = match textures {
+                Some(t) => t,
+                None => textures.insert(Textures::new().map_err(|e| anyhow!("{at}: {e}"))?),
+            };
+            let tex = t.open(&path).map_err(|e| anyhow!("{at}: {e}"))?;
+            if !opened.contains(&path) {
+                opened.push(path);
+            }
+            Ok(Some(Map {
+                tex,
+                scale: spec.scale,
+                offset: spec.offset,
+            }))
+        };
+        Ok(Maps {
+            kd: open(&m.maps[Slot::Kd as usize])?,
+            ks: open(&m.maps[Slot::Ks as usize])?,
+            ke: open(&m.maps[Slot::Ke as usize])?,
+        })
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.kd.is_none() && self.ks.is_none() && self.ke.is_none()
+    }
+
+    /// `m` with its textured colours at texture coordinates `uv`. Reflectances stay in
+    /// \[0, 1\] (so that `Kd + Ks <= 1` still holds); emission stays below `MAX_KE`.
+    #[inline]
+    pub fn apply(&self, m: &Material, textures: &Textures, uv: Vec2) -> Material {
+        let at = |map: &Map| textures.rgb(map.tex, uv * map.scale + map.offset);
+        let mut m = *m;
+        if let Some(map) = &self.kd {
+            m.kd *= at(map).clamp(Vec3::ZERO, Vec3::ONE);
+        }
+        if let Some(map) = &self.ks {
+            m.ks *= at(map).clamp(Vec3::ZERO, Vec3::ONE);
+        }
+        if let Some(map) = &self.ke {
+            m.ke = self.emission(m.ke, textures, uv, map);
+        }
+        m
+    }
+
+    /// Emission `ke` scaled by the `map_Ke` texture at `uv`, if there is one.
+    #[inline]
+    pub fn ke(&self, ke: Vec3, textures: &Textures, uv: Vec2) -> Vec3 {
+        match &self.ke {
+            Some(map) => self.emission(ke, textures, uv, map),
+            None => ke,
+        }
+    }
+
+    fn emission(&self, ke: Vec3, textures: &Textures, uv: Vec2, map: &Map) -> Vec3 {
+        (ke * textures.rgb(map.tex, uv * map.scale + map.offset))
+            .min(Vec3::splat(super::mtl::MAX_KE))
+    }
+}

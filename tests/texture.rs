@@ -1,0 +1,415 @@
+//! Textures end to end: a checkerboard seen head-on against the analytic pattern (orientation,
+//! the `map_Ke` path and 8-bit files), a textured reflectance under a uniform environment
+//! (`map_Kd` times `Kd`, and the furnace's exact answer), the reuse methods unbiased on a
+//! textured, environment-lit scene with background pixels (the z-test of tests/reuse.rs), and
+//! damaged textures refused with one line before anything is written.
+mod common;
+mod stats;
+
+use common::{files_under, render_in_memory};
+use glam::Vec3;
+use reframe::driver::{render_frame_independent, thread_pool, RenderOptions};
+use reframe::embree::Device;
+use reframe::image::{write_image, Image, Metadata, WriteOptions};
+use reframe::integrator::Integrator;
+use reframe::reuse::Method;
+use reframe::scene::Scene;
+use reframe::state::key::scene_and_build_hashes;
+use stats::{assert_unbiased, block_moments, z_test};
+use std::path::Path;
+
+/// The quad z = 0, x and y in [-1, 1], facing +z, with texture coordinates (0, 0) at its
+/// bottom-left corner and (1, 1) at its top-right, in material `q`.
+const QUAD: &str = "mtllib s.mtl\n\
+    v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\n\
+    vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n\
+    usemtl q\nf 1/1 2/2 3/3 4/4\n";
+
+/// 4 x 4 squares of 8 x 8 texels; the square in image row `r` (from the top) and column `c`:
+/// red in the top-left corner square, else white where `r + c` is even, black where odd.
+fn square(r: u32, c: u32) -> Vec3 {
+    if (r, c) == (0, 0) {
+        Vec3::new(1.0, 0.0, 0.0)
+    } else if (r + c).is_multiple_of(2) {
+        Vec3::ONE
+    } else {
+        Vec3::ZERO
+    }
+}
+
+fn write_texture(path: &Path, size: u32, texel: impl Fn(u32, u32) -> Vec3, exr_float: bool) {
+    let mut img = Image::new(size, size, &["R", "G", "B"]);
+    for y in 0..size {
+        for x in 0..size {
+            let i = 3 * (y * size + x) as usize;
+            img.data[i..i + 3].copy_from_slice(&texel(x, y).to_array());
+        }
+    }
+    write_image(
+        path,
+        &img,
+        &Metadata::default(),
+        &WriteOptions { exr_float },
+    )
+    .unwrap();
+}
+
+fn write_scene(d: &Path, obj: &str, mtl: &str, toml: &str) -> String {
+    std::fs::write(d.join("s.obj"), obj).unwrap();
+    std::fs::write(d.join("s.mtl"), mtl).unwrap();
+    let p = d.join("s.toml");
+    std::fs::write(&p, toml).unwrap();
+    p.to_str().unwrap().to_string()
+}
+
+/// A camera at `position` looking at the origin, `frames` frames, `w` x `h`, and `extra` TOML.
+fn toml(w: u32, h: u32, position: [f32; 3], fov: f32, extra: &str) -> String {
+    format!(
+        "obj = \"s.obj\"\nframes = 1\nresolution = [{w}, {h}]\n{extra}\n\
+         [[keyframe]]\nframe = 0\nposition = {position:?}\nlook_at = [0.0, 0.0, 0.0]\n\
+         up = [0.0, 1.0, 0.0]\nfov = {fov}\n"
+    )
+}
+
+#[test]
+fn checkerboard_seen_head_on_matches_the_pattern() {
+    // The quad fills a square frame exactly (tan(fov / 2) = 1 / 2 at distance 2), one pixel per
+    // texel; it emits Ke times the texture and reflects nothing, so a pixel is the texture
+    // averaged over the pixel. Pixels whose texels and bilinear neighbours all lie in one
+    // square are that square's colour; an image flipped or turned would put red elsewhere.
+    for file in ["checker.png", "checker.exr"] {
+        let dir = tempfile::tempdir().unwrap();
+        write_texture(
+            &dir.path().join(file),
+            32,
+            |x, y| square(y / 8, x / 8),
+            true,
+        );
+        let fov = 2.0 * 0.5f32.atan().to_degrees();
+        let path = write_scene(
+            dir.path(),
+            QUAD,
+            &format!("newmtl q\nKd 0\nKe 1 1 1\nmap_Ke {file}\n"),
+            &toml(32, 32, [0.0, 0.0, 2.0], fov, ""),
+        );
+        let device = Device::new().unwrap();
+        let scene = Scene::load(&path, &device).unwrap();
+        assert!(scene.warnings.is_empty(), "{:?}", scene.warnings);
+        assert!(scene.inputs.iter().any(|p| p.ends_with(file)), "{file}");
+        let integ = Integrator::new(&scene, 4);
+        let pool = thread_pool(0).unwrap();
+        let px = pool
+            .install(|| {
+                render_frame_independent(&integ, &scene.camera(0, 32, 32), 0, 8, 1, false, &|_| {})
+            })
+            .pixels;
+        let mut checked = 0;
+        for y in 0..32 {
+            for x in 0..32 {
+                if !(1..7).contains(&(x % 8)) || !(1..7).contains(&(y % 8)) {
+                    continue;
+                }
+                let want = square(y / 8, x / 8);
+                let got = px[(y * 32 + x) as usize];
+                assert!(
+                    (got - want).abs().max_element() < 1e-5,
+                    "{file}: pixel ({x}, {y}) is {got}, the pattern says {want}"
+                );
+                checked += 1;
+            }
+        }
+        assert_eq!(checked, 16 * 36);
+        // Across a square's edge the pixel mixes the two colours.
+        let edge = px[(12 * 32 + 8) as usize];
+        assert!(edge.x > 0.05 && edge.x < 0.95, "{file}: edge pixel {edge}");
+    }
+}
+
+#[test]
+fn textured_reflectance_under_a_uniform_environment() {
+    // A diffuse quad under a uniform environment of radiance 1 and nothing else: the radiance
+    // it reflects is exactly its albedo, here Kd times the texture (the MTL's product).
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (Vec3::new(0.4, 0.8, 1.0), Vec3::new(1.0, 0.5, 0.2));
+    write_texture(
+        &dir.path().join("t.exr"),
+        32,
+        |x, y| {
+            if (x / 8 + y / 8).is_multiple_of(2) {
+                a
+            } else {
+                b
+            }
+        },
+        true,
+    );
+    let kd = Vec3::new(0.8, 0.6, 0.5);
+    let path = write_scene(
+        dir.path(),
+        QUAD,
+        &format!(
+            "newmtl q\nKd {} {} {}\nmap_Kd -s 1 1 t.exr\n",
+            kd.x, kd.y, kd.z
+        ),
+        &toml(
+            32,
+            32,
+            [0.0, 0.0, 2.0],
+            2.0 * 0.5f32.atan().to_degrees(),
+            "[environment]\nradiance = [1.0, 1.0, 1.0]",
+        ),
+    );
+    let device = Device::new().unwrap();
+    let scene = Scene::load(&path, &device).unwrap();
+    // The texture's content is part of the scene's identity (checkpoints, cached references).
+    let hash = || {
+        scene_and_build_hashes(&Scene::load(&path, &device).unwrap())
+            .unwrap()
+            .0
+    };
+    let before = hash();
+    assert_eq!(before, hash());
+    write_texture(
+        &dir.path().join("t.exr"),
+        32,
+        |x, _| Vec3::splat(x as f32 / 32.0),
+        true,
+    );
+    assert_ne!(before, hash());
+    write_texture(
+        &dir.path().join("t.exr"),
+        32,
+        |x, y| {
+            if (x / 8 + y / 8).is_multiple_of(2) {
+                a
+            } else {
+                b
+            }
+        },
+        true,
+    );
+    assert_eq!(before, hash());
+    let integ = Integrator::new(&scene, 8);
+    let pool = thread_pool(0).unwrap();
+    let px = pool
+        .install(|| {
+            render_frame_independent(&integ, &scene.camera(0, 32, 32), 0, 64, 3, false, &|_| {})
+        })
+        .pixels;
+    let (mut sum, mut n) = ([Vec3::ZERO; 2], [0u32; 2]);
+    for y in 0..32u32 {
+        for x in 0..32u32 {
+            if (1..7).contains(&(x % 8)) && (1..7).contains(&(y % 8)) {
+                let k = ((x / 8 + y / 8) % 2) as usize;
+                sum[k] += px[(y * 32 + x) as usize];
+                n[k] += 1;
+            }
+        }
+    }
+    for (k, t) in [a, b].into_iter().enumerate() {
+        let mean = sum[k] / n[k] as f32;
+        let want = kd * t;
+        eprintln!("squares {k}: mean {mean}, albedo {want}");
+        assert!(
+            ((mean - want) / want).abs().max_element() < 0.01,
+            "squares {k}: {mean} against the albedo {want}"
+        );
+    }
+}
+
+/// A lat-long sky: a gradient above the horizon, dark ground below, a small bright sun.
+fn sky(path: &Path) {
+    let (w, h) = (64u32, 32u32);
+    let mut img = Image::new(w, h, &["R", "G", "B"]);
+    for y in 0..h {
+        for x in 0..w {
+            let v = (y as f32 + 0.5) / h as f32;
+            let c = if (x, y) == (19, 8) {
+                Vec3::new(300.0, 280.0, 240.0)
+            } else if v < 0.5 {
+                Vec3::new(0.3, 0.5, 1.0) * (1.2 - v)
+            } else {
+                Vec3::new(0.2, 0.15, 0.1)
+            };
+            let i = 3 * (y * w + x) as usize;
+            img.data[i..i + 3].copy_from_slice(&c.to_array());
+        }
+    }
+    write_image(
+        path,
+        &img,
+        &Metadata::default(),
+        &WriteOptions { exr_float: true },
+    )
+    .unwrap();
+}
+
+/// A textured floor (an 8-bit sRGB PNG, repeated four times across it) and a cube whose sides
+/// carry a glossy texture, under a sky with a sun, seen against the horizon while the camera
+/// zooms: `mis-exact` and `mis-cv`, which shade each first hit's texture once for every eye,
+/// match an independent reference block by block.
+#[test]
+fn reuse_is_unbiased_on_a_textured_environment_lit_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    sky(&dir.path().join("sky.exr"));
+    write_texture(
+        &dir.path().join("tiles.png"),
+        16,
+        |x, y| {
+            if (x / 4 + y / 4).is_multiple_of(2) {
+                Vec3::new(0.8, 0.7, 0.5)
+            } else {
+                Vec3::new(0.1, 0.2, 0.4)
+            }
+        },
+        false,
+    );
+    write_texture(
+        &dir.path().join("stripes.exr"),
+        8,
+        |x, _| Vec3::splat(if x < 4 { 1.0 } else { 0.3 }),
+        true,
+    );
+    let obj = "mtllib s.mtl\n\
+        v -0.5 -0.5 -0.5\nv 0.5 -0.5 -0.5\nv 0.5 0.5 -0.5\nv -0.5 0.5 -0.5\n\
+        v -0.5 -0.5 0.5\nv 0.5 -0.5 0.5\nv 0.5 0.5 0.5\nv -0.5 0.5 0.5\n\
+        vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n\
+        usemtl box\n\
+        f 1/1 4/2 3/3 2/4\nf 5/1 6/2 7/3 8/4\nf 1/1 5/2 8/3 4/4\n\
+        f 2/1 3/2 7/3 6/4\nf 4/1 8/2 7/3 3/4\nf 1/1 2/2 6/3 5/4\n\
+        v -3 -0.5 -3\nv 3 -0.5 -3\nv 3 -0.5 3\nv -3 -0.5 3\n\
+        vt 0 0\nvt 4 0\nvt 4 4\nvt 0 4\n\
+        usemtl floor\nf 9/5 12/8 11/7 10/6\n";
+    let mtl = "newmtl box\nKd 0.5 0.3 0.2\nKs 0.3 0.3 0.3\nNs 30\nmap_Ks stripes.exr\n\
+               newmtl floor\nKd 1 1 1\nmap_Kd tiles.png\n";
+    let toml = "obj = \"s.obj\"\nframes = 9\nresolution = [48, 36]\n\
+        [environment]\nimage = \"sky.exr\"\nrotation = 20.0\n\
+        [[keyframe]]\nframe = 0\nposition = [1.6, 1.2, 2.4]\nlook_at = [0.0, 0.0, 0.0]\n\
+        up = [0.0, 1.0, 0.0]\nfov = 45.0\n\
+        [[keyframe]]\nframe = 8\nposition = [2.3, 1.0, 1.5]\nlook_at = [0.0, 0.1, 0.0]\n\
+        up = [0.0, 1.0, 0.0]\nfov = 40.0\n";
+    let path = write_scene(dir.path(), obj, mtl, toml);
+    let device = Device::new().unwrap();
+    let scene = Scene::load(&path, &device).unwrap();
+    assert!(scene.textures.as_ref().is_some_and(|t| t.len() == 2));
+    let integ = Integrator::new(&scene, 8);
+    let pool = thread_pool(0).unwrap();
+    let (w, h, b, target) = (48usize, 36usize, 4, 4u32);
+    let k = 64;
+    let reference: Vec<Vec<Vec3>> = (0..k)
+        .map(|s| {
+            pool.install(|| {
+                let cam = scene.camera(target, w as u32, h as u32);
+                render_frame_independent(&integ, &cam, target, 16, 5000 + s, false, &|_| {}).pixels
+            })
+        })
+        .collect();
+    let reference = block_moments(&reference, w, h, b);
+    for method in [Method::MisCv, Method::MisExact] {
+        let renders: Vec<Vec<Vec3>> = (0..k)
+            .map(|s| {
+                let opts = RenderOptions {
+                    method,
+                    window: 5,
+                    spp: 1,
+                    seed: 6000 + s,
+                    frames: Some(0..=8),
+                    resolution: Some((w as u32, h as u32)),
+                    progress: false,
+                    ..RenderOptions::default()
+                };
+                pool.install(|| {
+                    render_in_memory(&integ, &opts)
+                        .0
+                        .remove(&target)
+                        .unwrap()
+                        .pixels()
+                })
+            })
+            .collect();
+        let z = z_test(&block_moments(&renders, w, h, b), &reference);
+        assert_unbiased(&format!("{method:?} on the textured scene"), &z);
+    }
+    assert_eq!(scene.textures.as_ref().unwrap().failures(), 0);
+}
+
+#[test]
+fn damaged_textures_are_refused_before_anything_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let fov = 2.0 * 0.5f32.atan().to_degrees();
+    let scene = write_scene(
+        d,
+        QUAD,
+        "newmtl q\nKd 0\nKe 1 1 1\nmap_Ke t.exr\n",
+        &toml(16, 16, [0.0, 0.0, 2.0], fov, ""),
+    );
+    let render = || {
+        common::reframe(&[
+            "render",
+            &scene,
+            "--spp",
+            "1",
+            "--out",
+            d.join("out/f_####.exr").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap()
+    };
+    let mtl = format!("{}/s.mtl: line 4: 'map_Ke t.exr'", d.display());
+    let nan = |x: u32, _| Vec3::splat(if x == 3 { f32::NAN } else { 0.5 });
+    type Spoil<'a> = Box<dyn Fn() + 'a>;
+    let cases: Vec<(&str, Spoil, String)> = vec![
+        (
+            "missing",
+            Box::new(|| {
+                let _ = std::fs::remove_file(d.join("t.exr"));
+            }),
+            format!("{mtl}: no file '{}/t.exr'", d.display()),
+        ),
+        (
+            "not an image",
+            Box::new(|| std::fs::write(d.join("t.exr"), "not an image").unwrap()),
+            format!("{mtl}: cannot read {}/t.exr", d.display()),
+        ),
+        (
+            "truncated",
+            Box::new(|| {
+                write_texture(
+                    &d.join("t.exr"),
+                    64,
+                    |x, y| Vec3::splat((x ^ y) as f32),
+                    true,
+                );
+                let bytes = std::fs::read(d.join("t.exr")).unwrap();
+                std::fs::write(d.join("t.exr"), &bytes[..bytes.len() / 2]).unwrap();
+            }),
+            format!("{mtl}: cannot read {}/t.exr", d.display()),
+        ),
+        (
+            "a NaN texel",
+            Box::new(move || write_texture(&d.join("t.exr"), 8, nan, true)),
+            format!(
+                "{mtl}: cannot use {}/t.exr: it has a texel of NaN",
+                d.display()
+            ),
+        ),
+    ];
+    for (what, spoil, want) in cases {
+        spoil();
+        let out = render();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{what}: {err}");
+        assert_eq!(err.lines().count(), 1, "{what}: {err}");
+        assert!(err.contains(&want), "{what}: {err}\nwant: {want}");
+        assert!(files_under(&d.join("out")).is_empty(), "{what}");
+    }
+    // Made whole again, it renders.
+    write_texture(&d.join("t.exr"), 8, |_, _| Vec3::splat(0.5), true);
+    let out = render();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
