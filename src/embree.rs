@@ -73,7 +73,19 @@ impl Device {
         let user = &*errors as *const ErrorSink as *mut c_void;
         // SAFETY: the sink is boxed, so its address is stable, and it outlives the device.
         unsafe { sys::rtcSetDeviceErrorFunction(raw, Some(error_callback), user) };
-        Ok(Device { raw, errors })
+        let device = Device { raw, errors };
+        // The hit structs are laid out for Embree 4 with one instance level (see the module
+        // note); another major version would write elsewhere.
+        let v = device.version();
+        if !(40000..50000).contains(&v) {
+            bail!(
+                "the Embree runtime is version {}.{}.{}; reframe needs Embree 4",
+                v / 10000,
+                v / 100 % 100,
+                v % 100
+            );
+        }
+        Ok(device)
     }
 
     /// The runtime's version as a number, e.g. 40400 for Embree 4.4.0.
@@ -163,10 +175,18 @@ impl Ray {
 #[derive(Clone, Copy, Debug)]
 pub struct Hit {
     pub t: f32,
+    /// The instance hit (`TriangleScene::build`'s index), or `NO_INSTANCE` for the scene's own
+    /// triangles.
+    pub inst: u32,
+    /// The triangle: of the scene's own mesh, or of the instance's prototype.
     pub prim_id: u32,
     pub u: f32,
     pub v: f32,
     pub ng: Vec3,
+}
+
+impl Hit {
+    pub const NO_INSTANCE: u32 = INVALID_ID;
 }
 
 /// `RTCRayHit` plus room for the 4.4 runtime's `instPrimID` (see the module note).
@@ -263,6 +283,7 @@ impl Packet16 {
         }
         Some(Hit {
             t: self.raw.rh.ray.tfar[lane],
+            inst: instance(h.instID[0][lane]),
             prim_id: h.primID[lane],
             u: h.u[lane],
             v: h.v[lane],
@@ -276,72 +297,164 @@ impl Packet16 {
     }
 }
 
-/// A committed, immutable Embree scene of one triangle mesh. Primitive IDs are the triangle
-/// indices of the mesh it was built from.
+/// A committed, immutable Embree scene: one triangle mesh of the scene's own (geometry 0), and
+/// instances of prototype meshes placed by affine transforms (geometry `1 + i` for instance
+/// `i`). Primitive IDs are the triangle indices of the mesh hit, the scene's own or the
+/// instance's prototype; `Hit::inst` tells which.
 pub struct TriangleScene {
     raw: sys::RTCScene,
+    /// The prototypes' own scenes, which the instances reference.
+    prototypes: Vec<sys::RTCScene>,
     device: sys::RTCDevice,
 }
+
+/// A mesh for `TriangleScene::build`: vertices and triangles.
+pub type MeshRef<'a> = (&'a [Vec3], &'a [[u32; 3]]);
+
+/// One placement of a prototype: its index and the object-to-world transform, a 3x4 matrix in
+/// row-major order (the last column is the translation).
+pub type Placement = (u32, [f32; 12]);
 
 // SAFETY: a committed Embree scene is read-only and Embree documents rtcIntersect*/rtcOccluded*
 // as thread-safe on it; `TriangleScene` exposes no way to modify it after `new` commits it.
 unsafe impl Send for TriangleScene {}
 unsafe impl Sync for TriangleScene {}
 
+/// `instID[0]` of a hit as `Hit::inst`: the instance's index (its geometry ID less one).
+#[inline]
+fn instance(inst_geom: u32) -> u32 {
+    if inst_geom == INVALID_ID {
+        INVALID_ID
+    } else {
+        inst_geom - 1
+    }
+}
+
+fn check_mesh((vertices, triangles): MeshRef) -> Result<()> {
+    if triangles.is_empty() {
+        bail!("the scene has no triangles");
+    }
+    let nv = vertices.len() as u32;
+    if let Some(t) = triangles.iter().find(|t| t.iter().any(|&i| i >= nv)) {
+        bail!("triangle {t:?} indexes past the {nv} vertices");
+    }
+    Ok(())
+}
+
+/// A committed triangle geometry of `mesh` (checked by `check_mesh`); the caller owns it.
+fn triangle_geometry(device: &Device, (vertices, triangles): MeshRef) -> Result<sys::RTCGeometry> {
+    // SAFETY: every handle is checked before use; buffers are sized from the slices and filled
+    // before the geometry is committed.
+    unsafe {
+        let geom = sys::rtcNewGeometry(device.raw, sys::RTCGeometryType::TRIANGLE);
+        device.check("creating the triangle geometry")?;
+        let vb = sys::rtcSetNewGeometryBuffer(
+            geom,
+            sys::RTCBufferType::VERTEX,
+            0,
+            sys::RTCFormat::FLOAT3,
+            12,
+            vertices.len(),
+        ) as *mut f32;
+        let ib = sys::rtcSetNewGeometryBuffer(
+            geom,
+            sys::RTCBufferType::INDEX,
+            0,
+            sys::RTCFormat::UINT3,
+            12,
+            triangles.len(),
+        ) as *mut u32;
+        if let Err(e) = device.check("allocating geometry buffers") {
+            sys::rtcReleaseGeometry(geom);
+            return Err(e);
+        }
+        let vs = std::slice::from_raw_parts_mut(vb, vertices.len() * 3);
+        for (i, v) in vertices.iter().enumerate() {
+            vs[3 * i..3 * i + 3].copy_from_slice(&v.to_array());
+        }
+        let is = std::slice::from_raw_parts_mut(ib, triangles.len() * 3);
+        for (i, t) in triangles.iter().enumerate() {
+            is[3 * i..3 * i + 3].copy_from_slice(t);
+        }
+        sys::rtcCommitGeometry(geom);
+        Ok(geom)
+    }
+}
+
 impl TriangleScene {
+    /// A scene of one mesh.
     pub fn new(device: &Device, vertices: &[Vec3], triangles: &[[u32; 3]]) -> Result<Self> {
-        if triangles.is_empty() {
+        Self::build(device, Some((vertices, triangles)), &[], &[])
+    }
+
+    /// A scene of its own mesh `own` (if any) and `instances` of `prototypes`. Each prototype is
+    /// built once, however often it is placed.
+    pub fn build(
+        device: &Device,
+        own: Option<MeshRef>,
+        prototypes: &[MeshRef],
+        instances: &[Placement],
+    ) -> Result<Self> {
+        if own.is_none() && instances.is_empty() {
             bail!("the scene has no triangles");
         }
-        let nv = vertices.len() as u32;
-        if let Some(t) = triangles.iter().find(|t| t.iter().any(|&i| i >= nv)) {
-            bail!("triangle {t:?} indexes past the {nv} vertices");
+        if let Some(m) = own {
+            check_mesh(m)?;
         }
-        // SAFETY: every handle is checked before use; buffers are sized from the slices and
-        // filled before the geometry is committed; the scene retains the geometry, so our own
-        // reference is released right after attaching.
+        for m in prototypes {
+            check_mesh(*m)?;
+        }
+        if let Some((p, _)) = instances.iter().find(|i| i.0 as usize >= prototypes.len()) {
+            bail!("an instance of prototype {p} of {}", prototypes.len());
+        }
+        if let Some((_, m)) = instances
+            .iter()
+            .find(|i| !i.1.iter().all(|x| x.is_finite()))
+        {
+            bail!("an instance transform is not finite: {m:?}");
+        }
+        // SAFETY: every handle is checked before use; a scene retains what is attached to it,
+        // so our own geometry references are released right after attaching; the prototype
+        // scenes are kept (and released in `Drop`) for as long as the instances use them.
         unsafe {
-            let geom = sys::rtcNewGeometry(device.raw, sys::RTCGeometryType::TRIANGLE);
-            device.check("creating the triangle geometry")?;
-            let vb = sys::rtcSetNewGeometryBuffer(
-                geom,
-                sys::RTCBufferType::VERTEX,
-                0,
-                sys::RTCFormat::FLOAT3,
-                12,
-                vertices.len(),
-            ) as *mut f32;
-            let ib = sys::rtcSetNewGeometryBuffer(
-                geom,
-                sys::RTCBufferType::INDEX,
-                0,
-                sys::RTCFormat::UINT3,
-                12,
-                triangles.len(),
-            ) as *mut u32;
-            if let Err(e) = device.check("allocating geometry buffers") {
-                sys::rtcReleaseGeometry(geom);
-                return Err(e);
-            }
-            let vs = std::slice::from_raw_parts_mut(vb, vertices.len() * 3);
-            for (i, v) in vertices.iter().enumerate() {
-                vs[3 * i..3 * i + 3].copy_from_slice(&v.to_array());
-            }
-            let is = std::slice::from_raw_parts_mut(ib, triangles.len() * 3);
-            for (i, t) in triangles.iter().enumerate() {
-                is[3 * i..3 * i + 3].copy_from_slice(t);
-            }
-            sys::rtcCommitGeometry(geom);
             let scene = sys::rtcNewScene(device.raw);
-            sys::rtcSetSceneBuildQuality(scene, sys::RTCBuildQuality::HIGH);
-            sys::rtcAttachGeometry(scene, geom);
-            sys::rtcReleaseGeometry(geom);
-            sys::rtcCommitScene(scene);
             sys::rtcRetainDevice(device.raw);
-            let s = TriangleScene {
+            let mut s = TriangleScene {
                 raw: scene,
+                prototypes: Vec::with_capacity(prototypes.len()),
                 device: device.raw,
             };
+            for m in prototypes {
+                let geom = triangle_geometry(device, *m)?;
+                let proto = sys::rtcNewScene(device.raw);
+                sys::rtcSetSceneBuildQuality(proto, sys::RTCBuildQuality::HIGH);
+                sys::rtcAttachGeometry(proto, geom);
+                sys::rtcReleaseGeometry(geom);
+                sys::rtcCommitScene(proto);
+                s.prototypes.push(proto);
+                device.check("building an instanced mesh")?;
+            }
+            sys::rtcSetSceneBuildQuality(scene, sys::RTCBuildQuality::HIGH);
+            if let Some(m) = own {
+                let geom = triangle_geometry(device, m)?;
+                sys::rtcAttachGeometryByID(scene, geom, 0);
+                sys::rtcReleaseGeometry(geom);
+            }
+            for (i, (proto, xfm)) in instances.iter().enumerate() {
+                let geom = sys::rtcNewGeometry(device.raw, sys::RTCGeometryType::INSTANCE);
+                device.check("creating an instance")?;
+                sys::rtcSetGeometryInstancedScene(geom, s.prototypes[*proto as usize]);
+                sys::rtcSetGeometryTransform(
+                    geom,
+                    0,
+                    sys::RTCFormat::FLOAT3X4_ROW_MAJOR,
+                    xfm.as_ptr() as *const c_void,
+                );
+                sys::rtcCommitGeometry(geom);
+                sys::rtcAttachGeometryByID(scene, geom, i as u32 + 1);
+                sys::rtcReleaseGeometry(geom);
+            }
+            sys::rtcCommitScene(scene);
             device.check("building the scene")?;
             Ok(s)
         }
@@ -416,6 +529,7 @@ impl TriangleScene {
         let h = &rh.rh.hit;
         (h.geomID != INVALID_ID).then(|| Hit {
             t: rh.rh.ray.tfar,
+            inst: instance(h.instID[0]),
             prim_id: h.primID,
             u: h.u,
             v: h.v,
@@ -454,9 +568,13 @@ impl TriangleScene {
 
 impl Drop for TriangleScene {
     fn drop(&mut self) {
-        // SAFETY: handles valid, each released once (the device reference was retained in `new`).
+        // SAFETY: handles valid, each released once (the device reference was retained in
+        // `build`); the scene goes first, then the prototypes its instances referenced.
         unsafe {
             sys::rtcReleaseScene(self.raw);
+            for p in &self.prototypes {
+                sys::rtcReleaseScene(*p);
+            }
             sys::rtcReleaseDevice(self.device);
         }
     }

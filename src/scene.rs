@@ -13,6 +13,9 @@
 //! fov = 50.0                  # vertical, degrees, in (0, 180)
 //! ```
 //!
+//! Instead of `obj`, `[[object]]` tables place several OBJs by transforms (`scene/objects.rs`:
+//! an OBJ placed more than once becomes one Embree prototype with an instance per placement).
+//!
 //! Instead of `[[keyframe]]` tables (exactly one of the two), `camera = "shot.json"` (or `.csv`,
 //! relative to the TOML) names a camera file with one camera per frame, as animation packages
 //! export it: a camera-to-world matrix or position/look-at/up, and the vertical fov, for every
@@ -51,13 +54,14 @@
 //! ```
 use crate::bsdf::{luminance, Material};
 use crate::camera::{Camera, CameraPath, Cameras, Interpolation, Keyframe, Pose};
-use crate::embree::{Device, Hit, Ray, TriangleScene};
+use crate::embree::{Device, Hit, MeshRef, Placement, Ray, TriangleScene};
 use crate::image::Textures;
 use crate::sampling::uniform_triangle;
 use anyhow::{anyhow, bail, Context, Result};
 use environment::Environment;
 use glam::{Vec2, Vec3};
 pub use maps::{Map, Maps};
+pub use objects::{Instance, Prototype};
 use serde::{de, Deserialize, Deserializer};
 use std::collections::HashMap;
 use std::ops::Range;
@@ -71,6 +75,7 @@ mod maps;
 mod mesh;
 mod mtl;
 mod obj;
+mod objects;
 mod repairs;
 mod text;
 pub use crate::util::input::{read_input, read_input_or_missing, InputError, MAX_INPUT_BYTES};
@@ -127,7 +132,9 @@ pub struct LoadOptions {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct SceneFile {
-    obj: Spanned<String>,
+    /// One OBJ as it is, or else `[[object]]` tables (objects placed by transforms).
+    obj: Option<Spanned<String>>,
+    object: Option<Vec<objects::ObjectFile>>,
     frames: Spanned<u32>,
     resolution: Spanned<Exactly<u32, 2>>,
     /// `[[keyframe]]` tables, or else `camera`: a camera file.
@@ -266,6 +273,9 @@ pub struct Scene {
     maps: Vec<Maps>,
     /// The textures the maps look up, if any material has one.
     pub textures: Option<Textures>,
+    /// Meshes placed more than once, by Embree instances (`instances`), in object space.
+    pub prototypes: Vec<Prototype>,
+    pub instances: Vec<Instance>,
     pub material_names: Vec<String>,
     pub lights: Lights,
     /// The environment light, if the scene has one (`[environment]`).
@@ -364,42 +374,80 @@ impl Scene {
                 (Some(env), input)
             }
         };
-        let obj_at = format!(
-            "{label}: line {}: obj '{}'",
-            line_at(toml_text.as_bytes(), file.obj.span().start),
-            file.obj.get_ref()
-        );
-        let (obj_label, obj_bytes, files) = match &source {
-            Source::Files { toml } => {
-                let dir = toml.parent().unwrap_or(Path::new(".")).to_path_buf();
-                let obj = dir.join(file.obj.get_ref());
-                let bytes = read_input(&obj, "OBJ", MAX_INPUT_BYTES)
-                    .map_err(|e| anyhow!("{obj_at}: {e}"))?;
-                let mtl_dir = obj.parent().unwrap_or(&dir).to_path_buf();
-                (obj.display().to_string(), bytes, MtlSource::Dir(mtl_dir))
-            }
-            Source::Builtin(i) => (
-                format!("{} (built in)", file.obj.get_ref()),
-                BUILTIN[*i].2.as_bytes().to_vec(),
-                MtlSource::Builtin(BUILTIN[*i].3),
-            ),
-        };
         let mut textures = None;
-        let (mesh, mtls) =
-            load_obj_files(&obj_label, &obj_bytes, &files, &mut textures, &mut repairs)?;
-        let inputs = match &source {
-            Source::Files { toml } => {
-                let dir = toml.parent().unwrap_or(Path::new("."));
-                [toml.clone(), dir.join(file.obj.get_ref())]
-                    .into_iter()
-                    .chain(file.camera.as_ref().and_then(|c| camera_path(c.get_ref())))
-                    .chain(mtls)
-                    .chain(env_input)
-                    .collect()
+        let loaded = match (&file.obj, &file.object) {
+            (Some(obj), None) => {
+                let obj_at = format!(
+                    "{label}: line {}: obj '{}'",
+                    line_at(toml_text.as_bytes(), obj.span().start),
+                    obj.get_ref()
+                );
+                let (obj_label, obj_bytes, files) = match &source {
+                    Source::Files { toml } => {
+                        let dir = toml.parent().unwrap_or(Path::new(".")).to_path_buf();
+                        let obj = dir.join(obj.get_ref());
+                        let bytes = read_input(&obj, "OBJ", MAX_INPUT_BYTES)
+                            .map_err(|e| anyhow!("{obj_at}: {e}"))?;
+                        let mtl_dir = obj.parent().unwrap_or(&dir).to_path_buf();
+                        (obj.display().to_string(), bytes, MtlSource::Dir(mtl_dir))
+                    }
+                    Source::Builtin(i) => (
+                        format!("{} (built in)", obj.get_ref()),
+                        BUILTIN[*i].2.as_bytes().to_vec(),
+                        MtlSource::Builtin(BUILTIN[*i].3),
+                    ),
+                };
+                let (mesh, mtls) =
+                    load_obj_files(&obj_label, &obj_bytes, &files, &mut textures, &mut repairs)?;
+                let objs = match &source {
+                    Source::Files { toml } => {
+                        vec![toml.parent().unwrap_or(Path::new(".")).join(obj.get_ref())]
+                    }
+                    Source::Builtin(_) => Vec::new(),
+                };
+                Objects {
+                    label: obj_label,
+                    mesh,
+                    prototypes: Vec::new(),
+                    instances: Vec::new(),
+                    inputs: objs.into_iter().chain(mtls).collect(),
+                }
             }
+            (None, Some(list)) if !list.is_empty() => {
+                let Some(dir) = &dir else {
+                    bail!("{label}: a shipped scene has no [[object]] files");
+                };
+                load_objects(&label, toml_text, dir, list, &mut textures, &mut repairs)?
+            }
+            (Some(_), Some(_)) => {
+                bail!("{label}: give either obj or [[object]] tables, not both")
+            }
+            (None, _) => bail!("{label}: no obj and no [[object]]: the scene has no geometry"),
+        };
+        let Objects {
+            label: obj_label,
+            mesh,
+            prototypes,
+            instances,
+            inputs: object_inputs,
+        } = loaded;
+        let inputs = match &source {
+            Source::Files { toml } => [toml.clone()]
+                .into_iter()
+                .chain(file.camera.as_ref().and_then(|c| camera_path(c.get_ref())))
+                .chain(object_inputs)
+                .chain(env_input)
+                .collect(),
             Source::Builtin(_) => Vec::new(),
         };
-        let geometry = TriangleScene::new(device, &mesh.positions, &mesh.triangles)
+        let proto_meshes: Vec<MeshRef> = prototypes
+            .iter()
+            .map(|p| (p.positions.as_slice(), p.triangles.as_slice()))
+            .collect();
+        let placements: Vec<Placement> = instances.iter().map(|i| (i.proto, i.rows())).collect();
+        let own = (!mesh.triangles.is_empty())
+            .then_some((mesh.positions.as_slice(), mesh.triangles.as_slice()));
+        let geometry = TriangleScene::build(device, own, &proto_meshes, &placements)
             .with_context(|| format!("{obj_label}: building the Embree scene"))?;
         let lights = Lights::new(&mesh);
         let env_emits = environment.as_ref().is_some_and(Environment::emits);
@@ -441,6 +489,8 @@ impl Scene {
             materials: mesh.materials,
             maps: mesh.maps,
             textures,
+            prototypes,
+            instances,
             material_names: mesh.material_names,
             lights,
             environment,
@@ -457,6 +507,9 @@ impl Scene {
     /// Shading data for Embree's hit.
     #[inline]
     pub fn surface(&self, hit: &Hit) -> SurfacePoint {
+        if hit.inst != Hit::NO_INSTANCE {
+            return self.instance_surface(hit);
+        }
         let prim = hit.prim_id;
         let [i0, i1, i2] = self.triangles[prim as usize];
         let (b1, b2) = (hit.u, hit.v);
@@ -491,6 +544,47 @@ impl Scene {
             ns,
             prim,
             material: self.tri_material[prim as usize],
+            uv,
+        }
+    }
+
+    /// `surface` for a hit on an instance: the prototype's point, normals through the
+    /// instance's transforms. Instances never emit (emitting objects are copied), so the point
+    /// has no light triangle (`prim` is `u32::MAX`).
+    fn instance_surface(&self, hit: &Hit) -> SurfacePoint {
+        let inst = &self.instances[hit.inst as usize];
+        let proto = &self.prototypes[inst.proto as usize];
+        let prim = hit.prim_id as usize;
+        let [i0, i1, i2] = proto.triangles[prim].map(|i| i as usize);
+        let (b1, b2) = (hit.u, hit.v);
+        let b0 = 1.0 - b1 - b2;
+        let p_obj = proto.positions[i0] * b0 + proto.positions[i1] * b1 + proto.positions[i2] * b2;
+        let p = inst.to_world.transform_point3(p_obj);
+        let ng = (inst.normal * proto.tri_normal[prim]).normalize();
+        let ns = if proto.normals.is_empty() {
+            ng
+        } else {
+            let n = proto.normals[i0] * b0 + proto.normals[i1] * b1 + proto.normals[i2] * b2;
+            let n = (inst.normal * n).normalize_or_zero();
+            if n == Vec3::ZERO {
+                ng
+            } else if n.dot(ng) < 0.0 {
+                -n
+            } else {
+                n
+            }
+        };
+        let uv = if proto.uvs.is_empty() {
+            Vec2::ZERO
+        } else {
+            proto.uvs[i0] * b0 + proto.uvs[i1] * b1 + proto.uvs[i2] * b2
+        };
+        SurfacePoint {
+            p,
+            ng,
+            ns,
+            prim: u32::MAX,
+            material: proto.tri_material[prim],
             uv,
         }
     }
@@ -611,7 +705,13 @@ impl Scene {
     /// `prim` (0 if that triangle is not a light).
     #[inline]
     pub fn light_pdf(&self, x: Vec3, y: Vec3, prim: u32) -> f32 {
-        let pa = self.lights.pdf_area[prim as usize];
+        // A point on an instance (`prim` u32::MAX) is on no light.
+        let pa = self
+            .lights
+            .pdf_area
+            .get(prim as usize)
+            .copied()
+            .unwrap_or(0.0);
         if pa == 0.0 {
             return 0.0;
         }
@@ -954,6 +1054,90 @@ fn load_environment(
     }
 }
 
+/// The geometry of a scene: its own mesh (world space), prototypes and their instances, what
+/// errors call it, and the files it was read from (OBJs, MTLs, textures).
+struct Objects {
+    label: String,
+    mesh: Mesh,
+    prototypes: Vec<Prototype>,
+    instances: Vec<Instance>,
+    inputs: Vec<PathBuf>,
+}
+
+/// The `[[object]]` tables of scene file `label` (text `text`, in folder `dir`): each OBJ read
+/// once; one placed once, or one that emits, transformed into the scene's own mesh (a copy per
+/// placement); one placed more than once and not emitting, a prototype with an instance per
+/// placement.
+fn load_objects(
+    label: &str,
+    text: &str,
+    dir: &Path,
+    list: &[objects::ObjectFile],
+    textures: &mut Option<Textures>,
+    repairs: &mut Repairs,
+) -> Result<Objects> {
+    // The placements of each distinct OBJ, in order of first appearance.
+    let mut groups: Vec<(PathBuf, String, Vec<glam::DMat4>)> = Vec::new();
+    for o in list {
+        let m = o.transform(label, text)?;
+        let path = dir.join(o.obj.get_ref());
+        match groups.iter_mut().find(|g| g.0 == path) {
+            Some(g) => g.2.push(m),
+            None => {
+                let at = format!(
+                    "{label}: line {}: object '{}'",
+                    line_at(text.as_bytes(), o.obj.span().start),
+                    quote(o.obj.get_ref())
+                );
+                groups.push((path, at, vec![m]));
+            }
+        }
+    }
+    let mut own = objects::empty();
+    let mut prototypes = Vec::new();
+    let mut instances = Vec::new();
+    let mut inputs = Vec::new();
+    for (path, at, placements) in &groups {
+        let bytes = read_input(path, "OBJ", MAX_INPUT_BYTES).map_err(|e| anyhow!("{at}: {e}"))?;
+        let obj_label = path.display().to_string();
+        let mtl_dir = path.parent().unwrap_or(dir).to_path_buf();
+        let (mesh, read) = load_obj_files(
+            &obj_label,
+            &bytes,
+            &MtlSource::Dir(mtl_dir),
+            textures,
+            repairs,
+        )?;
+        inputs.push(path.clone());
+        for p in read {
+            if !inputs.contains(&p) {
+                inputs.push(p);
+            }
+        }
+        let emits = mesh
+            .tri_material
+            .iter()
+            .any(|&m| mesh.materials[m as usize].is_emissive());
+        if placements.len() == 1 || emits {
+            for m in placements {
+                objects::append(&mut own, objects::transformed(&mesh, m));
+            }
+        } else {
+            let base = objects::add_materials(&mut own, &mesh);
+            let proto = prototypes.len() as u32;
+            prototypes.push(objects::prototype(mesh, base));
+            instances.extend(placements.iter().map(|m| Instance::new(proto, m)));
+        }
+    }
+    Ok(Objects {
+        label: label.to_string(),
+        mesh: own,
+        prototypes,
+        instances,
+        inputs,
+    })
+}
+
 /// Where the MTL files an OBJ names come from.
 enum MtlSource {
     /// The OBJ's folder.
@@ -1155,6 +1339,7 @@ mod tests {
             .unwrap();
         let hit = Hit {
             t: 1.0,
+            inst: Hit::NO_INSTANCE,
             prim_id: t as u32,
             u: 0.2,
             v: 0.3,

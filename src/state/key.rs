@@ -32,6 +32,22 @@ pub fn hash_scene(f: &mut Fnv, scene: &Scene) {
         f.bytes(b"uvs");
         f.f32s(scene.uvs.iter().flat_map(|t| t.to_array()));
     }
+    for p in &scene.prototypes {
+        f.bytes(b"prototype");
+        f.f32s(p.positions.iter().flat_map(|v| v.to_array()));
+        f.f32s(p.normals.iter().flat_map(|v| v.to_array()));
+        f.f32s(p.uvs.iter().flat_map(|v| v.to_array()));
+        for t in &p.triangles {
+            f.bytes(&t.map(u32::to_le_bytes).concat());
+        }
+        for m in &p.tri_material {
+            f.bytes(&m.to_le_bytes());
+        }
+    }
+    for i in &scene.instances {
+        f.bytes(&i.proto.to_le_bytes());
+        f.f32s(i.rows());
+    }
     if let Some(t) = &scene.textures {
         f.bytes(format!("textures{:?}{:?}", scene.texture_maps(), t.digests()).as_bytes());
     }

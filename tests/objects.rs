@@ -1,0 +1,328 @@
+//! Several objects placed by transforms: an OBJ placed more than once is one Embree prototype
+//! with an instance per placement, and renders like the same geometry flattened into one mesh;
+//! an emitting OBJ placed twice is copied (two lights); the refusals of `[[object]]`.
+mod common;
+
+use glam::{DMat3, DMat4, DVec3, Vec2, Vec3};
+use reframe::driver::{render_frame_independent, thread_pool};
+use reframe::embree::{Device, Ray};
+use reframe::integrator::Integrator;
+use reframe::scene::Scene;
+use reframe::state::key::scene_and_build_hashes;
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// A unit cube centred at the origin, wound outwards, with texture coordinates per face.
+fn cube() -> (Vec<Vec3>, Vec<[usize; 4]>) {
+    let v = (0..8)
+        .map(|i| {
+            Vec3::new(
+                if i & 1 == 0 { -0.5 } else { 0.5 },
+                if i & 2 == 0 { -0.5 } else { 0.5 },
+                if i & 4 == 0 { -0.5 } else { 0.5 },
+            )
+        })
+        .collect();
+    let faces = vec![
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+        [2, 6, 7, 3],
+        [0, 1, 5, 4],
+    ];
+    (v, faces)
+}
+
+/// An OBJ of `copies` of the cube, each through its transform (none: as it is), in material
+/// `box`, then (if `ground`) a floor quad in material `floor`.
+fn obj(copies: &[Option<DMat4>], ground: bool) -> String {
+    let (v, faces) = cube();
+    let mut s = String::from("mtllib s.mtl\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl box\n");
+    for (k, m) in copies.iter().enumerate() {
+        for p in &v {
+            let q = match m {
+                Some(m) => m.transform_point3(p.as_dvec3()).as_vec3(),
+                None => *p,
+            };
+            writeln!(s, "v {} {} {}", q.x, q.y, q.z).unwrap();
+        }
+        // A mirrored copy's faces turn inwards, here and in the instance alike (a geometric
+        // normal follows the placed corners' winding).
+        for f in &faces {
+            let ids: Vec<String> = f
+                .iter()
+                .enumerate()
+                .map(|(c, i)| format!("{}/{}", 8 * k + i + 1, c + 1))
+                .collect();
+            writeln!(s, "f {}", ids.join(" ")).unwrap();
+        }
+    }
+    if ground {
+        let base = 8 * copies.len();
+        s.push_str("v -4 -0.5 -4\nv 4 -0.5 -4\nv 4 -0.5 4\nv -4 -0.5 4\nusemtl floor\n");
+        writeln!(s, "f {} {} {} {}", base + 1, base + 4, base + 3, base + 2).unwrap();
+    }
+    s
+}
+
+const MTL: &str =
+    "newmtl box\nKd 0.6 0.4 0.3\nKs 0.2 0.2 0.2\nNs 40\nnewmtl floor\nKd 0.5 0.5 0.5\n";
+
+/// The scene file: `geometry` (`obj = ...` at the top, or `[[object]]` tables at the end).
+fn toml(geometry: &str) -> String {
+    let (top, tables) = if geometry.starts_with("[[") {
+        ("", geometry)
+    } else {
+        (geometry, "")
+    };
+    format!(
+        "{top}\nframes = 1\nresolution = [64, 48]\n\
+         [environment]\nradiance = [0.6, 0.7, 0.9]\n\
+         [[keyframe]]\nframe = 0\nposition = [2.5, 2.0, 4.0]\nlook_at = [0.3, 0.0, 0.0]\n\
+         up = [0.0, 1.0, 0.0]\nfov = 50.0\n{tables}\n"
+    )
+}
+
+fn placements() -> Vec<(String, DMat4)> {
+    let rot = |x: f64, y: f64, z: f64| {
+        DMat4::from_mat3(
+            DMat3::from_rotation_z(z.to_radians())
+                * DMat3::from_rotation_y(y.to_radians())
+                * DMat3::from_rotation_x(x.to_radians()),
+        )
+    };
+    vec![
+        (
+            "translate = [-0.8, 0.0, 0.3]\nrotate = [10.0, 35.0, 5.0]\nscale = 0.9".into(),
+            DMat4::from_translation(DVec3::new(-0.8, 0.0, 0.3))
+                * rot(10.0, 35.0, 5.0)
+                * DMat4::from_scale(DVec3::splat(0.9)),
+        ),
+        (
+            "matrix = [-1.2, 0, 0, 1.0,  0, 0.7, 0, -0.15,  0, 0, 1.0, -0.5,  0, 0, 0, 1]".into(),
+            DMat4::from_cols_array(&[
+                -1.2, 0.0, 0.0, 0.0, 0.0, 0.7, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, -0.15, -0.5, 1.0,
+            ]),
+        ),
+        (
+            "translate = [0.4, 0.9, -1.6]\nrotate = [0.0, -20.0, 0.0]\nscale = [0.5, 1.5, 0.5]"
+                .into(),
+            DMat4::from_translation(DVec3::new(0.4, 0.9, -1.6))
+                * rot(0.0, -20.0, 0.0)
+                * DMat4::from_scale(DVec3::new(0.5, 1.5, 0.5)),
+        ),
+    ]
+}
+
+fn write(d: &Path, files: &[(&str, &str)]) -> String {
+    for (name, text) in files {
+        std::fs::write(d.join(name), text).unwrap();
+    }
+    d.join("s.toml").to_str().unwrap().to_string()
+}
+
+#[test]
+fn instances_render_like_the_same_geometry_flattened() {
+    let place = placements();
+    // Instanced: the cube placed three times (one of them mirrored), the floor once.
+    let inst_dir = tempfile::tempdir().unwrap();
+    let mut objects = String::from("[[object]]\nobj = \"floor.obj\"\n");
+    for (t, _) in &place {
+        write!(objects, "[[object]]\nobj = \"cube.obj\"\n{t}\n").unwrap();
+    }
+    let floor = "mtllib s.mtl\nv -4 -0.5 -4\nv 4 -0.5 -4\nv 4 -0.5 4\nv -4 -0.5 4\n\
+                 usemtl floor\nf 1 4 3 2\n";
+    let inst = write(
+        inst_dir.path(),
+        &[
+            ("cube.obj", &obj(&[None], false)),
+            ("floor.obj", floor),
+            ("s.mtl", MTL),
+            ("s.toml", &toml(&objects)),
+        ],
+    );
+    // Flattened: the same corners, transformed here, in one OBJ.
+    let flat_dir = tempfile::tempdir().unwrap();
+    let copies: Vec<Option<DMat4>> = place.iter().map(|p| Some(p.1)).collect();
+    let flat = write(
+        flat_dir.path(),
+        &[
+            ("s.obj", &obj(&copies, true)),
+            ("s.mtl", MTL),
+            ("s.toml", &toml("obj = \"s.obj\"")),
+        ],
+    );
+    let device = Device::new().unwrap();
+    let a = Scene::load(&inst, &device).unwrap();
+    let b = Scene::load(&flat, &device).unwrap();
+    assert!(a.warnings.is_empty(), "{:?}", a.warnings);
+    assert_eq!((a.prototypes.len(), a.instances.len()), (1, 3));
+    assert_eq!(
+        a.triangles.len(),
+        2,
+        "only the floor is the scene's own mesh"
+    );
+    assert!(b.instances.is_empty());
+    assert!(a.inputs.iter().any(|p| p.ends_with("cube.obj")));
+    // Primary hits: the same points, normals, materials and texture coordinates.
+    let cam = a.camera(0, 64, 48);
+    let (mut hits, mut same) = (0, 0);
+    for y in 0..48 {
+        for x in 0..64 {
+            let ray = Ray::new(
+                cam.eye,
+                cam.direction(Vec2::new(x as f32 + 0.5, y as f32 + 0.5)),
+            );
+            let (ha, hb) = (a.geometry.intersect1(&ray), b.geometry.intersect1(&ray));
+            match (ha, hb) {
+                (None, None) => same += 1,
+                (Some(ha), Some(hb)) => {
+                    hits += 1;
+                    let (sa, sb) = (a.surface(&ha), b.surface(&hb));
+                    let close = (sa.p - sb.p).length() < 1e-4
+                        && (sa.ng - sb.ng).length() < 1e-4
+                        && (sa.uv - sb.uv).length() < 1e-4
+                        && a.material(&sa).kd == b.material(&sb).kd;
+                    same += close as usize;
+                }
+                _ => {}
+            }
+        }
+    }
+    eprintln!("primary rays: {hits} hits, {same} of {} agree", 64 * 48);
+    assert!(hits > 1500, "{hits} hits");
+    assert!(same >= 64 * 48 - 4, "{same} of {} pixels agree", 64 * 48);
+    // Rendered with the same numbers: paths part only where a ray's rounding differs.
+    let pool = thread_pool(0).unwrap();
+    let render = |s: &Scene| {
+        let integ = Integrator::new(s, 8);
+        pool.install(|| {
+            render_frame_independent(&integ, &s.camera(0, 64, 48), 0, 8, 11, false, &|_| {})
+        })
+        .pixels
+    };
+    let (pa, pb) = (render(&a), render(&b));
+    let close = pa
+        .iter()
+        .zip(&pb)
+        .filter(|(x, y)| (**x - **y).abs().max_element() <= 1e-3 * y.max_element().max(1.0))
+        .count();
+    assert!(
+        close as f64 >= 0.97 * pa.len() as f64,
+        "{close} of {} pixels agree",
+        pa.len()
+    );
+    let mean = |p: &[Vec3]| p.iter().sum::<Vec3>() / p.len() as f32;
+    let (ma, mb) = (mean(&pa), mean(&pb));
+    let exact = pa.iter().zip(&pb).filter(|(x, y)| x == y).count();
+    eprintln!(
+        "rendered: {exact} of {} pixels identical, {close} within 1e-3, means {ma} and {mb}",
+        pa.len()
+    );
+    assert!(((ma - mb) / mb).abs().max_element() < 2e-3, "{ma} vs {mb}");
+    // A placement is part of the scene's identity.
+    let moved = inst_dir.path().join("s.toml");
+    let hash = || {
+        scene_and_build_hashes(&Scene::load(moved.to_str().unwrap(), &device).unwrap())
+            .unwrap()
+            .0
+    };
+    let before = hash();
+    std::fs::write(&moved, toml(&objects.replace("0.9", "0.91"))).unwrap();
+    assert_ne!(before, hash());
+}
+
+#[test]
+fn an_emitting_object_placed_twice_is_two_lights() {
+    let d = tempfile::tempdir().unwrap();
+    let lamp = "mtllib s.mtl\nv -0.2 0 -0.2\nv 0.2 0 -0.2\nv 0.2 0 0.2\nv -0.2 0 0.2\n\
+                usemtl light\nf 1 2 3 4\n";
+    let floor = "mtllib s.mtl\nv -4 -0.5 -4\nv 4 -0.5 -4\nv 4 -0.5 4\nv -4 -0.5 4\n\
+                 usemtl floor\nf 1 4 3 2\n";
+    let objects = "[[object]]\nobj = \"floor.obj\"\n\
+                   [[object]]\nobj = \"lamp.obj\"\ntranslate = [-1, 2, 0]\n\
+                   [[object]]\nobj = \"lamp.obj\"\ntranslate = [1, 2, 0]\n";
+    let path = write(
+        d.path(),
+        &[
+            ("lamp.obj", lamp),
+            ("floor.obj", floor),
+            (
+                "s.mtl",
+                "newmtl light\nKe 5 5 5\nnewmtl floor\nKd 0.5 0.5 0.5\n",
+            ),
+            (
+                "s.toml",
+                &toml(objects).replace("[environment]\nradiance = [0.6, 0.7, 0.9]\n", ""),
+            ),
+        ],
+    );
+    let device = Device::new().unwrap();
+    let s = Scene::load(&path, &device).unwrap();
+    assert!(s.instances.is_empty() && s.prototypes.is_empty());
+    assert_eq!(s.lights.tris.len(), 4);
+    // Both lamps face down (their quads wind clockwise seen from above): a point below sees
+    // both.
+    let below = Vec3::new(0.0, -0.5, 0.0);
+    let mut lit = [false; 2];
+    for k in 0..256 {
+        let u = ((k as f32 + 0.5) / 256.0, 0.5);
+        if let Some(ls) = s.sample_light(below, u.0, Vec2::new(u.1, 0.3)) {
+            if ls.le != Vec3::ZERO {
+                lit[(ls.p.x > 0.0) as usize] = true;
+            }
+        }
+    }
+    assert_eq!(lit, [true, true]);
+}
+
+#[test]
+fn object_tables_are_checked() {
+    let d = tempfile::tempdir().unwrap();
+    let floor = "v -4 -0.5 -4\nv 4 -0.5 -4\nv 4 -0.5 4\nv -4 -0.5 4\nf 1 4 3 2\n";
+    std::fs::write(d.path().join("floor.obj"), floor).unwrap();
+    let device = Device::new().unwrap();
+    let dir = d.path().display().to_string();
+    let rest = "frames = 1\nresolution = [16, 12]\n[environment]\nradiance = [1.0, 1.0, 1.0]\n\
+                [[keyframe]]\nframe = 0\nposition = [0.0, 1.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\n\
+                up = [0.0, 1.0, 0.0]\nfov = 45.0\n";
+    // (top-level keys, tables after the rest): the tables start at line 11.
+    for (top, tables, want) in [
+        (
+            "obj = \"floor.obj\"\n",
+            "[[object]]\nobj = \"floor.obj\"",
+            "give either obj or [[object]] tables, not both".to_string(),
+        ),
+        (
+            "",
+            "",
+            "no obj and no [[object]]: the scene has no geometry".to_string(),
+        ),
+        (
+            "",
+            "[[object]]\nobj = \"nope.obj\"",
+            format!("line 12: object 'nope.obj': OBJ '{dir}/nope.obj': no such file"),
+        ),
+        (
+            "",
+            "[[object]]\nobj = \"floor.obj\"\nscale = [1, 0, 1]",
+            "line 12: object 'floor.obj': scale has a zero".to_string(),
+        ),
+        (
+            "",
+            "[[object]]\nobj = \"floor.obj\"\nshear = 1.0",
+            "unknown field `shear`".to_string(),
+        ),
+    ] {
+        let text = format!("{top}{rest}{tables}\n");
+        let geometry = tables;
+        let p = d.path().join("s.toml");
+        std::fs::write(&p, &text).unwrap();
+        let e = match Scene::load(p.to_str().unwrap(), &device) {
+            Ok(_) => panic!("{geometry:?} loaded"),
+            Err(e) => format!("{e:#}"),
+        };
+        assert!(e.contains(&want), "{geometry:?}: {e}\nwant: {want}\n{text}");
+    }
+}
