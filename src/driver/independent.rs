@@ -53,7 +53,7 @@ pub fn render_frame_independent(
                     let pixel = y * w + x;
                     let mut sum = Vec3::ZERO;
                     for s in 0..spp {
-                        let mut sampler = Sampler::new(seed, frame, pixel, s);
+                        let mut sampler = Sampler::stratified(seed, frame, pixel, 0, s);
                         let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                         let v = integrator.sample_pixel(cam, r, &mut sampler, &mut t);
                         // A NaN or infinite sample is dropped and counted, never written.

@@ -430,7 +430,7 @@ fn eye_rays(scene: &Scene, cam: &Camera, frame: u32, spp: u32, seed: u64) -> u64
                 for x in x0..x1 {
                     let pixel = y * cam.width + x;
                     for s in 0..spp {
-                        let mut sampler = Sampler::new(seed, frame, pixel, s);
+                        let mut sampler = Sampler::stratified(seed, frame, pixel, 0, s);
                         let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                         let ray = Ray::new(cam.eye, cam.direction(r));
                         if let Some(hit) = scene.geometry.intersect1(&ray) {
@@ -455,7 +455,7 @@ fn first_hits(integrator: &Integrator, cam: &Camera, frame: u32, seed: u64) -> V
             for y in y0..y1 {
                 for x in x0..x1 {
                     let pixel = y * cam.width + x;
-                    let mut sampler = Sampler::new(seed, frame, pixel, 0);
+                    let mut sampler = Sampler::stratified(seed, frame, pixel, 0, 0);
                     let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                     let dir = cam.direction(r);
                     if let Some(fh) = integrator.trace_first_hit(cam.eye, dir, &mut sampler, &mut t)

@@ -146,6 +146,7 @@ fn shade_eye(
     } = scratch;
     hits.clear();
     escapes.clear();
+    let split_streams = group[m].film.layout.norm.folds() >= 2 && group[m].split;
     for y in y0..y1 {
         for x in x0..x1 {
             let pixel = y * w + x;
@@ -156,7 +157,14 @@ fn shade_eye(
                 // Sample index: the frame's position in the group keeps each group's samples of a
                 // frame independent; with one frame per group this is the independent tracer's.
                 let index = first_index + s;
-                let mut sampler = Sampler::new(p.seed, native_frame, pixel, index);
+                // A stream of stratified samples per group (the groups' samples of a frame stay
+                // independent) and, for the control variate, per fold of the sample index, so
+                // that its two folds are independent samplings (docs/sampler.md).
+                let mut sampler = if split_streams {
+                    Sampler::stratified(p.seed, native_frame, pixel, 2 * first_index + s % 2, s / 2)
+                } else {
+                    Sampler::stratified(p.seed, native_frame, pixel, first_index, s)
+                };
                 let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                 let dir = cam_m.direction(r);
                 match integrator.trace_first_hit(cam_m.eye, dir, &mut sampler, tally) {
