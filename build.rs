@@ -7,6 +7,7 @@ fn main() {
     println!("cargo:rerun-if-changed=build.rs");
     println!("cargo:rerun-if-env-changed=REFRAME_EMBREE_LIB_DIR");
     link_embree();
+    locate_oidn();
     build_oiio_bridge();
 }
 
@@ -42,6 +43,17 @@ fn link_embree() {
     println!("cargo:rustc-link-search=native={}", dir.display());
     if !is_default_lib_dir(dir) {
         println!("cargo:rustc-link-arg=-Wl,-rpath,{}", dir.display());
+    }
+}
+
+/// Open Image Denoise is opened at run time (`image::oidn`), not linked: tell the code where
+/// `setup.sh` unpacked it, if it did.
+fn locate_oidn() {
+    let manifest = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
+    let dir = manifest.join(".deps/oidn/lib");
+    println!("cargo:rerun-if-changed={}", dir.display());
+    if dir.join("libOpenImageDenoise.so.2").exists() {
+        println!("cargo:rustc-env=REFRAME_OIDN_DIR={}", dir.display());
     }
 }
 

@@ -3,6 +3,8 @@
 #   - Debian packages: OpenImageIO (headers and library), libclang (bindgen), pkg-config, g++;
 #   - Embree 4: the system's libembree4.so.4 if there is one, otherwise the Embree 4.4.0 runtime
 #     shipped in the PyPI wheel embreex==4.4.0.post1 (pinned, sha256-checked), unpacked into .deps/;
+#   - Open Image Denoise 2.5.1 (for --denoise; Debian 12 has no package): its CPU runtime from the
+#     PyPI wheel pyoidn==2.5.1.0 (pinned, sha256-checked), unpacked into .deps/oidn/lib;
 #   - with --tests, also what the test suite needs beyond that: Slurm (slurmctld, slurmd,
 #     slurm-client) and munge, for the one-node cluster of tests/slurm.rs. Their services are
 #     installed without being started or enabled: the test runs its own daemons.
@@ -21,6 +23,9 @@ EMBREE_WHEEL=embreex-4.4.0.post1-cp311-cp311-manylinux_2_27_x86_64.manylinux_2_2
 EMBREE_SHA256=2cd0f7d5c6342e6247e31f700761689cae7829454d8c6de0c41e62124a023e1f
 EMBREE_SONAME=libembree4-4aef3270.so.4
 DEPS=.deps/embree4
+OIDN_WHEEL=pyoidn-2.5.1.0-py3-none-manylinux2014_x86_64.whl
+OIDN_SHA256=32ad13368f8de1ef63001942ad05b02a00cd732d1206d97f352d3a3f606d823e
+OIDN_DEPS=.deps/oidn
 
 say() { echo "setup: $*" >&2; }
 
@@ -61,26 +66,24 @@ if [ ${#missing[@]} -gt 0 ]; then
 fi
 
 # --- Embree 4 --------------------------------------------------------------------------------
-if ldconfig -p 2>/dev/null | grep -q 'libembree4\.so\.4 '; then
-  exit 0  # the system's Embree 4; build.rs finds it
-fi
-if [ -f "$DEPS/lib/.sha256" ] && [ "$(cat "$DEPS/lib/.sha256")" = "$EMBREE_SHA256" ] \
-   && [ -e "$DEPS/lib/$EMBREE_SONAME" ]; then
-  exit 0  # already unpacked
-fi
-say "fetching the Embree 4.4.0 runtime (PyPI wheel embreex==4.4.0.post1)"
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
-if ! python3 -m pip --version >/dev/null 2>&1; then
-  say "installing pip"
-  DEBIAN_FRONTEND=noninteractive ${SUDO:-} apt-get install -y -qq --no-install-recommends python3-pip >/dev/null
-fi
-python3 -m pip download --quiet --no-deps --only-binary=:all: --python-version 3.11 \
-  --implementation cp --platform manylinux_2_28_x86_64 -d "$tmp" embreex==4.4.0.post1
-echo "$EMBREE_SHA256  $tmp/$EMBREE_WHEEL" | sha256sum --check --status \
-  || { say "sha256 mismatch for $EMBREE_WHEEL"; exit 1; }
-rm -rf "$DEPS" && mkdir -p "$DEPS/lib"
-python3 - "$tmp/$EMBREE_WHEEL" "$DEPS/lib" <<'PY'
+embree() {
+  if ldconfig -p 2>/dev/null | grep -q 'libembree4\.so\.4 '; then
+    return 0  # the system's Embree 4; build.rs finds it
+  fi
+  if [ -f "$DEPS/lib/.sha256" ] && [ "$(cat "$DEPS/lib/.sha256")" = "$EMBREE_SHA256" ] \
+     && [ -e "$DEPS/lib/$EMBREE_SONAME" ]; then
+    return 0  # already unpacked
+  fi
+  say "fetching the Embree 4.4.0 runtime (PyPI wheel embreex==4.4.0.post1)"
+  need_pip
+  local tmp
+  tmp=$(mktemp -d)
+  python3 -m pip download --quiet --no-deps --only-binary=:all: --python-version 3.11 \
+    --implementation cp --platform manylinux_2_28_x86_64 -d "$tmp" embreex==4.4.0.post1
+  echo "$EMBREE_SHA256  $tmp/$EMBREE_WHEEL" | sha256sum --check --status \
+    || { say "sha256 mismatch for $EMBREE_WHEEL"; exit 1; }
+  rm -rf "$DEPS" && mkdir -p "$DEPS/lib"
+  python3 - "$tmp/$EMBREE_WHEEL" "$DEPS/lib" <<'PY'
 import sys, zipfile, os
 whl, dest = sys.argv[1], sys.argv[2]
 with zipfile.ZipFile(whl) as z:
@@ -91,6 +94,54 @@ with zipfile.ZipFile(whl) as z:
                 f.write(z.read(n))
             os.chmod(p, 0o755)
 PY
-ln -sf "$EMBREE_SONAME" "$DEPS/lib/libembree4.so"
-echo "$EMBREE_SHA256" > "$DEPS/lib/.sha256"
-say "Embree 4 runtime in $DEPS/lib"
+  ln -sf "$EMBREE_SONAME" "$DEPS/lib/libembree4.so"
+  echo "$EMBREE_SHA256" > "$DEPS/lib/.sha256"
+  say "Embree 4 runtime in $DEPS/lib"
+  rm -rf "$tmp"
+}
+
+# --- Open Image Denoise ----------------------------------------------------------------------
+# The CPU runtime only: the library, its core, its CPU device module and TBB (the wheel's GPU
+# modules are left out; the library loads the device modules it finds beside its core).
+oidn() {
+  if [ -f "$OIDN_DEPS/lib/.sha256" ] && [ "$(cat "$OIDN_DEPS/lib/.sha256")" = "$OIDN_SHA256" ] \
+     && [ -e "$OIDN_DEPS/lib/libOpenImageDenoise.so.2" ]; then
+    return 0  # already unpacked
+  fi
+  say "fetching the Open Image Denoise 2.5.1 runtime (PyPI wheel pyoidn==2.5.1.0)"
+  need_pip
+  local tmp
+  tmp=$(mktemp -d)
+  python3 -m pip download --quiet --no-deps --only-binary=:all: \
+    --platform manylinux2014_x86_64 -d "$tmp" pyoidn==2.5.1.0
+  echo "$OIDN_SHA256  $tmp/$OIDN_WHEEL" | sha256sum --check --status \
+    || { say "sha256 mismatch for $OIDN_WHEEL"; rm -rf "$tmp"; exit 1; }
+  rm -rf "$OIDN_DEPS" && mkdir -p "$OIDN_DEPS/lib"
+  python3 - "$tmp/$OIDN_WHEEL" "$OIDN_DEPS/lib" <<'PY'
+import sys, zipfile, os
+whl, dest = sys.argv[1], sys.argv[2]
+keep = ["libOpenImageDenoise.so.2.5.1", "libOpenImageDenoise_core.so.2.5.1",
+        "libOpenImageDenoise_device_cpu.so.2.5.1", "libtbb.so.12.19"]
+with zipfile.ZipFile(whl) as z:
+    for name in keep:
+        p = os.path.join(dest, name)
+        with open(p, "wb") as f:
+            f.write(z.read("pyoidn/oidn/lib/" + name))
+        os.chmod(p, 0o755)
+PY
+  ln -sf libOpenImageDenoise.so.2.5.1 "$OIDN_DEPS/lib/libOpenImageDenoise.so.2"
+  ln -sf libtbb.so.12.19 "$OIDN_DEPS/lib/libtbb.so.12"
+  echo "$OIDN_SHA256" > "$OIDN_DEPS/lib/.sha256"
+  rm -rf "$tmp"
+  say "Open Image Denoise runtime in $OIDN_DEPS/lib"
+}
+
+need_pip() {
+  if ! python3 -m pip --version >/dev/null 2>&1; then
+    say "installing pip"
+    DEBIAN_FRONTEND=noninteractive ${SUDO:-} apt-get install -y -qq --no-install-recommends python3-pip >/dev/null
+  fi
+}
+
+embree
+oidn

@@ -151,6 +151,14 @@ pub struct RenderArgs {
     /// Write EXR pixels as 32-bit float instead of half.
     #[arg(long)]
     pub exr_float: bool,
+    /// Denoise every frame with Intel Open Image Denoise (its RT filter, HDR, guided by albedo
+    /// and normal images of the first hits) before writing it; any method
+    #[arg(long)]
+    pub denoise: bool,
+    /// With --denoise, also keep the undenoised radiance and the guides as EXR layers
+    /// (raw.R/G/B, albedo.R/G/B, normal.X/Y/Z)
+    #[arg(long, requires = "denoise")]
+    pub denoise_layers: bool,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Worker threads (0: one per core).

@@ -153,6 +153,11 @@ fn run(cli: Cli) -> Result<()> {
                 adaptive: a.adaptive,
                 chunk: a.chunk,
                 interrupt: Some(interrupt),
+                denoise: match (a.denoise, a.denoise_layers) {
+                    (false, _) => None,
+                    (true, false) => Some(driver::denoise::Layers::None),
+                    (true, true) => Some(driver::denoise::Layers::RawAndGuides),
+                },
                 out,
             };
             let stats = driver::render(&scene, &opts)?;

@@ -17,6 +17,7 @@
 //! println!("{} rays", stats.rays_total());
 //! # anyhow::Ok(())
 //! ```
+pub mod denoise;
 pub mod groups;
 pub mod guard;
 pub mod independent;
@@ -101,6 +102,12 @@ fn run_key(scene: &Scene, opts: &RenderOptions, plan: &Plan) -> Result<RunKey> {
         aov: opts.aov,
         adaptive: opts.adaptive.unwrap_or(0.0),
         exr_float: opts.exr_float,
+        denoise: match opts.denoise {
+            None => "off",
+            Some(denoise::Layers::None) => "rgb",
+            Some(denoise::Layers::RawAndGuides) => "rgb+layers",
+        }
+        .into(),
     })
 }
 
@@ -165,6 +172,12 @@ pub fn render_frames(
 pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     let startup_rss_bytes = crate::util::mem::rss_bytes();
     let plan = opts.validate(scene)?;
+    // The denoiser is loaded before anything is written or traced: a missing library is one
+    // line at start, not an error after the first frame.
+    let denoiser = match opts.denoise {
+        Some(_) => Some(crate::image::oidn::Denoiser::load(opts.threads)?),
+        None => None,
+    };
     let (out, created) = opts.check_files(&plan)?;
     // One render per output, and never over its own inputs.
     let lock = lock_path(&opts.out, opts.chunk);
@@ -237,8 +250,24 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         },
         out,
     );
-    let completed =
-        pool.install(|| frame_loop(&integrator, opts, &plan, &mut run, active, &mut sink))?;
+    let mut denoise_seconds = 0.0;
+    let completed = match (denoiser, opts.denoise) {
+        (Some(denoiser), Some(layers)) => {
+            let mut dsink = denoise::DenoiseSink {
+                inner: &mut sink,
+                denoiser,
+                integrator: &integrator,
+                seed: opts.seed,
+                layers,
+                seconds: 0.0,
+            };
+            let done =
+                pool.install(|| frame_loop(&integrator, opts, &plan, &mut run, active, &mut dsink));
+            denoise_seconds = dsink.seconds;
+            done?
+        }
+        _ => pool.install(|| frame_loop(&integrator, opts, &plan, &mut run, active, &mut sink))?,
+    };
     if !completed {
         return Err(Interrupted {
             checkpoint: run.ckpt.dir().map(Path::to_path_buf),
@@ -266,6 +295,8 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         outputs,
         (run.ckpt.written, run.ckpt.spent.as_secs_f64()),
     );
+    let mut stats = stats;
+    stats.denoise_seconds = denoise_seconds;
     if let Some(p) = &opts.stats {
         write_json(p, &stats)?;
     }

@@ -48,6 +48,9 @@ pub struct RenderOptions {
     pub chunk: Option<Chunk>,
     /// Set (by a signal handler) to stop at the next group or frame, after a checkpoint.
     pub interrupt: Option<Arc<AtomicBool>>,
+    /// Denoise every frame with Open Image Denoise before it is written (`driver::denoise`),
+    /// with these extra layers; `None`: frames as rendered.
+    pub denoise: Option<super::denoise::Layers>,
 }
 
 impl Default for RenderOptions {
@@ -73,6 +76,7 @@ impl Default for RenderOptions {
             adaptive: None,
             chunk: None,
             interrupt: None,
+            denoise: None,
         }
     }
 }
@@ -208,6 +212,12 @@ impl RenderOptions {
                 bail!("--adaptive {t}: the target share of n_f n_r must be in (0, 1]");
             }
         }
+        if self.denoise.is_some() && self.chunk.is_some() {
+            bail!(
+                "--denoise with --chunk: a chunk writes no frames to denoise, and `reframe merge` \
+                 does not denoise; render without --chunk to denoise"
+            );
+        }
         if !self.method.reuses() && self.window != 1 {
             bail!(
                 "--window {}: only the reuse methods (havran, mis, mis-exact, mis-cv) take a window",
@@ -334,6 +344,13 @@ impl RenderOptions {
         } else if self.aov && !out.is_exr() {
             w.push(format!(
                 "--aov: {} holds RGB only; the extra channels were not written (use .exr)",
+                self.out
+            ));
+        }
+        if self.denoise == Some(super::denoise::Layers::RawAndGuides) && !out.is_exr() {
+            w.push(format!(
+                "--denoise-layers: {} holds RGB only; the raw and guide layers were not written \
+                 (use .exr)",
                 self.out
             ));
         }

@@ -50,6 +50,9 @@ pub struct RenderStats {
     /// Checkpoints written by this process, and the seconds spent writing them.
     pub checkpoints_written: u32,
     pub checkpoint_seconds: f64,
+    /// Seconds this process spent denoising frames (`--denoise`: the guide pass and Open Image
+    /// Denoise), part of `seconds` and of each frame's time; 0 without `--denoise`.
+    pub denoise_seconds: f64,
 }
 
 impl RenderStats {
@@ -103,6 +106,7 @@ impl RenderStats {
             units: [*plan.units.start(), *plan.units.end()],
             checkpoints_written: checkpoints.0,
             checkpoint_seconds: checkpoints.1,
+            denoise_seconds: 0.0,
         }
     }
 

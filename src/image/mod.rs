@@ -16,6 +16,7 @@
 //! ```
 
 mod bridge;
+pub mod oidn;
 mod texture;
 pub use texture::{TextureId, Textures, MAX_TEXELS};
 

@@ -83,6 +83,10 @@ pub struct RunKey {
     pub adaptive: f32,
     /// EXR pixels as float: a resume or a merge must not mix half and float frames.
     pub exr_float: bool,
+    /// `--denoise`: "off", "rgb" or "rgb+layers" (a resume must not mix denoised frames with
+    /// raw ones).
+    #[serde(default)]
+    pub denoise: String,
 }
 
 impl RunKey {

@@ -834,6 +834,7 @@ mod tests {
             aov: false,
             adaptive: 0.0,
             exr_float: false,
+            denoise: "off".into(),
         };
         let mut t = Trailer::new(key.clone(), None, &(0..=7), "o_####.exr".into(), false);
         t.next_unit = 3;

@@ -1,0 +1,194 @@
+//! `--denoise`: Open Image Denoise on every frame (loaded at run time from the runtime that
+//! `setup.sh` unpacks). The denoised furnace is nearer its exact radiance than the raw frame and
+//! keeps its mean; the raw layer of a denoised render is the undenoised render, bit for bit; PNG
+//! output works; a missing library is one line before anything is written.
+use reframe::driver::denoise::Layers;
+use reframe::driver::{render, RenderOptions};
+use reframe::embree::Device;
+use reframe::image::{read_image, Image};
+use reframe::reuse::Method;
+use reframe::scene::Scene;
+use std::path::Path;
+use std::process::Command;
+
+fn channel(img: &Image, name: &str) -> Vec<f32> {
+    let c = img
+        .channel_index(name)
+        .unwrap_or_else(|| panic!("no channel {name} in {:?}", img.channels));
+    let n = img.channels.len();
+    img.data.iter().skip(c).step_by(n).copied().collect()
+}
+
+fn rgb(img: &Image, prefix: &str) -> Vec<f32> {
+    let (r, g, b) = (
+        channel(img, &format!("{prefix}R")),
+        channel(img, &format!("{prefix}G")),
+        channel(img, &format!("{prefix}B")),
+    );
+    (0..r.len()).flat_map(|i| [r[i], g[i], b[i]]).collect()
+}
+
+fn render_to(scene: &Scene, dir: &Path, name: &str, opts: RenderOptions) -> Image {
+    let out = dir.join(format!("{name}_####.exr"));
+    let opts = RenderOptions {
+        out: out.to_str().unwrap().into(),
+        exr_float: true,
+        progress: false,
+        ..opts
+    };
+    let stats = render(scene, &opts).unwrap();
+    if opts.denoise.is_some() {
+        assert!(stats.denoise_seconds > 0.0);
+        assert!(stats.denoise_seconds < stats.seconds);
+    } else {
+        assert_eq!(stats.denoise_seconds, 0.0);
+    }
+    let f = opts.frames.as_ref().map_or(0, |r| *r.start());
+    read_image(&dir.join(format!("{name}_{f:04}.exr"))).unwrap()
+}
+
+#[test]
+fn denoising_the_furnace_brings_it_nearer_one_and_keeps_its_mean() {
+    let device = Device::new().unwrap();
+    let scene = Scene::load("furnace", &device).unwrap();
+    let d = tempfile::tempdir().unwrap();
+    let img = render_to(
+        &scene,
+        d.path(),
+        "f",
+        RenderOptions {
+            spp: 2,
+            frames: Some(1..=1),
+            denoise: Some(Layers::RawAndGuides),
+            ..RenderOptions::default()
+        },
+    );
+    let (den, raw) = (rgb(&img, ""), rgb(&img, "raw."));
+    let rms = |v: &[f32]| {
+        (v.iter().map(|x| (x - 1.0).powi(2) as f64).sum::<f64>() / v.len() as f64).sqrt()
+    };
+    let mean = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64;
+    eprintln!(
+        "furnace at 2 spp: rms error raw {:.4}, denoised {:.4}; means {:.4} and {:.4}",
+        rms(&raw),
+        rms(&den),
+        mean(&raw),
+        mean(&den)
+    );
+    assert!(rms(&raw) > 0.05, "the raw frame is not noisy: no subject");
+    assert!(
+        rms(&den) < 0.5 * rms(&raw),
+        "{} vs {}",
+        rms(&den),
+        rms(&raw)
+    );
+    assert!((mean(&den) / mean(&raw) - 1.0).abs() < 0.01);
+    // The guides: a closed diffuse sphere, albedo Kd = 0.5 everywhere, unit normals.
+    let albedo = rgb(&img, "albedo.");
+    assert!(albedo.iter().all(|&a| (a - 0.5).abs() < 1e-6));
+    let (nx, ny, nz) = (
+        channel(&img, "normal.X"),
+        channel(&img, "normal.Y"),
+        channel(&img, "normal.Z"),
+    );
+    for i in 0..nx.len() {
+        let l = (nx[i] * nx[i] + ny[i] * ny[i] + nz[i] * nz[i]).sqrt();
+        assert!(l > 0.95 && l <= 1.0 + 1e-5, "normal length {l}");
+    }
+}
+
+#[test]
+fn a_denoised_render_differs_from_a_plain_one_only_in_its_rgb() {
+    let device = Device::new().unwrap();
+    let scene = Scene::load("vase", &device).unwrap();
+    let d = tempfile::tempdir().unwrap();
+    for method in [Method::Independent, Method::MisCv] {
+        let base = RenderOptions {
+            method,
+            spp: 2,
+            window: if method == Method::Independent { 1 } else { 3 },
+            frames: Some(20..=22),
+            resolution: Some((64, 48)),
+            aov: method.reuses(),
+            ..RenderOptions::default()
+        };
+        let plain = render_to(
+            &scene,
+            d.path(),
+            &format!("p{}", method.name()),
+            base.clone(),
+        );
+        let den = render_to(
+            &scene,
+            d.path(),
+            &format!("d{}", method.name()),
+            RenderOptions {
+                denoise: Some(Layers::RawAndGuides),
+                ..base
+            },
+        );
+        assert_eq!(rgb(&den, "raw."), rgb(&plain, ""), "{method:?}");
+        for c in plain.channels.iter().skip(3) {
+            assert_eq!(channel(&den, c), channel(&plain, c), "{method:?} {c}");
+        }
+        assert_ne!(
+            rgb(&den, ""),
+            rgb(&plain, ""),
+            "{method:?}: nothing was denoised"
+        );
+        assert!(rgb(&den, "").iter().all(|v| v.is_finite() && *v >= 0.0));
+    }
+}
+
+#[test]
+fn png_output_gets_the_denoised_frame_and_a_missing_library_is_one_line() {
+    let d = tempfile::tempdir().unwrap();
+    let bin = env!("CARGO_BIN_EXE_reframe");
+    let run = |args: &[&str], lib: Option<&str>| {
+        let mut c = Command::new(bin);
+        c.args([
+            "render", "furnace", "--spp", "1", "--frames", "0", "--res", "32x32",
+        ])
+        .args(args);
+        if let Some(l) = lib {
+            c.env("REFRAME_OIDN_LIB", l);
+        }
+        c.output().unwrap()
+    };
+    let png = d.path().join("den_####.png");
+    let o = run(&["--denoise", "--out", png.to_str().unwrap()], None);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let den = read_image(&d.path().join("den_0000.png")).unwrap();
+    let plain_path = d.path().join("plain_####.png");
+    let o = run(&["--out", plain_path.to_str().unwrap()], None);
+    assert!(o.status.success());
+    let plain = read_image(&d.path().join("plain_0000.png")).unwrap();
+    // The furnace is 1 everywhere: noise shows as pixels off white in the 8-bit frame.
+    let off = |img: &Image| img.data.iter().filter(|&&v| v < 0.97).count();
+    assert!(
+        off(&den) < off(&plain) / 2,
+        "{} vs {}",
+        off(&den),
+        off(&plain)
+    );
+    // No library: one line, a failing exit, nothing written (not even the output folder).
+    let out = d.path().join("missing/f_####.exr");
+    let o = run(
+        &["--denoise", "--out", out.to_str().unwrap()],
+        Some("/nonexistent/libOpenImageDenoise.so.2"),
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("cannot load Open Image Denoise"), "{err}");
+    assert!(!d.path().join("missing").exists());
+    // Not a denoiser: the library loads but lacks the API.
+    let o = run(
+        &["--denoise", "--out", out.to_str().unwrap()],
+        Some("libm.so.6"),
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(err.contains("is not Open Image Denoise 2"), "{err}");
+    assert!(!d.path().join("missing").exists());
+}
