@@ -54,6 +54,8 @@ pub struct Denoiser {
     device: Handle,
     /// Where the library was loaded from (for messages and `--stats`).
     pub library: PathBuf,
+    /// The filters of the last frame size.
+    filters: Option<Filters>,
     // Keeps the library mapped while `api`'s pointers are in use; dropped last.
     _lib: Library,
 }
@@ -131,6 +133,7 @@ impl Denoiser {
             api,
             device,
             library,
+            filters: None,
             _lib: lib,
         };
         // SAFETY: a live device; names are NUL-terminated.
@@ -170,8 +173,9 @@ impl Denoiser {
     }
 
     /// Denoise `input.color` with OIDN's `RT` filter in HDR mode, guided by the albedo and
-    /// normal images, which are first denoised themselves (`cleanAux`: OIDN's recommended use
-    /// when the guides are noisy, as a few samples' average of first hits is at edges).
+    /// normal images, declared noise-free (`cleanAux`): they are averages of first hits, which
+    /// vary only across a pixel's footprint (antialiasing), not from sample noise. (Prefiltering
+    /// them, OIDN's advice for noisy guides, would take two more passes of the network.)
     pub fn denoise(&mut self, input: &DenoiseInput) -> Result<Vec<f32>> {
         let (w, h) = (input.width, input.height);
         let n = w * h * 3;
@@ -181,60 +185,73 @@ impl Denoiser {
             ("normal", input.normal),
         ] {
             if v.len() != n {
-                bail!(
-                    "denoise: the {name} image holds {} values, not {n}",
-                    v.len()
-                );
+                bail!("denoise: the {name} image holds {} values, not {n}", v.len());
             }
             if v.iter().any(|x| !x.is_finite()) {
                 bail!("denoise: the {name} image has a NaN or infinite value");
             }
         }
-        // OIDN filters in place where input and output are the same buffer; the inputs are
-        // copied so that the caller's stay as they were.
-        let mut albedo = input.albedo.to_vec();
-        let mut normal = input.normal.to_vec();
-        let mut color = input.color.to_vec();
-        let mut out = vec![0.0f32; n];
-        self.run_filter(w, h, &mut [("albedo", &mut albedo)], None, false)
-            .context("denoising the albedo guide")?;
-        self.run_filter(w, h, &mut [("normal", &mut normal)], None, false)
-            .context("denoising the normal guide")?;
-        self.run_filter(
-            w,
-            h,
-            &mut [
-                ("color", &mut color),
-                ("albedo", &mut albedo),
-                ("normal", &mut normal),
-            ],
-            Some(&mut out),
-            true,
-        )
-        .context("denoising the frame")?;
-        Ok(out)
+        // Filters are expensive to make (their networks are set up for a size): they are kept
+        // for the frame size, over buffers whose addresses they hold.
+        if self.filters.as_ref().is_none_or(|f| (f.w, f.h) != (w, h)) {
+            if let Some(old) = self.filters.take() {
+                self.release(old);
+            }
+            let f = self.make_filters(w, h)?;
+            self.filters = Some(f);
+        }
+        let f = self.filters.as_mut().expect("filters made above");
+        f.color.copy_from_slice(input.color);
+        f.albedo.copy_from_slice(input.albedo);
+        f.normal.copy_from_slice(input.normal);
+        // SAFETY: a committed filter of this device whose images are `f`'s buffers, alive and
+        // not moved since they were set (they are never resized).
+        unsafe { (self.api.execute_filter)(f.beauty) };
+        self.check("denoising the frame")?;
+        Ok(self.filters.as_ref().expect("filters made above").output.clone())
     }
 
-    /// One `RT` filter over `images` (the first is also the output when `output` is `None`).
-    fn run_filter(
-        &mut self,
-        w: usize,
-        h: usize,
-        images: &mut [(&str, &mut Vec<f32>)],
-        output: Option<&mut Vec<f32>>,
-        beauty: bool,
-    ) -> Result<()> {
-        // SAFETY: a live device and filter; every image is a live, exclusively borrowed buffer
-        // of w * h float triples that outlives the filter's execution (the filter is released
-        // before this function returns); names are NUL-terminated.
+    /// The filter of a `w` x `h` frame over buffers of its own.
+    fn make_filters(&mut self, w: usize, h: usize) -> Result<Filters> {
+        let n = w * h * 3;
+        let mut f = Filters {
+            w,
+            h,
+            color: vec![0.0; n],
+            albedo: vec![0.0; n],
+            normal: vec![0.0; n],
+            output: vec![0.0; n],
+            beauty: std::ptr::null_mut(),
+        };
+        let (pa, pn, pc, po) = (
+            f.albedo.as_mut_ptr(),
+            f.normal.as_mut_ptr(),
+            f.color.as_mut_ptr(),
+            f.output.as_mut_ptr(),
+        );
+        f.beauty = self
+            .filter(
+                w,
+                h,
+                &[("color", pc), ("albedo", pa), ("normal", pn), ("output", po)],
+            )
+            .context("setting up Open Image Denoise's filter")?;
+        Ok(f)
+    }
+
+    /// A committed `RT` filter over `images` (name, buffer of `w * h` float triples).
+    fn filter(&self, w: usize, h: usize, images: &[(&str, *mut f32)]) -> Result<Handle> {
+        // SAFETY: a live device; every buffer holds w * h float triples and lives in the
+        // `Filters` that will own the filter (released before the buffers are dropped); names
+        // are NUL-terminated.
         unsafe {
             let filter = (self.api.new_filter)(self.device, c"RT".as_ptr());
             if filter.is_null() {
                 self.check("making the RT filter")?;
                 bail!("Open Image Denoise made no RT filter");
             }
-            let set = |name: &str, buf: *mut f32| {
-                let cname = CString::new(name).expect("no NUL in a filter image name");
+            for (name, buf) in images {
+                let cname = CString::new(*name).expect("no NUL in a filter image name");
                 (self.api.set_shared_filter_image)(
                     filter,
                     cname.as_ptr(),
@@ -246,33 +263,44 @@ impl Denoiser {
                     0,
                     0,
                 );
-            };
-            for (name, buf) in images.iter_mut() {
-                set(name, buf.as_mut_ptr());
             }
-            match output {
-                Some(o) => set("output", o.as_mut_ptr()),
-                None => set("output", images[0].1.as_mut_ptr()),
-            }
-            if beauty {
-                (self.api.set_filter_bool)(filter, c"hdr".as_ptr(), true);
-                (self.api.set_filter_bool)(filter, c"cleanAux".as_ptr(), true);
-            }
+            (self.api.set_filter_bool)(filter, c"hdr".as_ptr(), true);
+            (self.api.set_filter_bool)(filter, c"cleanAux".as_ptr(), true);
             (self.api.commit_filter)(filter);
-            let committed = self.check("setting up the filter");
-            if committed.is_ok() {
-                (self.api.execute_filter)(filter);
+            if let Err(e) = self.check("setting up a filter") {
+                (self.api.release_filter)(filter);
+                return Err(e);
             }
-            (self.api.release_filter)(filter);
-            committed?;
+            Ok(filter)
         }
-        self.check("filtering")
     }
+
+    /// Release `f`'s filters (its buffers go with it).
+    fn release(&self, f: Filters) {
+        if !f.beauty.is_null() {
+            // SAFETY: a filter of this device, released once.
+            unsafe { (self.api.release_filter)(f.beauty) };
+        }
+    }
+}
+
+/// The filters of one frame size and the buffers they read and write.
+struct Filters {
+    w: usize,
+    h: usize,
+    color: Vec<f32>,
+    albedo: Vec<f32>,
+    normal: Vec<f32>,
+    output: Vec<f32>,
+    beauty: Handle,
 }
 
 impl Drop for Denoiser {
     fn drop(&mut self) {
-        // SAFETY: the device was made by `load` and is released once.
+        if let Some(f) = self.filters.take() {
+            self.release(f);
+        }
+        // SAFETY: the device was made by `load` and is released once, after its filters.
         unsafe { (self.api.release_device)(self.device) };
     }
 }
