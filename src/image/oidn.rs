@@ -185,7 +185,10 @@ impl Denoiser {
             ("normal", input.normal),
         ] {
             if v.len() != n {
-                bail!("denoise: the {name} image holds {} values, not {n}", v.len());
+                bail!(
+                    "denoise: the {name} image holds {} values, not {n}",
+                    v.len()
+                );
             }
             if v.iter().any(|x| !x.is_finite()) {
                 bail!("denoise: the {name} image has a NaN or infinite value");
@@ -208,7 +211,12 @@ impl Denoiser {
         // not moved since they were set (they are never resized).
         unsafe { (self.api.execute_filter)(f.beauty) };
         self.check("denoising the frame")?;
-        Ok(self.filters.as_ref().expect("filters made above").output.clone())
+        Ok(self
+            .filters
+            .as_ref()
+            .expect("filters made above")
+            .output
+            .clone())
     }
 
     /// The filter of a `w` x `h` frame over buffers of its own.
@@ -233,7 +241,12 @@ impl Denoiser {
             .filter(
                 w,
                 h,
-                &[("color", pc), ("albedo", pa), ("normal", pn), ("output", po)],
+                &[
+                    ("color", pc),
+                    ("albedo", pa),
+                    ("normal", pn),
+                    ("output", po),
+                ],
             )
             .context("setting up Open Image Denoise's filter")?;
         Ok(f)

@@ -147,6 +147,17 @@ fn shade_eye(
     hits.clear();
     escapes.clear();
     let split_streams = group[m].film.layout.norm.folds() >= 2 && group[m].split;
+    // A frame's native samples in all the groups of a fold are one stratified stream (the
+    // groups of the other fold another), sample `s < spp` of the frame's position `q` in the
+    // group at index `q * spp + s` (with the control variate's two folds, the positions of one
+    // fold are every other one: `(q / 2) * spp + s`), so that the groups' samples of a pixel are
+    // a gapless prefix of the stream.
+    let position = native_frame - g0;
+    let (fold_stream, fold_first) = if cv && n_f > 1 {
+        (g0 % 2, (position / 2) * spp)
+    } else {
+        (0, position * spp)
+    };
     for y in y0..y1 {
         for x in x0..x1 {
             let pixel = y * w + x;
@@ -154,16 +165,20 @@ fn shade_eye(
             films[m].land(pixel as usize, n_p);
             landed_native += n_p as u64;
             for s in 0..n_p {
-                // Sample index: the frame's position in the group keeps each group's samples of a
-                // frame independent; with one frame per group this is the independent tracer's.
+                // Sample index within the group: the frame's position in the group, then `s`.
                 let index = first_index + s;
-                // A stream of stratified samples per group (the groups' samples of a frame stay
-                // independent) and, for the control variate, per fold of the sample index, so
-                // that its two folds are independent samplings (docs/sampler.md).
+                // The fold's stream (above), or, where the control variate folds by the sample
+                // index, a stream per parity of `s`, so that its two folds are independent
+                // samplings (docs/sampler.md).
                 let mut sampler = if split_streams {
                     Sampler::stratified(p.seed, native_frame, pixel, 2 * first_index + s % 2, s / 2)
+                } else if s < spp {
+                    Sampler::stratified(p.seed, native_frame, pixel, fold_stream, fold_first + s)
                 } else {
-                    Sampler::stratified(p.seed, native_frame, pixel, first_index, s)
+                    // An adaptive extra sample: a stream of its own per fold, so that the
+                    // `--spp` samples of every group stay one gapless stratified stream.
+                    let extra = fold_first / spp * (stride - spp) + (s - spp);
+                    Sampler::stratified(p.seed, native_frame, pixel, fold_stream + 1000, extra)
                 };
                 let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                 let dir = cam_m.direction(r);

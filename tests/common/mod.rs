@@ -146,12 +146,41 @@ pub fn par_map<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec
 
 /// Send `sig` (`INT`, `TERM`, `KILL`, ...) to `child`; whether it was still there to receive it.
 pub fn signal(child: &std::process::Child, sig: &str) -> bool {
+    wait_for_handler(child.id(), sig);
     Command::new("kill")
         .args([&format!("-{sig}"), &child.id().to_string()])
         .stderr(Stdio::null())
         .status()
         .unwrap()
         .success()
+}
+
+/// Wait (at most 10 s) until process `pid` catches `sig` (its `SigCgt` mask in
+/// `/proc/<pid>/status`), so that a signal sent right after start, while a loaded machine is
+/// still mapping the binary's libraries, tests the handler and not the default action. Returns
+/// at once for a signal that cannot be caught, or once the process is gone.
+fn wait_for_handler(pid: u32, sig: &str) {
+    let bit = match sig {
+        "HUP" => 1,
+        "INT" => 2,
+        "TERM" => 15,
+        _ => return,
+    };
+    let start = std::time::Instant::now();
+    while start.elapsed() < std::time::Duration::from_secs(10) {
+        let Ok(status) = std::fs::read_to_string(format!("/proc/{pid}/status")) else {
+            return;
+        };
+        let caught = status
+            .lines()
+            .find_map(|l| l.strip_prefix("SigCgt:"))
+            .and_then(|m| u64::from_str_radix(m.trim(), 16).ok());
+        match caught {
+            Some(m) if m & (1 << (bit - 1)) != 0 => return,
+            None => return,
+            _ => std::thread::sleep(std::time::Duration::from_millis(5)),
+        }
+    }
 }
 
 /// The `reframe` command with `args`, ready to run (standard input closed).
