@@ -75,13 +75,9 @@ embree() {
     return 0  # already unpacked
   fi
   say "fetching the Embree 4.4.0 runtime (PyPI wheel embreex==4.4.0.post1)"
-  need_pip
   local tmp
-  tmp=$(mktemp -d)
-  python3 -m pip download --quiet --no-deps --only-binary=:all: --python-version 3.11 \
-    --implementation cp --platform manylinux_2_28_x86_64 -d "$tmp" embreex==4.4.0.post1
-  echo "$EMBREE_SHA256  $tmp/$EMBREE_WHEEL" | sha256sum --check --status \
-    || { say "sha256 mismatch for $EMBREE_WHEEL"; exit 1; }
+  tmp=$(fetch_wheel "$EMBREE_WHEEL" "$EMBREE_SHA256" --python-version 3.11 --implementation cp \
+    --platform manylinux_2_28_x86_64 embreex==4.4.0.post1)
   rm -rf "$DEPS" && mkdir -p "$DEPS/lib"
   python3 - "$tmp/$EMBREE_WHEEL" "$DEPS/lib" <<'PY'
 import sys, zipfile, os
@@ -109,13 +105,8 @@ oidn() {
     return 0  # already unpacked
   fi
   say "fetching the Open Image Denoise 2.5.1 runtime (PyPI wheel pyoidn==2.5.1.0)"
-  need_pip
   local tmp
-  tmp=$(mktemp -d)
-  python3 -m pip download --quiet --no-deps --only-binary=:all: \
-    --platform manylinux2014_x86_64 -d "$tmp" pyoidn==2.5.1.0
-  echo "$OIDN_SHA256  $tmp/$OIDN_WHEEL" | sha256sum --check --status \
-    || { say "sha256 mismatch for $OIDN_WHEEL"; rm -rf "$tmp"; exit 1; }
+  tmp=$(fetch_wheel "$OIDN_WHEEL" "$OIDN_SHA256" --platform manylinux2014_x86_64 pyoidn==2.5.1.0)
   rm -rf "$OIDN_DEPS" && mkdir -p "$OIDN_DEPS/lib"
   python3 - "$tmp/$OIDN_WHEEL" "$OIDN_DEPS/lib" <<'PY'
 import sys, zipfile, os
@@ -141,6 +132,23 @@ need_pip() {
     say "installing pip"
     DEBIAN_FRONTEND=noninteractive ${SUDO:-} apt-get install -y -qq --no-install-recommends python3-pip >/dev/null
   fi
+}
+
+# fetch_wheel WHEEL SHA256 PIP-ARGS...: download the pinned wheel WHEEL (pip download PIP-ARGS)
+# into a new temporary folder, check its sha256 and print the folder; on a mismatch remove it
+# and stop.
+fetch_wheel() {
+  local wheel=$1 sha=$2 tmp
+  shift 2
+  need_pip >&2
+  tmp=$(mktemp -d)
+  python3 -m pip download --quiet --no-deps --only-binary=:all: -d "$tmp" "$@" >&2
+  if ! echo "$sha  $tmp/$wheel" | sha256sum --check --status; then
+    say "sha256 mismatch for $wheel"
+    rm -rf "$tmp"
+    exit 1
+  fi
+  echo "$tmp"
 }
 
 embree

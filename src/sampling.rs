@@ -122,15 +122,20 @@ fn unit(x: u32) -> f32 {
     (x >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
 }
 
+/// The key of a sampler: `salt` (which kind), seed, frame, pixel and `last` (the sample, or the
+/// stream) hashed in turn.
+fn key(salt: u64, seed: u64, frame: u32, pixel: u32, last: u32) -> u64 {
+    let mut h = mix64(seed ^ salt);
+    h = mix64(h ^ frame as u64);
+    h = mix64(h ^ pixel as u64);
+    mix64(h ^ last as u64)
+}
+
 impl Sampler {
     /// Independent numbers for sample `sample` of `pixel` of `frame`.
     pub fn new(seed: u64, frame: u32, pixel: u32, sample: u32) -> Sampler {
-        let mut h = mix64(seed ^ 0x5851_f42d_4c95_7f2d);
-        h = mix64(h ^ frame as u64);
-        h = mix64(h ^ pixel as u64);
-        h = mix64(h ^ sample as u64);
         Sampler {
-            key: h,
+            key: key(0x5851_f42d_4c95_7f2d, seed, frame, pixel, sample),
             dim: 0,
             index_reversed: None,
         }
@@ -139,30 +144,31 @@ impl Sampler {
     /// Sample `index` of stream `stream` of `pixel` of `frame`: stratified with the other
     /// samples of its stream, independent of every other stream.
     pub fn stratified(seed: u64, frame: u32, pixel: u32, stream: u32, index: u32) -> Sampler {
-        let mut h = mix64(seed ^ 0x2545_f491_4f6c_dd1d);
-        h = mix64(h ^ frame as u64);
-        h = mix64(h ^ pixel as u64);
-        h = mix64(h ^ stream as u64);
         Sampler {
-            key: h,
+            key: key(0x2545_f491_4f6c_dd1d, seed, frame, pixel, stream),
             dim: 0,
             index_reversed: Some(index.reverse_bits()),
         }
     }
 
-    /// The seeds of dimension `d`: the index shuffle and two scrambles.
+    /// The hash of dimension `d` of this sample: its independent number, or its seeds.
     #[inline]
-    fn seeds(&self, d: u64) -> (u32, u32, u32) {
-        let h = mix64(self.key ^ d.wrapping_mul(0x9e37_79b9_7f4a_7c15));
-        let g = mix64(h);
-        (h as u32, (h >> 32) as u32, g as u32)
+    fn dim_hash(&self, d: u64) -> u64 {
+        mix64(self.key ^ d.wrapping_mul(0x9e37_79b9_7f4a_7c15))
     }
 
     /// The seeds of 1D dimension `d`: the index shuffle and the scramble.
     #[inline]
     fn seeds2(&self, d: u64) -> (u32, u32) {
-        let h = mix64(self.key ^ d.wrapping_mul(0x9e37_79b9_7f4a_7c15));
+        let h = self.dim_hash(d);
         (h as u32, (h >> 32) as u32)
+    }
+
+    /// The seeds of 2D dimension `d`: those of `seeds2` and the second coordinate's scramble.
+    #[inline]
+    fn seeds(&self, d: u64) -> (u32, u32, u32) {
+        let h = self.dim_hash(d);
+        (h as u32, (h >> 32) as u32, mix64(h) as u32)
     }
 
     /// A uniform number in [0, 1), with 24 bits (every float of that spacing is representable).
@@ -171,10 +177,7 @@ impl Sampler {
         let d = self.dim;
         self.dim += 1;
         match self.index_reversed {
-            None => {
-                let x = mix64(self.key ^ d.wrapping_mul(0x9e37_79b9_7f4a_7c15));
-                (x >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
-            }
+            None => (self.dim_hash(d) >> 40) as f32 * (1.0 / (1u64 << 24) as f32),
             Some(ir) => {
                 // The shuffled index i' = O(i) = rev(lk(rev(i))), then O(vdC(i'), sx), where
                 // vdC(i') = rev(i'), so O(rev(i'), sx) = rev(lk(i', sx)).

@@ -43,11 +43,15 @@ pub fn guides(
 ) -> (Vec<f32>, Vec<f32>) {
     let scene = integrator.scene;
     let cam = scene.camera(frame, w, h);
-    let rows: Vec<(Vec<f32>, Vec<f32>)> = (0..h)
-        .into_par_iter()
-        .map(|y| {
-            let mut albedo = Vec::with_capacity(3 * w as usize);
-            let mut normal = Vec::with_capacity(3 * w as usize);
+    let len = 3 * (w * h) as usize;
+    let (mut albedo, mut normal) = (vec![0.0f32; len], vec![0.0f32; len]);
+    let row = 3 * w as usize;
+    albedo
+        .par_chunks_mut(row)
+        .zip(normal.par_chunks_mut(row))
+        .enumerate()
+        .for_each(|(y, (albedo, normal))| {
+            let y = y as u32;
             for x in 0..w {
                 let pixel = y * w + x;
                 let (mut a, mut n) = (Vec3::ZERO, Vec3::ZERO);
@@ -67,18 +71,11 @@ pub fn guides(
                     }
                 }
                 let k = 1.0 / AUX_SPP as f32;
-                albedo.extend_from_slice(&(a * k).to_array());
-                normal.extend_from_slice(&(n * k).to_array());
+                let at = 3 * x as usize..3 * x as usize + 3;
+                albedo[at.clone()].copy_from_slice(&(a * k).to_array());
+                normal[at].copy_from_slice(&(n * k).to_array());
             }
-            (albedo, normal)
-        })
-        .collect();
-    let mut albedo = Vec::with_capacity(3 * (w * h) as usize);
-    let mut normal = Vec::with_capacity(3 * (w * h) as usize);
-    for (a, n) in rows {
-        albedo.extend(a);
-        normal.extend(n);
-    }
+        });
     (albedo, normal)
 }
 

@@ -174,10 +174,10 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     let plan = opts.validate(scene)?;
     // The denoiser is loaded before anything is written or traced: a missing library is one
     // line at start, not an error after the first frame.
-    let denoiser = match opts.denoise {
-        Some(_) => Some(crate::image::oidn::Denoiser::load(opts.threads)?),
-        None => None,
-    };
+    let denoiser = opts
+        .denoise
+        .map(|layers| crate::image::oidn::Denoiser::load(opts.threads).map(|d| (d, layers)))
+        .transpose()?;
     let (out, created) = opts.check_files(&plan)?;
     // One render per output, and never over its own inputs.
     let lock = lock_path(&opts.out, opts.chunk);
@@ -251,8 +251,8 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         out,
     );
     let mut denoise_seconds = 0.0;
-    let completed = match (denoiser, opts.denoise) {
-        (Some(denoiser), Some(layers)) => {
+    let completed = match denoiser {
+        Some((denoiser, layers)) => {
             let mut dsink = denoise::DenoiseSink {
                 inner: &mut sink,
                 denoiser,
@@ -266,7 +266,9 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
             denoise_seconds = dsink.seconds;
             done?
         }
-        _ => pool.install(|| frame_loop(&integrator, opts, &plan, &mut run, active, &mut sink))?,
+        None => {
+            pool.install(|| frame_loop(&integrator, opts, &plan, &mut run, active, &mut sink))?
+        }
     };
     if !completed {
         return Err(Interrupted {
@@ -284,7 +286,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
             .map(|f| sink.out.path(f).display().to_string())
             .collect(),
     };
-    let stats = RenderStats::new(
+    let mut stats = RenderStats::new(
         &scene.name,
         opts,
         &plan,
@@ -295,7 +297,6 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         outputs,
         (run.ckpt.written, run.ckpt.spent.as_secs_f64()),
     );
-    let mut stats = stats;
     stats.denoise_seconds = denoise_seconds;
     if let Some(p) = &opts.stats {
         write_json(p, &stats)?;

@@ -153,10 +153,11 @@ fn shade_eye(
     // fold are every other one: `(q / 2) * spp + s`), so that the groups' samples of a pixel are
     // a gapless prefix of the stream.
     let position = native_frame - g0;
-    let (fold_stream, fold_first) = if cv && n_f > 1 {
-        (g0 % 2, (position / 2) * spp)
+    // (the fold's stream, the frame's place among the fold's groups)
+    let (fold_stream, slot) = if cv && n_f > 1 {
+        (g0 % 2, position / 2)
     } else {
-        (0, position * spp)
+        (0, position)
     };
     for y in y0..y1 {
         for x in x0..x1 {
@@ -173,11 +174,11 @@ fn shade_eye(
                 let mut sampler = if split_streams {
                     Sampler::stratified(p.seed, native_frame, pixel, 2 * first_index + s % 2, s / 2)
                 } else if s < spp {
-                    Sampler::stratified(p.seed, native_frame, pixel, fold_stream, fold_first + s)
+                    Sampler::stratified(p.seed, native_frame, pixel, fold_stream, slot * spp + s)
                 } else {
                     // An adaptive extra sample: a stream of its own per fold, so that the
                     // `--spp` samples of every group stay one gapless stratified stream.
-                    let extra = fold_first / spp * (stride - spp) + (s - spp);
+                    let extra = slot * (stride - spp) + (s - spp);
                     Sampler::stratified(p.seed, native_frame, pixel, fold_stream + 1000, extra)
                 };
                 let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
