@@ -2,7 +2,7 @@
 //! `main.rs` dispatches them; the checks of what the values mean belong to the library
 //! (`driver::RenderOptions::validate` and the like), so that library and command line agree.
 use clap::{Parser, Subcommand};
-use reframe::eval::compare::Regime;
+use reframe::eval::compare::{Candidate, Regime};
 use reframe::reuse::Method;
 use reframe::state::key::Chunk;
 use std::path::PathBuf;
@@ -84,9 +84,11 @@ pub struct CompareArgs {
     /// Folder for compare.json, compare.csv and the charts (PNG and SVG).
     #[arg(long, default_value = "out/compare")]
     pub out: PathBuf,
-    /// Methods to compare, comma-separated.
-    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Method::Independent, Method::Havran, Method::Mis, Method::MisExact, Method::MisCv])]
-    pub methods: Vec<Method>,
+    /// Methods to compare, comma-separated: independent, havran, mis, mis-exact, mis-cv, each
+    /// optionally with "+oidn" (every measured frame denoised by Open Image Denoise, its time
+    /// charged), e.g. independent,independent+oidn,mis-cv,mis-cv+oidn.
+    #[arg(long, value_delimiter = ',', default_values_t = Method::ALL.map(Candidate::plain))]
+    pub methods: Vec<Candidate>,
     /// Samples per pixel of the independent runs, comma-separated.
     #[arg(long, value_delimiter = ',', default_values_t = [1, 2, 4, 8, 16])]
     pub budgets: Vec<u32>,
@@ -106,6 +108,11 @@ pub struct CompareArgs {
     /// the height).
     #[arg(long, value_parser = parse_crop)]
     pub crop: Option<[u32; 4]>,
+    /// Seeds of the bias images of the "+oidn" methods: the crop frame of each one's strip run
+    /// rendered this many times, its mean minus the reference (bias_<method>.exr, bias.png;
+    /// 0: none).
+    #[arg(long, default_value_t = 4)]
+    pub bias_seeds: u32,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
 }

@@ -307,6 +307,7 @@ fn run(cli: Cli) -> Result<()> {
                 threads: r.threads,
                 seed: a.seed,
                 crop: a.crop,
+                bias_seeds: a.bias_seeds,
                 progress: true,
             };
             let report = compare::compare(&scene, &opts)?;

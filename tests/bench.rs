@@ -181,6 +181,14 @@ fn compare_rejects_bad_settings_before_rendering() {
         (vec!["--frames", "0-99"], "frames 0-23"),
         (vec!["--crop", "30,30,20,20"], "not inside"),
         (vec!["--budgets", "0"], "at least one"),
+        (
+            vec!["--methods", "mis-cv+denoise"],
+            "optionally followed by '+oidn'",
+        ),
+        (
+            vec!["--methods", "independent+oidn", "--bias-seeds", "1"],
+            "at least 2 seeds",
+        ),
     ] {
         let mut a = vec!["compare", "cornell", "--res", "40x40", "--out"];
         a.push(out.to_str().unwrap());

@@ -1,7 +1,8 @@
 //! `--denoise`: Open Image Denoise on every frame (loaded at run time from the runtime that
 //! `setup.sh` unpacks). The denoised furnace is nearer its exact radiance than the raw frame and
 //! keeps its mean; the raw layer of a denoised render is the undenoised render, bit for bit; PNG
-//! output works; a missing library is one line before anything is written.
+//! output works; a missing library is one line before anything is written. `compare` runs
+//! denoised methods beside the plain ones, times their denoising and estimates their bias.
 use reframe::driver::denoise::Layers;
 use reframe::driver::{render, RenderOptions};
 use reframe::embree::Device;
@@ -191,4 +192,109 @@ fn png_output_gets_the_denoised_frame_and_a_missing_library_is_one_line() {
     assert!(!o.status.success());
     assert!(err.contains("is not Open Image Denoise 2"), "{err}");
     assert!(!d.path().join("missing").exists());
+}
+
+#[test]
+fn compare_runs_denoised_methods_with_their_time_and_bias() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("cmp");
+    let cache = d.path().join("cache");
+    let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
+        .args([
+            "compare",
+            "vase",
+            "--res",
+            "64x48",
+            "--frames",
+            "20-24",
+            "--reference-spp",
+            "64",
+            "--methods",
+            "independent,independent+oidn,mis-cv+oidn",
+            "--budgets",
+            "1,2",
+            "--windows",
+            "3",
+            "--reuse-budgets",
+            "1",
+            "--bias-seeds",
+            "3",
+            "--threads",
+            "2",
+        ])
+        .arg("--out")
+        .arg(&out)
+        .arg("--cache")
+        .arg(&cache)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let c: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("compare.json")).unwrap()).unwrap();
+    let runs = c["runs"].as_array().unwrap();
+    let run = |m: &str, spp: u64| {
+        runs.iter()
+            .find(|r| r["method"] == m && r["spp"] == spp)
+            .unwrap_or_else(|| panic!("no {m} run at {spp} spp"))
+    };
+    for spp in [1, 2] {
+        let (plain, den) = (run("independent", spp), run("independent+oidn", spp));
+        assert_eq!(plain["denoise_seconds"], 0.0);
+        let ds = den["denoise_seconds"].as_f64().unwrap();
+        assert!(ds > 0.0 && ds < den["seconds"].as_f64().unwrap(), "{den}");
+        // The denoiser removes most of the error of a 1-2 spp frame (bias included).
+        let (e0, e1) = (
+            plain["relmse"].as_f64().unwrap(),
+            den["relmse"].as_f64().unwrap(),
+        );
+        assert!(e1 < 0.5 * e0, "relMSE {e1} denoised against {e0}");
+    }
+    assert!(run("mis-cv+oidn", 1)["denoise_seconds"].as_f64().unwrap() > 0.0);
+    // Bias: independent's is zero up to the seeds' noise (the estimator itself is tested on known
+    // biases in errors.rs); the denoiser's is part of its error.
+    let bias = c["bias"].as_array().unwrap();
+    let of = |m: &str| {
+        let b = bias
+            .iter()
+            .find(|b| b["method"] == m)
+            .unwrap_or_else(|| panic!("no bias for {m}: {bias:?}"));
+        assert_eq!(b["seeds"], 3);
+        assert!(Path::new(b["image"].as_str().unwrap()).is_file(), "{b}");
+        (
+            b["bias_relmse"].as_f64().unwrap(),
+            b["relmse"].as_f64().unwrap(),
+        )
+    };
+    let (bi, ei) = of("independent");
+    assert!(
+        bi.abs() < 0.15 * ei,
+        "independent: bias {bi} of relMSE {ei}"
+    );
+    let (bd, ed) = of("independent+oidn");
+    assert!(
+        bd.is_finite() && bd < ed,
+        "independent+oidn: bias {bd} of relMSE {ed}"
+    );
+    let (bm, em) = of("mis-cv+oidn");
+    assert!(
+        bm.is_finite() && bm < em,
+        "mis-cv+oidn: bias {bm} of relMSE {em}"
+    );
+    let t = c["denoised_equal_time_seconds"].as_f64().unwrap();
+    assert!(t > c["equal_time_seconds"].as_f64().unwrap());
+    for m in ["independent", "independent+oidn", "mis-cv+oidn"] {
+        assert!(
+            c["denoised_equal_time_flicker"][m].as_f64().unwrap() > 0.0,
+            "{m}"
+        );
+    }
+    assert!(c["equal_time_flicker"].get("independent+oidn").is_none());
+    // (At this size the denoised error barely falls with time, so the fit may have no speed-up.)
+    assert!(c["equal_error_speedup_over_denoised"].is_object());
+    for f in ["bias.png", "crops.png", "flicker_denoised.png"] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    let csv = std::fs::read_to_string(out.join("compare.csv")).unwrap();
+    assert!(csv.lines().next().unwrap().ends_with(",denoise_seconds"));
+    assert!(csv.contains("\nmis-cv+oidn,3,1,"), "{csv}");
 }

@@ -8,8 +8,9 @@ use std::path::Path;
 
 /// One colour per method, in the order independent, havran, mis, mis-exact (Okabe-Ito palette,
 /// readable with colour-blindness).
-pub const COLOURS: [&str; 6] = [
-    "#000000", "#E69F00", "#56B4E9", "#009E73", "#CC79A7", "#D55E00",
+pub const COLOURS: [&str; 10] = [
+    "#000000", "#E69F00", "#56B4E9", "#009E73", "#CC79A7", "#D55E00", "#0072B2", "#882255",
+    "#44AA99", "#999933",
 ];
 
 /// A polyline with markers.

@@ -3,17 +3,21 @@
 use super::bench::{measure_costs, predicted_speedup, Costs};
 use super::chart::{bar_chart, image_strip, write_svg_png, LineChart, Series, COLOURS};
 use super::errors::{
-    errors, loglog_fit, time_for, FrameError, FLICKER_FORMULA, RELMSE_FORMULA, RMSE_FORMULA,
+    bias_estimate, errors, loglog_fit, time_for, FrameError, FLICKER_FORMULA, RELMSE_FORMULA,
+    RMSE_FORMULA,
 };
 use super::reference::{reference, PASSES};
+use crate::driver::denoise::{denoise_frame, Layers};
 use crate::driver::guard::{check_not_inputs, OutputLock};
 use crate::driver::options::{check_max_depth, check_resolution, check_spp, check_threads};
 use crate::driver::{check_frames, progress_bar, render_frames, thread_pool, RenderOptions};
 use crate::film::Developed;
-use crate::image::Image;
+use crate::image::oidn::Denoiser;
+use crate::image::{write_image, Image, Metadata, WriteOptions};
 use crate::integrator::Integrator;
 use crate::reuse::Method;
 use crate::scene::Scene;
+use crate::state::checkpoint::Counters;
 use crate::util::fs::{check_writable_dir, write_atomic, write_json, CreatedDirs};
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
@@ -23,6 +27,77 @@ use std::fmt::Write as _;
 use std::ops::RangeInclusive;
 use std::path::PathBuf;
 use std::time::Instant;
+
+/// A method as `compare` runs it: a rendering method, optionally followed by Open Image Denoise
+/// on every measured frame (`independent+oidn`, `mis-cv+oidn`). Spelled and serialised as
+/// `name()`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Candidate {
+    pub method: Method,
+    pub denoise: bool,
+}
+
+impl Candidate {
+    pub const fn plain(method: Method) -> Candidate {
+        Candidate {
+            method,
+            denoise: false,
+        }
+    }
+
+    pub const fn denoised(method: Method) -> Candidate {
+        Candidate {
+            method,
+            denoise: true,
+        }
+    }
+
+    pub fn name(&self) -> String {
+        if self.denoise {
+            format!("{}+oidn", self.method.name())
+        } else {
+            self.method.name().to_string()
+        }
+    }
+
+    /// Its chart colour: the method's, or for a denoised line one of its own.
+    fn colour(&self) -> &'static str {
+        COLOURS[(self.method as usize + 5 * self.denoise as usize) % COLOURS.len()]
+    }
+}
+
+impl std::fmt::Display for Candidate {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.name())
+    }
+}
+
+impl std::str::FromStr for Candidate {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Candidate, String> {
+        let (base, denoise) = match s.strip_suffix("+oidn") {
+            Some(b) => (b, true),
+            None => (s, false),
+        };
+        match Method::from_name(base) {
+            Some(method) => Ok(Candidate { method, denoise }),
+            None => {
+                let names: Vec<&str> = Method::ALL.iter().map(|m| m.name()).collect();
+                Err(format!(
+                    "'{s}': not a method; expected one of {}, each optionally followed by \
+                     '+oidn' (denoised)",
+                    names.join(", ")
+                ))
+            }
+        }
+    }
+}
+
+impl Serialize for Candidate {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&self.name())
+    }
+}
 
 /// Which frames of a reuse run are measured, and what they are charged.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
@@ -46,7 +121,8 @@ pub struct CompareOptions {
     /// Frames; `None`: 17 frames around the middle of the animation (all of a shorter one).
     pub frames: Option<RangeInclusive<u32>>,
     pub res: Option<(u32, u32)>,
-    pub methods: Vec<Method>,
+    /// Methods, each optionally denoised (`Candidate`).
+    pub methods: Vec<Candidate>,
     /// Samples per pixel of the independent runs.
     pub budgets: Vec<u32>,
     /// Native samples per pixel of the reuse runs.
@@ -62,6 +138,8 @@ pub struct CompareOptions {
     pub seed: u64,
     /// Crop of the strip (x, y, width, height); `None`: a centred square of half the height.
     pub crop: Option<[u32; 4]>,
+    /// Seeds of the bias images of the denoised methods (0: none; otherwise at least 2).
+    pub bias_seeds: u32,
     pub progress: bool,
 }
 
@@ -71,13 +149,7 @@ impl Default for CompareOptions {
             regime: Regime::Steady,
             frames: None,
             res: None,
-            methods: vec![
-                Method::Independent,
-                Method::Havran,
-                Method::Mis,
-                Method::MisExact,
-                Method::MisCv,
-            ],
+            methods: Method::ALL.into_iter().map(Candidate::plain).collect(),
             budgets: vec![1, 2, 4, 8, 16],
             reuse_budgets: vec![1, 2],
             windows: vec![3, 7, 17, 33],
@@ -88,6 +160,7 @@ impl Default for CompareOptions {
             threads: 0,
             seed: 0,
             crop: None,
+            bias_seeds: 4,
             progress: true,
         }
     }
@@ -96,11 +169,15 @@ impl Default for CompareOptions {
 /// One run of `compare`.
 #[derive(Clone, Debug, Serialize)]
 pub struct Run {
-    pub method: Method,
+    /// The method's name, `+oidn` when denoised.
+    pub method: Candidate,
     pub window: u32,
     pub spp: u32,
-    /// The time charged to the measured frames (see `Regime`); the fits use it.
+    /// The time charged to the measured frames (see `Regime`), their denoising included; the
+    /// fits use it.
     pub seconds: f64,
+    /// Of `seconds`, the time spent denoising the measured frames (guides included).
+    pub denoise_seconds: f64,
     /// The whole run's time, and the frames it rendered.
     pub run_seconds: f64,
     pub rendered_frames: [u32; 2],
@@ -132,6 +209,9 @@ pub struct CompareReport {
     pub runs: Vec<Run>,
     /// Per method, per window: independent's time over the method's time at equal relMSE.
     pub equal_error_speedup: BTreeMap<String, BTreeMap<String, f64>>,
+    /// Per denoised method, per window: `independent+oidn`'s time over the method's time at
+    /// equal relMSE (when `independent+oidn` ran).
+    pub equal_error_speedup_over_denoised: BTreeMap<String, BTreeMap<String, f64>>,
     pub costs: Costs,
     /// `mis-exact` per window: eq. 16 with the measured costs, and the same-sample speed-up
     /// measured from the runs' times.
@@ -140,11 +220,43 @@ pub struct CompareReport {
     /// The time of equal-time comparisons and each method's flicker there (fitted).
     pub equal_time_seconds: f64,
     pub equal_time_flicker: BTreeMap<String, f64>,
+    /// Each method's relMSE at that time (fitted), at its widest window. Both maps hold the
+    /// undenoised methods only: a denoised frame costs more than the cheapest runs.
+    pub equal_time_relmse: BTreeMap<String, f64>,
+    /// With denoised methods: their equal time (the geometric mean of `independent+oidn`'s
+    /// times, else of all denoised runs'), and every method's flicker and relMSE there (fitted,
+    /// widest window).
+    pub denoised_equal_time_seconds: Option<f64>,
+    pub denoised_equal_time_flicker: BTreeMap<String, f64>,
+    pub denoised_equal_time_relmse: BTreeMap<String, f64>,
+    /// The bias images of the denoised methods (and of `independent`, for scale).
+    pub bias: Vec<Bias>,
     pub crop: [u32; 4],
     pub crop_frame: u32,
     /// Runs left out, and why (a window whose steady state needs frames the scene lacks).
     pub skipped: Vec<String>,
     pub outputs: Vec<String>,
+}
+
+/// What a method's frame averages to: the crop frame of its strip run rendered with
+/// `seeds` seeds, their mean against the reference. The squared bias is estimated per pixel and
+/// channel from the seeds' errors `e_i = I_i - R`, `b^2 = (N mean(e)^2 - mean(e^2)) / (N - 1) - V`,
+/// unbiased for the method's `(E[I] - R)^2` (docs/compare.md).
+#[derive(Clone, Debug, Serialize)]
+pub struct Bias {
+    pub method: Candidate,
+    pub window: u32,
+    pub spp: u32,
+    pub seeds: u32,
+    pub frame: u32,
+    /// The squared bias in relMSE's units: mean of `b^2 / (R^2 + 0.01)`.
+    pub bias_relmse: f64,
+    /// The relMSE of one seed's frame (the mean over seeds), of which `bias_relmse` is part.
+    pub relmse: f64,
+    /// The relMSE of the mean over seeds.
+    pub relmse_of_mean: f64,
+    /// `mean - reference`, RGB, float EXR.
+    pub image: String,
 }
 
 #[derive(Debug, Serialize)]
@@ -182,9 +294,18 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     if let Some(&n) = opts.windows.iter().find(|&&n| n % 2 == 0) {
         bail!("--windows {n}: a group is n_f = 2n+1 frames, so windows must be odd");
     }
-    if opts.methods.contains(&Method::Independent) && opts.budgets.is_empty() {
+    if opts.methods.iter().any(|c| !c.method.reuses()) && opts.budgets.is_empty() {
         bail!("--budgets: the independent tracer needs at least one budget");
     }
+    if opts.bias_seeds == 1 {
+        bail!("--bias-seeds 1: a bias estimate needs at least 2 seeds (0: no bias images)");
+    }
+    // The denoiser is loaded before anything is rendered: a missing library is one line now.
+    let mut denoiser = if opts.methods.iter().any(|c| c.denoise) {
+        Some(Denoiser::load(opts.threads)?)
+    } else {
+        None
+    };
     // The default crop: a centred square of half the shorter side.
     let side = (w.min(h) / 2).max(1);
     let crop = opts
@@ -214,12 +335,25 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         "speedup_vs_nf.svg",
         "flicker.png",
         "flicker.svg",
+        "flicker_denoised.png",
+        "flicker_denoised.svg",
         "crops.png",
         "crops.svg",
+        "bias.png",
+        "bias.svg",
         ".compare.lock",
     ];
+    let bias_files: Vec<String> = opts
+        .methods
+        .iter()
+        .map(|c| format!("bias_{}.exr", c.name()))
+        .collect();
     check_not_inputs(
-        written.iter().map(|n| ("--out", opts.out.join(n))),
+        written
+            .iter()
+            .copied()
+            .chain(bias_files.iter().map(String::as_str))
+            .map(|n| ("--out", opts.out.join(n))),
         &scene.inputs,
     )?;
     let _lock = OutputLock::acquire(&lock, &opts.out.display().to_string())?;
@@ -248,15 +382,18 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             format!("rendered in {:.1} s", reference.seconds)
         }
     );
+    if let Some(d) = denoiser.as_mut() {
+        d.prepare(w as usize, h as usize)?;
+    }
     let integrator = Integrator::new(scene, opts.max_depth);
     let crop_frame = first + n_frames / 2;
     let mut runs: Vec<Run> = Vec::new();
     let mut crops: Vec<Vec<Vec3>> = Vec::new();
     // (method, window, spp, frames rendered) of every run.
-    let mut plan: Vec<(Method, u32, u32, RangeInclusive<u32>)> = Vec::new();
+    let mut plan: Vec<(Candidate, u32, u32, RangeInclusive<u32>)> = Vec::new();
     let mut skipped = Vec::new();
     for &m in &opts.methods {
-        if !m.reuses() {
+        if !m.method.reuses() {
             plan.extend(opts.budgets.iter().map(|&s| (m, 1, s, range.clone())));
             continue;
         }
@@ -268,8 +405,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
                 }
                 _ => {
                     skipped.push(format!(
-                        "{} n_f {n_f}: {}",
-                        m.name(),
+                        "{m} n_f {n_f}: {}",
                         match opts.regime {
                             Regime::Range => format!("longer than the {n_frames} frames"),
                             Regime::Steady => format!(
@@ -298,28 +434,25 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     }
     let pb = progress_bar(opts.progress, plan.len() as u64, "runs");
     for (method, window, spp, rendered) in plan {
-        let start = Instant::now();
-        let mut frames: Vec<Vec<Vec3>> = Vec::with_capacity(n_frames as usize);
-        let ropts = RenderOptions {
-            method,
-            spp,
-            window,
-            seed: opts.seed,
-            frames: Some(rendered.clone()),
-            resolution: Some((w, h)),
-            max_depth: opts.max_depth,
-            progress: false,
-            ..RenderOptions::default()
-        };
-        let mut keep = |d: Developed| {
-            if range.contains(&d.view.frame) {
-                frames.push(d.pixels());
-            }
-            Ok(())
-        };
-        let counters = pool.install(|| render_frames(&integrator, &ropts, &mut keep))?;
-        let eff = if method.reuses() {
-            let measured: Vec<f64> = counters
+        let mut out = render_run(
+            &integrator,
+            &pool,
+            &mut denoiser,
+            &RunSpec {
+                c: method,
+                window,
+                spp,
+                seed: opts.seed,
+                rendered: rendered.clone(),
+                res: (w, h),
+                max_depth: opts.max_depth,
+            },
+            &range,
+        )?;
+        let mut frames = std::mem::take(&mut out.frames);
+        let eff = if method.method.reuses() {
+            let measured: Vec<f64> = out
+                .counters
                 .per_frame
                 .iter()
                 .filter(|f| range.contains(&f.frame))
@@ -329,16 +462,20 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         } else {
             spp as f64
         };
-        let run_seconds = start.elapsed().as_secs_f64();
-        // The steady state charges the measured frames one group's time each.
+        let run_seconds = out.run_seconds;
+        // The steady state charges the measured frames one group's time each (denoising is per
+        // measured frame already).
         let groups = rendered.end() + 2 - rendered.start() - window;
-        let seconds = if opts.regime == Regime::Steady && method.reuses() {
-            run_seconds * n_frames as f64 / groups as f64
-        } else {
-            run_seconds
-        };
+        let render_seconds = run_seconds - out.denoise_seconds;
+        let seconds = out.denoise_seconds
+            + if opts.regime == Regime::Steady && method.method.reuses() {
+                render_seconds * n_frames as f64 / groups as f64
+            } else {
+                render_seconds
+            };
         let (per_frame, rmse, relmse, flicker) = errors(&frames, &reference);
-        let (ends_relmse, middle_relmse) = if opts.regime == Regime::Range && method.reuses() {
+        let (ends_relmse, middle_relmse) = if opts.regime == Regime::Range && method.method.reuses()
+        {
             let mean =
                 |v: Vec<f64>| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
             let at_end = |f: u32| f < first + window - 1 || f + window - 1 > last;
@@ -353,7 +490,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         };
         pb.suspend(|| {
             eprintln!(
-                "{:>11} window {window:>2} spp {spp:>3}: {seconds:>7.2} s  rmse {rmse:.5}  relMSE {relmse:.5}  flicker {flicker:.5}",
+                "{:>16} window {window:>2} spp {spp:>3}: {seconds:>7.2} s  rmse {rmse:.5}  relMSE {relmse:.5}  flicker {flicker:.5}",
                 method.name()
             )
         });
@@ -364,6 +501,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             window,
             spp,
             seconds,
+            denoise_seconds: out.denoise_seconds,
             run_seconds,
             rendered_frames: [*rendered.start(), *rendered.end()],
             ends_relmse,
@@ -382,44 +520,59 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     let (costs, _, _) = measure_costs(&integrator, &pool, &cam, crop_frame, 2, opts.seed);
 
     // Fits and derived figures.
+    const INDEPENDENT: Candidate = Candidate::plain(Method::Independent);
+    const INDEPENDENT_OIDN: Candidate = Candidate::denoised(Method::Independent);
     let key = |r: &Run| (r.method, r.window);
-    let mut lines: Vec<(Method, u32)> = runs.iter().map(key).collect();
+    let mut lines: Vec<(Candidate, u32)> = runs.iter().map(key).collect();
     lines.dedup();
-    let fit_of = |m: Method, n_f: u32, y: fn(&Run) -> f64, single: f64| {
+    let fit_of = |c: Candidate, n_f: u32, y: fn(&Run) -> f64, single: f64| {
         let pts: Vec<(f64, f64)> = runs
             .iter()
-            .filter(|r| key(r) == (m, n_f))
+            .filter(|r| key(r) == (c, n_f))
             .map(|r| (r.seconds, y(r)))
             .collect();
         loglog_fit(&pts, single)
     };
-    let indep_fit = fit_of(Method::Independent, 1, |r| r.relmse, -1.0);
-    let mut equal_error_speedup: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
-    for &(m, n_f) in lines.iter().filter(|l| l.0 != Method::Independent) {
+    // Time of `base`'s line over the time of `(c, n_f)`'s line at the geometric mean of the
+    // latter's errors.
+    let speedup_over = |base: Candidate, c: Candidate, n_f: u32| -> Option<f64> {
         let own: Vec<f64> = runs
             .iter()
-            .filter(|r| key(r) == (m, n_f) && r.relmse > 0.0)
+            .filter(|r| key(r) == (c, n_f) && r.relmse > 0.0)
             .map(|r| r.relmse.ln())
             .collect();
-        let (Some(fi), Some(fm)) = (indep_fit, fit_of(m, n_f, |r| r.relmse, -1.0)) else {
-            continue;
-        };
+        let fi = fit_of(base, 1, |r| r.relmse, -1.0)?;
+        let fm = fit_of(c, n_f, |r| r.relmse, -1.0)?;
         if own.is_empty() {
-            continue;
+            return None;
         }
         let e = (own.iter().sum::<f64>() / own.len() as f64).exp();
-        if let (Some(ti), Some(tm)) = (time_for(fi, e), time_for(fm, e)) {
+        Some(time_for(fi, e)? / time_for(fm, e)?)
+    };
+    let mut equal_error_speedup: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
+    let mut equal_error_speedup_over_denoised: BTreeMap<String, BTreeMap<String, f64>> =
+        BTreeMap::new();
+    for &(c, n_f) in lines.iter().filter(|l| l.0 != INDEPENDENT) {
+        if let Some(x) = speedup_over(INDEPENDENT, c, n_f) {
             equal_error_speedup
-                .entry(m.name().to_string())
+                .entry(c.name())
                 .or_default()
-                .insert(n_f.to_string(), ti / tm);
+                .insert(n_f.to_string(), x);
+        }
+        if c.denoise && c != INDEPENDENT_OIDN {
+            if let Some(x) = speedup_over(INDEPENDENT_OIDN, c, n_f) {
+                equal_error_speedup_over_denoised
+                    .entry(c.name())
+                    .or_default()
+                    .insert(n_f.to_string(), x);
+            }
         }
     }
     // Same-sample speed-up of mis-exact: independent time per frame and sample, times the
     // samples per frame the groups would give without losses, over the reuse time.
     let mut per_sample: Vec<f64> = runs
         .iter()
-        .filter(|r| r.method == Method::Independent)
+        .filter(|r| r.method == INDEPENDENT)
         .map(|r| r.seconds / (n_frames * r.spp) as f64)
         .collect();
     per_sample.sort_by(f64::total_cmp);
@@ -428,7 +581,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     let mut measured = BTreeMap::new();
     let mut windows: Vec<u32> = runs
         .iter()
-        .filter(|r| r.method.reuses())
+        .filter(|r| r.method.method.reuses())
         .map(|r| r.window)
         .collect();
     windows.sort_unstable();
@@ -440,7 +593,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         );
         let ratios: Vec<f64> = runs
             .iter()
-            .filter(|r| r.method == Method::MisExact && r.window == n_f)
+            .filter(|r| r.method == Candidate::plain(Method::MisExact) && r.window == n_f)
             .filter_map(|r| {
                 // Groups of the run, each worth n_f^2 n_r samples per pixel without losses.
                 let groups = (r.rendered_frames[1] + 2 - r.rendered_frames[0] - n_f) as f64;
@@ -459,7 +612,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     let times: Vec<f64> = {
         let ind: Vec<f64> = runs
             .iter()
-            .filter(|r| r.method == Method::Independent)
+            .filter(|r| r.method == INDEPENDENT)
             .map(|r| r.seconds)
             .collect();
         if ind.is_empty() {
@@ -470,32 +623,55 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     };
     let equal_time = (times.iter().map(|t| t.ln()).sum::<f64>() / times.len() as f64).exp();
     // Each method at its largest window.
-    let widest: Vec<(Method, u32)> = opts
+    let widest: Vec<(Candidate, u32)> = opts
         .methods
         .iter()
-        .filter_map(|&m| {
+        .filter_map(|&c| {
             lines
                 .iter()
-                .filter(|l| l.0 == m)
+                .filter(|l| l.0 == c)
                 .max_by_key(|l| l.1)
                 .copied()
         })
         .collect();
-    let mut equal_time_flicker = BTreeMap::new();
-    for &(m, n_f) in &widest {
-        if let Some((a, b)) = fit_of(m, n_f, |r| r.flicker, -0.5) {
-            equal_time_flicker.insert(m.name().to_string(), (a + b * equal_time.ln()).exp());
+    // The denoised lines' equal time: the geometric mean of `independent+oidn`'s times (or of
+    // all denoised runs'); denoising a frame costs a fixed time, so theirs is longer.
+    let denoised_equal_time = {
+        let pick = |f: &dyn Fn(&Run) -> bool| -> Vec<f64> {
+            runs.iter().filter(|r| f(r)).map(|r| r.seconds).collect()
+        };
+        let mut t = pick(&|r| r.method == INDEPENDENT_OIDN);
+        if t.is_empty() {
+            t = pick(&|r| r.method.denoise);
         }
-    }
+        (!t.is_empty()).then(|| (t.iter().map(|t| t.ln()).sum::<f64>() / t.len() as f64).exp())
+    };
+    // Fitted flicker and relMSE of the widest lines at time `t`.
+    let at_time = |t: f64, keep: &dyn Fn(Candidate) -> bool| {
+        let (mut flicker, mut relmse) = (BTreeMap::new(), BTreeMap::new());
+        for &(c, n_f) in widest.iter().filter(|l| keep(l.0)) {
+            if let Some((a, b)) = fit_of(c, n_f, |r| r.flicker, -0.5) {
+                flicker.insert(c.name(), (a + b * t.ln()).exp());
+            }
+            if let Some((a, b)) = fit_of(c, n_f, |r| r.relmse, -1.0) {
+                relmse.insert(c.name(), (a + b * t.ln()).exp());
+            }
+        }
+        (flicker, relmse)
+    };
+    let (equal_time_flicker, equal_time_relmse) = at_time(equal_time, &|c| !c.denoise);
+    let (denoised_equal_time_flicker, denoised_equal_time_relmse) = match denoised_equal_time {
+        Some(t) => at_time(t, &|_| true),
+        None => Default::default(),
+    };
 
     // Files.
     let mut outputs = Vec::new();
-    let colour = |m: Method| COLOURS[m as usize % COLOURS.len()];
-    let label = |m: Method, n_f: u32| {
-        if m == Method::Independent {
-            m.name().to_string()
+    let label = |c: Candidate, n_f: u32| {
+        if c.method.reuses() {
+            format!("{c} n_f={n_f}")
         } else {
-            format!("{} n_f={n_f}", m.name())
+            c.name()
         }
     };
     let max_window = lines.iter().map(|l| l.1).max().unwrap_or(1);
@@ -511,23 +687,23 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         // Every method at its widest window, solid; the unbiased methods' narrower windows dashed.
         series: lines
             .iter()
-            .filter(|l| l.0 == Method::Independent || l.1 == max_window)
+            .filter(|l| !l.0.method.reuses() || l.1 == max_window)
             .map(|&l| (l, false))
             .chain(
                 lines
                     .iter()
                     .filter(|l| {
-                        matches!(l.0, Method::MisExact | Method::MisCv) && l.1 != max_window
+                        matches!(l.0.method, Method::MisExact | Method::MisCv) && l.1 != max_window
                     })
                     .map(|&l| (l, true)),
             )
-            .map(|((m, n_f), dashed)| Series {
-                name: label(m, n_f),
-                colour: colour(m),
+            .map(|((c, n_f), dashed)| Series {
+                name: label(c, n_f),
+                colour: c.colour(),
                 dashed,
                 points: runs
                     .iter()
-                    .filter(|r| key(r) == (m, n_f))
+                    .filter(|r| key(r) == (c, n_f))
                     .map(|r| (r.seconds, r.relmse))
                     .collect(),
             })
@@ -574,10 +750,10 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     write_chart(chart2.svg(), "speedup_vs_nf")?;
     let bars: Vec<(String, f64, &str)> = widest
         .iter()
-        .filter_map(|&(m, n_f)| {
+        .filter_map(|&(c, n_f)| {
             equal_time_flicker
-                .get(m.name())
-                .map(|&v| (label(m, n_f), v, colour(m)))
+                .get(&c.name())
+                .map(|&v| (label(c, n_f), v, c.colour()))
         })
         .collect();
     write_chart(
@@ -588,44 +764,67 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         ),
         "flicker",
     )?;
-    // The crop strip: each method's run closest in time to mis-exact's cheapest widest run.
-    let strip_time = runs
-        .iter()
-        .filter(|r| r.method == Method::MisExact && r.window == max_window)
-        .map(|r| r.seconds)
-        .fold(f64::INFINITY, f64::min);
-    let strip_time = if strip_time.is_finite() {
-        strip_time
-    } else {
-        equal_time
-    };
+    if let Some(t) = denoised_equal_time {
+        let bars: Vec<(String, f64, &str)> = widest
+            .iter()
+            .filter_map(|&(c, n_f)| {
+                denoised_equal_time_flicker
+                    .get(&c.name())
+                    .map(|&v| (label(c, n_f), v, c.colour()))
+            })
+            .collect();
+        write_chart(
+            bar_chart(
+                &format!(
+                    "{}: flicker at the denoised equal time ({t:.1} s)",
+                    scene.name
+                ),
+                "flicker (RMS frame-to-frame change of the error)",
+                &bars,
+            ),
+            "flicker_denoised",
+        )?;
+    }
+    // The crop strip: each method's run closest in time to a reference time, the cheapest
+    // widest run of mis-exact (else of the first reuse method compared; else equal time).
+    let strip_time = [Candidate::plain(Method::MisExact)]
+        .into_iter()
+        .chain(opts.methods.iter().copied().filter(|c| c.method.reuses()))
+        .map(|c| {
+            runs.iter()
+                .filter(|r| r.method == c && r.window == max_window)
+                .map(|r| r.seconds)
+                .fold(f64::INFINITY, f64::min)
+        })
+        .find(|t| t.is_finite())
+        .unwrap_or(equal_time);
+    let ref_crop = &reference.frames[(crop_frame - first) as usize];
     let mut tiles = vec![(
         format!("reference\n{} spp", reference.spp),
-        crop_png(
-            &reference.frames[(crop_frame - first) as usize].mean,
-            w,
-            crop,
-        )?,
+        crop_png(&ref_crop.mean, w, crop)?,
         crop[2],
         crop[3],
     )];
-    for &(m, n_f) in &widest {
+    // (candidate, index of its strip run) per widest line.
+    let mut strip_runs: Vec<(Candidate, usize)> = Vec::new();
+    for &(c, n_f) in &widest {
         let best = runs
             .iter()
             .enumerate()
-            .filter(|(_, r)| key(r) == (m, n_f))
+            .filter(|(_, r)| key(r) == (c, n_f))
             .min_by(|a, b| {
                 let d = |r: &Run| (r.seconds / strip_time).ln().abs();
                 d(a.1).total_cmp(&d(b.1))
             });
         if let Some((i, r)) = best {
-            let what = if m == Method::Independent {
-                format!("{} spp", r.spp)
-            } else {
+            strip_runs.push((c, i));
+            let what = if c.method.reuses() {
                 format!("{} spp, n_f {}", r.spp, r.window)
+            } else {
+                format!("{} spp", r.spp)
             };
             tiles.push((
-                format!("{}\n{what}, {:.2} s", m.name(), r.seconds),
+                format!("{c}\n{what}, {:.2} s", r.seconds),
                 crop_png(&crops[i], w, crop)?,
                 crop[2],
                 crop[3],
@@ -644,13 +843,127 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         ),
         "crops",
     )?;
+    // Bias images: the denoised methods' strip runs (and independent's, whose bias is zero: the
+    // scale of what the seeds leave of the noise), rendered again with more seeds.
+    let mut bias = Vec::new();
+    let bias_runs: Vec<(Candidate, usize)> = if opts.bias_seeds >= 2 {
+        let any_denoised = strip_runs.iter().any(|(c, _)| c.denoise);
+        strip_runs
+            .iter()
+            .copied()
+            .filter(|(c, _)| c.denoise || (any_denoised && *c == INDEPENDENT))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let mut bias_tiles = vec![tiles[0].clone()];
+    let mut bias_images: Vec<(Candidate, String, Vec<Vec3>)> = Vec::new();
+    let mut bias_files_written = Vec::new();
+    for (c, i) in bias_runs {
+        let r = &runs[i];
+        // The crop frame in all of its groups, as in the measured run.
+        let span = match opts.regime {
+            Regime::Steady if c.method.reuses() => {
+                crop_frame + 1 - r.window..=crop_frame + r.window - 1
+            }
+            Regime::Range if c.method.reuses() => r.rendered_frames[0]..=r.rendered_frames[1],
+            _ => crop_frame..=crop_frame,
+        };
+        let mut seeds = vec![crops[i].clone()];
+        let start = Instant::now();
+        for k in 1..opts.bias_seeds {
+            let out = render_run(
+                &integrator,
+                &pool,
+                &mut denoiser,
+                &RunSpec {
+                    c,
+                    window: r.window,
+                    spp: r.spp,
+                    seed: opts.seed.wrapping_add(k as u64),
+                    rendered: span.clone(),
+                    res: (w, h),
+                    max_depth: opts.max_depth,
+                },
+                &(crop_frame..=crop_frame),
+            )?;
+            seeds.extend(out.frames);
+        }
+        let (b, mean) = bias_estimate(&seeds, ref_crop);
+        let name = format!("bias_{}.exr", c.name());
+        let path = opts.out.join(&name);
+        bias_files_written.push(path.display().to_string());
+        let diff: Vec<Vec3> = mean
+            .iter()
+            .zip(&ref_crop.mean)
+            .map(|(m, r)| *m - *r)
+            .collect();
+        write_bias_exr(
+            &path,
+            &diff,
+            &scene.camera(crop_frame, w, h),
+            &c,
+            r,
+            opts.bias_seeds,
+        )?;
+        eprintln!(
+            "{:>16} bias over {} seeds ({:.1} s): bias {:.5} of relMSE {:.5}",
+            c.name(),
+            opts.bias_seeds,
+            start.elapsed().as_secs_f64(),
+            b.bias_relmse,
+            b.relmse
+        );
+        bias_images.push((c, format!("{} spp", r.spp), mean));
+        bias.push(Bias {
+            method: c,
+            window: r.window,
+            spp: r.spp,
+            seeds: opts.bias_seeds,
+            frame: crop_frame,
+            bias_relmse: b.bias_relmse,
+            relmse: b.relmse,
+            relmse_of_mean: b.relmse_of_mean,
+            image: path.display().to_string(),
+        });
+    }
+    if !bias_images.is_empty() {
+        // One scale for every tile: the 99th percentile of |mean - reference| in the crops.
+        let diffs: Vec<Vec<f32>> = bias_images
+            .iter()
+            .map(|(_, _, m)| crop_diff(m, &ref_crop.mean, w, crop))
+            .collect();
+        let scale = percentile_abs(diffs.iter().flatten().copied(), 0.99).max(1e-6);
+        for ((c, what, _), d) in bias_images.iter().zip(&diffs) {
+            bias_tiles.push((
+                format!("{c} mean - ref\n{what}, {} seeds", opts.bias_seeds),
+                diverging_png(d, crop[2], crop[3], scale)?,
+                crop[2],
+                crop[3],
+            ));
+        }
+        write_chart(
+            image_strip(
+                &format!(
+                    "{}: frame {crop_frame}, mean over {} seeds minus the reference (luminance; \
+                     red +, blue -, full colour at {scale:.3})",
+                    scene.name, opts.bias_seeds
+                ),
+                &bias_tiles,
+                zoom,
+            ),
+            "bias",
+        )?;
+    }
+    outputs.extend(bias_files_written);
     let csv_path = opts.out.join("compare.csv");
-    let mut csv =
-        String::from("method,window,spp,seconds,rmse,relmse,flicker,mean_effective_spp\n");
+    let mut csv = String::from(
+        "method,window,spp,seconds,rmse,relmse,flicker,mean_effective_spp,denoise_seconds\n",
+    );
     for r in &runs {
         let _ = writeln!(
             csv,
-            "{},{},{},{:.6},{:.8},{:.8},{:.8},{:.3}",
+            "{},{},{},{:.6},{:.8},{:.8},{:.8},{:.3},{:.6}",
             r.method.name(),
             r.window,
             r.spp,
@@ -658,7 +971,8 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             r.rmse,
             r.relmse,
             r.flicker,
-            r.mean_effective_spp
+            r.mean_effective_spp,
+            r.denoise_seconds
         );
     }
     write_atomic(&csv_path, csv.as_bytes())?;
@@ -685,11 +999,17 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         flicker_formula: FLICKER_FORMULA,
         runs,
         equal_error_speedup,
+        equal_error_speedup_over_denoised,
         costs,
         predicted_speedup: predicted,
         measured_speedup: measured,
         equal_time_seconds: equal_time,
         equal_time_flicker,
+        equal_time_relmse,
+        denoised_equal_time_seconds: denoised_equal_time,
+        denoised_equal_time_flicker,
+        denoised_equal_time_relmse,
+        bias,
         crop,
         crop_frame,
         skipped,
@@ -702,13 +1022,13 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
 /// The table `reframe compare` prints: one line per run, then the speed-ups.
 pub fn summary(r: &CompareReport) -> String {
     let mut s = format!(
-        "{:<12} {:>6} {:>4} {:>9} {:>10} {:>10} {:>10}\n",
+        "{:<17} {:>6} {:>4} {:>9} {:>10} {:>10} {:>10}\n",
         "method", "window", "spp", "seconds", "rmse", "relMSE", "flicker"
     );
     for run in &r.runs {
         let _ = writeln!(
             s,
-            "{:<12} {:>6} {:>4} {:>9.2} {:>10.5} {:>10.5} {:>10.5}",
+            "{:<17} {:>6} {:>4} {:>9.2} {:>10.5} {:>10.5} {:>10.5}",
             run.method.name(),
             run.window,
             run.spp,
@@ -729,15 +1049,51 @@ pub fn summary(r: &CompareReport) -> String {
             v.join(", ")
         );
     }
+    for (m, by_window) in &r.equal_error_speedup_over_denoised {
+        let v: Vec<String> = num_points(by_window)
+            .iter()
+            .map(|(n, x)| format!("n_f {n}: {x:.2}x"))
+            .collect();
+        let _ = writeln!(
+            s,
+            "equal-error speed-up of {m} over independent+oidn: {}",
+            v.join(", ")
+        );
+    }
+    let times = [
+        (
+            Some(r.equal_time_seconds),
+            &r.equal_time_flicker,
+            &r.equal_time_relmse,
+        ),
+        (
+            r.denoised_equal_time_seconds,
+            &r.denoised_equal_time_flicker,
+            &r.denoised_equal_time_relmse,
+        ),
+    ];
+    for (t, flicker, relmse) in times {
+        let Some(t) = t.filter(|_| !flicker.is_empty()) else {
+            continue;
+        };
+        let v: Vec<String> = flicker
+            .iter()
+            .map(|(m, f)| {
+                let e = relmse.get(m).copied().unwrap_or(f64::NAN);
+                format!("{m} {f:.5} ({e:.5})")
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            "at equal time ({t:.2} s), flicker (relMSE): {}",
+            v.join(", ")
+        );
+    }
     let p: Vec<String> = num_points(&r.predicted_speedup)
         .iter()
-        .map(|(n, x)| {
-            let m = r
-                .measured_speedup
-                .get(&n.to_string())
-                .copied()
-                .unwrap_or(f64::NAN);
-            format!("n_f {n}: {x:.2}x / {m:.2}x")
+        .map(|(n, x)| match r.measured_speedup.get(&n.to_string()) {
+            Some(m) => format!("n_f {n}: {x:.2}x / {m:.2}x"),
+            None => format!("n_f {n}: {x:.2}x / - (no mis-exact run)"),
         })
         .collect();
     let _ = write!(s, "same-spp speed-up, eq. 16 / measured: {}", p.join(", "));
@@ -761,7 +1117,11 @@ fn crop_png(px: &[Vec3], w: u32, [x0, y0, cw, ch]: [u32; 4]) -> Result<Vec<u8>> 
         .flat_map(|y| (x0..x0 + cw).map(move |x| (x, y)))
         .flat_map(|(x, y)| px[(y * w + x) as usize].to_array())
         .collect();
-    let rgb = crate::image::encode_srgb8(&img)?;
+    rgb8_png(&crate::image::encode_srgb8(&img)?, cw, ch)
+}
+
+/// 8-bit RGB triples as a PNG.
+fn rgb8_png(rgb: &[u8], cw: u32, ch: u32) -> Result<Vec<u8>> {
     let mut pixmap = resvg::tiny_skia::Pixmap::new(cw, ch).context("empty crop")?;
     for (dst, src) in pixmap
         .data_mut()
@@ -772,4 +1132,141 @@ fn crop_png(px: &[Vec3], w: u32, [x0, y0, cw, ch]: [u32; 4]) -> Result<Vec<u8>> 
         dst[3] = 255;
     }
     pixmap.encode_png().context("encoding a crop")
+}
+
+/// One render of `compare`.
+struct RunSpec {
+    c: Candidate,
+    window: u32,
+    spp: u32,
+    seed: u64,
+    /// The frames rendered.
+    rendered: RangeInclusive<u32>,
+    res: (u32, u32),
+    max_depth: u32,
+}
+
+/// What `render_run` gives back.
+struct Rendered {
+    /// The kept frames, in order.
+    frames: Vec<Vec<Vec3>>,
+    counters: Counters,
+    /// The whole run, denoising included.
+    run_seconds: f64,
+    denoise_seconds: f64,
+}
+
+/// Render `spec`, keeping the frames in `keep`, each denoised (with the render's seed for its
+/// guides) when the candidate asks; only kept frames are denoised, and timed.
+fn render_run(
+    integrator: &Integrator,
+    pool: &rayon::ThreadPool,
+    denoiser: &mut Option<Denoiser>,
+    spec: &RunSpec,
+    keep: &RangeInclusive<u32>,
+) -> Result<Rendered> {
+    let start = Instant::now();
+    let ropts = RenderOptions {
+        method: spec.c.method,
+        spp: spec.spp,
+        window: spec.window,
+        seed: spec.seed,
+        frames: Some(spec.rendered.clone()),
+        resolution: Some(spec.res),
+        max_depth: spec.max_depth,
+        progress: false,
+        ..RenderOptions::default()
+    };
+    let mut frames = Vec::new();
+    let mut denoise_seconds = 0.0;
+    let mut sink = |mut d: Developed| {
+        if keep.contains(&d.view.frame) {
+            if spec.c.denoise {
+                let dn = denoiser
+                    .as_mut()
+                    .context("a denoised method without a denoiser")?;
+                denoise_seconds += denoise_frame(dn, integrator, spec.seed, Layers::None, &mut d)?;
+            }
+            frames.push(d.pixels());
+        }
+        Ok(())
+    };
+    let counters = pool.install(|| render_frames(integrator, &ropts, &mut sink))?;
+    Ok(Rendered {
+        frames,
+        counters,
+        run_seconds: start.elapsed().as_secs_f64(),
+        denoise_seconds,
+    })
+}
+
+/// The luminance of `mean - reference` over the crop, row by row.
+fn crop_diff(mean: &[Vec3], reference: &[Vec3], w: u32, [x0, y0, cw, ch]: [u32; 4]) -> Vec<f32> {
+    const LUMA: Vec3 = Vec3::new(0.2126, 0.7152, 0.0722);
+    (y0..y0 + ch)
+        .flat_map(|y| (x0..x0 + cw).map(move |x| (y * w + x) as usize))
+        .map(|i| (mean[i] - reference[i]).dot(LUMA))
+        .collect()
+}
+
+/// The `q` quantile of `|v|` (0 for no values; non-finite values skipped).
+fn percentile_abs(v: impl Iterator<Item = f32>, q: f64) -> f32 {
+    let mut a: Vec<f32> = v.filter(|x| x.is_finite()).map(f32::abs).collect();
+    if a.is_empty() {
+        return 0.0;
+    }
+    a.sort_by(f32::total_cmp);
+    a[((a.len() - 1) as f64 * q).round() as usize]
+}
+
+/// Signed values as a PNG: white at 0, towards red for positive and blue for negative, full
+/// colour at `scale` and beyond.
+fn diverging_png(d: &[f32], cw: u32, ch: u32, scale: f32) -> Result<Vec<u8>> {
+    let rgb: Vec<u8> = d
+        .iter()
+        .flat_map(|&v| {
+            let t = if v.is_finite() {
+                (v / scale).clamp(-1.0, 1.0)
+            } else {
+                0.0
+            };
+            let fade = (255.0 * (1.0 - t.abs())).round() as u8;
+            if t >= 0.0 {
+                [255, fade, fade]
+            } else {
+                [fade, fade, 255]
+            }
+        })
+        .collect();
+    rgb8_png(&rgb, cw, ch)
+}
+
+/// `mean - reference` of a bias estimate as a float EXR, with what made it in its metadata.
+fn write_bias_exr(
+    path: &std::path::Path,
+    diff: &[Vec3],
+    cam: &crate::camera::Camera,
+    c: &Candidate,
+    r: &Run,
+    seeds: u32,
+) -> Result<()> {
+    let mut img = Image::new(cam.width, cam.height, &["R", "G", "B"]);
+    img.data = diff.iter().flat_map(|v| v.to_array()).collect();
+    let meta = Metadata {
+        method: c.name(),
+        spp: r.spp,
+        window: r.window,
+        seed: 0,
+        render_seconds: r.seconds,
+        world_to_camera: cam.world_to_camera().to_cols_array(),
+        world_to_ndc: cam.world_to_ndc().to_cols_array(),
+        extra: vec![
+            (
+                "content".into(),
+                "mean over seeds minus the reference".into(),
+            ),
+            ("seeds".into(), seeds.to_string()),
+        ],
+    };
+    write_image(path, &img, &meta, &WriteOptions { exr_float: true })
 }

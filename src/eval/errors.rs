@@ -16,7 +16,7 @@
 //! squared error, and `b = -0.5` for flicker, an RMS figure). At a common
 //! error, the time the independent line needs over the time the method's line needs is the
 //! speed-up (`time_for`).
-use super::reference::Reference;
+use super::reference::{RefFrame, Reference};
 use glam::Vec3;
 use serde::Serialize;
 
@@ -86,6 +86,51 @@ pub fn errors(frames: &[Vec<Vec3>], r: &Reference) -> (Vec<FrameError>, f64, f64
     (per, rmse, relmse, flicker)
 }
 
+/// A frame's bias, estimated from `N >= 2` renders with different seeds (`BiasFigures`).
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct BiasFigures {
+    /// `mean(b^2 / (R^2 + 0.01))`, with per pixel and channel the unbiased estimate of the
+    /// squared bias `b^2 = (N ebar^2 - mean(e^2)) / (N - 1) - V` from the seeds' errors
+    /// `e_i = I_i - R`: `E[ebar^2] = b^2 + s^2/N + V` and `E[mean(e^2)] = b^2 + s^2 + V`.
+    pub bias_relmse: f64,
+    /// The relMSE of one seed's frame, averaged over the seeds.
+    pub relmse: f64,
+    /// The relMSE of the seeds' mean frame.
+    pub relmse_of_mean: f64,
+}
+
+/// The bias figures of one frame rendered with `seeds.len()` seeds, and the seeds' mean image.
+pub fn bias_estimate(seeds: &[Vec<Vec3>], r: &RefFrame) -> (BiasFigures, Vec<Vec3>) {
+    let n = seeds.len();
+    assert!(n >= 2, "a bias estimate needs two seeds");
+    let nf = n as f64;
+    let (mut b2, mut e2, mut eb2) = (0.0f64, 0.0f64, 0.0f64);
+    let mut mean = vec![Vec3::ZERO; r.mean.len()];
+    for (p, m) in mean.iter_mut().enumerate() {
+        for c in 0..3 {
+            let rv = r.mean[p][c] as f64;
+            let errs = seeds.iter().map(|s| s[p][c] as f64 - rv);
+            let ebar = errs.clone().sum::<f64>() / nf;
+            let esq = errs.map(|e| e * e).sum::<f64>() / nf;
+            let v = r.var[p][c] as f64;
+            let w = 1.0 / (rv * rv + REL_EPS);
+            b2 += ((nf * ebar * ebar - esq) / (nf - 1.0) - v) * w;
+            e2 += (esq - v) * w;
+            eb2 += (ebar * ebar - v) * w;
+            m[c] = (rv + ebar) as f32;
+        }
+    }
+    let k = (r.mean.len() * 3) as f64;
+    (
+        BiasFigures {
+            bias_relmse: b2 / k,
+            relmse: e2 / k,
+            relmse_of_mean: eb2 / k,
+        },
+        mean,
+    )
+}
+
 /// Least-squares line through `(ln x, ln y)`: `(a, b)` with `ln y = a + b ln x`. A single point
 /// (or points at one x) gets the Monte Carlo slope `single`: -1 for a mean squared error, -0.5
 /// for an RMS figure such as flicker. `None` without a usable point.
@@ -142,6 +187,58 @@ mod tests {
         // An RMS figure falls with the root of the time: 0.2 at 4 s is 0.1 at 16 s.
         let (a2, b2) = loglog_fit(&[(4.0, 0.2)], -0.5).unwrap();
         assert!(((a2 + b2 * 16f64.ln()).exp() - 0.1).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bias_estimate_finds_a_known_bias_under_noise_and_none_without_one() {
+        // Pixels with reference 1 and reference variance 0.0004; seeds' frames are the
+        // reference plus a bias `b` plus uniform noise of variance 1/12 (far above b^2).
+        let npix = 20_000;
+        let r = RefFrame {
+            mean: vec![Vec3::ONE; npix],
+            var: vec![Vec3::splat(0.0004); npix],
+        };
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut uniform = move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+        };
+        for (b, seeds) in [(0.1f32, 4usize), (0.0, 4), (0.05, 2)] {
+            // The reference mean here is exact, so every figure is short by the variance `V` it
+            // subtracts.
+            let frames: Vec<Vec<Vec3>> = (0..seeds)
+                .map(|_| {
+                    (0..npix)
+                        .map(|_| Vec3::new(uniform(), uniform(), uniform()) + Vec3::splat(1.0 + b))
+                        .collect()
+                })
+                .collect();
+            let (fig, mean) = bias_estimate(&frames, &r);
+            let v = 0.0004 / 1.01;
+            let want = (b * b) as f64 / 1.01 - v;
+            // Standard error of the estimate: about sqrt(2/(N-1)) (1/12) / sqrt(3 npix).
+            let se = (2.0 / (seeds as f64 - 1.0)).sqrt() / 12.0 / (3.0 * npix as f64).sqrt();
+            assert!(
+                (fig.bias_relmse - want).abs() < 5.0 * se,
+                "b {b}, {seeds} seeds: {} against {want}",
+                fig.bias_relmse
+            );
+            // One seed's relMSE holds the noise; the mean of the seeds a 1/N of it.
+            let noise = 1.0 / 12.0 / 1.01;
+            assert!((fig.relmse - want - noise).abs() < 0.03 * noise, "{fig:?}");
+            assert!(
+                (fig.relmse_of_mean - want - noise / seeds as f64).abs() < 0.05 * noise,
+                "{fig:?}"
+            );
+            let m: f32 = mean.iter().map(|v| v.x).sum::<f32>() / npix as f32;
+            assert!((m - 1.0 - b).abs() < 0.01, "mean {m}");
+            // Without a correction for the noise, the squared mean error alone would be off.
+            if b == 0.0 {
+                assert!(fig.relmse_of_mean > 30.0 * se, "{fig:?}");
+            }
+        }
     }
 
     fn reference_of(mean: Vec<Vec<Vec3>>, var: f32) -> Reference {
