@@ -75,6 +75,13 @@ pub struct MergeArgs {
     /// Output pattern of the frames (default: the one the chunks were rendered with).
     #[arg(long)]
     pub out: Option<String>,
+    /// The scene the chunks rendered: needed when they were rendered with --denoise (the merge
+    /// denoises each frame and traces the denoiser's guides in it); checked against their hash.
+    #[arg(long)]
+    pub scene: Option<String>,
+    /// Worker threads of the denoising (0: one per core).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
 }
 
 #[derive(clap::Args)]

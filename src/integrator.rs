@@ -14,15 +14,17 @@
 //! Rays that leave the scene see the environment light (`scene::environment`), which is an
 //! emitter like any other for MIS: its light samples are weighted against BSDF sampling and the
 //! BSDF directions that escape against its light sampling.
-//! Paths end by Russian roulette after `RR_DEPTH` bounces, or at `max_depth`.
+//! Paths end by Russian roulette from bounce `RR_DEPTH` on, or at `max_depth`
+//! (`examples/rr_efficiency.rs` measures where roulette should start).
 use crate::bsdf::Material;
 use crate::embree::{Hit, Ray};
 use crate::sampling::Sampler;
 use crate::scene::{Scene, SurfacePoint};
 use glam::{Vec2, Vec3};
 
-/// Bounces before Russian roulette may end a path.
-const RR_DEPTH: u32 = 3;
+/// The first bounce after which Russian roulette may end a path (chosen by efficiency,
+/// README "The tracer").
+pub const RR_DEPTH: u32 = 3;
 /// Sampler dimensions: 0-1 pixel position, 2-4 light sample at x, 5-7 BSDF sample at x, then
 /// `DIMS_PER_BOUNCE` per further vertex. Fixed offsets keep the first hit's numbers the same
 /// whatever the rest of the path used.
@@ -173,11 +175,18 @@ impl FirstHit {
 pub struct Integrator<'a> {
     pub scene: &'a Scene,
     pub max_depth: u32,
+    /// Russian roulette may end a path after this bounce (`RR_DEPTH`; only the efficiency
+    /// measurement changes it).
+    pub rr_depth: u32,
 }
 
 impl<'a> Integrator<'a> {
     pub fn new(scene: &'a Scene, max_depth: u32) -> Self {
-        Integrator { scene, max_depth }
+        Integrator {
+            scene,
+            max_depth,
+            rr_depth: RR_DEPTH,
+        }
     }
 
     /// Sample a light from `sp` (normal pair facing `wo`) and return the MIS-weighted direct
@@ -356,7 +365,7 @@ impl<'a> Integrator<'a> {
                 let pl = scene.light_pdf(sp.p, next.p, next.prim);
                 l += beta * le * (bs.pdf / (bs.pdf + pl));
             }
-            if depth >= RR_DEPTH {
+            if depth >= self.rr_depth {
                 let q = beta.max_element().min(0.95);
                 if s.next_1d() >= q {
                     break;

@@ -208,7 +208,20 @@ fn run(cli: Cli) -> Result<()> {
                 }
                 None => a.partials.clone(),
             };
-            let r = driver::merge::merge(&partials, a.out.as_deref())?;
+            // A scene is loaded only to denoise (merge checks that the chunks asked for it).
+            let device;
+            let scene = match &a.scene {
+                Some(s) => {
+                    device = Device::new()?;
+                    Some(load(s, &device, false)?)
+                }
+                None => None,
+            };
+            let denoising = scene.as_ref().map(|scene| driver::merge::Denoising {
+                scene,
+                threads: a.threads,
+            });
+            let r = driver::merge::merge(&partials, a.out.as_deref(), denoising.as_ref())?;
             eprintln!(
                 "merged {} partial file(s) ({:.1} MB) into {} frame(s) ({:.1} MB) in {:.2} s",
                 partials.len(),

@@ -3,6 +3,8 @@
 //! keeps its mean; the raw layer of a denoised render is the undenoised render, bit for bit; PNG
 //! output works; a missing library is one line before anything is written. `compare` runs
 //! denoised methods beside the plain ones, times their denoising and estimates their bias.
+mod common;
+
 use reframe::driver::denoise::Layers;
 use reframe::driver::{render, RenderOptions};
 use reframe::embree::Device;
@@ -297,4 +299,68 @@ fn compare_runs_denoised_methods_with_their_time_and_bias() {
     let csv = std::fs::read_to_string(out.join("compare.csv")).unwrap();
     assert!(csv.lines().next().unwrap().ends_with(",denoise_seconds"));
     assert!(csv.contains("\nmis-cv+oidn,3,1,"), "{csv}");
+}
+
+#[test]
+fn chunks_rendered_with_denoise_merge_into_the_one_process_denoised_frames() {
+    let d = tempfile::tempdir().unwrap();
+    let bin = env!("CARGO_BIN_EXE_reframe");
+    let run = |args: &[&str]| Command::new(bin).args(args).output().unwrap();
+    let (one, chunked) = (d.path().join("one"), d.path().join("chunked"));
+    let common = [
+        "render",
+        "vase",
+        "--method",
+        "mis-cv",
+        "--window",
+        "3",
+        "--spp",
+        "1",
+        "--frames",
+        "0-4",
+        "--res",
+        "48x36",
+        "--threads",
+        "2",
+        "--denoise",
+        "--denoise-layers",
+    ];
+    let pattern = |dir: &Path| dir.join("f_####.exr").to_str().unwrap().to_string();
+    let o = run(&[&common[..], &["--out", &pattern(&one)]].concat());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for k in ["1/2", "2/2"] {
+        let o = run(&[&common[..], &["--out", &pattern(&chunked), "--chunk", k]].concat());
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let merge = |more: &[&str]| {
+        run(&[
+            &["merge", "--chunks", "2", "--out", &pattern(&chunked)][..],
+            more,
+        ]
+        .concat())
+    };
+    // The chunks asked for denoising: without the scene, or with another one, nothing is written.
+    for (more, needle) in [
+        (&[][..], "name it with --scene"),
+        (
+            &["--scene", "cornell"][..],
+            "not the scene the chunks rendered",
+        ),
+    ] {
+        let o = merge(more);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains(needle),
+            "{more:?}: {err}"
+        );
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(!chunked.join("f_0000.exr").exists());
+    }
+    // One denoiser thread in the merge, two in the one-process render: the same frames.
+    let o = merge(&["--scene", "vase", "--threads", "1"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // Denoised RGB, raw layer and guides: the frames of one process, bit for bit.
+    common::assert_identical(&one, &chunked, (0..5).map(|f| format!("f_{f:04}.exr")));
+    let img = read_image(&chunked.join("f_0002.exr")).unwrap();
+    assert_ne!(rgb(&img, ""), rgb(&img, "raw."));
 }

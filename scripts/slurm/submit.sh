@@ -15,6 +15,9 @@
 #   --only K,K..    resubmit only these chunks (after one failed), with a new merge job
 #   --sbatch ARG    passed to both sbatch calls (e.g. --sbatch=--partition=render), repeatable
 #
+# With --denoise among the render flags, the merge job denoises the merged frames: it is given
+# SCENE (the first render argument) to trace the denoiser's guides in.
+#
 # Prints the two job ids; follow with `squeue -u $USER` and `tail -f DIR/chunk-*.log`.
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
@@ -37,16 +40,22 @@ done
 [ -x "$reframe" ] || die "reframe binary $reframe not found or not executable (--reframe PATH)"
 reframe=$(realpath "$reframe")
 [ $# -gt 0 ] || die "no render arguments after --"
-out=""
+out=""; denoise=""
 args=("$@")
 for ((i = 0; i < ${#args[@]}; i++)); do
   case "${args[i]}" in
     --out) out=${args[i+1]:-} ;;
     --out=*) out=${args[i]#--out=} ;;
+    --denoise) denoise=1 ;;
     --chunk|--chunk=*) die "--chunk is set per array task; leave it out" ;;
   esac
 done
 [ -n "$out" ] || die "--out PATTERN is required: a folder every node can reach"
+merge_args=("$out")
+if [ -n "$denoise" ]; then
+  [[ "${args[0]}" != -* ]] || die "--denoise: the scene must be the first render argument (the merge denoises in it)"
+  merge_args+=("${args[0]}")
+fi
 array="1-$n"
 if [ -n "$only" ]; then
   [[ "$only" =~ ^[0-9]+(,[0-9]+)*$ ]] || die "--only $only: expected K or K,K,.."
@@ -59,7 +68,7 @@ chunks=$(sbatch --parsable "${extra[@]}" "${env[@]}" --array="$array" \
   --output="$logs/chunk-%A_%a.log" "$here/chunk.sbatch" "$@")
 chunks=${chunks%%;*}
 merge=$(sbatch --parsable "${extra[@]}" "${env[@]}" --dependency="afterok:$chunks" \
-  --kill-on-invalid-dep=yes --output="$logs/merge-%j.log" "$here/merge.sbatch" "$out")
+  --kill-on-invalid-dep=yes --output="$logs/merge-%j.log" "$here/merge.sbatch" "${merge_args[@]}")
 merge=${merge%%;*}
 echo "chunks: array job $chunks (tasks $array of $n); merge: job $merge (after all succeed)"
 echo "$chunks $merge" > "$logs/last-submission"

@@ -13,10 +13,18 @@
 //! reframe render vase --method mis-exact --window 7 --chunk 2/3 --out out/vase_####.exr
 //! reframe merge out/vase.chunk-*-of-3.partial --out out/vase_####.exr
 //! ```
+//!
+//! Chunks rendered with `--denoise` leave raw shares; the merge denoises each merged frame as a
+//! one-process render does (same guides, same filter), given the scene to trace the guides in
+//! (`Denoising`), which must hash as the chunks' scene did.
+use super::denoise::{DenoiseSink, Layers};
 use super::options::check_output;
 use super::sink::{FileSink, FrameMeta};
 use crate::film::{develop, Developed, FrameAccum, Sink};
+use crate::image::oidn::Denoiser;
+use crate::integrator::Integrator;
 use crate::reuse::Method;
+use crate::scene::Scene;
 use crate::state::key::{partial_path, run_units, Chunk};
 use crate::state::{Kind, Record, StateFile};
 use anyhow::{anyhow, bail, Context, Result};
@@ -34,8 +42,20 @@ pub struct MergeReport {
     pub nonfinite_pixels: u64,
 }
 
-/// Merge `partials` into frames written with `out` (default: the pattern the chunks were given).
-pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
+/// What a merge of chunks rendered with `--denoise` needs: the scene, for the guides.
+pub struct Denoising<'a> {
+    pub scene: &'a Scene,
+    /// Threads of the guide pass and of the denoiser (0: one per core).
+    pub threads: usize,
+}
+
+/// Merge `partials` into frames written with `out` (default: the pattern the chunks were given),
+/// denoised when the chunks were rendered with `--denoise` (which needs `denoising`).
+pub fn merge(
+    partials: &[PathBuf],
+    out: Option<&str>,
+    denoising: Option<&Denoising>,
+) -> Result<MergeReport> {
     let start = Instant::now();
     if partials.is_empty() {
         bail!("no partial files given");
@@ -112,6 +132,34 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
     let key = &t0.key;
     let method = Method::from_name(&key.method)
         .ok_or_else(|| anyhow!("{}: unknown method '{}'", label(&files[0]), key.method))?;
+    let layers = match key.denoise.as_str() {
+        "" | "off" => None,
+        "rgb" => Some(Layers::None),
+        "rgb+layers" => Some(Layers::RawAndGuides),
+        d => bail!("{}: unknown denoise setting '{d}'", label(&files[0])),
+    };
+    // Denoised chunks: the scene is checked and the denoiser loaded before anything is written.
+    let denoise = match (layers, denoising) {
+        (None, _) => None,
+        (Some(_), None) => bail!(
+            "the chunks were rendered with --denoise: the merge traces the denoiser's guides in \
+             the scene, so name it with --scene (the scene the chunks rendered, '{}')",
+            key.scene
+        ),
+        (Some(layers), Some(d)) => {
+            let (hash, _) = crate::state::key::scene_and_build_hashes(d.scene)?;
+            if hash != key.scene_hash {
+                bail!(
+                    "--scene {}: not the scene the chunks rendered (its content hashes to {hash}, \
+                     theirs to {}); no frame was written",
+                    d.scene.name,
+                    key.scene_hash
+                );
+            }
+            let pool = super::thread_pool(d.threads)?;
+            Some((Denoiser::load(d.threads)?, layers, d.scene, pool))
+        }
+    };
     let range = key.first_frame..=key.last_frame;
     let pattern = out.unwrap_or(&t0.out);
     let (out, created) = check_output(pattern, &range)?;
@@ -184,10 +232,33 @@ pub fn merge(partials: &[PathBuf], out: Option<&str>) -> Result<MergeReport> {
     // Every check has passed: the output folder stays.
     created.keep();
     let mut nonfinite_pixels = 0;
-    for (frame, list) in &shares {
-        let d = combine(*frame, list)?;
-        nonfinite_pixels += d.nonfinite;
-        sink.put(d)?;
+    match denoise {
+        None => {
+            for (frame, list) in &shares {
+                let d = combine(*frame, list)?;
+                nonfinite_pixels += d.nonfinite;
+                sink.put(d)?;
+            }
+        }
+        Some((denoiser, layers, scene, pool)) => {
+            let integrator = Integrator::new(scene, key.max_depth);
+            let mut dsink = DenoiseSink {
+                inner: &mut sink,
+                denoiser,
+                integrator: &integrator,
+                seed: key.seed,
+                layers,
+                seconds: 0.0,
+            };
+            pool.install(|| -> Result<()> {
+                for (frame, list) in &shares {
+                    let d = combine(*frame, list)?;
+                    nonfinite_pixels += d.nonfinite;
+                    dsink.put(d)?;
+                }
+                Ok(())
+            })?;
+        }
     }
     let frame_bytes = sink
         .written

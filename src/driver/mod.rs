@@ -173,9 +173,11 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     let startup_rss_bytes = crate::util::mem::rss_bytes();
     let plan = opts.validate(scene)?;
     // The denoiser is loaded before anything is written or traced: a missing library is one
-    // line at start, not an error after the first frame.
+    // line at start, not an error after the first frame. A chunk writes no frames: `merge`
+    // denoises them (the key records `--denoise`).
     let denoiser = opts
         .denoise
+        .filter(|_| opts.chunk.is_none())
         .map(|layers| crate::image::oidn::Denoiser::load(opts.threads).map(|d| (d, layers)))
         .transpose()?;
     let (out, created) = opts.check_files(&plan)?;

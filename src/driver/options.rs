@@ -212,12 +212,6 @@ impl RenderOptions {
                 bail!("--adaptive {t}: the target share of n_f n_r must be in (0, 1]");
             }
         }
-        if self.denoise.is_some() && self.chunk.is_some() {
-            bail!(
-                "--denoise with --chunk: a chunk writes no frames to denoise, and `reframe merge` \
-                 does not denoise; render without --chunk to denoise"
-            );
-        }
         if !self.method.reuses() && self.window != 1 {
             bail!(
                 "--window {}: only the reuse methods (havran, mis, mis-exact, mis-cv) take a window",
