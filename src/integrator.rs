@@ -178,6 +178,18 @@ pub struct Integrator<'a> {
     /// Russian roulette may end a path after this bounce (`RR_DEPTH`; only the efficiency
     /// measurement changes it).
     pub rr_depth: u32,
+    /// How the independent tracer traces its primary rays.
+    pub primary: Primary,
+}
+
+/// How primary rays are traced: a tile's 4x4 pixel blocks as one coherent 16-wide Embree packet
+/// per sample index, or one ray at a time. Both give the same estimator; hits may differ in the
+/// last bits of `t`, `u` and `v` (Embree's packet and single-ray kernels round differently).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Primary {
+    #[default]
+    Packet,
+    Single,
 }
 
 impl<'a> Integrator<'a> {
@@ -186,6 +198,7 @@ impl<'a> Integrator<'a> {
             scene,
             max_depth,
             rr_depth: RR_DEPTH,
+            primary: Primary::default(),
         }
     }
 

@@ -134,6 +134,10 @@ fn run(cli: Cli) -> Result<()> {
                 spp: a.spp,
                 window: a.window,
                 packets: matches!(a.visibility, Visibility::Packet),
+                primary: match a.primary {
+                    Visibility::Packet => reframe::integrator::Primary::Packet,
+                    Visibility::Single => reframe::integrator::Primary::Single,
+                },
                 aov: a.aov,
                 frames: a.frames.map(|(x, y)| x..=y),
                 resolution: a.res,

@@ -99,6 +99,11 @@ fn run_key(scene: &Scene, opts: &RenderOptions, plan: &Plan) -> Result<RunKey> {
         seed: opts.seed,
         max_depth: opts.max_depth,
         visibility: if opts.packets { "packet" } else { "single" }.into(),
+        primary: match opts.primary {
+            crate::integrator::Primary::Packet => "packet",
+            crate::integrator::Primary::Single => "single",
+        }
+        .into(),
         aov: opts.aov,
         adaptive: opts.adaptive.unwrap_or(0.0),
         exr_float: opts.exr_float,
@@ -240,7 +245,8 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     run.interrupt = opts.interrupt.clone();
     let pool = thread_pool(opts.threads)?;
     crate::embree::set_flush_denormals();
-    let integrator = Integrator::new(scene, opts.max_depth);
+    let mut integrator = Integrator::new(scene, opts.max_depth);
+    integrator.primary = opts.primary;
     let mut sink = FileSink::new(
         FrameMeta {
             scene: scene.name.clone(),

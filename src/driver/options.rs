@@ -20,6 +20,8 @@ pub struct RenderOptions {
     pub window: u32,
     /// Visibility tests of reuse in 16-wide packets (else single rays).
     pub packets: bool,
+    /// The independent tracer's primary rays in 16-wide packets (else single rays).
+    pub primary: crate::integrator::Primary,
     /// Write extra EXR channels: effective sample count and share of lost reuses per pixel.
     pub aov: bool,
     /// Inclusive frame range; `None` renders all of the scene's frames.
@@ -60,6 +62,7 @@ impl Default for RenderOptions {
             spp: 8,
             window: 1,
             packets: true,
+            primary: crate::integrator::Primary::Packet,
             aov: false,
             frames: None,
             resolution: None,
@@ -353,6 +356,13 @@ impl RenderOptions {
         }
         if !self.packets && !self.method.reuses() {
             w.push("--visibility: the independent tracer tests no reuse; ignored".into());
+        }
+        if self.primary != crate::integrator::Primary::Packet && self.method.reuses() {
+            w.push(
+                "--primary: the reuse methods trace their native samples' primary rays one at a \
+                 time; ignored"
+                    .into(),
+            );
         }
         w
     }

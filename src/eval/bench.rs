@@ -37,7 +37,7 @@ use crate::driver::{
 };
 use crate::embree::Ray;
 use crate::film::tiles::tiles;
-use crate::integrator::{Integrator, RayCounts, Tally};
+use crate::integrator::{Integrator, Primary, RayCounts, Tally};
 use crate::reuse::visibility::{visibility, Landing, NativeHit};
 use crate::reuse::Method;
 use crate::sampling::Sampler;
@@ -136,6 +136,10 @@ pub struct BenchReport {
     pub bare_rays_per_second: f64,
     /// Renderer rate over bare Embree rate.
     pub ratio: f64,
+    /// The independent tracer on the same frame with its primary rays in 16-wide packets and one
+    /// at a time (`integrator::Primary`): the median of 3 alternating runs each, seconds.
+    pub primary_packet_seconds: f64,
+    pub primary_single_seconds: f64,
 }
 
 /// Eq. 16: the speed-up of reusing `n_f` frames over independent rendering at the same number of
@@ -203,7 +207,14 @@ impl BenchReport {
             self.bare_seconds,
             self.bare_rays_per_second / 1e6
         );
-        let _ = write!(t, "renderer / bare Embree: {:.1}%", self.ratio * 100.0);
+        let _ = writeln!(t, "renderer / bare Embree: {:.1}%", self.ratio * 100.0);
+        let _ = write!(
+            t,
+            "primary rays in packets / single: {:.3} s / {:.3} s ({:.2}x)",
+            self.primary_packet_seconds,
+            self.primary_single_seconds,
+            self.primary_single_seconds / self.primary_packet_seconds
+        );
         t
     }
 }
@@ -388,6 +399,24 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     });
     let bare_seconds = t1.elapsed().as_secs_f64();
     std::hint::black_box(hit_count);
+    // Primary rays in packets against single rays, alternating so that load hits both alike.
+    let (mut packet_times, mut single_times) = (Vec::new(), Vec::new());
+    for _ in 0..3 {
+        for (primary, times) in [
+            (Primary::Packet, &mut packet_times),
+            (Primary::Single, &mut single_times),
+        ] {
+            let mut integ = Integrator::new(scene, opts.max_depth);
+            integ.primary = primary;
+            let t0 = Instant::now();
+            pool.install(|| render_frame_independent(&integ, &cam, frame, spp, seed, false, &none));
+            times.push(t0.elapsed().as_secs_f64());
+        }
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
     let c = timed.counts;
     let render_rate = c.total() as f64 / render_seconds;
     let bare_rate = logged.ray_logs.iter().map(|l| l.len()).sum::<usize>() as f64 / bare_seconds;
@@ -416,6 +445,8 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
         bare_seconds,
         bare_rays_per_second: bare_rate,
         ratio: render_rate / bare_rate,
+        primary_packet_seconds: median(packet_times),
+        primary_single_seconds: median(single_times),
     })
 }
 

@@ -831,6 +831,7 @@ mod tests {
             seed: 0,
             max_depth: 16,
             visibility: "packet".into(),
+            primary: "packet".into(),
             aov: false,
             adaptive: 0.0,
             exr_float: false,
