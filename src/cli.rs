@@ -145,8 +145,9 @@ pub struct RenderArgs {
     /// Frames per reuse group, n_f = 2n+1 (reuse methods only).
     #[arg(long, default_value_t = 1)]
     pub window: u32,
-    /// How the independent tracer traces primary rays: a 4x4 pixel block per 16-wide coherent
-    /// packet, or single rays (the same estimator; hits may differ in their last bits).
+    /// How primary rays are traced (the independent tracer's and the reuse methods' native
+    /// samples'): 16-wide coherent packets, or single rays (the same estimator; hits may differ
+    /// in their last bits).
     #[arg(long, value_enum, default_value_t = Visibility::Packet)]
     pub primary: Visibility,
     /// How reuse visibility tests are traced: 16-wide coherent packets or single rays.

@@ -178,12 +178,13 @@ pub struct Integrator<'a> {
     /// Russian roulette may end a path after this bounce (`RR_DEPTH`; only the efficiency
     /// measurement changes it).
     pub rr_depth: u32,
-    /// How the independent tracer traces its primary rays.
+    /// How primary rays are traced (the independent tracer and the native samples of reuse).
     pub primary: Primary,
 }
 
-/// How primary rays are traced: a tile's 4x4 pixel blocks as one coherent 16-wide Embree packet
-/// per sample index, or one ray at a time. Both give the same estimator; hits may differ in the
+/// How primary rays are traced: as coherent 16-wide Embree packets (the independent tracer: a
+/// tile's 4x4 pixel blocks per sample index; the reuse methods' native samples: 16 consecutive
+/// camera samples of a tile row), or one ray at a time. Both give the same estimator; hits may differ in the
 /// last bits of `t`, `u` and `v` (Embree's packet and single-ray kernels round differently).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Primary {

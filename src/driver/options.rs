@@ -20,7 +20,8 @@ pub struct RenderOptions {
     pub window: u32,
     /// Visibility tests of reuse in 16-wide packets (else single rays).
     pub packets: bool,
-    /// The independent tracer's primary rays in 16-wide packets (else single rays).
+    /// Primary rays (the independent tracer's, the reuse methods' native samples') in 16-wide
+    /// packets (else single rays).
     pub primary: crate::integrator::Primary,
     /// Write extra EXR channels: effective sample count and share of lost reuses per pixel.
     pub aov: bool,
@@ -357,13 +358,7 @@ impl RenderOptions {
         if !self.packets && !self.method.reuses() {
             w.push("--visibility: the independent tracer tests no reuse; ignored".into());
         }
-        if self.primary != crate::integrator::Primary::Packet && self.method.reuses() {
-            w.push(
-                "--primary: the reuse methods trace their native samples' primary rays one at a \
-                 time; ignored"
-                    .into(),
-            );
-        }
+
         w
     }
 }

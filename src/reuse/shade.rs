@@ -14,11 +14,11 @@ use super::visibility::{visibility, Landing, NativeHit};
 use super::weights::{EyeTerms, Weighing};
 use super::{Params, Weights};
 use crate::camera::Camera;
-use crate::embree::Ray;
+use crate::embree::{Packet16, Ray};
 use crate::film::local::LocalFilm;
 use crate::film::tiles::Tile;
 use crate::film::FrameAccum;
-use crate::integrator::{Integrator, Tally};
+use crate::integrator::{Integrator, Primary, Tally};
 use crate::sampling::{mix64, Sampler};
 use glam::{Vec2, Vec3};
 
@@ -98,6 +98,10 @@ struct Scratch {
     eyes: Vec<EyeTerms>,
     /// `A_pix,k` of each eye of the group.
     pixel_areas: Vec<f32>,
+    /// Camera samples waiting for their primary packet: (pixel, sample index, sampler, ray
+    /// direction), and the packet (`integrator::Primary::Packet`).
+    pending: Vec<(u32, u32, Sampler, Vec3)>,
+    packet: Packet16,
 }
 
 /// The native samples of tile `(x0, y0, x1, y1)` of frame `group[m]`, splatted into `films`
@@ -143,7 +147,10 @@ fn shade_eye(
         land,
         eyes,
         pixel_areas,
+        pending,
+        packet,
     } = scratch;
+    let packets = integrator.primary == Primary::Packet;
     hits.clear();
     escapes.clear();
     let split_streams = group[m].film.layout.norm.folds() >= 2 && group[m].split;
@@ -183,6 +190,23 @@ fn shade_eye(
                 };
                 let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                 let dir = cam_m.direction(r);
+                if packets {
+                    // Consecutive samples of a tile row, 16 to a coherent packet.
+                    pending.push((pixel, index, sampler, dir));
+                    if pending.len() == 16 {
+                        trace_pending(
+                            integrator,
+                            cam_m,
+                            pending,
+                            packet,
+                            keep_escapes,
+                            hits,
+                            escapes,
+                            tally,
+                        );
+                    }
+                    continue;
+                }
                 match integrator.trace_first_hit(cam_m.eye, dir, &mut sampler, tally) {
                     Some(fh) => hits.push((pixel, index, fh)),
                     None if keep_escapes => escapes.push((pixel, index, dir)),
@@ -191,6 +215,16 @@ fn shade_eye(
             }
         }
     }
+    trace_pending(
+        integrator,
+        cam_m,
+        pending,
+        packet,
+        keep_escapes,
+        hits,
+        escapes,
+        tally,
+    );
     // Where each hit lands in each eye of the group (None: occluded or off the film).
     land.clear();
     land.resize(hits.len() * n_f, None);
@@ -280,6 +314,41 @@ fn shade_eye(
         }
     }
     bad
+}
+
+/// Trace the primary rays of the `pending` camera samples (at most 16) as one packet and record
+/// their first hits (or escapes) as `trace_first_hit` would, in the order they were queued.
+#[allow(clippy::too_many_arguments)]
+fn trace_pending(
+    integrator: &Integrator,
+    cam: &Camera,
+    pending: &mut Vec<(u32, u32, Sampler, Vec3)>,
+    packet: &mut Packet16,
+    keep_escapes: bool,
+    hits: &mut Vec<NativeHit>,
+    escapes: &mut Vec<(u32, u32, Vec3)>,
+    tally: &mut Tally,
+) {
+    if pending.is_empty() {
+        return;
+    }
+    packet.clear();
+    for (lane, (_, _, _, dir)) in pending.iter().enumerate() {
+        let ray = Ray::new(cam.eye, *dir);
+        tally.primary(&ray);
+        packet.set(lane, &ray);
+    }
+    integrator.scene.geometry.intersect16(packet);
+    for (lane, (pixel, index, mut sampler, dir)) in pending.drain(..).enumerate() {
+        match packet.hit(lane) {
+            Some(hit) => {
+                let fh = integrator.first_hit_at(&hit, cam.eye, &mut sampler, tally);
+                hits.push((pixel, index, fh));
+            }
+            None if keep_escapes => escapes.push((pixel, index, dir)),
+            None => {}
+        }
+    }
 }
 
 /// The rounding dither of a native sample's splats: a hash of the sample and the target frame,

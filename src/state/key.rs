@@ -78,8 +78,8 @@ pub struct RunKey {
     pub seed: u64,
     pub max_depth: u32,
     pub visibility: String,
-    /// The independent tracer's primary rays: "packet" or "single" (hits may differ in their
-    /// last bits, so a resume must not mix them).
+    /// Primary rays: "packet" or "single" (hits may differ in their last bits, so a resume must
+    /// not mix them).
     #[serde(default)]
     pub primary: String,
     pub aov: bool,
