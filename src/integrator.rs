@@ -184,7 +184,7 @@ pub struct Integrator<'a> {
 
 /// How primary rays are traced: as coherent 16-wide Embree packets (the independent tracer: a
 /// tile's 4x4 pixel blocks per sample index; the reuse methods' native samples: 16 consecutive
-/// camera samples of a tile row), or one ray at a time. Both give the same estimator; hits may differ in the
+/// camera samples of a tile, row by row), or one ray at a time. Both give the same estimator; hits may differ in the
 /// last bits of `t`, `u` and `v` (Embree's packet and single-ray kernels round differently).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Primary {

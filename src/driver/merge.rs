@@ -139,6 +139,7 @@ pub fn merge(
         d => bail!("{}: unknown denoise setting '{d}'", label(&files[0])),
     };
     // Denoised chunks: the scene is checked and the denoiser loaded before anything is written.
+    // (A scene given for chunks rendered without --denoise is not needed, and not used.)
     let denoise = match (layers, denoising) {
         (None, _) => None,
         (Some(_), None) => bail!(

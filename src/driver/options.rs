@@ -21,7 +21,8 @@ pub struct RenderOptions {
     /// Visibility tests of reuse in 16-wide packets (else single rays).
     pub packets: bool,
     /// Primary rays (the independent tracer's, the reuse methods' native samples') in 16-wide
-    /// packets (else single rays).
+    /// packets (else single rays). `render` sets its integrator's `primary` from it;
+    /// `render_frames` takes the integrator it is given as it is.
     pub primary: crate::integrator::Primary,
     /// Write extra EXR channels: effective sample count and share of lost reuses per pixel.
     pub aov: bool,
@@ -358,7 +359,6 @@ impl RenderOptions {
         if !self.packets && !self.method.reuses() {
             w.push("--visibility: the independent tracer tests no reuse; ignored".into());
         }
-
         w
     }
 }

@@ -6,8 +6,9 @@ use base64::Engine as _;
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// One colour per method, in the order independent, havran, mis, mis-exact (Okabe-Ito palette,
-/// readable with colour-blindness).
+/// One colour per method, in the order independent, havran, mis, mis-exact, mis-cv, then their
+/// denoised lines (`compare::Candidate`), and the charts' other lines (Okabe-Ito palette and
+/// Tol's, readable with colour-blindness).
 pub const COLOURS: [&str; 10] = [
     "#000000", "#E69F00", "#56B4E9", "#009E73", "#CC79A7", "#D55E00", "#0072B2", "#882255",
     "#44AA99", "#999933",

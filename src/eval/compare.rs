@@ -615,10 +615,16 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             .filter(|r| r.method == INDEPENDENT)
             .map(|r| r.seconds)
             .collect();
-        if ind.is_empty() {
-            runs.iter().map(|r| r.seconds).collect()
-        } else {
-            ind
+        // Without independent runs, the plain runs' times (else all of them).
+        let plain: Vec<f64> = runs
+            .iter()
+            .filter(|r| !r.method.denoise)
+            .map(|r| r.seconds)
+            .collect();
+        match (ind.is_empty(), plain.is_empty()) {
+            (false, _) => ind,
+            (true, false) => plain,
+            (true, true) => runs.iter().map(|r| r.seconds).collect(),
         }
     };
     let equal_time = (times.iter().map(|t| t.ln()).sum::<f64>() / times.len() as f64).exp();
@@ -904,6 +910,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             &scene.camera(crop_frame, w, h),
             &c,
             r,
+            opts.seed,
             opts.bias_seeds,
         )?;
         eprintln!(
@@ -914,7 +921,12 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             b.bias_relmse,
             b.relmse
         );
-        bias_images.push((c, format!("{} spp", r.spp), mean));
+        let what = if c.method.reuses() {
+            format!("{} spp, n_f {}", r.spp, r.window)
+        } else {
+            format!("{} spp", r.spp)
+        };
+        bias_images.push((c, what, mean));
         bias.push(Bias {
             method: c,
             window: r.window,
@@ -1248,6 +1260,7 @@ fn write_bias_exr(
     cam: &crate::camera::Camera,
     c: &Candidate,
     r: &Run,
+    seed: u64,
     seeds: u32,
 ) -> Result<()> {
     let mut img = Image::new(cam.width, cam.height, &["R", "G", "B"]);
@@ -1256,7 +1269,8 @@ fn write_bias_exr(
         method: c.name(),
         spp: r.spp,
         window: r.window,
-        seed: 0,
+        seed,
+        // The measured run's charged time (the other seeds' renders are not timed).
         render_seconds: r.seconds,
         world_to_camera: cam.world_to_camera().to_cols_array(),
         world_to_ndc: cam.world_to_ndc().to_cols_array(),
@@ -1265,7 +1279,10 @@ fn write_bias_exr(
                 "content".into(),
                 "mean over seeds minus the reference".into(),
             ),
-            ("seeds".into(), seeds.to_string()),
+            (
+                "seeds".into(),
+                format!("{seeds} ({seed}..={})", seed.wrapping_add(seeds as u64 - 1)),
+            ),
         ],
     };
     write_image(path, &img, &meta, &WriteOptions { exr_float: true })

@@ -172,10 +172,6 @@ impl Denoiser {
         ))
     }
 
-    /// Denoise `input.color` with OIDN's `RT` filter in HDR mode, guided by the albedo and
-    /// normal images, declared noise-free (`cleanAux`): they are averages of first hits, which
-    /// vary only across a pixel's footprint (antialiasing), not from sample noise. (Prefiltering
-    /// them, OIDN's advice for noisy guides, would take two more passes of the network.)
     /// Make the filters for `width` x `height` frames and run them once on a black frame, so
     /// that a timed first frame does not pay for setting the network up.
     pub fn prepare(&mut self, width: usize, height: usize) -> Result<()> {
@@ -190,6 +186,10 @@ impl Denoiser {
         .map(drop)
     }
 
+    /// Denoise `input.color` with OIDN's `RT` filter in HDR mode, guided by the albedo and
+    /// normal images, declared noise-free (`cleanAux`): they are averages of first hits, which
+    /// vary only across a pixel's footprint (antialiasing), not from sample noise. (Prefiltering
+    /// them, OIDN's advice for noisy guides, would take two more passes of the network.)
     pub fn denoise(&mut self, input: &DenoiseInput) -> Result<Vec<f32>> {
         let (w, h) = (input.width, input.height);
         let n = w * h * 3;

@@ -191,7 +191,7 @@ fn shade_eye(
                 let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                 let dir = cam_m.direction(r);
                 if packets {
-                    // Consecutive samples of a tile row, 16 to a coherent packet.
+                    // Consecutive camera samples of the tile (row by row), 16 to a packet.
                     pending.push((pixel, index, sampler, dir));
                     if pending.len() == 16 {
                         trace_pending(
