@@ -25,9 +25,9 @@ use glam::{Vec2, Vec3};
 /// The first bounce after which Russian roulette may end a path (chosen by efficiency,
 /// README "The tracer").
 pub const RR_DEPTH: u32 = 3;
-/// Sampler dimensions: 0-1 pixel position, 2-4 light sample at x, 5-7 BSDF sample at x, then
-/// `DIMS_PER_BOUNCE` per further vertex. Fixed offsets keep the first hit's numbers the same
-/// whatever the rest of the path used.
+/// Sampler dimensions: 0-1 pixel position, 2-3 light sample at x (4 unused), 5-7 BSDF sample at
+/// x, then `DIMS_PER_BOUNCE` per further vertex. Fixed offsets keep the first hit's numbers the
+/// same whatever the rest of the path used.
 const DIM_LIGHT: u64 = 2;
 const DIM_BSDF: u64 = 5;
 const DIM_PATH: u64 = 8;
@@ -214,9 +214,8 @@ impl<'a> Integrator<'a> {
         t: &mut Tally,
     ) -> Vec3 {
         let (ng, ns) = facing(sp, wo);
-        let u_sel = s.next_1d();
         let u = s.next_2d();
-        let Some(ls) = self.scene.sample_light(sp.p, u_sel, u) else {
+        let Some(ls) = self.scene.sample_light(sp.p, u) else {
             return Vec3::ZERO;
         };
         if ls.le == Vec3::ZERO || ng.dot(ls.wi) <= 0.0 {
@@ -273,9 +272,8 @@ impl<'a> Integrator<'a> {
         }
         // Light sample at x: stored with its visibility, not weighted (weights depend on eyes).
         s.set_dimension(DIM_LIGHT);
-        let u_sel = s.next_1d();
         let u = s.next_2d();
-        if let Some(ls) = scene.sample_light(sp.p, u_sel, u) {
+        if let Some(ls) = scene.sample_light(sp.p, u) {
             let mut le = ls.le;
             // A light behind the surface cannot contribute for any eye on this side; skip the ray.
             if le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 {

@@ -637,11 +637,19 @@ impl Scene {
 
     /// Sample a point on a light (or a direction towards the environment) as seen from `x`: the
     /// environment with probability `env_select`, else an area light by power.
-    pub fn sample_light(&self, x: Vec3, u_sel: f32, u: Vec2) -> Option<LightSample> {
-        let mut u_sel = u_sel;
+    ///
+    /// One 2D number does both: its first coordinate picks the light and is then stretched back
+    /// to [0, 1) over the chosen light's share (`(u.x - F_lo) / p`), so that the points the
+    /// picks leave on each light keep the stratification of the sampler's 2D points instead of
+    /// being a random subset of them (Mitsuba's and pbrt's sample reuse).
+    pub fn sample_light(&self, x: Vec3, u: Vec2) -> Option<LightSample> {
+        // Stretch the part `[lo, lo + p)` of [0, 1) that chose a light back to [0, 1).
+        let stretch = |v: f32, lo: f32, p: f32| ((v - lo) / p).clamp(0.0, 1.0 - f32::EPSILON);
+        let mut u = u;
         let p_env = self.env_select;
         if p_env > 0.0 {
-            if u_sel < p_env {
+            if u.x < p_env {
+                let u = Vec2::new(stretch(u.x, 0.0, p_env), u.y);
                 let es = self.environment.as_ref()?.sample(u)?;
                 return Some(LightSample {
                     p: x + es.wi,
@@ -653,13 +661,15 @@ impl Scene {
                 });
             }
             // The rest of [0, 1) picks among the area lights.
-            u_sel = ((u_sel - p_env) / (1.0 - p_env)).min(1.0 - f32::EPSILON);
+            u.x = stretch(u.x, p_env, 1.0 - p_env);
         }
         let l = &self.lights;
         if l.tris.is_empty() {
             return None;
         }
-        let i = l.cdf.partition_point(|&c| c <= u_sel).min(l.tris.len() - 1);
+        let i = l.cdf.partition_point(|&c| c <= u.x).min(l.tris.len() - 1);
+        let lo = if i == 0 { 0.0 } else { l.cdf[i - 1] };
+        u.x = stretch(u.x, lo, l.cdf[i] - lo);
         let tri = l.tris[i] as usize;
         let [i0, i1, i2] = self.triangles[tri];
         let (b1, b2) = uniform_triangle(u);
@@ -1361,7 +1371,7 @@ mod tests {
             + s.positions.iter().copied().sum::<Vec3>() / s.positions.len() as f32;
         let mut sm = crate::sampling::Sampler::new(1, 0, 0, 0);
         for _ in 0..100 {
-            let ls = s.sample_light(x, sm.next_1d(), sm.next_2d()).unwrap();
+            let ls = s.sample_light(x, sm.next_2d()).unwrap();
             let hit = s.geometry.intersect1(&crate::embree::Ray::new(x, ls.wi));
             let Some(h) = hit else { continue };
             if (h.t - ls.dist).abs() < 1e-3 {

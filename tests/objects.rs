@@ -267,8 +267,8 @@ fn an_emitting_object_placed_twice_is_two_lights() {
     let below = Vec3::new(0.0, -0.5, 0.0);
     let mut lit = [false; 2];
     for k in 0..256 {
-        let u = ((k as f32 + 0.5) / 256.0, 0.5);
-        if let Some(ls) = s.sample_light(below, u.0, Vec2::new(u.1, 0.3)) {
+        let u = Vec2::new((k as f32 + 0.5) / 256.0, 0.3);
+        if let Some(ls) = s.sample_light(below, u) {
             if ls.le != Vec3::ZERO {
                 lit[(ls.p.x > 0.0) as usize] = true;
             }
