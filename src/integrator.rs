@@ -17,7 +17,7 @@
 //! Paths end by Russian roulette from bounce `RR_DEPTH` on, or at `max_depth`
 //! (`examples/rr_efficiency.rs` measures where roulette should start).
 use crate::bsdf::Material;
-use crate::embree::{Hit, Ray};
+use crate::embree::{Hit, Packet16, Ray};
 use crate::sampling::Sampler;
 use crate::scene::{Scene, SurfacePoint};
 use glam::{Vec2, Vec3};
@@ -231,6 +231,43 @@ impl<'a> Integrator<'a> {
             return Vec3::ZERO;
         }
         f * ns.dot(ls.wi) * ls.le / (ls.pdf + pb)
+    }
+
+    /// The closest hits of up to 16 primary rays from `eye` along `dirs` (lane `i` of the result
+    /// for `dirs[i]`), as one coherent packet or one ray at a time, as `self.primary` says: the
+    /// same hits up to Embree's rounding. `packet` is the caller's scratch.
+    pub fn primary_hits(
+        &self,
+        eye: Vec3,
+        dirs: &[Vec3],
+        packet: &mut Packet16,
+        t: &mut Tally,
+    ) -> [Option<Hit>; 16] {
+        assert!(dirs.len() <= 16, "a packet holds 16 rays");
+        let geometry = &self.scene.geometry;
+        let mut hits = [None; 16];
+        match self.primary {
+            Primary::Packet => {
+                packet.clear();
+                for (lane, &dir) in dirs.iter().enumerate() {
+                    let ray = Ray::new(eye, dir);
+                    t.primary(&ray);
+                    packet.set(lane, &ray);
+                }
+                geometry.intersect16(packet);
+                for (lane, hit) in hits.iter_mut().enumerate().take(dirs.len()) {
+                    *hit = packet.hit(lane);
+                }
+            }
+            Primary::Single => {
+                for (hit, &dir) in hits.iter_mut().zip(dirs) {
+                    let ray = Ray::new(eye, dir);
+                    t.primary(&ray);
+                    *hit = geometry.intersect1(&ray);
+                }
+            }
+        }
+        hits
     }
 
     /// The camera sample through raster position `r` of eye `eye` along unit `dir`, up to and

@@ -12,7 +12,6 @@ use reframe::image::{read_image, Image};
 use reframe::reuse::Method;
 use reframe::scene::Scene;
 use std::path::Path;
-use std::process::Command;
 
 fn channel(img: &Image, name: &str) -> Vec<f32> {
     let c = img
@@ -146,13 +145,11 @@ fn a_denoised_render_differs_from_a_plain_one_only_in_its_rgb() {
 #[test]
 fn png_output_gets_the_denoised_frame_and_a_missing_library_is_one_line() {
     let d = tempfile::tempdir().unwrap();
-    let bin = env!("CARGO_BIN_EXE_reframe");
     let run = |args: &[&str], lib: Option<&str>| {
-        let mut c = Command::new(bin);
-        c.args([
+        let mut c = common::reframe(&[
             "render", "furnace", "--spp", "1", "--frames", "0", "--res", "32x32",
-        ])
-        .args(args);
+        ]);
+        c.args(args);
         if let Some(l) = lib {
             c.env("REFRAME_OIDN_LIB", l);
         }
@@ -201,35 +198,34 @@ fn compare_runs_denoised_methods_with_their_time_and_bias() {
     let d = tempfile::tempdir().unwrap();
     let out = d.path().join("cmp");
     let cache = d.path().join("cache");
-    let o = Command::new(env!("CARGO_BIN_EXE_reframe"))
-        .args([
-            "compare",
-            "vase",
-            "--res",
-            "64x48",
-            "--frames",
-            "20-24",
-            "--reference-spp",
-            "64",
-            "--methods",
-            "independent,independent+oidn,mis-cv+oidn",
-            "--budgets",
-            "1,2",
-            "--windows",
-            "3",
-            "--reuse-budgets",
-            "1",
-            "--bias-seeds",
-            "3",
-            "--threads",
-            "2",
-        ])
-        .arg("--out")
-        .arg(&out)
-        .arg("--cache")
-        .arg(&cache)
-        .output()
-        .unwrap();
+    let o = common::reframe(&[
+        "compare",
+        "vase",
+        "--res",
+        "64x48",
+        "--frames",
+        "20-24",
+        "--reference-spp",
+        "64",
+        "--methods",
+        "independent,independent+oidn,mis-cv+oidn",
+        "--budgets",
+        "1,2",
+        "--windows",
+        "3",
+        "--reuse-budgets",
+        "1",
+        "--bias-seeds",
+        "3",
+        "--threads",
+        "2",
+    ])
+    .arg("--out")
+    .arg(&out)
+    .arg("--cache")
+    .arg(&cache)
+    .output()
+    .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let c: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("compare.json")).unwrap()).unwrap();
@@ -304,8 +300,7 @@ fn compare_runs_denoised_methods_with_their_time_and_bias() {
 #[test]
 fn chunks_rendered_with_denoise_merge_into_the_one_process_denoised_frames() {
     let d = tempfile::tempdir().unwrap();
-    let bin = env!("CARGO_BIN_EXE_reframe");
-    let run = |args: &[&str]| Command::new(bin).args(args).output().unwrap();
+    let run = |args: &[&str]| common::reframe(args).output().unwrap();
     let (one, chunked) = (d.path().join("one"), d.path().join("chunked"));
     let common = [
         "render",

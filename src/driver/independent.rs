@@ -6,11 +6,11 @@
 use super::progress_bar;
 use super::run::{Graceful, Run};
 use crate::camera::Camera;
-use crate::embree::{Packet16, Ray};
+use crate::embree::Packet16;
 use crate::film::tiles::Tile;
 use crate::film::tiles::{place_tile, tiles};
 use crate::film::{Developed, Sink, View};
-use crate::integrator::{Integrator, Primary, RayCounts, Tally};
+use crate::integrator::{Integrator, RayCounts, Tally};
 use crate::sampling::Sampler;
 use crate::state::Record;
 use anyhow::Result;
@@ -28,45 +28,11 @@ pub struct FrameResult {
     pub ray_logs: Vec<Vec<(crate::embree::Ray, bool)>>,
 }
 
-/// A tile's pixel means (row by row) and its samples dropped as NaN or infinite, one primary ray
-/// at a time.
-fn tile_single(
-    integrator: &Integrator,
-    cam: &Camera,
-    frame: u32,
-    spp: u32,
-    seed: u64,
-    (x0, y0, x1, y1): Tile,
-    t: &mut Tally,
-) -> (Vec<Vec3>, u64) {
-    let w = cam.width;
-    let mut px = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
-    let mut bad = 0u64;
-    for y in y0..y1 {
-        for x in x0..x1 {
-            let pixel = y * w + x;
-            let mut sum = Vec3::ZERO;
-            for s in 0..spp {
-                let mut sampler = Sampler::stratified(seed, frame, pixel, 0, s);
-                let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
-                let v = integrator.sample_pixel(cam, r, &mut sampler, t);
-                // A NaN or infinite sample is dropped and counted, never written.
-                if v.is_finite() {
-                    sum += v;
-                } else {
-                    bad += 1;
-                }
-            }
-            px.push(sum / spp as f32);
-        }
-    }
-    (px, bad)
-}
-
-/// `tile_single` with the primary rays of each 4x4 block of pixels traced as one coherent
-/// packet per sample index. Each lane keeps its own sampler and sums its samples in index order,
-/// so a pixel's value is what `tile_single` computes from the same hits.
-fn tile_packets(
+/// A tile's pixel means (row by row) and its samples dropped as NaN or infinite. The primary
+/// rays of each 4x4 block of pixels are traced together per sample index (one coherent packet,
+/// or one ray at a time: `Integrator::primary_hits`); each lane keeps its own sampler and sums
+/// its samples in index order, so a pixel's value depends only on its own hits.
+fn render_tile(
     integrator: &Integrator,
     cam: &Camera,
     frame: u32,
@@ -77,14 +43,13 @@ fn tile_packets(
 ) -> (Vec<Vec3>, u64) {
     const BLOCK: u32 = 4;
     let (w, tw) = (cam.width, x1 - x0);
-    let scene = integrator.scene;
     let mut px = vec![Vec3::ZERO; (tw * (y1 - y0)) as usize];
     let mut bad = 0u64;
     let mut packet = Packet16::new();
     // Per lane: its pixel (x, y), and its sampler and ray direction of the current sample.
     let mut lanes: Vec<(u32, u32)> = Vec::with_capacity(16);
     let mut samplers: Vec<Sampler> = Vec::with_capacity(16);
-    let mut dirs = [Vec3::ZERO; 16];
+    let mut dirs: Vec<Vec3> = Vec::with_capacity(16);
     for by in (y0..y1).step_by(BLOCK as usize) {
         for bx in (x0..x1).step_by(BLOCK as usize) {
             lanes.clear();
@@ -95,24 +60,21 @@ fn tile_packets(
             }
             let mut sums = [Vec3::ZERO; 16];
             for s in 0..spp {
-                packet.clear();
                 samplers.clear();
-                for (lane, &(x, y)) in lanes.iter().enumerate() {
+                dirs.clear();
+                for &(x, y) in &lanes {
                     let mut sampler = Sampler::stratified(seed, frame, y * w + x, 0, s);
                     let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
-                    dirs[lane] = cam.direction(r);
-                    let ray = Ray::new(cam.eye, dirs[lane]);
-                    t.primary(&ray);
-                    packet.set(lane, &ray);
+                    dirs.push(cam.direction(r));
                     samplers.push(sampler);
                 }
-                scene.geometry.intersect16(&mut packet);
+                let hits = integrator.primary_hits(cam.eye, &dirs, &mut packet, t);
                 for (lane, sampler) in samplers.iter_mut().enumerate() {
-                    let v = match packet.hit(lane) {
+                    let v = match &hits[lane] {
                         Some(hit) => integrator
-                            .first_hit_at(&hit, cam.eye, sampler, t)
+                            .first_hit_at(hit, cam.eye, sampler, t)
                             .radiance(cam.eye),
-                        None => scene.env_radiance(dirs[lane]),
+                        None => integrator.scene.env_radiance(dirs[lane]),
                     };
                     // A NaN or infinite sample is dropped and counted, never written.
                     if v.is_finite() {
@@ -151,10 +113,7 @@ pub fn render_frame_independent(
                 Tally::default()
             };
             let tile = (x0, y0, x1, y1);
-            let (px, bad) = match integrator.primary {
-                Primary::Single => tile_single(integrator, cam, frame, spp, seed, tile, &mut t),
-                Primary::Packet => tile_packets(integrator, cam, frame, spp, seed, tile, &mut t),
-            };
+            let (px, bad) = render_tile(integrator, cam, frame, spp, seed, tile, &mut t);
             on_tile(&t.counts);
             (px, t, bad)
         })

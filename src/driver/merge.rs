@@ -233,14 +233,16 @@ pub fn merge(
     // Every check has passed: the output folder stays.
     created.keep();
     let mut nonfinite_pixels = 0;
-    match denoise {
-        None => {
-            for (frame, list) in &shares {
-                let d = combine(*frame, list)?;
-                nonfinite_pixels += d.nonfinite;
-                sink.put(d)?;
-            }
+    let mut write_frames = |out: &mut dyn Sink| -> Result<()> {
+        for (frame, list) in &shares {
+            let d = combine(*frame, list)?;
+            nonfinite_pixels += d.nonfinite;
+            out.put(d)?;
         }
+        Ok(())
+    };
+    match denoise {
+        None => write_frames(&mut sink)?,
         Some((denoiser, layers, scene, pool)) => {
             let integrator = Integrator::new(scene, key.max_depth);
             let mut dsink = DenoiseSink {
@@ -251,14 +253,7 @@ pub fn merge(
                 layers,
                 seconds: 0.0,
             };
-            pool.install(|| -> Result<()> {
-                for (frame, list) in &shares {
-                    let d = combine(*frame, list)?;
-                    nonfinite_pixels += d.nonfinite;
-                    dsink.put(d)?;
-                }
-                Ok(())
-            })?;
+            pool.install(|| write_frames(&mut dsink))?;
         }
     }
     let frame_bytes = sink

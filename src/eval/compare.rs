@@ -627,7 +627,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             (true, true) => runs.iter().map(|r| r.seconds).collect(),
         }
     };
-    let equal_time = (times.iter().map(|t| t.ln()).sum::<f64>() / times.len() as f64).exp();
+    let equal_time = geomean(&times);
     // Each method at its largest window.
     let widest: Vec<(Candidate, u32)> = opts
         .methods
@@ -650,7 +650,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         if t.is_empty() {
             t = pick(&|r| r.method.denoise);
         }
-        (!t.is_empty()).then(|| (t.iter().map(|t| t.ln()).sum::<f64>() / t.len() as f64).exp())
+        (!t.is_empty()).then(|| geomean(&t))
     };
     // Fitted flicker and relMSE of the widest lines at time `t`.
     let at_time = |t: f64, keep: &dyn Fn(Candidate) -> bool| {
@@ -754,39 +754,31 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         ],
     };
     write_chart(chart2.svg(), "speedup_vs_nf")?;
-    let bars: Vec<(String, f64, &str)> = widest
-        .iter()
-        .filter_map(|&(c, n_f)| {
-            equal_time_flicker
-                .get(&c.name())
-                .map(|&v| (label(c, n_f), v, c.colour()))
-        })
-        .collect();
+    // Each widest line's fitted flicker in `at` as a bar.
+    let flicker_bars = |at: &BTreeMap<String, f64>| -> Vec<(String, f64, &str)> {
+        widest
+            .iter()
+            .filter_map(|&(c, n_f)| at.get(&c.name()).map(|&v| (label(c, n_f), v, c.colour())))
+            .collect()
+    };
+    const FLICKER_AXIS: &str = "flicker (RMS frame-to-frame change of the error)";
     write_chart(
         bar_chart(
             &format!("{}: flicker at equal time ({equal_time:.1} s)", scene.name),
-            "flicker (RMS frame-to-frame change of the error)",
-            &bars,
+            FLICKER_AXIS,
+            &flicker_bars(&equal_time_flicker),
         ),
         "flicker",
     )?;
     if let Some(t) = denoised_equal_time {
-        let bars: Vec<(String, f64, &str)> = widest
-            .iter()
-            .filter_map(|&(c, n_f)| {
-                denoised_equal_time_flicker
-                    .get(&c.name())
-                    .map(|&v| (label(c, n_f), v, c.colour()))
-            })
-            .collect();
         write_chart(
             bar_chart(
                 &format!(
                     "{}: flicker at the denoised equal time ({t:.1} s)",
                     scene.name
                 ),
-                "flicker (RMS frame-to-frame change of the error)",
-                &bars,
+                FLICKER_AXIS,
+                &flicker_bars(&denoised_equal_time_flicker),
             ),
             "flicker_denoised",
         )?;
@@ -824,13 +816,8 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             });
         if let Some((i, r)) = best {
             strip_runs.push((c, i));
-            let what = if c.method.reuses() {
-                format!("{} spp, n_f {}", r.spp, r.window)
-            } else {
-                format!("{} spp", r.spp)
-            };
             tiles.push((
-                format!("{c}\n{what}, {:.2} s", r.seconds),
+                format!("{c}\n{}, {:.2} s", run_label(r), r.seconds),
                 crop_png(&crops[i], w, crop)?,
                 crop[2],
                 crop[3],
@@ -864,7 +851,6 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     };
     let mut bias_tiles = vec![tiles[0].clone()];
     let mut bias_images: Vec<(Candidate, String, Vec<Vec3>)> = Vec::new();
-    let mut bias_files_written = Vec::new();
     for (c, i) in bias_runs {
         let r = &runs[i];
         // The crop frame in all of its groups, as in the measured run.
@@ -898,7 +884,6 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         let (b, mean) = bias_estimate(&seeds, ref_crop);
         let name = format!("bias_{}.exr", c.name());
         let path = opts.out.join(&name);
-        bias_files_written.push(path.display().to_string());
         let diff: Vec<Vec3> = mean
             .iter()
             .zip(&ref_crop.mean)
@@ -921,12 +906,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             b.bias_relmse,
             b.relmse
         );
-        let what = if c.method.reuses() {
-            format!("{} spp, n_f {}", r.spp, r.window)
-        } else {
-            format!("{} spp", r.spp)
-        };
-        bias_images.push((c, what, mean));
+        bias_images.push((c, run_label(r), mean));
         bias.push(Bias {
             method: c,
             window: r.window,
@@ -967,7 +947,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             "bias",
         )?;
     }
-    outputs.extend(bias_files_written);
+    outputs.extend(bias.iter().map(|b| b.image.clone()));
     let csv_path = opts.out.join("compare.csv");
     let mut csv = String::from(
         "method,window,spp,seconds,rmse,relmse,flicker,mean_effective_spp,denoise_seconds\n",
@@ -1050,27 +1030,22 @@ pub fn summary(r: &CompareReport) -> String {
             run.flicker
         );
     }
-    for (m, by_window) in &r.equal_error_speedup {
-        let v: Vec<String> = num_points(by_window)
-            .iter()
-            .map(|(n, x)| format!("n_f {n}: {x:.2}x"))
-            .collect();
-        let _ = writeln!(
-            s,
-            "equal-error speed-up of {m} over independent: {}",
-            v.join(", ")
-        );
-    }
-    for (m, by_window) in &r.equal_error_speedup_over_denoised {
-        let v: Vec<String> = num_points(by_window)
-            .iter()
-            .map(|(n, x)| format!("n_f {n}: {x:.2}x"))
-            .collect();
-        let _ = writeln!(
-            s,
-            "equal-error speed-up of {m} over independent+oidn: {}",
-            v.join(", ")
-        );
+    let speedups = [
+        ("independent", &r.equal_error_speedup),
+        ("independent+oidn", &r.equal_error_speedup_over_denoised),
+    ];
+    for (base, map) in speedups {
+        for (m, by_window) in map {
+            let v: Vec<String> = num_points(by_window)
+                .iter()
+                .map(|(n, x)| format!("n_f {n}: {x:.2}x"))
+                .collect();
+            let _ = writeln!(
+                s,
+                "equal-error speed-up of {m} over {base}: {}",
+                v.join(", ")
+            );
+        }
     }
     let times = [
         (
@@ -1110,6 +1085,20 @@ pub fn summary(r: &CompareReport) -> String {
         .collect();
     let _ = write!(s, "same-spp speed-up, eq. 16 / measured: {}", p.join(", "));
     s
+}
+
+/// The geometric mean of positive `v` (not empty).
+fn geomean(v: &[f64]) -> f64 {
+    (v.iter().map(|t| t.ln()).sum::<f64>() / v.len() as f64).exp()
+}
+
+/// What a run rendered, for a tile's label: samples per pixel, and the window of a reuse run.
+fn run_label(r: &Run) -> String {
+    if r.method.method.reuses() {
+        format!("{} spp, n_f {}", r.spp, r.window)
+    } else {
+        format!("{} spp", r.spp)
+    }
 }
 
 /// `{"3": 2.1, "17": 6.0}` as points (3, 2.1), (17, 6.0), in numeric order.

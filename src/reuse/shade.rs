@@ -18,7 +18,7 @@ use crate::embree::{Packet16, Ray};
 use crate::film::local::LocalFilm;
 use crate::film::tiles::Tile;
 use crate::film::FrameAccum;
-use crate::integrator::{Integrator, Primary, Tally};
+use crate::integrator::{Integrator, Tally};
 use crate::sampling::{mix64, Sampler};
 use glam::{Vec2, Vec3};
 
@@ -98,8 +98,8 @@ struct Scratch {
     eyes: Vec<EyeTerms>,
     /// `A_pix,k` of each eye of the group.
     pixel_areas: Vec<f32>,
-    /// Camera samples waiting for their primary packet: (pixel, sample index, sampler, ray
-    /// direction), and the packet (`integrator::Primary::Packet`).
+    /// Camera samples waiting for their primary rays, traced 16 at a time: (pixel, sample
+    /// index, sampler, ray direction), and the packet (`Integrator::primary_hits`).
     pending: Vec<(u32, u32, Sampler, Vec3)>,
     packet: Packet16,
 }
@@ -150,7 +150,6 @@ fn shade_eye(
         pending,
         packet,
     } = scratch;
-    let packets = integrator.primary == Primary::Packet;
     hits.clear();
     escapes.clear();
     let split_streams = group[m].film.layout.norm.folds() >= 2 && group[m].split;
@@ -189,28 +188,19 @@ fn shade_eye(
                     Sampler::stratified(p.seed, native_frame, pixel, fold_stream + 1000, extra)
                 };
                 let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
-                let dir = cam_m.direction(r);
-                if packets {
-                    // Consecutive camera samples of the tile (row by row), 16 to a packet.
-                    pending.push((pixel, index, sampler, dir));
-                    if pending.len() == 16 {
-                        trace_pending(
-                            integrator,
-                            cam_m,
-                            pending,
-                            packet,
-                            keep_escapes,
-                            hits,
-                            escapes,
-                            tally,
-                        );
-                    }
-                    continue;
-                }
-                match integrator.trace_first_hit(cam_m.eye, dir, &mut sampler, tally) {
-                    Some(fh) => hits.push((pixel, index, fh)),
-                    None if keep_escapes => escapes.push((pixel, index, dir)),
-                    None => {}
+                // Consecutive camera samples of the tile (row by row), 16 to a packet.
+                pending.push((pixel, index, sampler, cam_m.direction(r)));
+                if pending.len() == 16 {
+                    trace_pending(
+                        integrator,
+                        cam_m,
+                        pending,
+                        packet,
+                        keep_escapes,
+                        hits,
+                        escapes,
+                        tally,
+                    );
                 }
             }
         }
@@ -316,8 +306,9 @@ fn shade_eye(
     bad
 }
 
-/// Trace the primary rays of the `pending` camera samples (at most 16) as one packet and record
-/// their first hits (or escapes) as `trace_first_hit` would, in the order they were queued.
+/// Trace the primary rays of the `pending` camera samples (at most 16; as a packet or one at a
+/// time, `Integrator::primary_hits`) and record their first hits (or escapes) as
+/// `trace_first_hit` would, in the order they were queued.
 #[allow(clippy::too_many_arguments)]
 fn trace_pending(
     integrator: &Integrator,
@@ -332,15 +323,13 @@ fn trace_pending(
     if pending.is_empty() {
         return;
     }
-    packet.clear();
-    for (lane, (_, _, _, dir)) in pending.iter().enumerate() {
-        let ray = Ray::new(cam.eye, *dir);
-        tally.primary(&ray);
-        packet.set(lane, &ray);
+    let mut dirs = [Vec3::ZERO; 16];
+    for (d, p) in dirs.iter_mut().zip(pending.iter()) {
+        *d = p.3;
     }
-    integrator.scene.geometry.intersect16(packet);
-    for (lane, (pixel, index, mut sampler, dir)) in pending.drain(..).enumerate() {
-        match packet.hit(lane) {
+    let lanes = integrator.primary_hits(cam.eye, &dirs[..pending.len()], packet, tally);
+    for ((pixel, index, mut sampler, dir), hit) in pending.drain(..).zip(lanes) {
+        match hit {
             Some(hit) => {
                 let fh = integrator.first_hit_at(&hit, cam.eye, &mut sampler, tally);
                 hits.push((pixel, index, fh));
