@@ -17,6 +17,7 @@
 //! scene/                 loading, materials, lights, surface points
 //! camera, bsdf, sampling, embree, image     the leaves (embree and image hold the unsafe FFI)
 //! util/                  hashes, atomic files, memory figures
+//! sys                    the process's exit without destructors (the one libc call)
 //! ```
 pub mod bsdf;
 pub mod camera;
@@ -30,4 +31,5 @@ pub mod reuse;
 pub mod sampling;
 pub mod scene;
 pub mod state;
+pub mod sys;
 pub mod util;

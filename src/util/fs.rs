@@ -60,7 +60,9 @@ pub fn exit_removing_temporaries(code: i32) -> ! {
     for (_, p) in files.iter() {
         let _ = std::fs::remove_file(p);
     }
-    std::process::exit(code)
+    // Other threads are still rendering inside Embree and OpenImageIO: no exit handler may run
+    // under them (see `sys`).
+    crate::sys::exit_now(code)
 }
 
 /// The folder of `path`, `.` for a bare file name.
