@@ -277,10 +277,16 @@ impl FrameAccum {
         if !v.is_finite() {
             return None;
         }
-        let v = v / self.layout.unit;
+        // The exact-weight layouts have unit 1, where the division (exact there) is left out.
+        let unit = self.layout.unit;
+        let v = if unit == 1.0 { v } else { v / unit };
         // 21 bits of the hash per channel: u in [0, 1).
-        let u = |c: usize| ((dither >> (21 * c)) & 0x1f_ffff) as f64 / (1u64 << 21) as f64;
-        Some([0, 1, 2].map(|c| fixed::quantize(v[c], u(c))))
+        let u = |c: u32| ((dither >> (21 * c)) & 0x1f_ffff) as f64 / (1u64 << 21) as f64;
+        Some([
+            fixed::quantize(v.x, u(0)),
+            fixed::quantize(v.y, u(1)),
+            fixed::quantize(v.z, u(2)),
+        ])
     }
 
     /// A control-variate weight quantised with the top 53 bits of `dither`.

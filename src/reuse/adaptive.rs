@@ -15,7 +15,7 @@ use super::shade::Target;
 use crate::embree::Ray;
 use crate::film::tiles::{place_tile, Tile};
 use crate::integrator::{Integrator, RayCounts};
-use glam::{Vec2, Vec3};
+use glam::Vec2;
 use rayon::prelude::*;
 
 /// Side of the pixel blocks that share one pilot ray.
@@ -64,7 +64,7 @@ pub fn adaptive_counts(
                             continue;
                         }
                         rays.visibility += 1;
-                        let ray = Ray::between(t.cam.eye, Vec3::ZERO, sp.p, sp.ng);
+                        let ray = Ray::from_eye(t.cam.eye, sp.p, sp.ng);
                         if !scene.geometry.occluded1(&ray) {
                             let ja = t.cam.jacobian(sp.p, sp.ng) / t.cam.pixel_area();
                             expected += spp as f32 * ja / own;

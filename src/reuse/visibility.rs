@@ -4,7 +4,6 @@
 use crate::camera::Camera;
 use crate::embree::{Packet16, Ray};
 use crate::integrator::{FirstHit, Integrator, Tally};
-use glam::Vec3;
 
 /// Per hit and target eye: the pixel it lands in (if on the target's film and visible).
 pub type Landing = Option<u32>;
@@ -43,7 +42,7 @@ pub fn visibility(
             continue;
         };
         land[hi * n_f + k] = Some(i);
-        let ray = Ray::between(cam.eye, Vec3::ZERO, fh.sp.p, fh.sp.ng);
+        let ray = Ray::from_eye(cam.eye, fh.sp.p, fh.sp.ng);
         tally.counts.visibility += 1;
         if packets {
             packet.set(n, &ray);
