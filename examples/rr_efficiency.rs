@@ -1,8 +1,10 @@
-//! Where Russian roulette should start: the independent tracer's efficiency,
-//! `1 / (relMSE x seconds)`, for each first bounce of roulette, on the shipped scenes.
+//! Where Russian roulette should start, and which MIS heuristic the path after the first hit
+//! uses: the independent tracer's efficiency, `1 / (relMSE x seconds)`, for each first bounce of
+//! roulette and each heuristic, on the shipped scenes.
 //!
 //! ```sh
-//! cargo run --release --example rr_efficiency [-- --spp 16 --seeds 4 --ref-spp 1024 --scenes a,b]
+//! cargo run --release --example rr_efficiency [-- --spp 16 --seeds 4 --ref-spp 1024 --scenes a,b \
+//!     --rr 2,3,4,5,6,8,never --mis power,balance]
 //! ```
 //!
 //! Per scene: its middle frame at its own resolution, a reference of `--ref-spp` samples with the
@@ -16,7 +18,7 @@ use anyhow::{Context, Result};
 use glam::Vec3;
 use reframe::driver::{render_frame_independent, thread_pool};
 use reframe::embree::Device;
-use reframe::integrator::{Integrator, RR_DEPTH};
+use reframe::integrator::{Integrator, PathMis, RR_DEPTH};
 use reframe::scene::{LoadOptions, Scene};
 use std::time::Instant;
 
@@ -30,6 +32,18 @@ fn arg(name: &str, default: u32) -> Result<u32> {
             .with_context(|| format!("{name}: not a count")),
         None => Ok(default),
     }
+}
+
+/// The comma-separated values of `name`, or `default`.
+fn list(name: &str, default: &str) -> Result<Vec<String>> {
+    let args: Vec<String> = std::env::args().collect();
+    let v = match args.iter().position(|a| a == name) {
+        Some(i) => args
+            .get(i + 1)
+            .with_context(|| format!("{name} needs a value"))?,
+        None => default,
+    };
+    Ok(v.split(',').map(str::to_string).collect())
 }
 
 fn relmse(img: &[Vec3], reference: &[Vec3]) -> f64 {
@@ -50,7 +64,31 @@ fn main() -> Result<()> {
     let max_depth = 16;
     // Roulette decides at the end of bounce `rr` (the walk from the second vertex on; the first
     // hit's own continuation is always traced), from the second bounce up to never.
-    let settings: Vec<u32> = vec![2, 3, 4, 5, 6, 8, max_depth + 1];
+    let rrs = list("--rr", "2,3,4,5,6,8,never")?
+        .iter()
+        .map(|r| match r.as_str() {
+            "never" => Ok(max_depth + 1),
+            r => r
+                .parse()
+                .with_context(|| format!("--rr: {r} is not a bounce")),
+        })
+        .collect::<Result<Vec<u32>>>()?;
+    let mises = list("--mis", "balance")?
+        .iter()
+        .map(|m| match m.as_str() {
+            "power" => Ok(PathMis::Power),
+            "balance" => Ok(PathMis::Balance),
+            m => anyhow::bail!("--mis: {m} is not power or balance"),
+        })
+        .collect::<Result<Vec<PathMis>>>()?;
+    let settings: Vec<(u32, PathMis)> = rrs
+        .iter()
+        .flat_map(|&r| mises.iter().map(move |&m| (r, m)))
+        .collect();
+    let default = settings
+        .iter()
+        .position(|&s| s == (RR_DEPTH, PathMis::default()))
+        .context("the settings must include the default (roulette from RR_DEPTH, balance)")?;
     let device = Device::new()?;
     let pool = thread_pool(0)?;
     let root = env!("CARGO_MANIFEST_DIR");
@@ -89,29 +127,32 @@ fn main() -> Result<()> {
         // Per setting: (seconds, relMSE) summed over seeds.
         let mut sums = vec![(0.0f64, 0.0f64); settings.len()];
         for seed in 0..seeds as u64 {
-            for (k, &rr) in settings.iter().enumerate() {
+            for (k, &(rr, mis)) in settings.iter().enumerate() {
                 integrator.rr_depth = rr;
+                integrator.path_mis = mis;
                 let (img, t) = render(&integrator, spp, seed);
                 sums[k].0 += t;
                 sums[k].1 += relmse(&img, &reference);
             }
         }
         let eff = |k: usize| (seeds as f64).powi(2) / (sums[k].0 * sums[k].1);
-        let base = eff(settings.iter().position(|&r| r == RR_DEPTH).unwrap());
+        let base = eff(default);
         println!(
             "\n{} (frame {frame}, {}x{}, {spp} spp, {seeds} seeds, reference {ref_spp} spp)",
             scene.name, scene.width, scene.height
         );
-        println!("| roulette from bounce | seconds per frame | relMSE | efficiency / default's |");
-        println!("| --- | --- | --- | --- |");
-        for (k, &rr) in settings.iter().enumerate() {
+        println!(
+            "| roulette from bounce | MIS after the first hit | seconds per frame | relMSE | efficiency / default's |"
+        );
+        println!("| --- | --- | --- | --- | --- |");
+        for (k, &(rr, mis)) in settings.iter().enumerate() {
             let label = if rr > max_depth {
                 "never".to_string()
             } else {
                 rr.to_string()
             };
             println!(
-                "| {label} | {:.3} | {:.5} | {:.3} |",
+                "| {label} | {mis:?} | {:.3} | {:.5} | {:.3} |",
                 sums[k].0 / seeds as f64,
                 sums[k].1 / seeds as f64,
                 eff(k) / base

@@ -7,10 +7,14 @@
 //! shades that record for any eye: for the eye that generated it this is the ordinary path-traced
 //! estimate; the reuse methods evaluate it (or their own weights) for the other eyes.
 //!
-//! Direct light at every vertex combines next-event estimation and BSDF sampling with the
-//! balance heuristic (Veach 1997, eq. 9.13): a light sample contributes `f cos Le / (p_l + p_b)`,
-//! an emitter hit by the BSDF direction `f cos Le / (p_b + p_l)`, which is the form whose
-//! denominator the reuse estimator extends over the eyes of a group (docs/estimators.md, "Direct light and self-emission").
+//! Direct light at every vertex combines next-event estimation and BSDF sampling by multiple
+//! importance sampling (docs/environment.md, "Next-event estimation and MIS"). At the first hit
+//! it is the balance heuristic (Veach 1997, eq. 9.13): a light sample contributes
+//! `f cos Le / (p_l + p_b)`, an emitter hit by the BSDF direction `f cos Le / (p_b + p_l)`, which
+//! is the form whose denominator the reuse estimator extends over the eyes of a group
+//! (docs/estimators.md, "Direct light and self-emission"). From the second vertex on, where
+//! nothing is reused, the heuristic is free (`PathMis`): the balance heuristic by default, the
+//! power heuristic (Veach eq. 9.15) as the measured alternative.
 //! Rays that leave the scene see the environment light (`scene::environment`), which is an
 //! emitter like any other for MIS: its light samples are weighted against BSDF sampling and the
 //! BSDF directions that escape against its light sampling.
@@ -25,6 +29,34 @@ use glam::{Vec2, Vec3};
 /// The first bounce after which Russian roulette may end a path (chosen by efficiency,
 /// README "The tracer").
 pub const RR_DEPTH: u32 = 3;
+
+/// How light sampling and BSDF sampling are weighted at the vertices after the first hit
+/// (docs/environment.md, "Next-event estimation and MIS"): each technique's weight is
+/// `p_this^b / (p_this^b + p_other^b)`, with `b = 1` (balance) or `b = 2` (power).
+/// Balance is the default: the power heuristic measured no better on the shipped scenes
+/// (README, "The tracer").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum PathMis {
+    #[default]
+    Balance,
+    Power,
+}
+
+impl PathMis {
+    /// The weight of the technique that sampled with density `p_this > 0` against the one with
+    /// `p_other`. The power heuristic is written `1 / (1 + r²)` with `r = p_other / p_this`, so
+    /// that no density is squared (no overflow) and an infinite `p_other` gives 0.
+    #[inline]
+    pub fn weight(self, p_this: f32, p_other: f32) -> f32 {
+        match self {
+            PathMis::Balance => p_this / (p_this + p_other),
+            PathMis::Power => {
+                let r = p_other / p_this;
+                1.0 / (1.0 + r * r)
+            }
+        }
+    }
+}
 /// Sampler dimensions: 0-1 pixel position, 2-3 light sample at x (4 unused), 5-7 BSDF sample at
 /// x, then `DIMS_PER_BOUNCE` per further vertex. Fixed offsets keep the first hit's numbers the
 /// same whatever the rest of the path used.
@@ -180,6 +212,8 @@ pub struct Integrator<'a> {
     pub rr_depth: u32,
     /// How primary rays are traced (the independent tracer and the native samples of reuse).
     pub primary: Primary,
+    /// The MIS heuristic after the first hit (only the efficiency measurement changes it).
+    pub path_mis: PathMis,
 }
 
 /// How primary rays are traced: as coherent 16-wide Embree packets (the independent tracer: a
@@ -200,11 +234,13 @@ impl<'a> Integrator<'a> {
             max_depth,
             rr_depth: RR_DEPTH,
             primary: Primary::default(),
+            path_mis: PathMis::default(),
         }
     }
 
     /// Sample a light from `sp` (normal pair facing `wo`) and return the MIS-weighted direct
-    /// contribution `f cos Le / (p_l + p_b)` at a path vertex, tracing one shadow ray.
+    /// contribution `w_l f cos Le / p_l` at a path vertex after the first hit, tracing one
+    /// shadow ray.
     fn direct(
         &self,
         sp: &SurfacePoint,
@@ -218,7 +254,7 @@ impl<'a> Integrator<'a> {
         let Some(ls) = self.scene.sample_light(sp.p, u) else {
             return Vec3::ZERO;
         };
-        if ls.le == Vec3::ZERO || ng.dot(ls.wi) <= 0.0 {
+        if ls.le == Vec3::ZERO || ng.dot(ls.wi) <= 0.0 || ls.pdf <= 0.0 {
             return Vec3::ZERO;
         }
         let (f, pb) = m.eval_pdf(ns, wo, ls.wi);
@@ -230,7 +266,12 @@ impl<'a> Integrator<'a> {
         if self.scene.geometry.occluded1(&ray) {
             return Vec3::ZERO;
         }
-        f * ns.dot(ls.wi) * ls.le / (ls.pdf + pb)
+        let fc_le = f * ns.dot(ls.wi) * ls.le;
+        match self.path_mis {
+            // `w_l / p_l` with `w_l = p_l / (p_l + p_b)`.
+            PathMis::Balance => fc_le / (ls.pdf + pb),
+            PathMis::Power => fc_le * (self.path_mis.weight(ls.pdf, pb) / ls.pdf),
+        }
     }
 
     /// The closest hits of up to 16 primary rays from `eye` along `dirs` (lane `i` of the result
@@ -403,16 +444,16 @@ impl<'a> Integrator<'a> {
                 let le = scene.env_radiance(bs.wi);
                 if le != Vec3::ZERO {
                     let pl = scene.env_pdf(bs.wi);
-                    l += beta * le * (bs.pdf / (bs.pdf + pl));
+                    l += beta * le * self.path_mis.weight(bs.pdf, pl);
                 }
                 break;
             };
             let next = scene.surface(&h);
             let le = scene.emitted(&next, sp.p);
             if le != Vec3::ZERO {
-                // Balance heuristic: beta already holds f cos / p_b, so weight p_b / (p_b + p_l).
+                // beta already holds f cos / p_b: the BSDF technique's weight is all it lacks.
                 let pl = scene.light_pdf(sp.p, next.p, next.prim);
-                l += beta * le * (bs.pdf / (bs.pdf + pl));
+                l += beta * le * self.path_mis.weight(bs.pdf, pl);
             }
             if depth >= self.rr_depth {
                 let q = beta.max_element().min(0.95);

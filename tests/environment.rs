@@ -241,3 +241,47 @@ fn reuse_is_unbiased_under_an_environment_with_background_pixels() {
         assert_unbiased(&format!("{method:?} under the environment"), &z);
     }
 }
+
+/// The power heuristic after the first hit (`PathMis::Power`) gives the same image in
+/// expectation as the default balance heuristic: per 4x4 block, z-tested against the balance
+/// renders, on the glossy box under the sky and sun (environment against BSDF sampling) and on
+/// `cornell` (an area light against a glossy block and diffuse walls, several bounces).
+#[test]
+fn power_heuristic_after_the_first_hit_is_unbiased() {
+    use reframe::integrator::PathMis;
+    let dir = tempfile::tempdir().unwrap();
+    sky(&dir.path().join("sky.exr"));
+    let path = write_scene(
+        dir.path(),
+        &format!(
+            "{CUBE}v -3 -0.5 -3\nv 3 -0.5 -3\nv 3 -0.5 3\nv -3 -0.5 3\nusemtl floor\nf 9 12 11 10\n"
+        ),
+        "newmtl box\nKd 0.5 0.3 0.2\nKs 0.3 0.3 0.3\nNs 30\nnewmtl floor\nKd 0.5 0.5 0.5\n",
+        &camera(9, "[environment]\nimage = \"sky.exr\"\nrotation = 20.0"),
+    );
+    let device = Device::new().unwrap();
+    let pool = thread_pool(0).unwrap();
+    for scene in [
+        Scene::load(&path, &device).unwrap(),
+        Scene::load("cornell", &device).unwrap(),
+    ] {
+        let (w, h, b, target, k) = (48usize, 36usize, 4, 4u32, 64);
+        let cam = scene.camera(target, w as u32, h as u32);
+        let renders = |mis: PathMis, seed: u64| -> Vec<Vec<Vec3>> {
+            let mut integ = Integrator::new(&scene, 8);
+            integ.path_mis = mis;
+            (0..k)
+                .map(|s| {
+                    pool.install(|| {
+                        render_frame_independent(&integ, &cam, target, 16, seed + s, false, &|_| {})
+                            .pixels
+                    })
+                })
+                .collect()
+        };
+        let balance = block_moments(&renders(PathMis::Balance, 7000), w, h, b);
+        let power = block_moments(&renders(PathMis::Power, 8000), w, h, b);
+        let z = z_test(&power, &balance);
+        assert_unbiased(&format!("power heuristic on {}", scene.name), &z);
+    }
+}
