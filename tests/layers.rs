@@ -5,19 +5,20 @@ use std::path::Path;
 
 /// The layers, bottom first; a module may use modules of a lower rank only.
 const RANKS: &[(&str, u32)] = &[
-    ("util", 0),
-    ("sampling", 1),
-    ("embree", 2),
-    ("image", 2),
-    ("bsdf", 2),
-    ("camera", 2),
-    ("scene", 3),
-    ("integrator", 4),
-    ("film", 5),
-    ("reuse", 6),
-    ("state", 7),
-    ("driver", 8),
-    ("eval", 9),
+    ("sys", 0),
+    ("util", 1),
+    ("sampling", 2),
+    ("embree", 3),
+    ("image", 3),
+    ("bsdf", 3),
+    ("camera", 3),
+    ("scene", 4),
+    ("integrator", 5),
+    ("film", 6),
+    ("reuse", 7),
+    ("state", 8),
+    ("driver", 9),
+    ("eval", 10),
 ];
 
 fn rank(module: &str) -> Option<u32> {
