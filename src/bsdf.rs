@@ -69,7 +69,8 @@ impl Material {
     fn diffuse_weight(&self) -> f32 {
         let d = luminance(self.kd);
         let s = luminance(self.ks);
-        if d + s <= 0.0 {
+        // `d / (d + 0)` is exactly 1: a Lambertian surface skips the division (same bits).
+        if d + s <= 0.0 || s == 0.0 {
             1.0
         } else {
             d / (d + s)
