@@ -10,6 +10,8 @@
 //! - `c_v_single`, `c_v_packet`: one reuse visibility test (projection into the eye, the ray from
 //!   the eye to the hit), through `rtcOccluded1` or 16-wide coherent `rtcOccluded16` packets, on
 //!   the middle frame's primary hits towards the eyes of the frames up to 4 away.
+//! - `c_e` and the two `c_v` are each the median of 5 passes (single rays and packets
+//!   alternating): one pass takes tens of milliseconds and alone moved by up to 2x between runs.
 //!
 //! The speed-up (eq. 16, `n_f (c_e + c_l) / ((c_e + c_l) + (n_f - 1) c_v)`) is measured the way
 //! the paper derives it: one group of `n_f` frames around the middle of the animation rendered
@@ -251,11 +253,15 @@ pub fn measure_costs(
     let render_seconds = t0.elapsed().as_secs_f64();
     let c_el = per_core_ns(render_seconds, threads, samples);
 
-    // c_e: the same camera samples, the eye ray and its surface record only.
-    let t0 = Instant::now();
-    let found: u64 = pool.install(|| eye_rays(scene, cam, frame, spp, seed));
-    let c_e = per_core_ns(t0.elapsed().as_secs_f64(), threads, samples);
-    std::hint::black_box(found);
+    // c_e: the same camera samples, the eye ray and its surface record only. This pass and the
+    // visibility passes below take tens of milliseconds each, where one pass alone moved by up
+    // to 2x between runs: each is the median of `REPEATS` passes.
+    let c_e = median((0..REPEATS).map(|_| {
+        let t0 = Instant::now();
+        let found: u64 = pool.install(|| eye_rays(scene, cam, frame, spp, seed));
+        std::hint::black_box(found);
+        per_core_ns(t0.elapsed().as_secs_f64(), threads, samples)
+    }));
 
     // c_v: the frame's primary hits (one per pixel) tested against the eyes up to 4 frames away.
     let hits: Vec<Vec<NativeHit>> = pool.install(|| first_hits(integrator, cam, frame, seed));
@@ -263,19 +269,33 @@ pub fn measure_costs(
         .filter(|&f| f != frame)
         .map(|f| scene.camera(f, w, h))
         .collect();
-    let mut c_v = [0.0; 2];
-    for (slot, packets) in [false, true].into_iter().enumerate() {
-        let t0 = Instant::now();
-        let tests: u64 = pool.install(|| visibility_pass(integrator, &hits, &eyes, packets));
-        c_v[slot] = per_core_ns(t0.elapsed().as_secs_f64(), threads, tests);
+    // Single rays and packets alternate, so that load on the machine hits both alike.
+    let mut c_v: [Vec<f64>; 2] = Default::default();
+    for _ in 0..REPEATS {
+        for (slot, packets) in [false, true].into_iter().enumerate() {
+            let t0 = Instant::now();
+            let tests: u64 = pool.install(|| visibility_pass(integrator, &hits, &eyes, packets));
+            c_v[slot].push(per_core_ns(t0.elapsed().as_secs_f64(), threads, tests));
+        }
     }
+    let [c_v_single, c_v_packet] = c_v.map(|t| median(t.into_iter()));
     let costs = Costs {
         c_e,
         c_l: c_el - c_e,
-        c_v_single: c_v[0],
-        c_v_packet: c_v[1],
+        c_v_single,
+        c_v_packet,
     };
     (costs, timed, render_seconds)
+}
+
+/// Passes of `c_e` and of each `c_v` whose median is reported.
+const REPEATS: usize = 5;
+
+/// The median of `xs` (the upper one of an even count).
+fn median(xs: impl Iterator<Item = f64>) -> f64 {
+    let mut v: Vec<f64> = xs.collect();
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
 }
 
 /// Nanoseconds of one core per item, from the wall time of a pass on `threads` workers.
@@ -413,10 +433,6 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
             times.push(t0.elapsed().as_secs_f64());
         }
     }
-    let median = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
     let c = timed.counts;
     let render_rate = c.total() as f64 / render_seconds;
     let bare_rate = logged.ray_logs.iter().map(|l| l.len()).sum::<usize>() as f64 / bare_seconds;
@@ -445,8 +461,8 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
         bare_seconds,
         bare_rays_per_second: bare_rate,
         ratio: render_rate / bare_rate,
-        primary_packet_seconds: median(packet_times),
-        primary_single_seconds: median(single_times),
+        primary_packet_seconds: median(packet_times.into_iter()),
+        primary_single_seconds: median(single_times.into_iter()),
     })
 }
 
