@@ -183,6 +183,20 @@ fn sky(path: &std::path::Path) {
     write_image(path, &img, &Metadata::default(), &opts).unwrap();
 }
 
+/// A glossy box on a diffuse floor under `sky` (written into `d`), rotated 20 degrees, with the
+/// 9-frame camera: background pixels, a sun texel and a Phong lobe. Returns the scene's path.
+fn glossy_box_under_the_sky(d: &std::path::Path) -> String {
+    sky(&d.join("sky.exr"));
+    write_scene(
+        d,
+        &format!(
+            "{CUBE}v -3 -0.5 -3\nv 3 -0.5 -3\nv 3 -0.5 3\nv -3 -0.5 3\nusemtl floor\nf 9 12 11 10\n"
+        ),
+        "newmtl box\nKd 0.5 0.3 0.2\nKs 0.3 0.3 0.3\nNs 30\nnewmtl floor\nKd 0.5 0.5 0.5\n",
+        &camera(9, "[environment]\nimage = \"sky.exr\"\nrotation = 20.0"),
+    )
+}
+
 /// A floor and a glossy cube under the sky, seen against the horizon: background pixels, a sun
 /// that casts a hard shadow, and a zoom. `mis-exact` and `mis-cv` (which reuse the escaped camera
 /// samples as points at infinity carrying the sky's radiance) match an independent reference
@@ -190,15 +204,7 @@ fn sky(path: &std::path::Path) {
 #[test]
 fn reuse_is_unbiased_under_an_environment_with_background_pixels() {
     let dir = tempfile::tempdir().unwrap();
-    sky(&dir.path().join("sky.exr"));
-    let path = write_scene(
-        dir.path(),
-        &format!(
-            "{CUBE}v -3 -0.5 -3\nv 3 -0.5 -3\nv 3 -0.5 3\nv -3 -0.5 3\nusemtl floor\nf 9 12 11 10\n"
-        ),
-        "newmtl box\nKd 0.5 0.3 0.2\nKs 0.3 0.3 0.3\nNs 30\nnewmtl floor\nKd 0.5 0.5 0.5\n",
-        &camera(9, "[environment]\nimage = \"sky.exr\"\nrotation = 20.0"),
-    );
+    let path = glossy_box_under_the_sky(dir.path());
     let device = Device::new().unwrap();
     let scene = Scene::load(&path, &device).unwrap();
     assert!(scene.inputs.iter().any(|p| p.ends_with("sky.exr")));
@@ -250,15 +256,7 @@ fn reuse_is_unbiased_under_an_environment_with_background_pixels() {
 fn power_heuristic_after_the_first_hit_is_unbiased() {
     use reframe::integrator::PathMis;
     let dir = tempfile::tempdir().unwrap();
-    sky(&dir.path().join("sky.exr"));
-    let path = write_scene(
-        dir.path(),
-        &format!(
-            "{CUBE}v -3 -0.5 -3\nv 3 -0.5 -3\nv 3 -0.5 3\nv -3 -0.5 3\nusemtl floor\nf 9 12 11 10\n"
-        ),
-        "newmtl box\nKd 0.5 0.3 0.2\nKs 0.3 0.3 0.3\nNs 30\nnewmtl floor\nKd 0.5 0.5 0.5\n",
-        &camera(9, "[environment]\nimage = \"sky.exr\"\nrotation = 20.0"),
-    );
+    let path = glossy_box_under_the_sky(dir.path());
     let device = Device::new().unwrap();
     let pool = thread_pool(0).unwrap();
     for scene in [
