@@ -86,10 +86,15 @@ def parse_mtl(text):
     return out
 
 
-def mitsuba_scene(mi, shapes, cam, res, spp, max_depth, sampler):
+def mitsuba_scene(mi, shapes, cam, res, spp, max_depth, sampler, rr_depth=None):
+    """The peer scene for Mitsuba; `rr_depth` sets its path integrator's roulette start
+    (Mitsuba's default, 5, when None)."""
+    integrator = {"type": "path", "max_depth": max_depth + 1}
+    if rr_depth is not None:
+        integrator["rr_depth"] = rr_depth
     scene = {
         "type": "scene",
-        "integrator": {"type": "path", "max_depth": max_depth + 1},
+        "integrator": integrator,
         "sensor": {
             "type": "perspective",
             "fov": cam["fov"],

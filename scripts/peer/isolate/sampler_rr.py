@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Sampler vs Russian-roulette split of the reframe / Mitsuba relMSE gap on the peer scene.
 
-Error only (no timing). Every render uses one CPU thread. Scene, Mitsuba scene dict and relMSE
-are copied from scripts/peer/peer.py (make_scene / mitsuba_scene / relmse), with `rr_depth`
-added to Mitsuba's path integrator. Reference: out/peer/reference_<res>_4096_16.npy (reframe
+Error only (no timing). Every render uses one CPU thread. The Mitsuba scene and relMSE are
+scripts/peer/peer.py's (`mitsuba_scene` with its `rr_depth`, `relmse`), on the files its
+`make_scene` wrote into out/peer (run scripts/peer/run.sh first). Reference: out/peer/reference_<res>_4096_16.npy (reframe
 4096 spp, 16 bounces); at 128x128 it is the 2x2 box average of the 256x256 reference (with a box
 pixel filter a 128 pixel is exactly the union of four 256 pixels).
 
@@ -20,28 +20,15 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[3]
-HERE = Path(__file__).resolve().parent
 PEER = ROOT / "out" / "peer"
-EPS = 0.01
-
-
-def relmse(img, ref):
-    return float(np.mean((img - ref) ** 2 / (ref ** 2 + EPS)))
+# The scene, the MTL reader and relMSE are peer.py's.
+sys.path.insert(0, str(ROOT / "scripts" / "peer"))
+from peer import mitsuba_scene, parse_mtl, relmse  # noqa: E402
 
 
 def shapes_and_cam():
     """The Mitsuba shapes peer.py's make_scene wrote into out/peer (not rewritten here)."""
-    src = (ROOT / "scenes" / "cornell.mtl").read_text()
-    mtl, cur = {}, None
-    for l in src.splitlines():
-        p = l.split()
-        if not p or p[0].startswith("#"):
-            continue
-        if p[0] == "newmtl":
-            cur = p[1]
-            mtl[cur] = {"Kd": [0.0] * 3, "Ke": [0.0] * 3}
-        elif p[0] in ("Kd", "Ke"):
-            mtl[cur][p[0]] = [float(x) for x in p[1:4]]
+    mtl = parse_mtl((ROOT / "scenes" / "cornell.mtl").read_text())
     mtl["glossy"] = {"Kd": [0.6, 0.6, 0.6], "Ke": [0.0, 0.0, 0.0]}  # as peer.py: all diffuse
     shapes = {}
     for name in mtl:
@@ -51,30 +38,6 @@ def shapes_and_cam():
     cam = {"position": [0.0118, 1.0, 3.9], "look_at": [0.0, 1.0, 0.0], "up": [0.0, 1.0, 0.0],
            "fov": 40.0}
     return shapes, cam
-
-
-def mitsuba_scene(mi, shapes, cam, res, spp, max_depth, sampler, rr_depth):
-    scene = {
-        "type": "scene",
-        "integrator": {"type": "path", "max_depth": max_depth + 1, "rr_depth": rr_depth},
-        "sensor": {
-            "type": "perspective",
-            "fov": cam["fov"],
-            "fov_axis": "y",
-            "to_world": mi.ScalarTransform4f().look_at(
-                origin=cam["position"], target=cam["look_at"], up=cam["up"]),
-            "film": {"type": "hdrfilm", "width": res, "height": res, "pixel_format": "rgb",
-                     "rfilter": {"type": "box"}},
-            "sampler": {"type": sampler, "sample_count": spp},
-        },
-    }
-    for name, (path, m) in shapes.items():
-        s = {"type": "obj", "filename": str(path), "face_normals": True,
-             "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": m["Kd"]}}}
-        if any(m["Ke"]):
-            s["emitter"] = {"type": "area", "radiance": {"type": "rgb", "value": m["Ke"]}}
-        scene[f"shape_{name}"] = s
-    return mi.load_dict(scene)
 
 
 def render_reframe(exe, toml, work, res, spp, max_depth, seed):
@@ -129,7 +92,7 @@ def main():
         w0 = time.perf_counter()
         for seed in range(a.seeds):
             if cfg == "reframe":
-                img = render_reframe(a.reframe, toml, HERE, a.res, a.spp, a.max_depth, seed)
+                img = render_reframe(a.reframe, toml, PEER, a.res, a.spp, a.max_depth, seed)
             else:
                 sampler, rr = cfg.split(":")
                 scene = mitsuba_scene(mi, shapes, cam, a.res, a.spp, a.max_depth, sampler,
