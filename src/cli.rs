@@ -150,6 +150,11 @@ pub struct RenderArgs {
     /// in their last bits).
     #[arg(long, value_enum, default_value_t = Visibility::Packet)]
     pub primary: Visibility,
+    /// How the rays after the primary hit are traced (continuation and shadow rays, the
+    /// tile's paths advancing together bounce by bounce): 16-wide packets of live paths, or
+    /// single rays (the same estimator; hits may differ in their last bits).
+    #[arg(long, value_enum, default_value_t = Visibility::Packet)]
+    pub paths: Visibility,
     /// How reuse visibility tests are traced: 16-wide coherent packets or single rays.
     #[arg(long, value_enum, default_value_t = Visibility::Packet)]
     pub visibility: Visibility,

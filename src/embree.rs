@@ -564,7 +564,17 @@ impl TriangleScene {
 
     /// Closest hits of the active lanes of a coherent packet.
     pub fn intersect16(&self, p: &mut Packet16) {
-        let mut args = Self::intersect_args(true);
+        self.intersect16_with(p, true)
+    }
+
+    /// Closest hits of the active lanes of a packet whose rays may be incoherent (Embree's
+    /// `INCOHERENT` query flag).
+    pub fn intersect16_incoherent(&self, p: &mut Packet16) {
+        self.intersect16_with(p, false)
+    }
+
+    fn intersect16_with(&self, p: &mut Packet16, coherent: bool) {
+        let mut args = Self::intersect_args(coherent);
         // SAFETY: the packet is 64-byte aligned with room for the 4.4 hit layout; geomID was
         // reset in `set` for every active lane.
         unsafe { sys::rtcIntersect16(p.active.as_ptr(), self.raw, &mut p.raw.rh, &mut args) };
@@ -572,7 +582,16 @@ impl TriangleScene {
 
     /// Occlusion of the active lanes of a coherent packet; read with `Packet16::occluded`.
     pub fn occluded16(&self, p: &mut Packet16) {
-        let mut args = Self::occluded_args(true);
+        self.occluded16_with(p, true)
+    }
+
+    /// Occlusion of the active lanes of a packet whose rays may be incoherent.
+    pub fn occluded16_incoherent(&self, p: &mut Packet16) {
+        self.occluded16_with(p, false)
+    }
+
+    fn occluded16_with(&self, p: &mut Packet16, coherent: bool) {
+        let mut args = Self::occluded_args(coherent);
         // SAFETY: as in `intersect16`; occluded16 writes only the ray part (tfar).
         unsafe { sys::rtcOccluded16(p.active.as_ptr(), self.raw, &mut p.raw.rh.ray, &mut args) };
         for lane in 0..16 {

@@ -135,8 +135,12 @@ fn run(cli: Cli) -> Result<()> {
                 window: a.window,
                 packets: matches!(a.visibility, Visibility::Packet),
                 primary: match a.primary {
-                    Visibility::Packet => reframe::integrator::Primary::Packet,
-                    Visibility::Single => reframe::integrator::Primary::Single,
+                    Visibility::Packet => reframe::integrator::Rays::Packet,
+                    Visibility::Single => reframe::integrator::Rays::Single,
+                },
+                paths: match a.paths {
+                    Visibility::Packet => reframe::integrator::Rays::Packet,
+                    Visibility::Single => reframe::integrator::Rays::Single,
                 },
                 aov: a.aov,
                 frames: a.frames.map(|(x, y)| x..=y),

@@ -5,7 +5,7 @@ mod common;
 use common::{assert_identical, reframe_ok};
 use reframe::driver::{render, render_frame_independent, thread_pool, RenderOptions};
 use reframe::embree::Device;
-use reframe::integrator::{Integrator, Primary};
+use reframe::integrator::{Integrator, Rays};
 use reframe::scene::Scene;
 
 /// Inside a closed sphere of albedo 0.5 and emission 0.5 the radiance is 1 everywhere
@@ -70,7 +70,7 @@ fn primary_packets_give_the_single_ray_frames() {
                 .unwrap()
                 .install(|| render_frame_independent(&integ, &cam, frame, spp, 7, false, &|_| {}))
         };
-        let (single, packet) = (render(Primary::Single, 1), render(Primary::Packet, 2));
+        let (single, packet) = (render(Rays::Single, 1), render(Rays::Packet, 2));
         assert_eq!(single.counts, packet.counts, "{name}: ray counts");
         let mut bitwise = 0;
         for (i, (a, b)) in single.pixels.iter().zip(&packet.pixels).enumerate() {
@@ -86,7 +86,7 @@ fn primary_packets_give_the_single_ray_frames() {
         );
         assert_eq!(
             packet.pixels,
-            render(Primary::Packet, 1).pixels,
+            render(Rays::Packet, 1).pixels,
             "{name}: thread counts"
         );
     }

@@ -11,7 +11,7 @@ use reframe::camera::Camera;
 use reframe::driver::{render_frame_independent, thread_pool, RenderOptions};
 use reframe::embree::Device;
 use reframe::film::Developed;
-use reframe::integrator::{Integrator, Primary};
+use reframe::integrator::{Integrator, Rays};
 use reframe::reuse::weights::{indirect_weights, EyeTerms};
 use reframe::reuse::Method;
 use reframe::sampling::Sampler;
@@ -79,7 +79,7 @@ fn window_one_is_the_independent_tracer() {
     // Single primary rays for both (packets give the same frames up to Embree's rounding:
     // tests/render.rs and `native_primary_packets_give_the_single_ray_frames`).
     let mut integ = Integrator::new(&scene, 16);
-    integ.primary = Primary::Single;
+    integ.primary = Rays::Single;
     let pool = thread_pool(0).unwrap();
     let (w, h) = (48, 36);
     for method in [Method::MisExact, Method::MisCv, Method::Mis, Method::Havran] {
@@ -121,7 +121,7 @@ fn native_primary_packets_give_the_single_ray_frames() {
                 integ.primary = primary;
                 pool.install(|| reuse_frames(&integ, method, 3, 2, 9, f0, f0 + 3, w, h))
             };
-            let (single, packet) = (frames(Primary::Single), frames(Primary::Packet));
+            let (single, packet) = (frames(Rays::Single), frames(Rays::Packet));
             let (mut n, mut bitwise) = (0, 0);
             for (f, px) in &single {
                 for (a, b) in px.iter().zip(&packet[f]) {

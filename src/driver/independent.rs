@@ -6,10 +6,11 @@
 use super::progress_bar;
 use super::run::{Graceful, Run};
 use crate::camera::Camera;
-use crate::embree::Packet16;
+use crate::embree::{Hit, Packet16};
 use crate::film::tiles::Tile;
 use crate::film::tiles::{place_tile, tiles};
 use crate::film::{Developed, Sink, View};
+use crate::integrator::wavefront::Wavefront;
 use crate::integrator::{Integrator, RayCounts, Tally};
 use crate::sampling::Sampler;
 use crate::state::Record;
@@ -28,10 +29,11 @@ pub struct FrameResult {
     pub ray_logs: Vec<Vec<(crate::embree::Ray, bool)>>,
 }
 
-/// A tile's pixel means (row by row) and its samples dropped as NaN or infinite. The primary
-/// rays of each 4x4 block of pixels are traced together per sample index (one coherent packet,
-/// or one ray at a time: `Integrator::primary_hits`); each lane keeps its own sampler and sums
-/// its samples in index order, so a pixel's value depends only on its own hits.
+/// A tile's pixel means (row by row) and its samples dropped as NaN or infinite. Per sample
+/// index, the primary rays of each 4x4 block of pixels are traced together (one coherent packet,
+/// or one ray at a time: `Integrator::primary_hits`), and the tile's paths then advance together
+/// (`Integrator::first_hits`). Each pixel keeps its own sampler and sums its samples in index
+/// order, so its value depends only on its own hits.
 fn render_tile(
     integrator: &Integrator,
     cam: &Camera,
@@ -43,52 +45,68 @@ fn render_tile(
 ) -> (Vec<Vec3>, u64) {
     const BLOCK: u32 = 4;
     let (w, tw) = (cam.width, x1 - x0);
-    let mut px = vec![Vec3::ZERO; (tw * (y1 - y0)) as usize];
+    let n = (tw * (y1 - y0)) as usize;
+    let mut sums = vec![Vec3::ZERO; n];
+    // This sample index's value of each pixel.
+    let mut values = vec![Vec3::ZERO; n];
     let mut bad = 0u64;
     let mut packet = Packet16::new();
-    // Per lane: its pixel (x, y), and its sampler and ray direction of the current sample.
+    let mut wavefront = Wavefront::new();
+    // A block's lanes: pixel (x, y), sampler and ray direction.
     let mut lanes: Vec<(u32, u32)> = Vec::with_capacity(16);
     let mut samplers: Vec<Sampler> = Vec::with_capacity(16);
     let mut dirs: Vec<Vec3> = Vec::with_capacity(16);
-    for by in (y0..y1).step_by(BLOCK as usize) {
-        for bx in (x0..x1).step_by(BLOCK as usize) {
-            lanes.clear();
-            for y in by..(by + BLOCK).min(y1) {
-                for x in bx..(bx + BLOCK).min(x1) {
-                    lanes.push((x, y));
-                }
-            }
-            let mut sums = [Vec3::ZERO; 16];
-            for s in 0..spp {
+    // The tile's paths that hit a surface: their pixels (index in the tile), hits and samplers.
+    let mut slots: Vec<usize> = Vec::with_capacity(n);
+    let mut hits: Vec<Hit> = Vec::with_capacity(n);
+    let mut path_samplers: Vec<Sampler> = Vec::with_capacity(n);
+    for s in 0..spp {
+        slots.clear();
+        hits.clear();
+        path_samplers.clear();
+        for by in (y0..y1).step_by(BLOCK as usize) {
+            for bx in (x0..x1).step_by(BLOCK as usize) {
+                lanes.clear();
                 samplers.clear();
                 dirs.clear();
-                for &(x, y) in &lanes {
-                    let mut sampler = Sampler::stratified(seed, frame, y * w + x, 0, s);
-                    let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
-                    dirs.push(cam.direction(r));
-                    samplers.push(sampler);
+                for y in by..(by + BLOCK).min(y1) {
+                    for x in bx..(bx + BLOCK).min(x1) {
+                        let mut sampler = Sampler::stratified(seed, frame, y * w + x, 0, s);
+                        let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
+                        lanes.push((x, y));
+                        dirs.push(cam.direction(r));
+                        samplers.push(sampler);
+                    }
                 }
-                let hits = integrator.primary_hits(cam.eye, &dirs, &mut packet, t);
-                for (lane, sampler) in samplers.iter_mut().enumerate() {
-                    let v = match &hits[lane] {
-                        Some(hit) => integrator
-                            .first_hit_at(hit, cam.eye, sampler, t)
-                            .radiance(cam.eye),
-                        None => integrator.scene.env_radiance(dirs[lane]),
-                    };
-                    // A NaN or infinite sample is dropped and counted, never written.
-                    if v.is_finite() {
-                        sums[lane] += v;
-                    } else {
-                        bad += 1;
+                let block_hits = integrator.primary_hits(cam.eye, &dirs, &mut packet, t);
+                for (lane, sampler) in samplers.drain(..).enumerate() {
+                    let (x, y) = lanes[lane];
+                    let slot = ((y - y0) * tw + (x - x0)) as usize;
+                    match block_hits[lane] {
+                        Some(hit) => {
+                            slots.push(slot);
+                            hits.push(hit);
+                            path_samplers.push(sampler);
+                        }
+                        None => values[slot] = integrator.scene.env_radiance(dirs[lane]),
                     }
                 }
             }
-            for (lane, &(x, y)) in lanes.iter().enumerate() {
-                px[((y - y0) * tw + (x - x0)) as usize] = sums[lane] / spp as f32;
+        }
+        let recs = integrator.first_hits(cam.eye, &hits, &mut path_samplers, &mut wavefront, t);
+        for (rec, &slot) in recs.iter().zip(&slots) {
+            values[slot] = rec.radiance(cam.eye);
+        }
+        for (sum, v) in sums.iter_mut().zip(&values) {
+            // A NaN or infinite sample is dropped and counted, never written.
+            if v.is_finite() {
+                *sum += *v;
+            } else {
+                bad += 1;
             }
         }
     }
+    let px = sums.iter().map(|&sum| sum / spp as f32).collect();
     (px, bad)
 }
 

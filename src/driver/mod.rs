@@ -99,11 +99,8 @@ fn run_key(scene: &Scene, opts: &RenderOptions, plan: &Plan) -> Result<RunKey> {
         seed: opts.seed,
         max_depth: opts.max_depth,
         visibility: if opts.packets { "packet" } else { "single" }.into(),
-        primary: match opts.primary {
-            crate::integrator::Primary::Packet => "packet",
-            crate::integrator::Primary::Single => "single",
-        }
-        .into(),
+        primary: opts.primary.name().into(),
+        paths: opts.paths.name().into(),
         aov: opts.aov,
         adaptive: opts.adaptive.unwrap_or(0.0),
         exr_float: opts.exr_float,
@@ -247,6 +244,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     crate::embree::set_flush_denormals();
     let mut integrator = Integrator::new(scene, opts.max_depth);
     integrator.primary = opts.primary;
+    integrator.paths = opts.paths;
     let mut sink = FileSink::new(
         FrameMeta {
             scene: scene.name.clone(),

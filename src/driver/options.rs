@@ -23,7 +23,10 @@ pub struct RenderOptions {
     /// Primary rays (the independent tracer's, the reuse methods' native samples') in 16-wide
     /// packets (else single rays). `render` sets its integrator's `primary` from it;
     /// `render_frames` takes the integrator it is given as it is.
-    pub primary: crate::integrator::Primary,
+    pub primary: crate::integrator::Rays,
+    /// The rays after the primary hit (continuation and shadow rays of the wavefront) in 16-wide
+    /// packets (else single rays). Set like `primary`.
+    pub paths: crate::integrator::Rays,
     /// Write extra EXR channels: effective sample count and share of lost reuses per pixel.
     pub aov: bool,
     /// Inclusive frame range; `None` renders all of the scene's frames.
@@ -64,7 +67,8 @@ impl Default for RenderOptions {
             spp: 8,
             window: 1,
             packets: true,
-            primary: crate::integrator::Primary::Packet,
+            primary: crate::integrator::Rays::Packet,
+            paths: crate::integrator::Rays::Packet,
             aov: false,
             frames: None,
             resolution: None,

@@ -39,7 +39,7 @@ use crate::driver::{
 };
 use crate::embree::Ray;
 use crate::film::tiles::tiles;
-use crate::integrator::{Integrator, Primary, RayCounts, Tally};
+use crate::integrator::{Integrator, RayCounts, Rays, Tally};
 use crate::reuse::visibility::{visibility, Landing, NativeHit};
 use crate::reuse::Method;
 use crate::sampling::Sampler;
@@ -139,7 +139,7 @@ pub struct BenchReport {
     /// Renderer rate over bare Embree rate.
     pub ratio: f64,
     /// The independent tracer on the same frame with its primary rays in 16-wide packets and one
-    /// at a time (`integrator::Primary`): the median of 3 alternating runs each, seconds.
+    /// at a time (`integrator::Rays`): the median of 3 alternating runs each, seconds.
     pub primary_packet_seconds: f64,
     pub primary_single_seconds: f64,
 }
@@ -423,8 +423,8 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     let (mut packet_times, mut single_times) = (Vec::new(), Vec::new());
     for _ in 0..3 {
         for (primary, times) in [
-            (Primary::Packet, &mut packet_times),
-            (Primary::Single, &mut single_times),
+            (Rays::Packet, &mut packet_times),
+            (Rays::Single, &mut single_times),
         ] {
             let mut integ = Integrator::new(scene, opts.max_depth);
             integ.primary = primary;

@@ -14,10 +14,11 @@ use super::visibility::{visibility, Landing, NativeHit};
 use super::weights::{EyeTerms, Weighing};
 use super::{Params, Weights};
 use crate::camera::Camera;
-use crate::embree::{Packet16, Ray};
+use crate::embree::{Hit, Packet16, Ray};
 use crate::film::local::LocalFilm;
 use crate::film::tiles::Tile;
 use crate::film::FrameAccum;
+use crate::integrator::wavefront::Wavefront;
 use crate::integrator::{Integrator, Tally};
 use crate::sampling::{mix64, Sampler};
 use glam::{Vec2, Vec3};
@@ -98,10 +99,10 @@ struct Scratch {
     eyes: Vec<EyeTerms>,
     /// `A_pix,k` of each eye of the group.
     pixel_areas: Vec<f32>,
-    /// Camera samples waiting for their primary rays, traced 16 at a time: (pixel, sample
-    /// index, sampler, ray direction), and the packet (`Integrator::primary_hits`).
+    /// The tile's camera samples before their primary rays: (pixel, sample index, sampler, ray
+    /// direction), row by row.
     pending: Vec<(u32, u32, Sampler, Vec3)>,
-    packet: Packet16,
+    natives: Natives,
 }
 
 /// The native samples of tile `(x0, y0, x1, y1)` of frame `group[m]`, splatted into `films`
@@ -148,7 +149,7 @@ fn shade_eye(
         eyes,
         pixel_areas,
         pending,
-        packet,
+        natives,
     } = scratch;
     hits.clear();
     escapes.clear();
@@ -188,33 +189,11 @@ fn shade_eye(
                     Sampler::stratified(p.seed, native_frame, pixel, fold_stream + 1000, extra)
                 };
                 let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
-                // Consecutive camera samples of the tile (row by row), 16 to a packet.
                 pending.push((pixel, index, sampler, cam_m.direction(r)));
-                if pending.len() == 16 {
-                    trace_pending(
-                        integrator,
-                        cam_m,
-                        pending,
-                        packet,
-                        keep_escapes,
-                        hits,
-                        escapes,
-                        tally,
-                    );
-                }
             }
         }
     }
-    trace_pending(
-        integrator,
-        cam_m,
-        pending,
-        packet,
-        keep_escapes,
-        hits,
-        escapes,
-        tally,
-    );
+    natives.trace(integrator, cam_m, pending, keep_escapes, hits, escapes, tally);
     // Where each hit lands in each eye of the group (None: occluded or off the film).
     land.clear();
     land.resize(hits.len() * n_f, None);
@@ -306,37 +285,58 @@ fn shade_eye(
     bad
 }
 
-/// Trace the primary rays of the `pending` camera samples (at most 16; as a packet or one at a
-/// time, `Integrator::primary_hits`) and record their first hits (or escapes) as
-/// `trace_first_hit` would, in the order they were queued.
-#[allow(clippy::too_many_arguments)]
-fn trace_pending(
-    integrator: &Integrator,
-    cam: &Camera,
-    pending: &mut Vec<(u32, u32, Sampler, Vec3)>,
-    packet: &mut Packet16,
-    keep_escapes: bool,
-    hits: &mut Vec<NativeHit>,
-    escapes: &mut Vec<(u32, u32, Vec3)>,
-    tally: &mut Tally,
-) {
-    if pending.is_empty() {
-        return;
-    }
-    let mut dirs = [Vec3::ZERO; 16];
-    for (d, p) in dirs.iter_mut().zip(pending.iter()) {
-        *d = p.3;
-    }
-    let lanes = integrator.primary_hits(cam.eye, &dirs[..pending.len()], packet, tally);
-    for ((pixel, index, mut sampler, dir), hit) in pending.drain(..).zip(lanes) {
-        match hit {
-            Some(hit) => {
-                let fh = integrator.first_hit_at(&hit, cam.eye, &mut sampler, tally);
-                hits.push((pixel, index, fh));
+/// The tracer of a tile's native samples, and its room.
+#[derive(Default)]
+struct Natives {
+    packet: Packet16,
+    wavefront: Wavefront,
+    /// The samples whose primary rays hit a surface: (pixel, sample index), hit, sampler.
+    found: Vec<(u32, u32)>,
+    hits: Vec<Hit>,
+    samplers: Vec<Sampler>,
+}
+
+impl Natives {
+    /// Trace the camera samples `pending` (their primary rays 16 consecutive samples to a
+    /// packet, `Integrator::primary_hits`; then their paths together, `Integrator::first_hits`)
+    /// and record their first hits (and, with `keep_escapes`, the samples that left the scene)
+    /// in the order they were queued, as `trace_first_hit` would.
+    #[allow(clippy::too_many_arguments)]
+    fn trace(
+        &mut self,
+        integrator: &Integrator,
+        cam: &Camera,
+        pending: &mut Vec<(u32, u32, Sampler, Vec3)>,
+        keep_escapes: bool,
+        hits: &mut Vec<NativeHit>,
+        escapes: &mut Vec<(u32, u32, Vec3)>,
+        tally: &mut Tally,
+    ) {
+        self.found.clear();
+        self.hits.clear();
+        self.samplers.clear();
+        let mut dirs = [Vec3::ZERO; 16];
+        for chunk in pending.chunks(16) {
+            for (d, p) in dirs.iter_mut().zip(chunk) {
+                *d = p.3;
             }
-            None if keep_escapes => escapes.push((pixel, index, dir)),
-            None => {}
+            let lanes = integrator.primary_hits(cam.eye, &dirs[..chunk.len()], &mut self.packet, tally);
+            for (&(pixel, index, ref sampler, dir), hit) in chunk.iter().zip(lanes) {
+                match hit {
+                    Some(hit) => {
+                        self.found.push((pixel, index));
+                        self.hits.push(hit);
+                        self.samplers.push(sampler.clone());
+                    }
+                    None if keep_escapes => escapes.push((pixel, index, dir)),
+                    None => {}
+                }
+            }
         }
+        pending.clear();
+        let recs =
+            integrator.first_hits(cam.eye, &self.hits, &mut self.samplers, &mut self.wavefront, tally);
+        hits.extend(self.found.iter().zip(recs).map(|(&(pixel, index), fh)| (pixel, index, *fh)));
     }
 }
 

@@ -82,6 +82,9 @@ pub struct RunKey {
     /// not mix them).
     #[serde(default)]
     pub primary: String,
+    /// The rays after the primary hit: "packet" or "single" (as `primary`).
+    #[serde(default)]
+    pub paths: String,
     pub aov: bool,
     /// `--adaptive` target, 0 when off.
     pub adaptive: f32,

@@ -832,6 +832,7 @@ mod tests {
             max_depth: 16,
             visibility: "packet".into(),
             primary: "packet".into(),
+            paths: "packet".into(),
             aov: false,
             adaptive: 0.0,
             exr_float: false,

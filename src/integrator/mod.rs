@@ -20,6 +20,8 @@
 //! BSDF directions that escape against its light sampling.
 //! Paths end by Russian roulette from bounce `RR_DEPTH` on, or at `max_depth`
 //! (`examples/rr_efficiency.rs` measures where roulette should start).
+pub mod wavefront;
+
 use crate::bsdf::Material;
 use crate::embree::{Hit, Packet16, Ray};
 use crate::sampling::Sampler;
@@ -211,20 +213,72 @@ pub struct Integrator<'a> {
     /// measurement changes it).
     pub rr_depth: u32,
     /// How primary rays are traced (the independent tracer and the native samples of reuse).
-    pub primary: Primary,
+    pub primary: Rays,
+    /// How the wavefront (`wavefront::Wavefront`) traces the rays after the primary hit: the
+    /// continuation rays of the walks and the shadow rays of next-event estimation.
+    pub paths: Rays,
     /// The MIS heuristic after the first hit (only the efficiency measurement changes it).
     pub path_mis: PathMis,
 }
 
-/// How primary rays are traced: as coherent 16-wide Embree packets (the independent tracer: a
-/// tile's 4x4 pixel blocks per sample index; the reuse methods' native samples: 16 consecutive
-/// camera samples of a tile, row by row), or one ray at a time. Both give the same estimator; hits may differ in the
-/// last bits of `t`, `u` and `v` (Embree's packet and single-ray kernels round differently).
+/// How a batch of rays is traced: as 16-wide Embree packets (`rtcIntersect16`/`rtcOccluded16`)
+/// or one ray at a time. Both give the same estimator; hits may differ in the last bits of `t`,
+/// `u` and `v` (Embree's packet and single-ray kernels round differently).
+///
+/// For primary rays a packet is coherent: the independent tracer's 4x4 pixel blocks per sample
+/// index, or the reuse methods' 16 consecutive camera samples of a tile, row by row. For the rays
+/// after the primary hit (`Integrator::paths`) it is 16 consecutive live paths of a wavefront.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub enum Primary {
+pub enum Rays {
     #[default]
     Packet,
     Single,
+}
+
+impl Rays {
+    /// The name the command line and the state file's key use.
+    pub fn name(self) -> &'static str {
+        match self {
+            Rays::Packet => "packet",
+            Rays::Single => "single",
+        }
+    }
+}
+
+/// A random walk from the second vertex of a path on: the state that one bounce hands the next.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Walk {
+    /// The current vertex and the unit direction back along the path.
+    sp: SurfacePoint,
+    wo: Vec3,
+    /// Path throughput from the second vertex (the first hit's BSDF term is the record's).
+    beta: Vec3,
+    /// Radiance gathered so far: the record's `li_w` when the walk ends.
+    l: Vec3,
+    /// Bounces: the first hit is bounce 1, the walk starts at bounce 2.
+    depth: u32,
+    /// The continuation drawn at `sp`, kept for the MIS weight at the vertex it reaches:
+    /// the vertex it left, its direction and its BSDF density.
+    from: Vec3,
+    wi: Vec3,
+    pdf_b: f32,
+}
+
+/// A shadow ray of the walk: its contribution `d` (light sample weighted by MIS, before the
+/// throughput) counts, times `beta`, if nothing blocks `ray`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Shadow {
+    ray: Ray,
+    beta: Vec3,
+    d: Vec3,
+}
+
+impl Walk {
+    /// The answer of a shadow ray this walk asked for: its contribution counts unless blocked.
+    #[inline]
+    pub(crate) fn shadow_resolved(&mut self, sh: &Shadow, blocked: bool) {
+        self.l += sh.beta * if blocked { Vec3::ZERO } else { sh.d };
+    }
 }
 
 impl<'a> Integrator<'a> {
@@ -233,45 +287,42 @@ impl<'a> Integrator<'a> {
             scene,
             max_depth,
             rr_depth: RR_DEPTH,
-            primary: Primary::default(),
+            primary: Rays::default(),
+            paths: Rays::default(),
             path_mis: PathMis::default(),
         }
     }
 
-    /// Sample a light from `sp` (normal pair facing `wo`) and return the MIS-weighted direct
-    /// contribution `w_l f cos Le / p_l` at a path vertex after the first hit, tracing one
-    /// shadow ray.
+    /// Sample a light from `sp` (normal pair facing `wo`) at a path vertex after the first hit:
+    /// the MIS-weighted direct contribution `w_l f cos Le / p_l` and the shadow ray that decides
+    /// whether it counts (`None` with a zero contribution when no ray is needed).
+    #[inline(always)]
     fn direct(
         &self,
         sp: &SurfacePoint,
         m: &Material,
         wo: Vec3,
         s: &mut Sampler,
-        t: &mut Tally,
-    ) -> Vec3 {
+    ) -> (Vec3, Option<Ray>) {
         let (ng, ns) = facing(sp, wo);
         let u = s.next_2d();
         let Some(ls) = self.scene.sample_light(sp.p, u) else {
-            return Vec3::ZERO;
+            return (Vec3::ZERO, None);
         };
         if ls.le == Vec3::ZERO || ng.dot(ls.wi) <= 0.0 || ls.pdf <= 0.0 {
-            return Vec3::ZERO;
+            return (Vec3::ZERO, None);
         }
         let (f, pb) = m.eval_pdf(ns, wo, ls.wi);
         if f == Vec3::ZERO {
-            return Vec3::ZERO;
-        }
-        let ray = ls.shadow_ray(sp.p, sp.ng);
-        t.shadow(&ray);
-        if self.scene.geometry.occluded1(&ray) {
-            return Vec3::ZERO;
+            return (Vec3::ZERO, None);
         }
         let fc_le = f * ns.dot(ls.wi) * ls.le;
-        match self.path_mis {
+        let d = match self.path_mis {
             // `w_l / p_l` with `w_l = p_l / (p_l + p_b)`.
             PathMis::Balance => fc_le / (ls.pdf + pb),
             PathMis::Power => fc_le * (self.path_mis.weight(ls.pdf, pb) / ls.pdf),
-        }
+        };
+        (d, Some(ls.shadow_ray(sp.p, sp.ng)))
     }
 
     /// The closest hits of up to 16 primary rays from `eye` along `dirs` (lane `i` of the result
@@ -288,7 +339,7 @@ impl<'a> Integrator<'a> {
         let geometry = &self.scene.geometry;
         let mut hits = [None; 16];
         match self.primary {
-            Primary::Packet => {
+            Rays::Packet => {
                 packet.clear();
                 for (lane, &dir) in dirs.iter().enumerate() {
                     let ray = Ray::new(eye, dir);
@@ -300,7 +351,7 @@ impl<'a> Integrator<'a> {
                     *hit = packet.hit(lane);
                 }
             }
-            Primary::Single => {
+            Rays::Single => {
                 for (hit, &dir) in hits.iter_mut().zip(dirs) {
                     let ray = Ray::new(eye, dir);
                     t.primary(&ray);
@@ -312,7 +363,8 @@ impl<'a> Integrator<'a> {
     }
 
     /// The camera sample through raster position `r` of eye `eye` along unit `dir`, up to and
-    /// including the first-hit record. `None` if the ray leaves the scene.
+    /// including the first-hit record, traced as one scalar walk. `None` if the ray leaves the
+    /// scene.
     pub fn trace_first_hit(
         &self,
         eye: Vec3,
@@ -326,14 +378,51 @@ impl<'a> Integrator<'a> {
         Some(self.first_hit_at(&hit, eye, s, t))
     }
 
-    /// Build the first-hit record for a primary hit already found (e.g. by a packet).
+    /// Build the first-hit record for a primary hit already found (e.g. by a packet), as one
+    /// scalar walk that traces each ray as soon as it is drawn: the test oracle of the
+    /// wavefront (`wavefront::Wavefront`), which takes the same steps over a batch of paths.
     pub fn first_hit_at(&self, hit: &Hit, eye: Vec3, s: &mut Sampler, t: &mut Tally) -> FirstHit {
+        let geometry = &self.scene.geometry;
+        let mut rec = self.first_record(hit, eye);
+        let (shadow, next) = self.first_samples(&mut rec, s);
+        if let Some(ray) = shadow {
+            t.shadow(&ray);
+            self.light_blocked(&mut rec, geometry.occluded1(&ray));
+        }
+        let Some(ray) = next else {
+            return rec;
+        };
+        t.path(&ray);
+        let Some(mut walk) = self.first_continue(&mut rec, geometry.intersect1(&ray)) else {
+            return rec;
+        };
+        loop {
+            let (shadow, next) = self.walk_vertex(&mut walk, s);
+            if let Some(sh) = shadow {
+                t.shadow(&sh.ray);
+                walk.shadow_resolved(&sh, geometry.occluded1(&sh.ray));
+            }
+            let Some(ray) = next else {
+                break;
+            };
+            t.path(&ray);
+            if !self.walk_continue(&mut walk, geometry.intersect1(&ray), s) {
+                break;
+            }
+        }
+        rec.li_w = walk.l;
+        rec
+    }
+
+    /// The record of a camera sample with primary hit `hit` from `eye`, before its samples:
+    /// `first_samples` draws them.
+    #[inline(always)]
+    pub(crate) fn first_record(&self, hit: &Hit, eye: Vec3) -> FirstHit {
         let scene = self.scene;
         let sp = scene.surface(hit);
         let m = scene.material(&sp);
         let wo = (eye - sp.p).normalize();
-        let (ng, ns) = facing(&sp, wo);
-        let mut rec = FirstHit {
+        FirstHit {
             sp,
             m,
             wo,
@@ -344,22 +433,32 @@ impl<'a> Integrator<'a> {
             pdf_light_w: 0.0,
             li_w: Vec3::ZERO,
             light: None,
-        };
-        if !m.reflects() {
-            return rec;
         }
-        // Light sample at x: stored with its visibility, not weighted (weights depend on eyes).
+    }
+
+    /// The samples of the first vertex: the shadow ray of its light sample (`light_blocked`
+    /// takes the answer) and the continuation ray along the BSDF sample `w` (`first_continue`
+    /// takes its hit). The light sample is stored unweighted: its weights depend on the eyes.
+    #[inline(always)]
+    pub(crate) fn first_samples(
+        &self,
+        rec: &mut FirstHit,
+        s: &mut Sampler,
+    ) -> (Option<Ray>, Option<Ray>) {
+        let scene = self.scene;
+        let (sp, m, wo) = (rec.sp, rec.m, rec.wo);
+        if !m.reflects() {
+            return (None, None);
+        }
+        let (ng, ns) = facing(&sp, wo);
         s.set_dimension(DIM_LIGHT);
         let u = s.next_2d();
+        let mut shadow = None;
         if let Some(ls) = scene.sample_light(sp.p, u) {
             let mut le = ls.le;
-            // A light behind the surface cannot contribute for any eye on this side; skip the ray.
+            // A light behind the surface cannot contribute for any eye on this side; no ray.
             if le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 {
-                let ray = ls.shadow_ray(sp.p, sp.ng);
-                t.shadow(&ray);
-                if scene.geometry.occluded1(&ray) {
-                    le = Vec3::ZERO;
-                }
+                shadow = Some(ls.shadow_ray(sp.p, sp.ng));
             } else {
                 le = Vec3::ZERO;
             }
@@ -369,104 +468,139 @@ impl<'a> Integrator<'a> {
                 pdf: ls.pdf,
             });
         }
-        // BSDF sample at x and the rest of the walk.
         s.set_dimension(DIM_BSDF);
         let u_lobe = s.next_1d();
         let u = s.next_2d();
         let Some(bs) = m.sample(ns, wo, u_lobe, u) else {
-            return rec;
+            return (shadow, None);
         };
         if ng.dot(bs.wi) <= 0.0 {
-            return rec;
+            return (shadow, None);
         }
         rec.w = Some(bs.wi);
         rec.pdf_w = bs.pdf;
         rec.f_w = bs.f;
-        let ray = Ray::spawn(sp.p, sp.ng, bs.wi);
-        t.path(&ray);
-        let Some(h2) = scene.geometry.intersect1(&ray) else {
-            // Out of the scene: the environment is the emitter reached along `w`.
-            rec.le_w = scene.env_radiance(bs.wi);
-            if rec.le_w != Vec3::ZERO {
-                rec.pdf_light_w = scene.env_pdf(bs.wi);
-            }
-            return rec;
-        };
-        let y = scene.surface(&h2);
-        rec.le_w = scene.emitted(&y, sp.p);
-        if rec.le_w != Vec3::ZERO {
-            rec.pdf_light_w = scene.light_pdf(sp.p, y.p, y.prim);
-        }
-        rec.li_w = self.reflected(y, -bs.wi, s, t);
-        rec
+        (shadow, Some(Ray::spawn(sp.p, sp.ng, bs.wi)))
     }
 
-    /// Radiance reflected at `first` along `wo_first` (unit, pointing away from the surface),
-    /// excluding `first`'s own emission: the random walk from the second vertex on.
-    fn reflected(
-        &self,
-        first: SurfacePoint,
-        wo_first: Vec3,
-        s: &mut Sampler,
-        t: &mut Tally,
-    ) -> Vec3 {
-        let scene = self.scene;
-        let mut l = Vec3::ZERO;
-        let mut beta = Vec3::ONE;
-        let mut sp = first;
-        let mut wo = wo_first;
-        // Depth counts bounces: the first hit is bounce 1, `sp` here is bounce 2.
-        let mut depth = 2;
-        loop {
-            if depth > self.max_depth {
-                break;
-            }
-            let m = scene.material(&sp);
-            if !m.reflects() {
-                break;
-            }
-            s.set_dimension(DIM_PATH + DIMS_PER_BOUNCE * (depth - 2) as u64);
-            l += beta * self.direct(&sp, &m, wo, s, t);
-            let (ng, ns) = facing(&sp, wo);
-            let u_lobe = s.next_1d();
-            let u = s.next_2d();
-            let Some(bs) = m.sample(ns, wo, u_lobe, u) else {
-                break;
-            };
-            if ng.dot(bs.wi) <= 0.0 {
-                break;
-            }
-            beta *= bs.f * ns.dot(bs.wi) / bs.pdf;
-            let ray = Ray::spawn(sp.p, sp.ng, bs.wi);
-            t.path(&ray);
-            let Some(h) = scene.geometry.intersect1(&ray) else {
-                // Out of the scene: the environment, weighted against its light sampling.
-                let le = scene.env_radiance(bs.wi);
-                if le != Vec3::ZERO {
-                    let pl = scene.env_pdf(bs.wi);
-                    l += beta * le * self.path_mis.weight(bs.pdf, pl);
-                }
-                break;
-            };
-            let next = scene.surface(&h);
-            let le = scene.emitted(&next, sp.p);
-            if le != Vec3::ZERO {
-                // beta already holds f cos / p_b: the BSDF technique's weight is all it lacks.
-                let pl = scene.light_pdf(sp.p, next.p, next.prim);
-                l += beta * le * self.path_mis.weight(bs.pdf, pl);
-            }
-            if depth >= self.rr_depth {
-                let q = beta.max_element().min(0.95);
-                if s.next_1d() >= q {
-                    break;
-                }
-                beta /= q;
-            }
-            sp = next;
-            wo = -bs.wi;
-            depth += 1;
+    /// The answer of the first vertex's shadow ray.
+    #[inline(always)]
+    pub(crate) fn light_blocked(&self, rec: &mut FirstHit, blocked: bool) {
+        if let (true, Some(light)) = (blocked, &mut rec.light) {
+            light.le = Vec3::ZERO;
         }
-        l
+    }
+
+    /// The hit (or not) of the continuation ray along `w`: the emitter it reaches directly, and
+    /// the walk from the second vertex, if the ray hit a surface.
+    #[inline(always)]
+    pub(crate) fn first_continue(&self, rec: &mut FirstHit, hit: Option<Hit>) -> Option<Walk> {
+        let scene = self.scene;
+        let wi = rec.w.expect("a continuation ray has a direction");
+        let Some(h2) = hit else {
+            // Out of the scene: the environment is the emitter reached along `w`.
+            rec.le_w = scene.env_radiance(wi);
+            if rec.le_w != Vec3::ZERO {
+                rec.pdf_light_w = scene.env_pdf(wi);
+            }
+            return None;
+        };
+        let y = scene.surface(&h2);
+        rec.le_w = scene.emitted(&y, rec.sp.p);
+        if rec.le_w != Vec3::ZERO {
+            rec.pdf_light_w = scene.light_pdf(rec.sp.p, y.p, y.prim);
+        }
+        Some(Walk {
+            sp: y,
+            wo: -wi,
+            beta: Vec3::ONE,
+            l: Vec3::ZERO,
+            depth: 2,
+            from: Vec3::ZERO,
+            wi: Vec3::ZERO,
+            pdf_b: 0.0,
+        })
+    }
+
+    /// One vertex of the walk (radiance reflected at `walk.sp` along `walk.wo`, excluding the
+    /// vertex's own emission): the shadow ray of its light sample, if it needs one, and the
+    /// continuation ray, `None` where the walk ends (depth, a black material, a failed or
+    /// downward BSDF sample).
+    #[inline(always)]
+    pub(crate) fn walk_vertex(
+        &self,
+        walk: &mut Walk,
+        s: &mut Sampler,
+    ) -> (Option<Shadow>, Option<Ray>) {
+        if walk.depth > self.max_depth {
+            return (None, None);
+        }
+        let sp = walk.sp;
+        let m = self.scene.material(&sp);
+        if !m.reflects() {
+            return (None, None);
+        }
+        s.set_dimension(DIM_PATH + DIMS_PER_BOUNCE * (walk.depth - 2) as u64);
+        let shadow = match self.direct(&sp, &m, walk.wo, s) {
+            (d, Some(ray)) => Some(Shadow {
+                ray,
+                beta: walk.beta,
+                d,
+            }),
+            (d, None) => {
+                walk.l += walk.beta * d;
+                None
+            }
+        };
+        let (ng, ns) = facing(&sp, walk.wo);
+        let u_lobe = s.next_1d();
+        let u = s.next_2d();
+        let Some(bs) = m.sample(ns, walk.wo, u_lobe, u) else {
+            return (shadow, None);
+        };
+        if ng.dot(bs.wi) <= 0.0 {
+            return (shadow, None);
+        }
+        walk.beta *= bs.f * ns.dot(bs.wi) / bs.pdf;
+        walk.from = sp.p;
+        walk.wi = bs.wi;
+        walk.pdf_b = bs.pdf;
+        (shadow, Some(Ray::spawn(sp.p, sp.ng, bs.wi)))
+    }
+
+    /// The hit (or not) of the walk's continuation ray: the emitter it reaches, weighted against
+    /// light sampling, then Russian roulette. Returns whether the walk goes on from the new
+    /// vertex.
+    #[inline(always)]
+    pub(crate) fn walk_continue(&self, walk: &mut Walk, hit: Option<Hit>, s: &mut Sampler) -> bool {
+        let scene = self.scene;
+        let Some(h) = hit else {
+            // Out of the scene: the environment, weighted against its light sampling.
+            let le = scene.env_radiance(walk.wi);
+            if le != Vec3::ZERO {
+                let pl = scene.env_pdf(walk.wi);
+                walk.l += walk.beta * le * self.path_mis.weight(walk.pdf_b, pl);
+            }
+            return false;
+        };
+        let next = scene.surface(&h);
+        let le = scene.emitted(&next, walk.from);
+        if le != Vec3::ZERO {
+            // beta already holds f cos / p_b: the BSDF technique's weight is all it lacks.
+            let pl = scene.light_pdf(walk.from, next.p, next.prim);
+            walk.l += walk.beta * le * self.path_mis.weight(walk.pdf_b, pl);
+        }
+        if walk.depth >= self.rr_depth {
+            let q = walk.beta.max_element().min(0.95);
+            if s.next_1d() >= q {
+                return false;
+            }
+            walk.beta /= q;
+        }
+        walk.sp = next;
+        walk.wo = -walk.wi;
+        walk.depth += 1;
+        true
     }
 
     /// One full path-traced sample through raster position `r` of camera `cam`.
