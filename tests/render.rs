@@ -42,12 +42,13 @@ fn furnace_is_one() {
     }
 }
 
-/// Primary rays in 16-wide packets (4x4 pixel blocks) and one at a time give the same frames up
-/// to the rounding of Embree's two kernels: on a closed room, a glossy vase and the instanced
+/// Rays in 16-wide packets (primary rays in 4x4 pixel blocks, the wavefront's shadow and
+/// continuation rays 16 live paths at a time) and one at a time give the same frames up to the
+/// rounding of Embree's two kernels: on a closed room, a glossy vase and the instanced
 /// production scene, at sizes whose tiles end in partial blocks (37x23: blocks of 1 to 16 lanes),
 /// with environment pixels, more than one sample per pixel, and both thread counts.
 #[test]
-fn primary_packets_give_the_single_ray_frames() {
+fn packets_give_the_single_ray_frames() {
     let device = Device::new().unwrap();
     let root = env!("CARGO_MANIFEST_DIR");
     for (name, w, h, spp) in [
@@ -63,9 +64,10 @@ fn primary_packets_give_the_single_ray_frames() {
         let scene = Scene::load(&name, &device).unwrap();
         let frame = scene.frames / 2;
         let cam = scene.camera(frame, w, h);
-        let render = |primary, threads| {
+        let render = |rays, threads| {
             let mut integ = Integrator::new(&scene, 16);
-            integ.primary = primary;
+            integ.primary = rays;
+            integ.paths = rays;
             thread_pool(threads)
                 .unwrap()
                 .install(|| render_frame_independent(&integ, &cam, frame, spp, 7, false, &|_| {}))

@@ -77,7 +77,7 @@ fn window_one_is_the_independent_tracer() {
     let device = Device::new().unwrap();
     let scene = Scene::load("vase", &device).unwrap();
     // Single primary rays for both (packets give the same frames up to Embree's rounding:
-    // tests/render.rs and `native_primary_packets_give_the_single_ray_frames`).
+    // tests/render.rs and `native_packets_give_the_single_ray_frames`).
     let mut integ = Integrator::new(&scene, 16);
     integ.primary = Rays::Single;
     let pool = thread_pool(0).unwrap();
@@ -99,12 +99,13 @@ fn window_one_is_the_independent_tracer() {
     }
 }
 
-/// The native samples' primary rays in packets (16 consecutive camera samples of a tile row)
-/// give the frames of single rays, up to the rounding of Embree's two kernels: every method, a
+/// The native samples' rays in packets (primary rays 16 consecutive camera samples of a tile
+/// row to a packet, the wavefront's shadow and continuation rays 16 live paths) give the frames
+/// of single rays, up to the rounding of Embree's two kernels: every method, a
 /// textured and environment-lit scene (escapes kept) and an odd size whose rows end in partial
 /// packets.
 #[test]
-fn native_primary_packets_give_the_single_ray_frames() {
+fn native_packets_give_the_single_ray_frames() {
     let device = Device::new().unwrap();
     let root = env!("CARGO_MANIFEST_DIR");
     for name in [
@@ -116,9 +117,10 @@ fn native_primary_packets_give_the_single_ray_frames() {
         let (w, h) = (45, 31);
         let f0 = scene.frames / 2;
         for method in [Method::MisCv, Method::MisExact, Method::Mis, Method::Havran] {
-            let frames = |primary| {
+            let frames = |rays| {
                 let mut integ = Integrator::new(&scene, 16);
-                integ.primary = primary;
+                integ.primary = rays;
+                integ.paths = rays;
                 pool.install(|| reuse_frames(&integ, method, 3, 2, 9, f0, f0 + 3, w, h))
             };
             let (single, packet) = (frames(Rays::Single), frames(Rays::Packet));

@@ -139,9 +139,14 @@ pub struct BenchReport {
     /// Renderer rate over bare Embree rate.
     pub ratio: f64,
     /// The independent tracer on the same frame with its primary rays in 16-wide packets and one
-    /// at a time (`integrator::Rays`): the median of 3 alternating runs each, seconds.
+    /// at a time (`integrator::Rays`): the median of 3 alternating runs each, seconds. Both with
+    /// the wavefront's rays in packets.
     pub primary_packet_seconds: f64,
     pub primary_single_seconds: f64,
+    /// The same with the wavefront's shadow and continuation rays one at a time (`--paths
+    /// single`; primary rays in packets), alternating with the two above; the packet figure is
+    /// `primary_packet_seconds`.
+    pub paths_single_seconds: f64,
 }
 
 /// Eq. 16: the speed-up of reusing `n_f` frames over independent rendering at the same number of
@@ -210,12 +215,19 @@ impl BenchReport {
             self.bare_rays_per_second / 1e6
         );
         let _ = writeln!(t, "renderer / bare Embree: {:.1}%", self.ratio * 100.0);
-        let _ = write!(
+        let _ = writeln!(
             t,
             "primary rays in packets / single: {:.3} s / {:.3} s ({:.2}x)",
             self.primary_packet_seconds,
             self.primary_single_seconds,
             self.primary_single_seconds / self.primary_packet_seconds
+        );
+        let _ = write!(
+            t,
+            "path rays in packets / single:    {:.3} s / {:.3} s ({:.2}x)",
+            self.primary_packet_seconds,
+            self.paths_single_seconds,
+            self.paths_single_seconds / self.primary_packet_seconds
         );
         t
     }
@@ -419,15 +431,19 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     });
     let bare_seconds = t1.elapsed().as_secs_f64();
     std::hint::black_box(hit_count);
-    // Primary rays in packets against single rays, alternating so that load hits both alike.
-    let (mut packet_times, mut single_times) = (Vec::new(), Vec::new());
+    // Primary and path rays in packets against single rays, alternating so that load hits all
+    // alike.
+    let (mut packet_times, mut single_times, mut paths_single_times) =
+        (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..3 {
-        for (primary, times) in [
-            (Rays::Packet, &mut packet_times),
-            (Rays::Single, &mut single_times),
+        for (primary, paths, times) in [
+            (Rays::Packet, Rays::Packet, &mut packet_times),
+            (Rays::Single, Rays::Packet, &mut single_times),
+            (Rays::Packet, Rays::Single, &mut paths_single_times),
         ] {
             let mut integ = Integrator::new(scene, opts.max_depth);
             integ.primary = primary;
+            integ.paths = paths;
             let t0 = Instant::now();
             pool.install(|| render_frame_independent(&integ, &cam, frame, spp, seed, false, &none));
             times.push(t0.elapsed().as_secs_f64());
@@ -463,6 +479,7 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
         ratio: render_rate / bare_rate,
         primary_packet_seconds: median(packet_times.into_iter()),
         primary_single_seconds: median(single_times.into_iter()),
+        paths_single_seconds: median(paths_single_times.into_iter()),
     })
 }
 

@@ -193,7 +193,15 @@ fn shade_eye(
             }
         }
     }
-    natives.trace(integrator, cam_m, pending, keep_escapes, hits, escapes, tally);
+    natives.trace(
+        integrator,
+        cam_m,
+        pending,
+        keep_escapes,
+        hits,
+        escapes,
+        tally,
+    );
     // Where each hit lands in each eye of the group (None: occluded or off the film).
     land.clear();
     land.resize(hits.len() * n_f, None);
@@ -320,7 +328,8 @@ impl Natives {
             for (d, p) in dirs.iter_mut().zip(chunk) {
                 *d = p.3;
             }
-            let lanes = integrator.primary_hits(cam.eye, &dirs[..chunk.len()], &mut self.packet, tally);
+            let lanes =
+                integrator.primary_hits(cam.eye, &dirs[..chunk.len()], &mut self.packet, tally);
             for (&(pixel, index, ref sampler, dir), hit) in chunk.iter().zip(lanes) {
                 match hit {
                     Some(hit) => {
@@ -334,9 +343,19 @@ impl Natives {
             }
         }
         pending.clear();
-        let recs =
-            integrator.first_hits(cam.eye, &self.hits, &mut self.samplers, &mut self.wavefront, tally);
-        hits.extend(self.found.iter().zip(recs).map(|(&(pixel, index), fh)| (pixel, index, *fh)));
+        let recs = integrator.first_hits(
+            cam.eye,
+            &self.hits,
+            &mut self.samplers,
+            &mut self.wavefront,
+            tally,
+        );
+        hits.extend(
+            self.found
+                .iter()
+                .zip(recs)
+                .map(|(&(pixel, index), fh)| (pixel, index, *fh)),
+        );
     }
 }
 
