@@ -286,6 +286,17 @@ impl Packet16 {
         self.active[lane] = -1;
     }
 
+    /// The ray set in `lane`.
+    pub fn ray(&self, lane: usize) -> Ray {
+        let r = &self.raw.rh.ray;
+        Ray {
+            org: Vec3::new(r.org_x[lane], r.org_y[lane], r.org_z[lane]),
+            dir: Vec3::new(r.dir_x[lane], r.dir_y[lane], r.dir_z[lane]),
+            tnear: r.tnear[lane],
+            tfar: r.tfar[lane],
+        }
+    }
+
     pub fn is_active(&self, lane: usize) -> bool {
         self.active[lane] != 0
     }

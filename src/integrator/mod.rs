@@ -262,22 +262,18 @@ pub(crate) struct Walk {
     from: Vec3,
     wi: Vec3,
     pdf_b: f32,
-}
-
-/// A shadow ray of the walk: its contribution `d` (light sample weighted by MIS, before the
-/// throughput) counts, times `beta`, if nothing blocks `ray`.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Shadow {
-    ray: Ray,
-    beta: Vec3,
-    d: Vec3,
+    /// The light sample of the shadow ray in flight: its contribution `d` (weighted by MIS,
+    /// before the throughput) counts, times the throughput `beta` it was drawn with, if nothing
+    /// blocks the ray.
+    shadow_beta: Vec3,
+    shadow_d: Vec3,
 }
 
 impl Walk {
-    /// The answer of a shadow ray this walk asked for: its contribution counts unless blocked.
+    /// The answer of the shadow ray this walk asked for: its contribution counts unless blocked.
     #[inline]
-    pub(crate) fn shadow_resolved(&mut self, sh: &Shadow, blocked: bool) {
-        self.l += sh.beta * if blocked { Vec3::ZERO } else { sh.d };
+    pub(crate) fn shadow_resolved(&mut self, blocked: bool) {
+        self.l += self.shadow_beta * if blocked { Vec3::ZERO } else { self.shadow_d };
     }
 }
 
@@ -398,9 +394,9 @@ impl<'a> Integrator<'a> {
         };
         loop {
             let (shadow, next) = self.walk_vertex(&mut walk, s);
-            if let Some(sh) = shadow {
-                t.shadow(&sh.ray);
-                walk.shadow_resolved(&sh, geometry.occluded1(&sh.ray));
+            if let Some(ray) = shadow {
+                t.shadow(&ray);
+                walk.shadow_resolved(geometry.occluded1(&ray));
             }
             let Some(ray) = next else {
                 break;
@@ -519,6 +515,8 @@ impl<'a> Integrator<'a> {
             from: Vec3::ZERO,
             wi: Vec3::ZERO,
             pdf_b: 0.0,
+            shadow_beta: Vec3::ZERO,
+            shadow_d: Vec3::ZERO,
         })
     }
 
@@ -531,7 +529,7 @@ impl<'a> Integrator<'a> {
         &self,
         walk: &mut Walk,
         s: &mut Sampler,
-    ) -> (Option<Shadow>, Option<Ray>) {
+    ) -> (Option<Ray>, Option<Ray>) {
         if walk.depth > self.max_depth {
             return (None, None);
         }
@@ -542,11 +540,11 @@ impl<'a> Integrator<'a> {
         }
         s.set_dimension(DIM_PATH + DIMS_PER_BOUNCE * (walk.depth - 2) as u64);
         let shadow = match self.direct(&sp, &m, walk.wo, s) {
-            (d, Some(ray)) => Some(Shadow {
-                ray,
-                beta: walk.beta,
-                d,
-            }),
+            (d, Some(ray)) => {
+                walk.shadow_beta = walk.beta;
+                walk.shadow_d = d;
+                Some(ray)
+            }
             (d, None) => {
                 walk.l += walk.beta * d;
                 None

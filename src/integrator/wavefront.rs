@@ -10,10 +10,138 @@
 //! as the test oracle): a path draws its numbers from its own sampler at fixed dimensions, and
 //! its radiance is summed in the same order, so traced one ray at a time the wavefront gives
 //! the scalar walk's records bit for bit; in packets the hits may differ in their last bits.
-use super::{FirstHit, Integrator, Rays, Shadow, Tally, Walk};
-use crate::embree::{Hit, Packet16, Ray};
+use super::{FirstHit, Integrator, Rays, Tally, Walk};
+use crate::embree::{Hit, Packet16, Ray, TriangleScene};
 use crate::sampling::Sampler;
 use glam::Vec3;
+
+/// Rays queued by the paths of a round, written straight into the lanes of 16-wide packets in
+/// the order they are queued (so that the packets of live paths are full), with the path that
+/// asked for each; traced as packets, or one at a time (`Rays::Single`, the answers kept
+/// beside the packets).
+#[derive(Default)]
+struct RayQueue {
+    packets: Vec<Packet16>,
+    paths: Vec<u32>,
+    /// The answers of a queue traced one ray at a time.
+    blocked: Vec<bool>,
+    hits: Vec<Option<Hit>>,
+}
+
+impl RayQueue {
+    fn clear(&mut self) {
+        self.paths.clear();
+    }
+
+    fn len(&self) -> usize {
+        self.paths.len()
+    }
+
+    #[inline]
+    fn push(&mut self, path: usize, ray: &Ray) {
+        let (p, lane) = (self.paths.len() / 16, self.paths.len() % 16);
+        if p == self.packets.len() {
+            self.packets.push(Packet16::new());
+        }
+        if lane == 0 {
+            self.packets[p].clear();
+        }
+        self.packets[p].set(lane, ray);
+        self.paths.push(path as u32);
+    }
+
+    /// The packets in use and the number of lanes set in each.
+    fn used(&mut self) -> impl Iterator<Item = (&mut Packet16, usize)> {
+        let n = self.paths.len();
+        self.packets
+            .iter_mut()
+            .take(n.div_ceil(16))
+            .enumerate()
+            .map(move |(p, packet)| (packet, (n - 16 * p).min(16)))
+    }
+
+    /// Trace the queue for occlusion (shadow rays).
+    fn occlude(&mut self, geometry: &TriangleScene, rays: Rays, t: &mut Tally) {
+        t.counts.shadow += self.len() as u64;
+        self.blocked.clear();
+        let mut log = t.log.as_mut();
+        match rays {
+            Rays::Packet => {
+                for (packet, lanes) in self.used() {
+                    if let Some(l) = log.as_deref_mut() {
+                        l.extend((0..lanes).map(|lane| (packet.ray(lane), true)));
+                    }
+                    geometry.occluded16_incoherent(packet);
+                }
+            }
+            Rays::Single => {
+                let mut blocked = std::mem::take(&mut self.blocked);
+
+                for (packet, lanes) in self.used() {
+                    for lane in 0..lanes {
+                        let ray = packet.ray(lane);
+                        if let Some(l) = log.as_deref_mut() {
+                            l.push((ray, true));
+                        }
+                        blocked.push(geometry.occluded1(&ray));
+                    }
+                }
+                self.blocked = blocked;
+            }
+        }
+    }
+
+    /// Trace the queue for closest hits (continuation rays).
+    fn intersect(&mut self, geometry: &TriangleScene, rays: Rays, t: &mut Tally) {
+        t.counts.path += self.len() as u64;
+        self.hits.clear();
+        let mut log = t.log.as_mut();
+        match rays {
+            Rays::Packet => {
+                for (packet, lanes) in self.used() {
+                    if let Some(l) = log.as_deref_mut() {
+                        l.extend((0..lanes).map(|lane| (packet.ray(lane), false)));
+                    }
+                    geometry.intersect16_incoherent(packet);
+                }
+            }
+            Rays::Single => {
+                let mut hits = std::mem::take(&mut self.hits);
+
+                for (packet, lanes) in self.used() {
+                    for lane in 0..lanes {
+                        let ray = packet.ray(lane);
+                        if let Some(l) = log.as_deref_mut() {
+                            l.push((ray, false));
+                        }
+                        hits.push(geometry.intersect1(&ray));
+                    }
+                }
+                self.hits = hits;
+            }
+        }
+    }
+
+    /// Whether ray `k` of the queue was blocked, after `occlude`.
+    #[inline]
+    fn blocked(&self, k: usize) -> bool {
+        if self.blocked.is_empty() {
+            self.packets[k / 16].occluded(k % 16)
+        } else {
+            self.blocked[k]
+        }
+    }
+
+    /// The hit of ray `k` of the queue, after `intersect`.
+    #[inline]
+    fn hit(&self, k: usize) -> Option<Hit> {
+        if self.hits.is_empty() {
+            self.packets[k / 16].hit(k % 16)
+        } else {
+            self.hits[k]
+        }
+    }
+}
 
 /// A wavefront's room, kept from one batch to the next so that a worker allocates it once.
 #[derive(Default)]
@@ -22,39 +150,16 @@ pub struct Wavefront {
     recs: Vec<FirstHit>,
     /// Each path's walk from its second vertex on, once its continuation ray hit something.
     walks: Vec<Option<Walk>>,
-    /// This round's rays: the first vertex's shadow rays (path, ray), the walk's shadow rays
-    /// (path, ray with its contribution), the continuation rays (path, ray).
-    first_shadows: Vec<(u32, Ray)>,
-    shadows: Vec<(u32, Shadow)>,
-    continuations: Vec<(u32, Ray)>,
-    /// The continuation rays of the round being queued, while this round's are answered.
-    next_continuations: Vec<(u32, Ray)>,
-    /// The answers, in the order of the queue traced.
-    blocked: Vec<bool>,
-    hits: Vec<Option<Hit>>,
-    packet: Packet16,
+    /// This round's shadow rays and continuation rays, and the next round's continuation rays
+    /// (queued while this round's are answered).
+    shadows: RayQueue,
+    continuations: RayQueue,
+    next_continuations: RayQueue,
 }
 
 impl Wavefront {
     pub fn new() -> Wavefront {
         Wavefront::default()
-    }
-}
-
-/// Queue the rays that path `i`'s step asked for.
-#[inline]
-fn queue(
-    i: usize,
-    shadow: Option<Shadow>,
-    next: Option<Ray>,
-    shadows: &mut Vec<(u32, Shadow)>,
-    continuations: &mut Vec<(u32, Ray)>,
-) {
-    if let Some(sh) = shadow {
-        shadows.push((i as u32, sh));
-    }
-    if let Some(ray) = next {
-        continuations.push((i as u32, ray));
     }
 }
 
@@ -71,9 +176,10 @@ impl Integrator<'_> {
         t: &mut Tally,
     ) -> &'w [FirstHit] {
         assert_eq!(hits.len(), samplers.len(), "one sampler per path");
+        let geometry = &self.scene.geometry;
         wf.recs.clear();
         wf.walks.clear();
-        wf.first_shadows.clear();
+        wf.shadows.clear();
         wf.continuations.clear();
         for (i, (hit, s)) in hits.iter().zip(samplers.iter_mut()).enumerate() {
             wf.recs.push(self.first_record(hit, eye));
@@ -81,49 +187,48 @@ impl Integrator<'_> {
             let (shadow, next) = self.first_samples(rec, s);
             wf.walks.push(None);
             if let Some(ray) = shadow {
-                wf.first_shadows.push((i as u32, ray));
+                wf.shadows.push(i, &ray);
             }
             if let Some(ray) = next {
-                wf.continuations.push((i as u32, ray));
+                wf.continuations.push(i, &ray);
             }
         }
-        let (blocked, first_shadows) = (&mut wf.blocked, &wf.first_shadows);
-        self.occluded_all(first_shadows, |e| &e.1, blocked, &mut wf.packet, t);
-        for (&(i, _), &b) in wf.first_shadows.iter().zip(wf.blocked.iter()) {
-            self.light_blocked(&mut wf.recs[i as usize], b);
+        wf.shadows.occlude(geometry, self.paths, t);
+        for k in 0..wf.shadows.len() {
+            let i = wf.shadows.paths[k] as usize;
+            self.light_blocked(&mut wf.recs[i], wf.shadows.blocked(k));
         }
-        self.intersect_all(&wf.continuations, &mut wf.hits, &mut wf.packet, t);
+        wf.continuations.intersect(geometry, self.paths, t);
         // Each round hands every path its continuation's hit and, where the walk goes on, takes
         // its next step at once (the path's state is touched once per round); the walk's shadow
         // rays of a round are answered before the hits, as the scalar walk adds them first.
         wf.shadows.clear();
         wf.next_continuations.clear();
-        for (&(i, _), &hit) in wf.continuations.iter().zip(wf.hits.iter()) {
-            let (i, s) = (i as usize, &mut samplers[i as usize]);
+        for k in 0..wf.continuations.len() {
+            let i = wf.continuations.paths[k] as usize;
             let walk = &mut wf.walks[i];
-            *walk = self.first_continue(&mut wf.recs[i], hit);
+            *walk = self.first_continue(&mut wf.recs[i], wf.continuations.hit(k));
             if let Some(walk) = walk {
-                let (shadow, next) = self.walk_vertex(walk, s);
+                let (shadow, next) = self.walk_vertex(walk, &mut samplers[i]);
                 queue(i, shadow, next, &mut wf.shadows, &mut wf.next_continuations);
             }
         }
-        while !wf.next_continuations.is_empty() || !wf.shadows.is_empty() {
-            let (blocked, shadows) = (&mut wf.blocked, &wf.shadows);
-            self.occluded_all(shadows, |e| &e.1.ray, blocked, &mut wf.packet, t);
-            for ((i, sh), &b) in wf.shadows.iter().zip(wf.blocked.iter()) {
-                let walk = wf.walks[*i as usize]
-                    .as_mut()
-                    .expect("a shadow ray's path walks");
-                walk.shadow_resolved(sh, b);
+        while wf.next_continuations.len() > 0 || wf.shadows.len() > 0 {
+            wf.shadows.occlude(geometry, self.paths, t);
+            for k in 0..wf.shadows.len() {
+                let i = wf.shadows.paths[k] as usize;
+                let walk = wf.walks[i].as_mut().expect("a shadow ray's path walks");
+                walk.shadow_resolved(wf.shadows.blocked(k));
             }
             std::mem::swap(&mut wf.continuations, &mut wf.next_continuations);
-            self.intersect_all(&wf.continuations, &mut wf.hits, &mut wf.packet, t);
+            wf.continuations.intersect(geometry, self.paths, t);
             wf.shadows.clear();
             wf.next_continuations.clear();
-            for (&(i, _), &hit) in wf.continuations.iter().zip(wf.hits.iter()) {
-                let (i, s) = (i as usize, &mut samplers[i as usize]);
+            for k in 0..wf.continuations.len() {
+                let i = wf.continuations.paths[k] as usize;
+                let s = &mut samplers[i];
                 let walk = wf.walks[i].as_mut().expect("a continuation's path walks");
-                if self.walk_continue(walk, hit, s) {
+                if self.walk_continue(walk, wf.continuations.hit(k), s) {
                     let (shadow, next) = self.walk_vertex(walk, s);
                     queue(i, shadow, next, &mut wf.shadows, &mut wf.next_continuations);
                 }
@@ -136,63 +241,21 @@ impl Integrator<'_> {
         }
         &wf.recs
     }
+}
 
-    /// Whether each ray of `queue` is blocked, into `blocked` (in the queue's order).
-    fn occluded_all<E>(
-        &self,
-        queue: &[E],
-        ray: impl Fn(&E) -> &Ray,
-        blocked: &mut Vec<bool>,
-        packet: &mut Packet16,
-        t: &mut Tally,
-    ) {
-        let geometry = &self.scene.geometry;
-        blocked.clear();
-        match self.paths {
-            Rays::Packet => {
-                for chunk in queue.chunks(16) {
-                    packet.clear();
-                    for (lane, e) in chunk.iter().enumerate() {
-                        t.shadow(ray(e));
-                        packet.set(lane, ray(e));
-                    }
-                    geometry.occluded16_incoherent(packet);
-                    blocked.extend((0..chunk.len()).map(|lane| packet.occluded(lane)));
-                }
-            }
-            Rays::Single => blocked.extend(queue.iter().map(|e| {
-                t.shadow(ray(e));
-                geometry.occluded1(ray(e))
-            })),
-        }
+/// Queue the rays that path `i`'s step asked for.
+#[inline]
+fn queue(
+    i: usize,
+    shadow: Option<Ray>,
+    next: Option<Ray>,
+    shadows: &mut RayQueue,
+    continuations: &mut RayQueue,
+) {
+    if let Some(ray) = shadow {
+        shadows.push(i, &ray);
     }
-
-    /// The closest hit of each continuation ray of `queue`, into `hits` (in the queue's order).
-    fn intersect_all(
-        &self,
-        queue: &[(u32, Ray)],
-        hits: &mut Vec<Option<Hit>>,
-        packet: &mut Packet16,
-        t: &mut Tally,
-    ) {
-        let geometry = &self.scene.geometry;
-        hits.clear();
-        match self.paths {
-            Rays::Packet => {
-                for chunk in queue.chunks(16) {
-                    packet.clear();
-                    for (lane, (_, ray)) in chunk.iter().enumerate() {
-                        t.path(ray);
-                        packet.set(lane, ray);
-                    }
-                    geometry.intersect16_incoherent(packet);
-                    hits.extend((0..chunk.len()).map(|lane| packet.hit(lane)));
-                }
-            }
-            Rays::Single => hits.extend(queue.iter().map(|(_, ray)| {
-                t.path(ray);
-                geometry.intersect1(ray)
-            })),
-        }
+    if let Some(ray) = next {
+        continuations.push(i, &ray);
     }
 }
