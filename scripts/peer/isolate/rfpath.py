@@ -4,7 +4,7 @@ with two switches so that Mitsuba's samplers can drive reframe's exact estimator
   rr_mode  'mitsuba': path.cpp's roulette: after vertex d's light sample and BSDF sample, before
                       the BSDF ray's emitter hit is counted, when d >= rr_depth (d = 1 for the
                       first hit); q = min(max(throughput incl. vertex 1), .95).
-           'reframe': src/integrator.rs `reflected`: after the BSDF ray from vertex d found its
+           'reframe': src/integrator/mod.rs `walk_continue`: after the BSDF ray from vertex d found its
                       next vertex and that vertex's emission (MIS-weighted) was added, when
                       d >= rr_depth; q = min(max(beta), .95) where beta omits the first vertex's
                       f cos / p (the walk's beta starts at 1 at vertex 2).
