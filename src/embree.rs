@@ -262,6 +262,11 @@ impl Packet16 {
         }
     }
 
+    /// Bytes one packet holds, its rays and hits included.
+    pub const fn bytes() -> usize {
+        std::mem::size_of::<Packet16>() + std::mem::size_of::<RayHit16>()
+    }
+
     /// Deactivate all lanes.
     pub fn clear(&mut self) {
         self.active = Valid16([0; 16]);

@@ -296,57 +296,64 @@ fn strict_flag_turns_repairs_into_refusals() {
 
 /// The memory a render is refused for passing (`RenderOptions::memory_estimate`) covers what a
 /// real render takes beyond the process at start: `mis-cv` with `--aov` at n_f = 9 (its
-/// accumulators, 40 bytes per pixel per frame in flight, are most of it), and the independent
-/// tracer; and it does not overstate it more than a few times.
+/// accumulators, 40 bytes per pixel per frame in flight, are most of it), `mis-cv` at a high
+/// `--spp` on a small film (the workers' native samples of a tile are most of it), and the
+/// independent tracer; and it does not overstate it more than a few times.
 #[test]
 fn memory_estimate_covers_a_real_render() {
+    use reframe::reuse::Method;
     let d = tempfile::tempdir().unwrap();
-    let reuse: &[&str] = &[
-        "--method", "mis-cv", "--window", "9", "--aov", "--frames", "0-8",
+    // (method, window, --aov, frames, resolution, spp)
+    let cases = [
+        (Method::MisCv, 9, true, "0-8", (640, 480), 1),
+        (Method::MisCv, 3, false, "0-2", (64, 64), 256),
+        (Method::Independent, 1, false, "0-1", (640, 480), 1),
     ];
-    let independent: &[&str] = &["--frames", "0-1"];
-    for (k, flags) in [reuse, independent].into_iter().enumerate() {
+    for (k, (method, window, aov, frames, (w, h), spp)) in cases.into_iter().enumerate() {
         let stats = d.path().join(format!("s{k}.json"));
-        let mut args: Vec<String> = [
-            "render",
-            "vase",
-            "--res",
-            "640x480",
-            "--spp",
-            "1",
-            "--threads",
-            "2",
-            "--out",
-        ]
-        .map(String::from)
-        .to_vec();
-        args.push(
+        let mut args: Vec<String> = vec![
+            "render".into(),
+            "vase".into(),
+            "--method".into(),
+            method.name().into(),
+            "--window".into(),
+            window.to_string(),
+            "--frames".into(),
+            frames.into(),
+            "--res".into(),
+            format!("{w}x{h}"),
+            "--spp".into(),
+            spp.to_string(),
+            "--threads".into(),
+            "2".into(),
+            "--out".into(),
             d.path()
                 .join(format!("r{k}/f_####.exr"))
                 .display()
                 .to_string(),
-        );
-        args.extend(flags.iter().map(|s| s.to_string()));
-        args.extend(["--stats".into(), stats.display().to_string()]);
+            "--stats".into(),
+            stats.display().to_string(),
+        ];
+        if aov {
+            args.push("--aov".into());
+        }
         reframe_ok(&args);
         let s: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
         let grew = s["peak_rss_bytes"].as_u64().unwrap() - s["startup_rss_bytes"].as_u64().unwrap();
-        let mut opts = RenderOptions {
-            resolution: Some((640, 480)),
-            spp: 1,
+        let opts = RenderOptions {
+            method,
+            window,
+            aov,
+            resolution: Some((w, h)),
+            spp,
             threads: 2,
             ..RenderOptions::default()
         };
-        if k == 0 {
-            opts.method = reframe::reuse::Method::MisCv;
-            opts.window = 9;
-            opts.aov = true;
-        }
-        let estimate = opts.memory_estimate((640, 480));
+        let estimate = opts.memory_estimate((w, h));
         assert!(
             estimate >= grew && estimate <= 4 * grew + (64 << 20),
-            "{flags:?}: estimated {estimate} bytes, the render grew by {grew}"
+            "{args:?}: estimated {estimate} bytes, the render grew by {grew}"
         );
     }
 }

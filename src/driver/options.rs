@@ -273,7 +273,8 @@ impl RenderOptions {
     /// accumulators of the frames in flight (`n_f` of them for the reuse methods, one for the
     /// independent tracer), the adaptive counts, a developed frame and its copy for the file
     /// writer, every worker's windows of the group's frames (`film::local`, at their largest),
-    /// and 32 MB for the rest. The process as it starts (the scene, and mostly OpenImageIO's
+    /// every worker's native samples of a tile (`reuse::shade::worker_bytes`) or wavefront batch
+    /// (`integrator::wavefront`), and 32 MB for the rest. The process as it starts (the scene, and mostly OpenImageIO's
     /// libraries) is not counted.
     pub fn memory_estimate(&self, (w, h): (u32, u32)) -> u64 {
         let pixels = w as u64 * h as u64;
@@ -297,11 +298,23 @@ impl RenderOptions {
         } else {
             0
         };
+        let tile = crate::film::tiles::TILE as u64;
+        let workers = if self.method.reuses() {
+            let samples = self.spp
+                * if self.adaptive.is_some() {
+                    self.window
+                } else {
+                    1
+                };
+            threads * crate::reuse::shade::worker_bytes(samples, self.window)
+        } else {
+            threads * tile * tile * crate::integrator::wavefront::Wavefront::bytes_per_path() as u64
+        };
         // A developed frame (RGB and `--aov`'s two channels, f32), and the writer's copies.
         let develop = 3 * 4 * 5 * pixels;
         // Thread stacks, Embree's and the image library's working memory.
         let rest = 32 << 20;
-        frames + adaptive + develop + rest
+        frames + adaptive + workers + develop + rest
     }
 
     /// Refuse a render whose `memory_estimate` passes `available` (where known), naming the
@@ -317,7 +330,7 @@ impl RenderOptions {
                 need as f64 / 1e9,
                 a as f64 / 1e9,
                 if self.method.reuses() {
-                    " or --window, or use fewer --threads"
+                    " or --window or --spp, or use fewer --threads"
                 } else {
                     ""
                 }

@@ -161,6 +161,17 @@ impl Wavefront {
     pub fn new() -> Wavefront {
         Wavefront::default()
     }
+
+    /// Bytes a batch holds per path, at most: its record, walk, sampler and hit, and a lane in
+    /// each of the three ray queues (for `RenderOptions::memory_estimate`).
+    pub fn bytes_per_path() -> usize {
+        use std::mem::size_of;
+        size_of::<FirstHit>()
+            + size_of::<Option<Walk>>()
+            + size_of::<Sampler>()
+            + size_of::<Hit>()
+            + 3 * (Packet16::bytes() / 16 + size_of::<u32>())
+    }
 }
 
 impl Integrator<'_> {

@@ -16,7 +16,7 @@ use super::{Params, Weights};
 use crate::camera::Camera;
 use crate::embree::{Hit, Packet16, Ray};
 use crate::film::local::LocalFilm;
-use crate::film::tiles::Tile;
+use crate::film::tiles::{Tile, TILE};
 use crate::film::FrameAccum;
 use crate::integrator::wavefront::Wavefront;
 use crate::integrator::{Integrator, Tally};
@@ -293,6 +293,25 @@ fn shade_eye(
     bad
 }
 
+/// Camera samples traced together as one wavefront: a tile's pixels, as many as the independent
+/// tracer's batches (more measured no faster, and a tile's samples at a high `--spp` would hold
+/// tens of megabytes per worker).
+const BATCH: usize = (TILE * TILE) as usize;
+
+/// Bytes a worker holds for one tile of one frame's native samples, at most `samples` per pixel
+/// (`--spp`, or `n_f` times it with `--adaptive`) in a group of `n_f` frames: every camera
+/// sample before its primary ray, every hit's record and its landing in each eye, the escapes,
+/// and one wavefront batch (for `RenderOptions::memory_estimate`).
+pub fn worker_bytes(samples: u32, n_f: u32) -> u64 {
+    use std::mem::size_of;
+    let per_sample = size_of::<(u32, u32, Sampler, Vec3)>()
+        + size_of::<NativeHit>()
+        + n_f as usize * size_of::<Landing>()
+        + size_of::<(u32, u32, Vec3)>();
+    let tile = (TILE * TILE) as u64 * samples as u64 * per_sample as u64;
+    tile + (BATCH * (Wavefront::bytes_per_path() + size_of::<(u32, u32)>())) as u64
+}
+
 /// The tracer of a tile's native samples, and its room.
 #[derive(Default)]
 struct Natives {
@@ -306,7 +325,8 @@ struct Natives {
 
 impl Natives {
     /// Trace the camera samples `pending` (their primary rays 16 consecutive samples to a
-    /// packet, `Integrator::primary_hits`; then their paths together, `Integrator::first_hits`)
+    /// packet, `Integrator::primary_hits`; then their paths together, `BATCH` samples at a
+    /// time, `Integrator::first_hits`)
     /// and record their first hits (and, with `keep_escapes`, the samples that left the scene)
     /// in the order they were queued, as `trace_first_hit` would.
     #[allow(clippy::too_many_arguments)]
@@ -320,42 +340,44 @@ impl Natives {
         escapes: &mut Vec<(u32, u32, Vec3)>,
         tally: &mut Tally,
     ) {
-        self.found.clear();
-        self.hits.clear();
-        self.samplers.clear();
         let mut dirs = [Vec3::ZERO; 16];
-        for chunk in pending.chunks(16) {
-            for (d, p) in dirs.iter_mut().zip(chunk) {
-                *d = p.3;
-            }
-            let lanes =
-                integrator.primary_hits(cam.eye, &dirs[..chunk.len()], &mut self.packet, tally);
-            for (&(pixel, index, ref sampler, dir), hit) in chunk.iter().zip(lanes) {
-                match hit {
-                    Some(hit) => {
-                        self.found.push((pixel, index));
-                        self.hits.push(hit);
-                        self.samplers.push(sampler.clone());
+        for batch in pending.chunks(BATCH) {
+            self.found.clear();
+            self.hits.clear();
+            self.samplers.clear();
+            for chunk in batch.chunks(16) {
+                for (d, p) in dirs.iter_mut().zip(chunk) {
+                    *d = p.3;
+                }
+                let lanes =
+                    integrator.primary_hits(cam.eye, &dirs[..chunk.len()], &mut self.packet, tally);
+                for (&(pixel, index, ref sampler, dir), hit) in chunk.iter().zip(lanes) {
+                    match hit {
+                        Some(hit) => {
+                            self.found.push((pixel, index));
+                            self.hits.push(hit);
+                            self.samplers.push(sampler.clone());
+                        }
+                        None if keep_escapes => escapes.push((pixel, index, dir)),
+                        None => {}
                     }
-                    None if keep_escapes => escapes.push((pixel, index, dir)),
-                    None => {}
                 }
             }
+            let recs = integrator.first_hits(
+                cam.eye,
+                &self.hits,
+                &mut self.samplers,
+                &mut self.wavefront,
+                tally,
+            );
+            hits.extend(
+                self.found
+                    .iter()
+                    .zip(recs)
+                    .map(|(&(pixel, index), fh)| (pixel, index, *fh)),
+            );
         }
         pending.clear();
-        let recs = integrator.first_hits(
-            cam.eye,
-            &self.hits,
-            &mut self.samplers,
-            &mut self.wavefront,
-            tally,
-        );
-        hits.extend(
-            self.found
-                .iter()
-                .zip(recs)
-                .map(|(&(pixel, index), fh)| (pixel, index, *fh)),
-        );
     }
 }
 
