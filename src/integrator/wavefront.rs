@@ -50,76 +50,38 @@ impl RayQueue {
         self.paths.push(path as u32);
     }
 
-    /// The packets in use and the number of lanes set in each.
-    fn used(&mut self) -> impl Iterator<Item = (&mut Packet16, usize)> {
-        let n = self.paths.len();
-        self.packets
-            .iter_mut()
-            .take(n.div_ceil(16))
-            .enumerate()
-            .map(move |(p, packet)| (packet, (n - 16 * p).min(16)))
-    }
-
     /// Trace the queue for occlusion (shadow rays).
     fn occlude(&mut self, geometry: &TriangleScene, rays: Rays, t: &mut Tally) {
         t.counts.shadow += self.len() as u64;
-        self.blocked.clear();
-        let mut log = t.log.as_mut();
-        match rays {
-            Rays::Packet => {
-                for (packet, lanes) in self.used() {
-                    if let Some(l) = log.as_deref_mut() {
-                        l.extend((0..lanes).map(|lane| (packet.ray(lane), true)));
-                    }
-                    geometry.occluded16_incoherent(packet);
-                }
-            }
-            Rays::Single => {
-                let mut blocked = std::mem::take(&mut self.blocked);
-
-                for (packet, lanes) in self.used() {
-                    for lane in 0..lanes {
-                        let ray = packet.ray(lane);
-                        if let Some(l) = log.as_deref_mut() {
-                            l.push((ray, true));
-                        }
-                        blocked.push(geometry.occluded1(&ray));
-                    }
-                }
-                self.blocked = blocked;
-            }
-        }
+        let n = self.len();
+        let (packets, blocked) = (&mut self.packets, &mut self.blocked);
+        trace(
+            packets,
+            n,
+            rays,
+            true,
+            t,
+            blocked,
+            |p| geometry.occluded16_incoherent(p),
+            |r| geometry.occluded1(r),
+        );
     }
 
     /// Trace the queue for closest hits (continuation rays).
     fn intersect(&mut self, geometry: &TriangleScene, rays: Rays, t: &mut Tally) {
         t.counts.path += self.len() as u64;
-        self.hits.clear();
-        let mut log = t.log.as_mut();
-        match rays {
-            Rays::Packet => {
-                for (packet, lanes) in self.used() {
-                    if let Some(l) = log.as_deref_mut() {
-                        l.extend((0..lanes).map(|lane| (packet.ray(lane), false)));
-                    }
-                    geometry.intersect16_incoherent(packet);
-                }
-            }
-            Rays::Single => {
-                let mut hits = std::mem::take(&mut self.hits);
-
-                for (packet, lanes) in self.used() {
-                    for lane in 0..lanes {
-                        let ray = packet.ray(lane);
-                        if let Some(l) = log.as_deref_mut() {
-                            l.push((ray, false));
-                        }
-                        hits.push(geometry.intersect1(&ray));
-                    }
-                }
-                self.hits = hits;
-            }
-        }
+        let n = self.len();
+        let (packets, hits) = (&mut self.packets, &mut self.hits);
+        trace(
+            packets,
+            n,
+            rays,
+            false,
+            t,
+            hits,
+            |p| geometry.intersect16_incoherent(p),
+            |r| geometry.intersect1(r),
+        );
     }
 
     /// Whether ray `k` of the queue was blocked, after `occlude`.
@@ -139,6 +101,33 @@ impl RayQueue {
             self.packets[k / 16].hit(k % 16)
         } else {
             self.hits[k]
+        }
+    }
+}
+
+/// Trace the first `n` lanes of `packets`, as packets (`packet`; the answers stay in them) or
+/// one ray at a time (`single`; the answers go to `out`), logging the rays where `t` keeps a log
+/// (`occlusion`: the log's kind).
+#[allow(clippy::too_many_arguments)]
+fn trace<A>(
+    packets: &mut [Packet16],
+    n: usize,
+    rays: Rays,
+    occlusion: bool,
+    t: &mut Tally,
+    out: &mut Vec<A>,
+    packet: impl Fn(&mut Packet16),
+    single: impl Fn(&Ray) -> A,
+) {
+    out.clear();
+    for (p, packet16) in packets.iter_mut().take(n.div_ceil(16)).enumerate() {
+        let lanes = (n - 16 * p).min(16);
+        if let Some(l) = t.log.as_mut() {
+            l.extend((0..lanes).map(|lane| (packet16.ray(lane), occlusion)));
+        }
+        match rays {
+            Rays::Packet => packet(packet16),
+            Rays::Single => out.extend((0..lanes).map(|lane| single(&packet16.ray(lane)))),
         }
     }
 }
