@@ -254,7 +254,11 @@ impl Default for Packet16 {
 impl Packet16 {
     pub fn new() -> Packet16 {
         // SAFETY: RTCRayHit16 is plain old data; all-zero is a valid bit pattern.
-        let raw: Box<RayHit16> = Box::new(unsafe { std::mem::zeroed() });
+        let mut raw: Box<RayHit16> = Box::new(unsafe { std::mem::zeroed() });
+        // What `set` leaves as it is: the same for every ray (time 0 and flags 0 from zeroing).
+        let r = &mut raw.rh.ray;
+        r.mask = [RAY_MASK; 16];
+        r.id = std::array::from_fn(|lane| lane as u32);
         Packet16 {
             raw,
             active: Valid16([0; 16]),
@@ -282,10 +286,6 @@ impl Packet16 {
         r.dir_z[lane] = ray.dir.z;
         r.tnear[lane] = ray.tnear;
         r.tfar[lane] = ray.tfar;
-        r.time[lane] = 0.0;
-        r.mask[lane] = RAY_MASK;
-        r.id[lane] = lane as u32;
-        r.flags[lane] = 0;
         self.raw.rh.hit.geomID[lane] = INVALID_ID;
         self.raw.rh.hit.instID[0][lane] = INVALID_ID;
         self.active[lane] = -1;
