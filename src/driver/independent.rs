@@ -52,8 +52,8 @@ fn render_tile(
     let mut bad = 0u64;
     let mut packet = Packet16::new();
     let mut wavefront = Wavefront::new();
-    // A block's lanes: pixel (x, y), sampler and ray direction.
-    let mut lanes: Vec<(u32, u32)> = Vec::with_capacity(16);
+    // A block's lanes: pixel (index in the tile), sampler and ray direction.
+    let mut lanes: Vec<usize> = Vec::with_capacity(16);
     let mut samplers: Vec<Sampler> = Vec::with_capacity(16);
     let mut dirs: Vec<Vec3> = Vec::with_capacity(16);
     // The tile's paths that hit a surface: their pixels (index in the tile), hits and samplers.
@@ -73,15 +73,13 @@ fn render_tile(
                     for x in bx..(bx + BLOCK).min(x1) {
                         let mut sampler = Sampler::stratified(seed, frame, y * w + x, 0, s);
                         let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
-                        lanes.push((x, y));
+                        lanes.push(((y - y0) * tw + (x - x0)) as usize);
                         dirs.push(cam.direction(r));
                         samplers.push(sampler);
                     }
                 }
                 let block_hits = integrator.primary_hits(cam.eye, &dirs, &mut packet, t);
-                for (lane, sampler) in samplers.drain(..).enumerate() {
-                    let (x, y) = lanes[lane];
-                    let slot = ((y - y0) * tw + (x - x0)) as usize;
+                for (lane, (sampler, &slot)) in samplers.drain(..).zip(&lanes).enumerate() {
                     match block_hits[lane] {
                         Some(hit) => {
                             slots.push(slot);

@@ -274,8 +274,8 @@ impl RenderOptions {
     /// independent tracer), the adaptive counts, a developed frame and its copy for the file
     /// writer, every worker's windows of the group's frames (`film::local`, at their largest),
     /// every worker's native samples of a tile (`reuse::shade::worker_bytes`) or wavefront batch
-    /// (`integrator::wavefront`), and 32 MB for the rest. The process as it starts (the scene, and mostly OpenImageIO's
-    /// libraries) is not counted.
+    /// (`integrator::wavefront`), and 32 MB for the rest. The process as it starts (the scene,
+    /// and mostly OpenImageIO's libraries) is not counted.
     pub fn memory_estimate(&self, (w, h): (u32, u32)) -> u64 {
         let pixels = w as u64 * h as u64;
         let per_pixel = self

@@ -118,6 +118,20 @@ impl Tally {
             l.push((*r, true));
         }
     }
+
+    /// `rays`, traced together: shadow rays (`occlusion`) or path rays, as `shadow` and `path`
+    /// count and log them one by one. The rays are read only where there is a log.
+    #[inline]
+    pub fn batch<I: Iterator<Item = Ray>>(&mut self, occlusion: bool, n: usize, rays: I) {
+        *if occlusion {
+            &mut self.counts.shadow
+        } else {
+            &mut self.counts.path
+        } += n as u64;
+        if let Some(l) = &mut self.log {
+            l.extend(rays.map(|r| (r, occlusion)));
+        }
+    }
 }
 
 impl RayCounts {

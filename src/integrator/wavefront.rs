@@ -23,7 +23,8 @@ use glam::Vec3;
 struct RayQueue {
     packets: Vec<Packet16>,
     paths: Vec<u32>,
-    /// The answers of a queue traced one ray at a time.
+    /// The answers of a queue traced one ray at a time (empty where it was traced as packets,
+    /// whose answers stay in their lanes).
     blocked: Vec<bool>,
     hits: Vec<Option<Hit>>,
 }
@@ -52,16 +53,15 @@ impl RayQueue {
 
     /// Trace the queue for occlusion (shadow rays).
     fn occlude(&mut self, geometry: &TriangleScene, rays: Rays, t: &mut Tally) {
-        t.counts.shadow += self.len() as u64;
         let n = self.len();
-        let (packets, blocked) = (&mut self.packets, &mut self.blocked);
+        let out = &mut self.blocked;
         trace(
-            packets,
+            &mut self.packets,
             n,
             rays,
             true,
             t,
-            blocked,
+            out,
             |p| geometry.occluded16_incoherent(p),
             |r| geometry.occluded1(r),
         );
@@ -69,16 +69,15 @@ impl RayQueue {
 
     /// Trace the queue for closest hits (continuation rays).
     fn intersect(&mut self, geometry: &TriangleScene, rays: Rays, t: &mut Tally) {
-        t.counts.path += self.len() as u64;
         let n = self.len();
-        let (packets, hits) = (&mut self.packets, &mut self.hits);
+        let out = &mut self.hits;
         trace(
-            packets,
+            &mut self.packets,
             n,
             rays,
             false,
             t,
-            hits,
+            out,
             |p| geometry.intersect16_incoherent(p),
             |r| geometry.intersect1(r),
         );
@@ -106,8 +105,8 @@ impl RayQueue {
 }
 
 /// Trace the first `n` lanes of `packets`, as packets (`packet`; the answers stay in them) or
-/// one ray at a time (`single`; the answers go to `out`), logging the rays where `t` keeps a log
-/// (`occlusion`: the log's kind).
+/// one ray at a time (`single`; the answers go to `out`), counted in `t` as shadow rays
+/// (`occlusion`) or path rays.
 #[allow(clippy::too_many_arguments)]
 fn trace<A>(
     packets: &mut [Packet16],
@@ -122,9 +121,7 @@ fn trace<A>(
     out.clear();
     for (p, packet16) in packets.iter_mut().take(n.div_ceil(16)).enumerate() {
         let lanes = (n - 16 * p).min(16);
-        if let Some(l) = t.log.as_mut() {
-            l.extend((0..lanes).map(|lane| (packet16.ray(lane), occlusion)));
-        }
+        t.batch(occlusion, lanes, (0..lanes).map(|lane| packet16.ray(lane)));
         match rays {
             Rays::Packet => packet(packet16),
             Rays::Single => out.extend((0..lanes).map(|lane| single(&packet16.ray(lane)))),

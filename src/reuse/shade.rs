@@ -326,9 +326,9 @@ struct Natives {
 impl Natives {
     /// Trace the camera samples `pending` (their primary rays 16 consecutive samples to a
     /// packet, `Integrator::primary_hits`; then their paths together, `BATCH` samples at a
-    /// time, `Integrator::first_hits`)
-    /// and record their first hits (and, with `keep_escapes`, the samples that left the scene)
-    /// in the order they were queued, as `trace_first_hit` would.
+    /// time, `Integrator::first_hits`) and record their first hits (and, with `keep_escapes`,
+    /// the samples that left the scene) in the order they were queued, as `trace_first_hit`
+    /// would.
     #[allow(clippy::too_many_arguments)]
     fn trace(
         &mut self,
