@@ -129,7 +129,7 @@ pub struct Ray {
 
 /// Relative offset applied to origins on surfaces: Embree's watertight triangle test is accurate
 /// to a few ulps of the coordinates, and 64 ulps of the largest coordinate clears that.
-const SPAWN_EPS: f32 = 64.0 * f32::EPSILON;
+pub(crate) const SPAWN_EPS: f32 = 64.0 * f32::EPSILON;
 
 fn offset_origin(p: Vec3, ng: Vec3, toward: Vec3) -> Vec3 {
     let scale = SPAWN_EPS * (1.0 + p.abs().max_element());
@@ -176,9 +176,16 @@ impl Ray {
     #[inline]
     pub fn from_eye(eye: Vec3, p1: Vec3, n1: Vec3) -> Ray {
         let o1 = offset_origin(p1, n1, eye - p1);
+        Ray::from_eye_dir(eye, o1 - eye)
+    }
+
+    /// `from_eye` with its direction already made: the segment from the eye to the point
+    /// offset off its surface.
+    #[inline]
+    pub fn from_eye_dir(eye: Vec3, dir: Vec3) -> Ray {
         Ray {
             org: eye,
-            dir: o1 - eye,
+            dir,
             tnear: 0.0,
             tfar: 1.0 - SPAWN_EPS,
         }

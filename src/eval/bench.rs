@@ -40,7 +40,7 @@ use crate::driver::{
 use crate::embree::Ray;
 use crate::film::tiles::tiles;
 use crate::integrator::{Integrator, RayCounts, Rays, Tally};
-use crate::reuse::visibility::{visibility, Landing, NativeHit};
+use crate::reuse::visibility::{landings, HitLanes, Landing, NativeHit};
 use crate::reuse::Method;
 use crate::sampling::Sampler;
 use crate::scene::Scene;
@@ -544,8 +544,14 @@ fn visibility_pass(
         .map(|tile| {
             let mut t = Tally::default();
             let mut land: Vec<Landing> = vec![None; tile.len()];
+            let mut lanes = HitLanes::default();
+            lanes.fill(tile);
             for eye in eyes {
-                visibility(integrator, eye, tile, 0, 1, packets, &mut land, &mut t);
+                let view = (eye, eye.pixel_area());
+                let k = (0, 1);
+                landings(
+                    integrator, view, &lanes, k, None, packets, &mut land, None, &mut t,
+                );
             }
             std::hint::black_box(&land);
             t.counts.visibility

@@ -10,7 +10,7 @@
 //! Streaming and determinism: contributions are quantised as they are made into fixed-point
 //! sums with a hashed rounding dither: integer addition is associative, so the frames are
 //! bitwise identical for any thread count and any window.
-use super::visibility::{visibility, Landing, NativeHit};
+use super::visibility::{landings, EyeView, HitLanes, Landing, NativeHit};
 use super::weights::{EyeTerms, Weighing};
 use super::{Params, Weights};
 use crate::camera::Camera;
@@ -96,6 +96,11 @@ struct Scratch {
     /// control variate only, whose weights must cover every direction a pixel sees.
     escapes: Vec<(u32, u32, Vec3)>,
     land: Vec<Landing>,
+    /// How each eye of the group sees each hit (`land`'s order), the hits' points and normals
+    /// in lanes, and their pixels.
+    views: Vec<EyeView>,
+    lanes: HitLanes,
+    pixels: Vec<u32>,
     eyes: Vec<EyeTerms>,
     /// `A_pix,k` of each eye of the group.
     pixel_areas: Vec<f32>,
@@ -146,6 +151,9 @@ fn shade_eye(
         hits,
         escapes,
         land,
+        views,
+        lanes,
+        pixels,
         eyes,
         pixel_areas,
         pending,
@@ -202,17 +210,27 @@ fn shade_eye(
         escapes,
         tally,
     );
-    // Where each hit lands in each eye of the group (None: occluded or off the film).
+    // Where each hit lands in each eye of the group (None: occluded or off the film), and how
+    // each eye sees it.
     land.clear();
     land.resize(hits.len() * n_f, None);
+    views.clear();
+    views.resize(hits.len() * n_f, EyeView::default());
+    lanes.fill(hits);
+    pixels.clear();
+    pixels.extend(hits.iter().map(|h| h.0));
     for (k, t) in group.iter().enumerate() {
-        if k == m {
-            for (hi, (pixel, _, _)) in hits.iter().enumerate() {
-                land[hi * n_f + k] = Some(*pixel);
-            }
-            continue;
-        }
-        visibility(integrator, t.cam, hits, k, n_f, p.packets, land, tally);
+        landings(
+            integrator,
+            (t.cam, pixel_areas[k]),
+            lanes,
+            (k, n_f),
+            (k == m).then_some(&pixels[..]),
+            p.packets,
+            land,
+            Some(views),
+            tally,
+        );
     }
     let weights = p.method.weights();
     let mut bad = 0u64;
@@ -220,13 +238,12 @@ fn shade_eye(
     for (hi, (pixel, index, fh)) in hits.iter().enumerate() {
         let x = fh.sp.p;
         eyes.clear();
-        for (k, t) in group.iter().enumerate() {
+        for k in 0..n_f {
+            let v = views[hi * n_f + k];
             eyes.push(match land[hi * n_f + k] {
-                Some(i) => {
-                    let (wo, j) = t.cam.view_terms(x, fh.sp.ng);
-                    EyeTerms::new(wo, j / pixel_areas[k], n_at(k, i) as f32)
-                }
-                None => EyeTerms::new((t.cam.eye - x).normalize(), 0.0, 0.0),
+                Some(i) => EyeTerms::new(v.wo, v.j_over_a, n_at(k, i) as f32),
+                // The weights read nothing else of an eye that cannot see x.
+                None => EyeTerms::new(v.wo, 0.0, 0.0),
             });
         }
         let sample_dither = Dither::of(p.seed, native_frame, *pixel, *index);
@@ -306,7 +323,9 @@ pub fn worker_bytes(samples: u32, n_f: u32) -> u64 {
     use std::mem::size_of;
     let per_sample = size_of::<(u32, u32, Sampler, Vec3)>()
         + size_of::<NativeHit>()
-        + n_f as usize * size_of::<Landing>()
+        + n_f as usize * (size_of::<Landing>() + size_of::<EyeView>())
+        + HitLanes::bytes_per_hit()
+        + size_of::<u32>()
         + size_of::<(u32, u32, Vec3)>();
     let tile = (TILE * TILE) as u64 * samples as u64 * per_sample as u64;
     tile + (BATCH * (Wavefront::bytes_per_path() + size_of::<(u32, u32)>())) as u64
