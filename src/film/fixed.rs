@@ -25,6 +25,39 @@ pub fn quantize(v: f32, u: f64) -> i64 {
     t.saturating_sub(((t as f64) > x) as i64)
 }
 
+/// `quantize` of three values at once, to the bit, in two SIMD lanes' worth of plain float
+/// arithmetic that the compiler vectorises: where every `x = v 2^20 + u` is below 2^51 in size
+/// (all but absurd splats), `x + 1.5 2^52` rounds `x` to the nearest integer `n` and holds it in
+/// its low bits (the float's unit in the last place there is 1, and the sum stays in one
+/// binade), so `n` is the difference of the two bit patterns and `n - 1` where `n > x` is the
+/// floor; no float-to-integer conversion, which x86-64 has only one value at a time, with
+/// saturation checks. Elsewhere each value goes through `quantize`.
+#[inline]
+pub fn quantize3(v: [f32; 3], u: [f64; 3]) -> [i64; 3] {
+    const ROUND: f64 = 6755399441055744.0; // 1.5 * 2^52
+    const LIMIT: f64 = 2251799813685248.0; // 2^51
+    let x = [
+        v[0] as f64 * FIXED + u[0],
+        v[1] as f64 * FIXED + u[1],
+        v[2] as f64 * FIXED + u[2],
+        0.0,
+    ];
+    if x.iter().all(|x| x.abs() < LIMIT) {
+        let mut q = [0i64; 4];
+        for c in 0..4 {
+            let y = x[c] + ROUND;
+            let n = y.to_bits() as i64 - ROUND.to_bits() as i64;
+            q[c] = n - ((y - ROUND) > x[c]) as i64;
+        }
+        return [q[0], q[1], q[2]];
+    }
+    [
+        quantize(v[0], u[0]),
+        quantize(v[1], u[1]),
+        quantize(v[2], u[2]),
+    ]
+}
+
 pub struct FixedSums {
     cells: Vec<AtomicI32>,
     carry: Mutex<HashMap<usize, i64>>,
@@ -166,10 +199,37 @@ mod tests {
                 cases.push(v);
             }
         }
-        for v in cases {
-            for u in [0.0, 0.25, 0.5, 0.999_999_9, 1.0 - f64::EPSILON] {
+        // Around `quantize3`'s limit: x = v 2^20 + u near +-2^51 (and x = +-2^31).
+        for steps in [
+            2f64.powi(51),
+            2f64.powi(51) - 2f64.powi(28),
+            2f64.powi(31) - 1.0,
+        ] {
+            for s in [1.0, -1.0] {
+                let v = (s * steps / FIXED) as f32;
+                cases.extend([
+                    v,
+                    f32::from_bits(v.to_bits() + 1),
+                    f32::from_bits(v.to_bits() - 1),
+                ]);
+            }
+        }
+        let us = [0.0, 0.25, 0.5, 0.999_999_9, 1.0 - f64::EPSILON];
+        for &v in &cases {
+            for u in us {
                 let want = (v as f64 * FIXED + u).floor() as i64;
                 assert_eq!(quantize(v, u), want, "v {v:e} u {u}");
+            }
+        }
+        // Three at a time: every value in every lane, beside small and huge neighbours.
+        for (i, &v) in cases.iter().enumerate() {
+            for (j, u) in us.into_iter().enumerate() {
+                let w = cases[(i * 7 + j) % cases.len()];
+                for lanes in [[v, 0.5, w], [w, v, 1e-3], [-1e-6, w, v]] {
+                    let us3 = [u, us[(j + 1) % 5], us[(j + 3) % 5]];
+                    let want = [0, 1, 2].map(|c| quantize(lanes[c], us3[c]));
+                    assert_eq!(quantize3(lanes, us3), want, "{lanes:?} {us3:?}");
+                }
             }
         }
     }

@@ -282,11 +282,7 @@ impl FrameAccum {
         let v = if unit == 1.0 { v } else { v / unit };
         // 21 bits of the hash per channel: u in [0, 1).
         let u = |c: u32| ((dither >> (21 * c)) & 0x1f_ffff) as f64 / (1u64 << 21) as f64;
-        Some([
-            fixed::quantize(v.x, u(0)),
-            fixed::quantize(v.y, u(1)),
-            fixed::quantize(v.z, u(2)),
-        ])
+        Some(fixed::quantize3(v.to_array(), [u(0), u(1), u(2)]))
     }
 
     /// A control-variate weight quantised with the top 53 bits of `dither`.
