@@ -174,15 +174,23 @@ impl Integrator<'_> {
     ) -> &'w [FirstHit] {
         assert_eq!(hits.len(), samplers.len(), "one sampler per path");
         let geometry = &self.scene.geometry;
-        wf.recs.clear();
+        // Every record and walk is written in place below: a record pushed would be built aside
+        // and copied in, and the copy's wide loads of what narrow stores had just written
+        // cannot be forwarded from the store buffer.
+        let n = hits.len();
+        if wf.recs.len() < n {
+            let blank = self.first_record(&hits[0], eye);
+            wf.recs.resize(n, blank);
+        }
+        wf.recs.truncate(n);
         wf.walks.clear();
+        wf.walks.resize(n, None);
         wf.shadows.clear();
         wf.continuations.clear();
         for (i, (hit, s)) in hits.iter().zip(samplers.iter_mut()).enumerate() {
-            wf.recs.push(self.first_record(hit, eye));
-            let rec = wf.recs.last_mut().expect("just pushed");
+            let rec = &mut wf.recs[i];
+            *rec = self.first_record(hit, eye);
             let (shadow, next) = self.first_samples(rec, s);
-            wf.walks.push(None);
             if let Some(ray) = shadow {
                 wf.shadows.push(i, &ray);
             }
