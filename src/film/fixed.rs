@@ -28,8 +28,8 @@ pub fn quantize(v: f32, u: f64) -> i64 {
 /// `quantize` of three values at once, to the bit, in two SIMD lanes' worth of plain float
 /// arithmetic that the compiler vectorises: where every `x = v 2^20 + u` is below 2^51 in size
 /// (all but absurd splats), `x + 1.5 2^52` rounds `x` to the nearest integer `n` and holds it in
-/// its low bits (the float's unit in the last place there is 1, and the sum stays in one
-/// binade), so `n` is the difference of the two bit patterns and `n - 1` where `n > x` is the
+/// its low bits (the sum lies between 2^52 and 2^53, where the float's unit in the last
+/// place is 1), so `n` is the difference of the two bit patterns and `n - 1` where `n > x` is the
 /// floor; no float-to-integer conversion, which x86-64 has only one value at a time, with
 /// saturation checks. Elsewhere each value goes through `quantize`.
 #[inline]

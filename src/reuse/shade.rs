@@ -328,8 +328,9 @@ const BATCH: usize = (TILE * TILE) as usize;
 
 /// Bytes a worker holds for one tile of one frame's native samples, at most `samples` per pixel
 /// (`--spp`, or `n_f` times it with `--adaptive`) in a group of `n_f` frames: every camera
-/// sample before its primary ray, every hit's record and its landing in each eye, the escapes,
-/// and one wavefront batch (for `RenderOptions::memory_estimate`).
+/// sample before its primary ray, every hit's record, its point and normal in lanes, its pixel,
+/// and its landing and view terms in each eye, the escapes, and one wavefront batch (for
+/// `RenderOptions::memory_estimate`).
 pub fn worker_bytes(samples: u32, n_f: u32) -> u64 {
     use std::mem::size_of;
     let per_sample = size_of::<(u32, u32, Sampler, Vec3)>()
