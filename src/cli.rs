@@ -238,6 +238,16 @@ pub enum Visibility {
     Single,
 }
 
+impl Visibility {
+    /// The library's name for the choice (`--primary`, `--paths`).
+    pub fn rays(self) -> reframe::integrator::Rays {
+        match self {
+            Visibility::Packet => reframe::integrator::Rays::Packet,
+            Visibility::Single => reframe::integrator::Rays::Single,
+        }
+    }
+}
+
 #[derive(clap::Args)]
 pub struct BenchArgs {
     /// Scene TOML file or shipped scene (default: vase).

@@ -134,14 +134,8 @@ fn run(cli: Cli) -> Result<()> {
                 spp: a.spp,
                 window: a.window,
                 packets: matches!(a.visibility, Visibility::Packet),
-                primary: match a.primary {
-                    Visibility::Packet => reframe::integrator::Rays::Packet,
-                    Visibility::Single => reframe::integrator::Rays::Single,
-                },
-                paths: match a.paths {
-                    Visibility::Packet => reframe::integrator::Rays::Packet,
-                    Visibility::Single => reframe::integrator::Rays::Single,
-                },
+                primary: a.primary.rays(),
+                paths: a.paths.rays(),
                 aov: a.aov,
                 frames: a.frames.map(|(x, y)| x..=y),
                 resolution: a.res,

@@ -550,7 +550,7 @@ fn visibility_pass(
                 let view = (eye, eye.pixel_area());
                 let k = (0, 1);
                 landings(
-                    integrator, view, &lanes, k, None, packets, &mut land, None, &mut t,
+                    integrator, view, &lanes, k, false, packets, &mut land, None, &mut t,
                 );
             }
             std::hint::black_box(&land);

@@ -105,22 +105,16 @@ impl Tally {
 
     #[inline]
     pub fn path(&mut self, r: &Ray) {
-        self.counts.path += 1;
-        if let Some(l) = &mut self.log {
-            l.push((*r, false));
-        }
+        self.batch(false, 1, std::iter::once(*r));
     }
 
     #[inline]
     pub fn shadow(&mut self, r: &Ray) {
-        self.counts.shadow += 1;
-        if let Some(l) = &mut self.log {
-            l.push((*r, true));
-        }
+        self.batch(true, 1, std::iter::once(*r));
     }
 
-    /// `rays`, traced together: shadow rays (`occlusion`) or path rays, as `shadow` and `path`
-    /// count and log them one by one. The rays are read only where there is a log.
+    /// `n` rays traced together: shadow rays (`occlusion`) or path rays (`shadow` and `path`
+    /// are this for one ray). The rays are read only where there is a log.
     #[inline]
     pub fn batch<I: Iterator<Item = Ray>>(&mut self, occlusion: bool, n: usize, rays: I) {
         *if occlusion {

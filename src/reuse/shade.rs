@@ -96,11 +96,10 @@ struct Scratch {
     /// control variate only, whose weights must cover every direction a pixel sees.
     escapes: Vec<(u32, u32, Vec3)>,
     land: Vec<Landing>,
-    /// How each eye of the group sees each hit (`land`'s order), the hits' points and normals
-    /// in lanes, and their pixels.
+    /// How each eye of the group sees each hit (`land`'s order), and the hits' points and
+    /// normals in lanes.
     views: Vec<EyeView>,
     lanes: HitLanes,
-    pixels: Vec<u32>,
     eyes: Vec<EyeTerms>,
     /// `A_pix,k` of each eye of the group.
     pixel_areas: Vec<f32>,
@@ -153,7 +152,6 @@ fn shade_eye(
         land,
         views,
         lanes,
-        pixels,
         eyes,
         pixel_areas,
         pending,
@@ -217,15 +215,18 @@ fn shade_eye(
     views.clear();
     views.resize(hits.len() * n_f, EyeView::default());
     lanes.fill(hits);
-    pixels.clear();
-    pixels.extend(hits.iter().map(|h| h.0));
     for (k, t) in group.iter().enumerate() {
+        if k == m {
+            for (hi, (pixel, _, _)) in hits.iter().enumerate() {
+                land[hi * n_f + k] = Some(*pixel);
+            }
+        }
         landings(
             integrator,
             (t.cam, pixel_areas[k]),
             lanes,
             (k, n_f),
-            (k == m).then_some(&pixels[..]),
+            k == m,
             p.packets,
             land,
             Some(views),
@@ -235,12 +236,13 @@ fn shade_eye(
     let weights = p.method.weights();
     let mut bad = 0u64;
     films[m].add_counts(landed_native, 0, 0);
+    eyes.clear();
+    eyes.resize(n_f, EyeTerms::new(Vec3::ZERO, 0.0, 0.0));
     for (hi, (pixel, index, fh)) in hits.iter().enumerate() {
         let x = fh.sp.p;
         // Each field written in place: a whole `EyeTerms` built aside and copied in is read
         // back wider than it was written, which stalls the store buffer (a third of this
         // loop's time in `perf`).
-        eyes.resize(n_f, EyeTerms::new(Vec3::ZERO, 0.0, 0.0));
         for (k, e) in eyes.iter_mut().enumerate() {
             let v = &views[hi * n_f + k];
             e.wo = v.wo;
@@ -328,8 +330,8 @@ const BATCH: usize = (TILE * TILE) as usize;
 
 /// Bytes a worker holds for one tile of one frame's native samples, at most `samples` per pixel
 /// (`--spp`, or `n_f` times it with `--adaptive`) in a group of `n_f` frames: every camera
-/// sample before its primary ray, every hit's record, its point and normal in lanes, its pixel,
-/// and its landing and view terms in each eye, the escapes, and one wavefront batch (for
+/// sample before its primary ray, every hit's record, its point and normal in lanes, and its
+/// landing and view terms in each eye, the escapes, and one wavefront batch (for
 /// `RenderOptions::memory_estimate`).
 pub fn worker_bytes(samples: u32, n_f: u32) -> u64 {
     use std::mem::size_of;
@@ -337,7 +339,6 @@ pub fn worker_bytes(samples: u32, n_f: u32) -> u64 {
         + size_of::<NativeHit>()
         + n_f as usize * (size_of::<Landing>() + size_of::<EyeView>())
         + HitLanes::bytes_per_hit()
-        + size_of::<u32>()
         + size_of::<(u32, u32, Vec3)>();
     let tile = (TILE * TILE) as u64 * samples as u64 * per_sample as u64;
     tile + (BATCH * (Wavefront::bytes_per_path() + size_of::<(u32, u32)>())) as u64

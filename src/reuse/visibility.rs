@@ -152,15 +152,16 @@ fn chunk<const VIEWS: bool>(
 
 /// Fill `land[hi * n_f + k]` for eye `k` (camera `cam`, film area of a pixel `pixel_area`) of
 /// the tile's hits `h`: project every hit and test its visibility from the eye; with `views`,
-/// also `views[hi * n_f + k]`, how the eye sees each hit. The native eye of the hits
-/// (`native`) sees every hit in its own pixel (`pixels`) without a test.
+/// also `views[hi * n_f + k]`, how the eye sees each hit. For the hits' own eye (`native`),
+/// which sees each hit in the pixel it was shot through (the caller's landing), the view terms
+/// alone.
 #[allow(clippy::too_many_arguments)]
 pub fn landings(
     integrator: &Integrator,
     (cam, pixel_area): (&Camera, f32),
     h: &HitLanes,
     (k, n_f): (usize, usize),
-    native: Option<&[u32]>,
+    native: bool,
     packets: bool,
     land: &mut [Landing],
     mut views: Option<&mut [EyeView]>,
@@ -195,11 +196,7 @@ pub fn landings(
                     j_over_a: c.j_over_a[l],
                 };
             }
-            if let Some(pixels) = native {
-                land[hi * n_f + k] = Some(pixels[hi]);
-                continue;
-            }
-            if !c.on[l] {
+            if native || !c.on[l] {
                 continue;
             }
             land[hi * n_f + k] = Some(c.ry[l] as u32 * cam.width + c.rx[l] as u32);
