@@ -131,6 +131,217 @@ fn key(salt: u64, seed: u64, frame: u32, pixel: u32, last: u32) -> u64 {
     mix64(h ^ last as u64)
 }
 
+/// The hash of dimension `d` of the sample with key `key`: its independent number, or the seeds
+/// of its stratified number.
+#[inline(always)]
+fn dim_hash(key: u64, d: u64) -> u64 {
+    mix64(key ^ d.wrapping_mul(0x9e37_79b9_7f4a_7c15))
+}
+
+/// The seeds of 1D dimension `d` of the sample with key `key`: the index shuffle and the
+/// scramble.
+#[inline(always)]
+fn seeds_1d(key: u64, d: u64) -> (u32, u32) {
+    let h = dim_hash(key, d);
+    (h as u32, (h >> 32) as u32)
+}
+
+/// The seeds of 2D dimension `d`: those of `seeds_1d` and the second coordinate's scramble.
+#[inline(always)]
+fn seeds_2d(key: u64, d: u64) -> (u32, u32, u32) {
+    let h = dim_hash(key, d);
+    (h as u32, (h >> 32) as u32, mix64(h) as u32)
+}
+
+/// The stratified number at 1D dimension `d` of the sample with key `key` and bit-reversed
+/// index `ir`: the scrambled van der Corput point of the shuffled index.
+#[inline(always)]
+fn stratified_1d(key: u64, ir: u32, d: u64) -> f32 {
+    // The shuffled index is i' = O(i) = rev(lk(rev(i))), then O(vdC(i'), sx), where
+    // vdC(i') = rev(i'), so O(rev(i'), sx) = rev(lk(i', sx)).
+    let (shuffle, sx) = seeds_1d(key, d);
+    let i = lk_permutation(ir, shuffle).reverse_bits();
+    unit(lk_permutation(i, sx).reverse_bits())
+}
+
+/// The stratified 2D point at dimensions `d`, `d + 1` of the sample with key `key` and
+/// bit-reversed index `ir`.
+#[inline(always)]
+fn stratified_2d(key: u64, ir: u32, d: u64) -> (f32, f32) {
+    let (shuffle, sx, sy) = seeds_2d(key, d);
+    // As `owen_scramble(sobol_2d(owen_scramble(i, shuffle)))` coordinate by coordinate, with
+    // the reversals that cancel left out (the scramble works on reversed bits).
+    let i = lk_permutation(ir, shuffle).reverse_bits();
+    let x = lk_permutation(i, sx).reverse_bits();
+    let y = lk_permutation(sobol_y_reversed(i), sy).reverse_bits();
+    (unit(x), unit(y))
+}
+
+/// Where the numbers of one step of a path are read: the Russian roulette decision that ends the
+/// step (if the step has one), then the vertex's light sample (2D), the choice of its BSDF
+/// lobe (1D) and its BSDF sample (2D). The integrator fixes the dimensions (so that a stage
+/// always reads the same numbers, whatever the stages before it used).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StepDims {
+    pub rr: Option<u64>,
+    pub light: u64,
+    pub lobe: u64,
+    pub bsdf: u64,
+}
+
+/// The numbers of one step of a path, read at its `StepDims` (`rr` is 0 where it has none).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StepNumbers {
+    pub rr: f32,
+    pub light: Vec2,
+    pub lobe: f32,
+    pub bsdf: Vec2,
+}
+
+/// The samplers of a batch of paths in structure-of-arrays form, to draw a step's numbers for
+/// many paths at once (`draw`): the wavefront's paths all take the same step in a round, so
+/// the hashing and scrambling of their numbers runs in SIMD lanes, one path per lane.
+#[derive(Default)]
+pub struct StepLanes {
+    keys: Vec<u64>,
+    index_reversed: Vec<u32>,
+    /// Whether every sampler is stratified (else `draw` goes path by path).
+    stratified: bool,
+    samplers: Vec<Sampler>,
+    /// The keys and indices of the paths of one `draw`, gathered.
+    gather_keys: Vec<u64>,
+    gather_index: Vec<u32>,
+}
+
+/// A step's numbers for a batch of paths, one column per number (`get` puts a path's together).
+#[derive(Default)]
+pub struct StepBatch {
+    rr: Vec<f32>,
+    light_x: Vec<f32>,
+    light_y: Vec<f32>,
+    lobe: Vec<f32>,
+    bsdf_x: Vec<f32>,
+    bsdf_y: Vec<f32>,
+}
+
+impl StepBatch {
+    /// The numbers of the `k`-th path of the last `StepLanes::draw`.
+    #[inline]
+    pub fn get(&self, k: usize) -> StepNumbers {
+        StepNumbers {
+            rr: self.rr[k],
+            light: Vec2::new(self.light_x[k], self.light_y[k]),
+            lobe: self.lobe[k],
+            bsdf: Vec2::new(self.bsdf_x[k], self.bsdf_y[k]),
+        }
+    }
+
+    /// The light sample's numbers of the `k`-th path of the last `StepLanes::draw`.
+    #[inline]
+    pub fn light(&self, k: usize) -> Vec2 {
+        Vec2::new(self.light_x[k], self.light_y[k])
+    }
+
+    /// Bytes held per path (for memory estimates).
+    pub const BYTES_PER_PATH: usize = 6 * std::mem::size_of::<f32>();
+}
+
+impl StepLanes {
+    /// Bytes held per path (for memory estimates).
+    pub const BYTES_PER_PATH: usize = 2 * (8 + 4) + std::mem::size_of::<Sampler>();
+
+    /// Take the samplers of a batch: path `i` draws from `samplers[i]`.
+    pub fn fill(&mut self, samplers: &[Sampler]) {
+        self.stratified = samplers.iter().all(|s| s.index_reversed.is_some());
+        self.keys.clear();
+        self.index_reversed.clear();
+        self.samplers.clear();
+        if self.stratified {
+            self.keys.extend(samplers.iter().map(|s| s.key));
+            self.index_reversed
+                .extend(samplers.iter().map(|s| s.index_reversed.unwrap_or(0)));
+        } else {
+            self.samplers.extend_from_slice(samplers);
+        }
+    }
+
+    /// The numbers at `dims` of paths `paths` (indices into the batch), into `out`: the `k`-th
+    /// path's are `out.get(k)`, bitwise what `Sampler::step(dims)` gives.
+    pub fn draw(&mut self, paths: &[u32], dims: StepDims, out: &mut StepBatch) {
+        let n = paths.len();
+        for col in [
+            &mut out.rr,
+            &mut out.light_x,
+            &mut out.light_y,
+            &mut out.lobe,
+            &mut out.bsdf_x,
+            &mut out.bsdf_y,
+        ] {
+            col.clear();
+            col.resize(n, 0.0);
+        }
+        if !self.stratified {
+            for (k, &i) in paths.iter().enumerate() {
+                let s = self.samplers[i as usize].step(dims);
+                (out.rr[k], out.lobe[k]) = (s.rr, s.lobe);
+                (out.light_x[k], out.light_y[k]) = (s.light.x, s.light.y);
+                (out.bsdf_x[k], out.bsdf_y[k]) = (s.bsdf.x, s.bsdf.y);
+            }
+            return;
+        }
+        self.gather_keys.clear();
+        self.gather_index.clear();
+        self.gather_keys
+            .extend(paths.iter().map(|&i| self.keys[i as usize]));
+        self.gather_index
+            .extend(paths.iter().map(|&i| self.index_reversed[i as usize]));
+        draw_stratified(&self.gather_keys, &self.gather_index, dims, out);
+    }
+}
+
+/// `StepLanes::draw` for stratified samplers whose keys and indices are gathered, one path per
+/// SIMD lane.
+fn draw_stratified(keys: &[u64], index_reversed: &[u32], dims: StepDims, out: &mut StepBatch) {
+    let (light, bsdf) = (
+        (&mut out.light_x[..], &mut out.light_y[..]),
+        (&mut out.bsdf_x[..], &mut out.bsdf_y[..]),
+    );
+    draw_2d(keys, index_reversed, dims.light, light.0, light.1);
+    draw_1d(keys, index_reversed, dims.lobe, &mut out.lobe);
+    draw_2d(keys, index_reversed, dims.bsdf, bsdf.0, bsdf.1);
+    if let Some(d) = dims.rr {
+        draw_1d(keys, index_reversed, d, &mut out.rr);
+    }
+}
+
+// The two kernels are compiled for AVX-512 and AVX2 besides the portable build, and the best
+// the CPU runs is chosen at run time. They are integer hashing and an exact conversion, so every
+// version gives the same bits. Each writes slices that are its own arguments, so that the
+// compiler knows they do not overlap (it vectorises only then).
+
+/// `stratified_1d` at dimension `d` for each lane (`keys[k]`, `index_reversed[k]`) into `out[k]`.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl",
+    "x86_64+avx2",
+))]
+fn draw_1d(keys: &[u64], index_reversed: &[u32], d: u64, out: &mut [f32]) {
+    for ((&key, &ir), v) in keys.iter().zip(index_reversed).zip(out) {
+        *v = stratified_1d(key, ir, d);
+    }
+}
+
+/// `stratified_2d` at dimension `d` for each lane into `x[k]`, `y[k]`.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl",
+    "x86_64+avx2",
+))]
+fn draw_2d(keys: &[u64], index_reversed: &[u32], d: u64, x: &mut [f32], y: &mut [f32]) {
+    let lanes = keys.iter().zip(index_reversed);
+    for ((&key, &ir), (x, y)) in lanes.zip(x.iter_mut().zip(y)) {
+        (*x, *y) = stratified_2d(key, ir, d);
+    }
+}
+
 impl Sampler {
     /// Independent numbers for sample `sample` of `pixel` of `frame`.
     pub fn new(seed: u64, frame: u32, pixel: u32, sample: u32) -> Sampler {
@@ -154,21 +365,7 @@ impl Sampler {
     /// The hash of dimension `d` of this sample: its independent number, or its seeds.
     #[inline]
     fn dim_hash(&self, d: u64) -> u64 {
-        mix64(self.key ^ d.wrapping_mul(0x9e37_79b9_7f4a_7c15))
-    }
-
-    /// The seeds of 1D dimension `d`: the index shuffle and the scramble.
-    #[inline]
-    fn seeds2(&self, d: u64) -> (u32, u32) {
-        let h = self.dim_hash(d);
-        (h as u32, (h >> 32) as u32)
-    }
-
-    /// The seeds of 2D dimension `d`: those of `seeds2` and the second coordinate's scramble.
-    #[inline]
-    fn seeds(&self, d: u64) -> (u32, u32, u32) {
-        let h = self.dim_hash(d);
-        (h as u32, (h >> 32) as u32, mix64(h) as u32)
+        dim_hash(self.key, d)
     }
 
     /// A uniform number in [0, 1), with 24 bits (every float of that spacing is representable).
@@ -176,34 +373,48 @@ impl Sampler {
     pub fn next_1d(&mut self) -> f32 {
         let d = self.dim;
         self.dim += 1;
-        match self.index_reversed {
-            None => (self.dim_hash(d) >> 40) as f32 * (1.0 / (1u64 << 24) as f32),
-            Some(ir) => {
-                // The shuffled index i' = O(i) = rev(lk(rev(i))), then O(vdC(i'), sx), where
-                // vdC(i') = rev(i'), so O(rev(i'), sx) = rev(lk(i', sx)).
-                let (shuffle, sx) = self.seeds2(d);
-                let i = lk_permutation(ir, shuffle).reverse_bits();
-                unit(lk_permutation(i, sx).reverse_bits())
-            }
-        }
+        self.get_1d(d)
     }
 
     /// Two uniform numbers in [0, 1): independent, or one 2D point of the stream.
     #[inline]
     pub fn next_2d(&mut self) -> Vec2 {
-        let Some(ir) = self.index_reversed else {
-            let a = self.next_1d();
-            return Vec2::new(a, self.next_1d());
-        };
         let d = self.dim;
         self.dim += 2;
-        let (shuffle, sx, sy) = self.seeds(d);
-        // As `owen_scramble(sobol_2d(owen_scramble(i, shuffle)))` coordinate by coordinate, with
-        // the reversals that cancel left out (the scramble works on reversed bits).
-        let i = lk_permutation(ir, shuffle).reverse_bits();
-        let x = lk_permutation(i, sx).reverse_bits();
-        let y = lk_permutation(sobol_y_reversed(i), sy).reverse_bits();
-        Vec2::new(unit(x), unit(y))
+        self.get_2d(d)
+    }
+
+    /// The number `next_1d` reads at dimension `d`, the counter left as it is.
+    #[inline]
+    pub fn get_1d(&self, d: u64) -> f32 {
+        match self.index_reversed {
+            None => (self.dim_hash(d) >> 40) as f32 * (1.0 / (1u64 << 24) as f32),
+            Some(ir) => stratified_1d(self.key, ir, d),
+        }
+    }
+
+    /// The point `next_2d` reads at dimensions `d` and `d + 1`, the counter left as it is.
+    #[inline]
+    pub fn get_2d(&self, d: u64) -> Vec2 {
+        match self.index_reversed {
+            None => Vec2::new(self.get_1d(d), self.get_1d(d + 1)),
+            Some(ir) => {
+                let (x, y) = stratified_2d(self.key, ir, d);
+                Vec2::new(x, y)
+            }
+        }
+    }
+
+    /// The numbers of one step of a path, read at `dims`: what `StepLanes::draw` gives a batch
+    /// of paths, to the bit.
+    #[inline]
+    pub fn step(&self, dims: StepDims) -> StepNumbers {
+        StepNumbers {
+            rr: dims.rr.map_or(0.0, |d| self.get_1d(d)),
+            light: self.get_2d(dims.light),
+            lobe: self.get_1d(dims.lobe),
+            bsdf: self.get_2d(dims.bsdf),
+        }
     }
 
     /// Skip to a fixed dimension, so that a stage of the path always reads the same numbers
@@ -373,11 +584,11 @@ mod tests {
         // shortcuts leave out reversals that cancel).
         for k in 0..500u32 {
             let mut s = Sampler::stratified(5, k, 3 * k, k % 7, k);
-            let (shuffle, sx, sy) = s.seeds(0);
+            let (shuffle, sx, sy) = seeds_2d(s.key, 0);
             let (x, y) = sobol_2d(owen_scramble(k, shuffle));
             let want = Vec2::new(unit(owen_scramble(x, sx)), unit(owen_scramble(y, sy)));
             assert_eq!(s.next_2d(), want);
-            let (shuffle, sx) = s.seeds2(2);
+            let (shuffle, sx) = seeds_1d(s.key, 2);
             let want = unit(owen_scramble(owen_scramble(k, shuffle).reverse_bits(), sx));
             assert_eq!(s.next_1d(), want);
         }
@@ -414,6 +625,81 @@ mod tests {
             Sampler::new(1, 0, 0, 0).next_1d(),
             Sampler::new(2, 0, 0, 0).next_1d()
         );
+    }
+
+    #[test]
+    fn a_batch_draws_each_samplers_numbers_to_the_bit() {
+        // `StepLanes::draw` (SIMD lanes, for a subset of a batch's paths in any order) against
+        // `Sampler::step` path by path, and `step` against the sequential reads it replaces:
+        // batches that fill no lane, part of one and several, stratified and independent
+        // samplers, with and without the roulette's number.
+        let dims = [
+            StepDims {
+                rr: None,
+                light: 2,
+                lobe: 5,
+                bsdf: 6,
+            },
+            StepDims {
+                rr: Some(21),
+                light: 24,
+                lobe: 26,
+                bsdf: 27,
+            },
+            StepDims {
+                rr: Some(1 << 40),
+                light: 3,
+                lobe: u64::MAX,
+                bsdf: 0,
+            },
+        ];
+        let (mut lanes, mut out) = (StepLanes::default(), StepBatch::default());
+        for n in [0usize, 1, 7, 8, 9, 16, 17, 63, 300] {
+            for stratified in [true, false] {
+                let samplers: Vec<Sampler> = (0..n as u32)
+                    .map(|i| match stratified {
+                        true => Sampler::stratified(9, 3, i * 7919, i % 3, i.wrapping_mul(0x9e37)),
+                        false => Sampler::new(9, 3, i, i),
+                    })
+                    .collect();
+                lanes.fill(&samplers);
+                // Every other path, backwards, then every path.
+                let odd: Vec<u32> = (0..n as u32).rev().step_by(2).collect();
+                let all: Vec<u32> = (0..n as u32).collect();
+                for paths in [&odd, &all] {
+                    for d in dims {
+                        lanes.draw(paths, d, &mut out);
+                        for (k, &i) in paths.iter().enumerate() {
+                            let want = samplers[i as usize].step(d);
+                            let got = out.get(k);
+                            let bits = |s: StepNumbers| {
+                                [s.rr, s.light.x, s.light.y, s.lobe, s.bsdf.x, s.bsdf.y]
+                                    .map(f32::to_bits)
+                            };
+                            assert_eq!(bits(got), bits(want), "n {n}, path {i}, {d:?}");
+                        }
+                    }
+                }
+                for s in samplers.iter().take(20) {
+                    let d = dims[1];
+                    let mut seq = s.clone();
+                    seq.set_dimension(d.rr.unwrap());
+                    let rr = seq.next_1d();
+                    seq.set_dimension(d.light);
+                    let (light, lobe, bsdf) = (seq.next_2d(), seq.next_1d(), seq.next_2d());
+                    let want = StepNumbers {
+                        rr,
+                        light,
+                        lobe,
+                        bsdf,
+                    };
+                    assert_eq!(s.step(d), want);
+                    assert!([rr, light.x, light.y, lobe, bsdf.x, bsdf.y]
+                        .iter()
+                        .all(|v| (0.0..1.0).contains(v)));
+                }
+            }
+        }
     }
 
     #[test]

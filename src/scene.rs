@@ -60,6 +60,7 @@ use crate::sampling::uniform_triangle;
 use anyhow::{anyhow, bail, Context, Result};
 use environment::Environment;
 use glam::{Vec2, Vec3};
+pub use light_lanes::LightLanes;
 pub use maps::{Map, Maps};
 pub use objects::{Instance, Prototype};
 use serde::{de, Deserialize, Deserializer};
@@ -71,6 +72,7 @@ use toml::Spanned;
 
 mod camera_file;
 pub mod environment;
+mod light_lanes;
 mod maps;
 mod mesh;
 mod mtl;
@@ -223,6 +225,77 @@ pub struct LightSample {
     pub le: Vec3,
     /// Solid-angle density at the shading point.
     pub pdf: f32,
+}
+
+/// The light `Scene::sample_light` picks with its 2D number.
+#[derive(Clone, Copy, Debug)]
+enum LightPick {
+    /// The environment, with the number stretched back to [0, 1)^2.
+    Environment(Vec2),
+    Area(AreaPick),
+}
+
+/// An area light triangle picked by `u.x` in `[lo, lo + width)`.
+#[derive(Clone, Copy, Debug)]
+struct AreaPick {
+    tri: u32,
+    u: Vec2,
+    lo: f32,
+    width: f32,
+}
+
+/// What the arithmetic of an area light's sample reads (`area_sample`): the pick's number and
+/// share, the triangle's corners and normal, its area density times the probability of
+/// picking an area light, and the shading point.
+#[derive(Clone, Copy, Debug, Default)]
+struct AreaInputs {
+    u: Vec2,
+    lo: f32,
+    width: f32,
+    corners: [Vec3; 3],
+    n: Vec3,
+    pdf_area: f32,
+    x: Vec3,
+}
+
+/// What it gives: the barycentrics and the point, the unit direction, distance and the cosine
+/// at the light towards `x`, and the solid-angle density.
+#[derive(Clone, Copy, Debug, Default)]
+struct AreaSample {
+    b1: f32,
+    b2: f32,
+    p: Vec3,
+    wi: Vec3,
+    dist: f32,
+    cos_l: f32,
+    pdf: f32,
+}
+
+/// A point on a triangle light, uniform by area, seen from `x`: the arithmetic of the sample,
+/// with no branch and no memory access, so that `light_lanes` runs it across SIMD lanes and
+/// gives `Scene::sample_light`'s bits. Where the point coincides with `x` (distance 0) the
+/// direction is not finite, and `Scene::finish_area` drops the sample.
+#[inline(always)]
+fn area_sample(a: &AreaInputs) -> AreaSample {
+    // `u.x` stretched back to [0, 1) over the pick's share (docs/sampler.md).
+    let ux = ((a.u.x - a.lo) / a.width).clamp(0.0, 1.0 - f32::EPSILON);
+    let (b1, b2) = uniform_triangle(Vec2::new(ux, a.u.y));
+    let [c0, c1, c2] = a.corners;
+    let p = c0 * (1.0 - b1 - b2) + c1 * b1 + c2 * b2;
+    let d = p - a.x;
+    let dist2 = d.length_squared();
+    let dist = dist2.sqrt();
+    let wi = d / dist;
+    let cos_l = a.n.dot(-wi);
+    AreaSample {
+        b1,
+        b2,
+        p,
+        wi,
+        dist,
+        cos_l,
+        pdf: a.pdf_area * dist2 / cos_l.abs(),
+    }
 }
 
 impl LightSample {
@@ -643,22 +716,28 @@ impl Scene {
     /// picks leave on each light keep the stratification of the sampler's 2D points instead of
     /// being a random subset of them (Mitsuba's and pbrt's sample reuse).
     pub fn sample_light(&self, x: Vec3, u: Vec2) -> Option<LightSample> {
+        match self.pick_light(u)? {
+            LightPick::Environment(u) => self.environment_sample(x, u),
+            LightPick::Area(pick) => {
+                let at = area_sample(&self.area_inputs(&pick, x));
+                self.finish_area(&pick, &at)
+            }
+        }
+    }
+
+    /// The light that `sample_light` picks with `u`, and the rest of `u` for the point on it.
+    #[inline(always)]
+    fn pick_light(&self, u: Vec2) -> Option<LightPick> {
         // Stretch the part `[lo, lo + p)` of [0, 1) that chose a light back to [0, 1).
         let stretch = |v: f32, lo: f32, p: f32| ((v - lo) / p).clamp(0.0, 1.0 - f32::EPSILON);
         let mut u = u;
         let p_env = self.env_select;
         if p_env > 0.0 {
             if u.x < p_env {
-                let u = Vec2::new(stretch(u.x, 0.0, p_env), u.y);
-                let es = self.environment.as_ref()?.sample(u)?;
-                return Some(LightSample {
-                    p: x + es.wi,
-                    n: -es.wi,
-                    wi: es.wi,
-                    dist: f32::INFINITY,
-                    le: es.le,
-                    pdf: p_env * es.pdf,
-                });
+                return Some(LightPick::Environment(Vec2::new(
+                    stretch(u.x, 0.0, p_env),
+                    u.y,
+                )));
             }
             // The rest of [0, 1) picks among the area lights.
             u.x = stretch(u.x, p_env, 1.0 - p_env);
@@ -669,26 +748,60 @@ impl Scene {
         }
         let i = l.cdf.partition_point(|&c| c <= u.x).min(l.tris.len() - 1);
         let lo = if i == 0 { 0.0 } else { l.cdf[i - 1] };
-        u.x = stretch(u.x, lo, l.cdf[i] - lo);
-        let tri = l.tris[i] as usize;
+        // The stretch of `u.x` over `[lo, cdf[i])` is `area_sample`'s.
+        Some(LightPick::Area(AreaPick {
+            tri: l.tris[i],
+            u,
+            lo,
+            width: l.cdf[i] - lo,
+        }))
+    }
+
+    /// A direction towards the environment, picked with the stretched `u`.
+    #[inline]
+    fn environment_sample(&self, x: Vec3, u: Vec2) -> Option<LightSample> {
+        let es = self.environment.as_ref()?.sample(u)?;
+        Some(LightSample {
+            p: x + es.wi,
+            n: -es.wi,
+            wi: es.wi,
+            dist: f32::INFINITY,
+            le: es.le,
+            pdf: self.env_select * es.pdf,
+        })
+    }
+
+    /// What `area_sample` reads for the point `pick` asks for, seen from `x`.
+    #[inline(always)]
+    fn area_inputs(&self, pick: &AreaPick, x: Vec3) -> AreaInputs {
+        let tri = pick.tri as usize;
         let [i0, i1, i2] = self.triangles[tri];
-        let (b1, b2) = uniform_triangle(u);
-        let p = self.positions[i0 as usize] * (1.0 - b1 - b2)
-            + self.positions[i1 as usize] * b1
-            + self.positions[i2 as usize] * b2;
-        let n = self.tri_normal[tri];
-        let d = p - x;
-        let dist2 = d.length_squared();
-        let dist = dist2.sqrt();
-        if dist <= 0.0 {
+        AreaInputs {
+            u: pick.u,
+            lo: pick.lo,
+            width: pick.width,
+            corners: [
+                self.positions[i0 as usize],
+                self.positions[i1 as usize],
+                self.positions[i2 as usize],
+            ],
+            n: self.tri_normal[tri],
+            pdf_area: self.lights.pdf_area[tri] * (1.0 - self.env_select),
+            x,
+        }
+    }
+
+    /// The light sample from `area_sample`'s arithmetic: `None` where the point coincides with
+    /// `x` or the light is seen edge-on; no emission from the light's back.
+    #[inline(always)]
+    fn finish_area(&self, pick: &AreaPick, at: &AreaSample) -> Option<LightSample> {
+        if at.dist <= 0.0 || at.cos_l.abs() <= 1e-7 {
             return None;
         }
-        let wi = d / dist;
-        let cos_l = n.dot(-wi);
-        if cos_l.abs() <= 1e-7 {
-            return None;
-        }
-        let le = if cos_l > 0.0 {
+        let tri = pick.tri as usize;
+        let le = if at.cos_l > 0.0 {
+            let [i0, i1, i2] = self.triangles[tri];
+            let (b1, b2) = (at.b1, at.b2);
             let uv = if self.uvs.is_empty() {
                 Vec2::ZERO
             } else {
@@ -700,14 +813,13 @@ impl Scene {
         } else {
             Vec3::ZERO
         };
-        let pdf = l.pdf_area[tri] * (1.0 - p_env) * dist2 / cos_l.abs();
         Some(LightSample {
-            p,
-            n,
-            wi,
-            dist,
+            p: at.p,
+            n: self.tri_normal[tri],
+            wi: at.wi,
+            dist: at.dist,
             le,
-            pdf,
+            pdf: at.pdf,
         })
     }
 

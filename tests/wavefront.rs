@@ -78,8 +78,8 @@ fn wavefront_records_are_the_scalar_walks() {
                 let mut bitwise = 0;
                 for (chunk, expected) in samples.chunks(batch).zip(oracle.chunks(batch)) {
                     let hits: Vec<Hit> = chunk.iter().map(|c| c.0).collect();
-                    let mut samplers: Vec<Sampler> = chunk.iter().map(|c| c.1.clone()).collect();
-                    let recs = integ.first_hits(eye, &hits, &mut samplers, &mut wf, &mut counts);
+                    let samplers: Vec<Sampler> = chunk.iter().map(|c| c.1.clone()).collect();
+                    let recs = integ.first_hits(eye, &hits, &samplers, &mut wf, &mut counts);
                     assert_eq!(recs.len(), chunk.len());
                     for (rec, want) in recs.iter().zip(expected) {
                         if bits(rec) == bits(want) {

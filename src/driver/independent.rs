@@ -91,7 +91,7 @@ fn render_tile(
                 }
             }
         }
-        let recs = integrator.first_hits(cam.eye, &hits, &mut path_samplers, &mut wavefront, t);
+        let recs = integrator.first_hits(cam.eye, &hits, &path_samplers, &mut wavefront, t);
         for (rec, &slot) in recs.iter().zip(&slots) {
             values[slot] = rec.radiance(cam.eye);
         }

@@ -24,8 +24,8 @@ pub mod wavefront;
 
 use crate::bsdf::Material;
 use crate::embree::{Hit, Packet16, Ray};
-use crate::sampling::Sampler;
-use crate::scene::{Scene, SurfacePoint};
+use crate::sampling::{Sampler, StepDims, StepNumbers};
+use crate::scene::{LightSample, Scene, SurfacePoint};
 use glam::{Vec2, Vec3};
 
 /// The first bounce after which Russian roulette may end a path (chosen by efficiency,
@@ -297,6 +297,31 @@ impl<'a> Integrator<'a> {
         }
     }
 
+    /// Where the numbers of vertex `depth` of a path are read (the first hit is vertex 1): its
+    /// light sample, its lobe and its BSDF sample, and (`rr`) the roulette after vertex
+    /// `depth - 1` that let the walk reach it, where roulette applies there. Vertex 1 reads
+    /// dimensions 2-3 (light) and 5-7 (lobe, BSDF); vertex `d >= 2` reads the 8 from
+    /// `DIM_PATH + 8 (d - 2)`: light +0, lobe +2, BSDF +3, and the roulette after it +5.
+    #[inline]
+    pub(crate) fn step_dims(&self, depth: u32) -> StepDims {
+        if depth <= 1 {
+            return StepDims {
+                rr: None,
+                light: DIM_LIGHT,
+                lobe: DIM_BSDF,
+                bsdf: DIM_BSDF + 1,
+            };
+        }
+        let base = |d: u32| DIM_PATH + DIMS_PER_BOUNCE * (d - 2) as u64;
+        let before = depth - 1;
+        StepDims {
+            rr: (before >= 2 && before >= self.rr_depth).then(|| base(before) + 5),
+            light: base(depth),
+            lobe: base(depth) + 2,
+            bsdf: base(depth) + 3,
+        }
+    }
+
     /// Sample a light from `sp` (normal pair facing `wo`) at a path vertex after the first hit:
     /// the MIS-weighted direct contribution `w_l f cos Le / p_l` and the shadow ray that decides
     /// whether it counts (`None` with a zero contribution when no ray is needed).
@@ -306,11 +331,10 @@ impl<'a> Integrator<'a> {
         sp: &SurfacePoint,
         m: &Material,
         wo: Vec3,
-        s: &mut Sampler,
+        light: Option<LightSample>,
     ) -> (Vec3, Option<Ray>) {
         let (ng, ns) = facing(sp, wo);
-        let u = s.next_2d();
-        let Some(ls) = self.scene.sample_light(sp.p, u) else {
+        let Some(ls) = light else {
             return (Vec3::ZERO, None);
         };
         if ls.le == Vec3::ZERO || ng.dot(ls.wi) <= 0.0 || ls.pdf <= 0.0 {
@@ -387,8 +411,11 @@ impl<'a> Integrator<'a> {
     /// wavefront (`wavefront::Wavefront`), which takes the same steps over a batch of paths.
     pub fn first_hit_at(&self, hit: &Hit, eye: Vec3, s: &mut Sampler, t: &mut Tally) -> FirstHit {
         let geometry = &self.scene.geometry;
-        let mut rec = self.first_record(hit, eye);
-        let (shadow, next) = self.first_samples(&mut rec, s);
+        let scene = self.scene;
+        let mut rec = self.first_record(scene.surface(hit), eye);
+        let step = s.step(self.step_dims(1));
+        let light = self.scene.sample_light(rec.sp.p, step.light);
+        let (shadow, next) = self.first_samples(&mut rec, &step, light);
         if let Some(ray) = shadow {
             t.shadow(&ray);
             self.light_blocked(&mut rec, geometry.occluded1(&ray));
@@ -397,11 +424,14 @@ impl<'a> Integrator<'a> {
             return rec;
         };
         t.path(&ray);
-        let Some(mut walk) = self.first_continue(&mut rec, geometry.intersect1(&ray)) else {
+        let hit = geometry.intersect1(&ray).map(|h| scene.surface(&h));
+        let Some(mut walk) = self.first_continue(&mut rec, hit) else {
             return rec;
         };
+        let mut step = s.step(self.step_dims(2));
         loop {
-            let (shadow, next) = self.walk_vertex(&mut walk, s);
+            let light = self.scene.sample_light(walk.sp.p, step.light);
+            let (shadow, next) = self.walk_vertex(&mut walk, &step, light);
             if let Some(ray) = shadow {
                 t.shadow(&ray);
                 walk.shadow_resolved(geometry.occluded1(&ray));
@@ -410,7 +440,9 @@ impl<'a> Integrator<'a> {
                 break;
             };
             t.path(&ray);
-            if !self.walk_continue(&mut walk, geometry.intersect1(&ray), s) {
+            step = s.step(self.step_dims(walk.depth + 1));
+            let hit = geometry.intersect1(&ray).map(|h| scene.surface(&h));
+            if !self.walk_continue(&mut walk, hit, step.rr) {
                 break;
             }
         }
@@ -418,13 +450,11 @@ impl<'a> Integrator<'a> {
         rec
     }
 
-    /// The record of a camera sample with primary hit `hit` from `eye`, before its samples:
-    /// `first_samples` draws them.
+    /// The record of a camera sample whose primary ray from `eye` hit the surface at `sp`
+    /// (`Scene::surface` of the hit), before its samples: `first_samples` draws them.
     #[inline(always)]
-    pub(crate) fn first_record(&self, hit: &Hit, eye: Vec3) -> FirstHit {
-        let scene = self.scene;
-        let sp = scene.surface(hit);
-        let m = scene.material(&sp);
+    pub(crate) fn first_record(&self, sp: SurfacePoint, eye: Vec3) -> FirstHit {
+        let m = self.scene.material(&sp);
         let wo = (eye - sp.p).normalize();
         FirstHit {
             sp,
@@ -443,22 +473,22 @@ impl<'a> Integrator<'a> {
     /// The samples of the first vertex: the shadow ray of its light sample (`light_blocked`
     /// takes the answer) and the continuation ray along the BSDF sample `w` (`first_continue`
     /// takes its hit). The light sample is stored unweighted: its weights depend on the eyes.
+    /// `n` are the vertex's numbers (`step_dims(1)`) and `light` is
+    /// `scene.sample_light(rec.sp.p, n.light)`, which the wavefront takes for many paths at once.
     #[inline(always)]
     pub(crate) fn first_samples(
         &self,
         rec: &mut FirstHit,
-        s: &mut Sampler,
+        n: &StepNumbers,
+        light: Option<LightSample>,
     ) -> (Option<Ray>, Option<Ray>) {
-        let scene = self.scene;
         let (sp, m, wo) = (rec.sp, rec.m, rec.wo);
         if !m.reflects() {
             return (None, None);
         }
         let (ng, ns) = facing(&sp, wo);
-        s.set_dimension(DIM_LIGHT);
-        let u = s.next_2d();
         let mut shadow = None;
-        if let Some(ls) = scene.sample_light(sp.p, u) {
+        if let Some(ls) = light {
             let mut le = ls.le;
             // A light behind the surface cannot contribute for any eye on this side; no ray.
             if le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 {
@@ -472,10 +502,7 @@ impl<'a> Integrator<'a> {
                 pdf: ls.pdf,
             });
         }
-        s.set_dimension(DIM_BSDF);
-        let u_lobe = s.next_1d();
-        let u = s.next_2d();
-        let Some(bs) = m.sample(ns, wo, u_lobe, u) else {
+        let Some(bs) = m.sample(ns, wo, n.lobe, n.bsdf) else {
             return (shadow, None);
         };
         if ng.dot(bs.wi) <= 0.0 {
@@ -495,13 +522,17 @@ impl<'a> Integrator<'a> {
         }
     }
 
-    /// The hit (or not) of the continuation ray along `w`: the emitter it reaches directly, and
-    /// the walk from the second vertex, if the ray hit a surface.
+    /// The surface the continuation ray along `w` hit (`Scene::surface` of its hit), or none:
+    /// the emitter it reaches directly, and the walk from the second vertex, if it hit one.
     #[inline(always)]
-    pub(crate) fn first_continue(&self, rec: &mut FirstHit, hit: Option<Hit>) -> Option<Walk> {
+    pub(crate) fn first_continue(
+        &self,
+        rec: &mut FirstHit,
+        hit: Option<SurfacePoint>,
+    ) -> Option<Walk> {
         let scene = self.scene;
         let wi = rec.w.expect("a continuation ray has a direction");
-        let Some(h2) = hit else {
+        let Some(y) = hit else {
             // Out of the scene: the environment is the emitter reached along `w`.
             rec.le_w = scene.env_radiance(wi);
             if rec.le_w != Vec3::ZERO {
@@ -509,7 +540,6 @@ impl<'a> Integrator<'a> {
             }
             return None;
         };
-        let y = scene.surface(&h2);
         rec.le_w = scene.emitted(&y, rec.sp.p);
         if rec.le_w != Vec3::ZERO {
             rec.pdf_light_w = scene.light_pdf(rec.sp.p, y.p, y.prim);
@@ -531,12 +561,14 @@ impl<'a> Integrator<'a> {
     /// One vertex of the walk (radiance reflected at `walk.sp` along `walk.wo`, excluding the
     /// vertex's own emission): the shadow ray of its light sample, if it needs one, and the
     /// continuation ray, `None` where the walk ends (depth, a black material, a failed or
-    /// downward BSDF sample).
+    /// downward BSDF sample). `n` are the vertex's numbers and `light` is
+    /// `scene.sample_light(walk.sp.p, n.light)`.
     #[inline(always)]
     pub(crate) fn walk_vertex(
         &self,
         walk: &mut Walk,
-        s: &mut Sampler,
+        n: &StepNumbers,
+        light: Option<LightSample>,
     ) -> (Option<Ray>, Option<Ray>) {
         if walk.depth > self.max_depth {
             return (None, None);
@@ -546,8 +578,7 @@ impl<'a> Integrator<'a> {
         if !m.reflects() {
             return (None, None);
         }
-        s.set_dimension(DIM_PATH + DIMS_PER_BOUNCE * (walk.depth - 2) as u64);
-        let shadow = match self.direct(&sp, &m, walk.wo, s) {
+        let shadow = match self.direct(&sp, &m, walk.wo, light) {
             (d, Some(ray)) => {
                 walk.shadow_beta = walk.beta;
                 walk.shadow_d = d;
@@ -559,9 +590,7 @@ impl<'a> Integrator<'a> {
             }
         };
         let (ng, ns) = facing(&sp, walk.wo);
-        let u_lobe = s.next_1d();
-        let u = s.next_2d();
-        let Some(bs) = m.sample(ns, walk.wo, u_lobe, u) else {
+        let Some(bs) = m.sample(ns, walk.wo, n.lobe, n.bsdf) else {
             return (shadow, None);
         };
         if ng.dot(bs.wi) <= 0.0 {
@@ -574,13 +603,18 @@ impl<'a> Integrator<'a> {
         (shadow, Some(Ray::spawn(sp.p, sp.ng, bs.wi)))
     }
 
-    /// The hit (or not) of the walk's continuation ray: the emitter it reaches, weighted against
-    /// light sampling, then Russian roulette. Returns whether the walk goes on from the new
-    /// vertex.
+    /// The surface the walk's continuation ray hit (`Scene::surface` of its hit), or none: the
+    /// emitter it reaches, weighted against light sampling, then Russian roulette with the
+    /// number `rr`. Returns whether the walk goes on from the new vertex.
     #[inline(always)]
-    pub(crate) fn walk_continue(&self, walk: &mut Walk, hit: Option<Hit>, s: &mut Sampler) -> bool {
+    pub(crate) fn walk_continue(
+        &self,
+        walk: &mut Walk,
+        hit: Option<SurfacePoint>,
+        rr: f32,
+    ) -> bool {
         let scene = self.scene;
-        let Some(h) = hit else {
+        let Some(next) = hit else {
             // Out of the scene: the environment, weighted against its light sampling.
             let le = scene.env_radiance(walk.wi);
             if le != Vec3::ZERO {
@@ -589,7 +623,6 @@ impl<'a> Integrator<'a> {
             }
             return false;
         };
-        let next = scene.surface(&h);
         let le = scene.emitted(&next, walk.from);
         if le != Vec3::ZERO {
             // beta already holds f cos / p_b: the BSDF technique's weight is all it lacks.
@@ -598,7 +631,7 @@ impl<'a> Integrator<'a> {
         }
         if walk.depth >= self.rr_depth {
             let q = walk.beta.max_element().min(0.95);
-            if s.next_1d() >= q {
+            if rr >= q {
                 return false;
             }
             walk.beta /= q;

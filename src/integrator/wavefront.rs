@@ -12,8 +12,9 @@
 //! the scalar walk's records bit for bit; in packets the hits may differ in their last bits.
 use super::{FirstHit, Integrator, Rays, Tally, Walk};
 use crate::embree::{Hit, Packet16, Ray, TriangleScene};
-use crate::sampling::Sampler;
-use glam::Vec3;
+use crate::sampling::{Sampler, StepBatch, StepLanes};
+use crate::scene::{LightLanes, Scene, SurfacePoint};
+use glam::{Vec2, Vec3};
 
 /// Rays queued by the paths of a round, written straight into the lanes of 16-wide packets in
 /// the order they are queued (so that the packets of live paths are full), with the path that
@@ -141,6 +142,17 @@ pub struct Wavefront {
     shadows: RayQueue,
     continuations: RayQueue,
     next_continuations: RayQueue,
+    /// The batch's samplers, and the numbers of the step the paths of a round take, drawn for
+    /// all of them at once.
+    lanes: StepLanes,
+    numbers: StepBatch,
+    /// `0..n`: the paths of the first round.
+    all: Vec<u32>,
+    /// The surfaces a round's rays hit, the points and light numbers of their light samples,
+    /// and the room in which those are taken together.
+    surfaces: Vec<Option<SurfacePoint>>,
+    queries: Vec<(Vec3, Vec2)>,
+    light_lanes: LightLanes,
 }
 
 impl Wavefront {
@@ -157,6 +169,12 @@ impl Wavefront {
             + size_of::<Sampler>()
             + size_of::<Hit>()
             + 3 * (Packet16::bytes() / 16 + size_of::<u32>())
+            + StepLanes::BYTES_PER_PATH
+            + StepBatch::BYTES_PER_PATH
+            + size_of::<u32>()
+            + size_of::<Option<SurfacePoint>>()
+            + size_of::<(Vec3, Vec2)>()
+            + LightLanes::BYTES_PER_QUERY
     }
 }
 
@@ -168,7 +186,7 @@ impl Integrator<'_> {
         &self,
         eye: Vec3,
         hits: &[Hit],
-        samplers: &mut [Sampler],
+        samplers: &[Sampler],
         wf: &'w mut Wavefront,
         t: &mut Tally,
     ) -> &'w [FirstHit] {
@@ -178,8 +196,9 @@ impl Integrator<'_> {
         // and copied in, and the copy's wide loads of what narrow stores had just written
         // cannot be forwarded from the store buffer.
         let n = hits.len();
+        let scene = self.scene;
         if wf.recs.len() < n {
-            let blank = self.first_record(&hits[0], eye);
+            let blank = self.first_record(scene.surface(&hits[0]), eye);
             wf.recs.resize(n, blank);
         }
         wf.recs.truncate(n);
@@ -187,10 +206,27 @@ impl Integrator<'_> {
         wf.walks.resize(n, None);
         wf.shadows.clear();
         wf.continuations.clear();
-        for (i, (hit, s)) in hits.iter().zip(samplers.iter_mut()).enumerate() {
+        // A round's paths are all at the same vertex. For each round, the numbers of their
+        // step are drawn together (`StepLanes`), then the surfaces their rays hit are found and
+        // the light samples there taken together (`Scene::sample_lights`), both in SIMD lanes,
+        // and then each path takes its step.
+        wf.lanes.fill(samplers);
+        wf.all.clear();
+        wf.all.extend(0..n as u32);
+        wf.lanes.draw(&wf.all, self.step_dims(1), &mut wf.numbers);
+        let primary = hits.iter().map(|h| Some(*h));
+        surfaces_and_lights(
+            scene,
+            primary,
+            &wf.numbers,
+            &mut wf.surfaces,
+            &mut wf.queries,
+        );
+        let lights = scene.sample_lights(&wf.queries, &mut wf.light_lanes);
+        for (i, (sp, light)) in wf.surfaces.iter().zip(lights).enumerate() {
             let rec = &mut wf.recs[i];
-            *rec = self.first_record(hit, eye);
-            let (shadow, next) = self.first_samples(rec, s);
+            *rec = self.first_record(sp.expect("a primary hit"), eye);
+            let (shadow, next) = self.first_samples(rec, &wf.numbers.get(i), *light);
             if let Some(ray) = shadow {
                 wf.shadows.push(i, &ray);
             }
@@ -204,17 +240,31 @@ impl Integrator<'_> {
             self.light_blocked(&mut wf.recs[i], wf.shadows.blocked(k));
         }
         wf.continuations.intersect(geometry, self.paths, t);
-        // Each round hands every path its continuation's hit and, where the walk goes on, takes
-        // its next step at once (the path's state is touched once per round); the walk's shadow
-        // rays of a round are answered before the hits, as the scalar walk adds them first.
+        // Each round hands every path the surface its continuation hit and, where the walk goes
+        // on, takes its next step at once (the path's state is touched once per round); the
+        // walk's shadow rays of a round are answered before the hits, as the scalar walk adds
+        // them first.
+        let mut depth = 2;
+        wf.lanes.draw(
+            &wf.continuations.paths,
+            self.step_dims(depth),
+            &mut wf.numbers,
+        );
+        let hits = (0..wf.continuations.len()).map(|k| wf.continuations.hit(k));
+        surfaces_and_lights(scene, hits, &wf.numbers, &mut wf.surfaces, &mut wf.queries);
+        let lights = scene.sample_lights(&wf.queries, &mut wf.light_lanes);
+        let mut lights = lights.iter();
         wf.shadows.clear();
         wf.next_continuations.clear();
         for k in 0..wf.continuations.len() {
             let i = wf.continuations.paths[k] as usize;
+            let sp = wf.surfaces[k];
             let walk = &mut wf.walks[i];
-            *walk = self.first_continue(&mut wf.recs[i], wf.continuations.hit(k));
+            *walk = self.first_continue(&mut wf.recs[i], sp);
+            // Every surface has its light sample, in order.
+            let light = sp.and_then(|_| *lights.next().expect("a light sample per surface"));
             if let Some(walk) = walk {
-                let (shadow, next) = self.walk_vertex(walk, &mut samplers[i]);
+                let (shadow, next) = self.walk_vertex(walk, &wf.numbers.get(k), light);
                 queue(i, shadow, next, &mut wf.shadows, &mut wf.next_continuations);
             }
         }
@@ -227,14 +277,28 @@ impl Integrator<'_> {
             }
             std::mem::swap(&mut wf.continuations, &mut wf.next_continuations);
             wf.continuations.intersect(geometry, self.paths, t);
+            // The walks answered here are all at vertex `depth`: the step to the next one.
+            depth += 1;
+            wf.lanes.draw(
+                &wf.continuations.paths,
+                self.step_dims(depth),
+                &mut wf.numbers,
+            );
+            let hits = (0..wf.continuations.len()).map(|k| wf.continuations.hit(k));
+            surfaces_and_lights(scene, hits, &wf.numbers, &mut wf.surfaces, &mut wf.queries);
+            let lights = scene.sample_lights(&wf.queries, &mut wf.light_lanes);
+            let mut lights = lights.iter();
             wf.shadows.clear();
             wf.next_continuations.clear();
             for k in 0..wf.continuations.len() {
                 let i = wf.continuations.paths[k] as usize;
-                let s = &mut samplers[i];
+                let sp = wf.surfaces[k];
                 let walk = wf.walks[i].as_mut().expect("a continuation's path walks");
-                if self.walk_continue(walk, wf.continuations.hit(k), s) {
-                    let (shadow, next) = self.walk_vertex(walk, s);
+                debug_assert_eq!(walk.depth + 1, depth, "a round's walks at one vertex");
+                let light = sp.and_then(|_| *lights.next().expect("a light sample per surface"));
+                let step = wf.numbers.get(k);
+                if self.walk_continue(walk, sp, step.rr) {
+                    let (shadow, next) = self.walk_vertex(walk, &step, light);
                     queue(i, shadow, next, &mut wf.shadows, &mut wf.next_continuations);
                 }
             }
@@ -245,6 +309,27 @@ impl Integrator<'_> {
             }
         }
         &wf.recs
+    }
+}
+
+/// The surfaces that a round's rays hit (`wf.surfaces`, none where a ray left the scene) and,
+/// for each surface in turn, the query of its light sample (`wf.queries`: the point and the
+/// path's light numbers, `wf.numbers`).
+fn surfaces_and_lights(
+    scene: &Scene,
+    hits: impl Iterator<Item = Option<Hit>>,
+    numbers: &StepBatch,
+    surfaces: &mut Vec<Option<SurfacePoint>>,
+    queries: &mut Vec<(Vec3, Vec2)>,
+) {
+    surfaces.clear();
+    queries.clear();
+    for (k, hit) in hits.enumerate() {
+        let sp = hit.map(|h| scene.surface(&h));
+        if let Some(sp) = &sp {
+            queries.push((sp.p, numbers.light(k)));
+        }
+        surfaces.push(sp);
     }
 }
 

@@ -398,7 +398,7 @@ impl Natives {
             let recs = integrator.first_hits(
                 cam.eye,
                 &self.hits,
-                &mut self.samplers,
+                &self.samplers,
                 &mut self.wavefront,
                 tally,
             );
