@@ -256,8 +256,8 @@ impl Rays {
 /// A random walk from the second vertex of a path on: the state that one bounce hands the next.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Walk {
-    /// The current vertex and the unit direction back along the path.
-    sp: SurfacePoint,
+    /// The unit direction back along the path from the current vertex (the surface point
+    /// itself is handed to each step: `walk_vertex`).
     wo: Vec3,
     /// Path throughput from the second vertex (the first hit's BSDF term is the record's).
     beta: Vec3,
@@ -424,14 +424,15 @@ impl<'a> Integrator<'a> {
             return rec;
         };
         t.path(&ray);
-        let hit = geometry.intersect1(&ray).map(|h| scene.surface(&h));
-        let Some(mut walk) = self.first_continue(&mut rec, hit) else {
+        let mut hit = geometry.intersect1(&ray).map(|h| scene.surface(&h));
+        let Some(mut walk) = self.first_continue(&mut rec, hit.as_ref()) else {
             return rec;
         };
         let mut step = s.step(self.step_dims(2));
-        loop {
-            let light = self.scene.sample_light(walk.sp.p, step.light);
-            let (shadow, next) = self.walk_vertex(&mut walk, &step, light);
+        // The surface the walk is at.
+        while let Some(sp) = hit {
+            let light = self.scene.sample_light(sp.p, step.light);
+            let (shadow, next) = self.walk_vertex(&mut walk, &sp, &step, light);
             if let Some(ray) = shadow {
                 t.shadow(&ray);
                 walk.shadow_resolved(geometry.occluded1(&ray));
@@ -441,13 +442,30 @@ impl<'a> Integrator<'a> {
             };
             t.path(&ray);
             step = s.step(self.step_dims(walk.depth + 1));
-            let hit = geometry.intersect1(&ray).map(|h| scene.surface(&h));
-            if !self.walk_continue(&mut walk, hit, step.rr) {
+            hit = geometry.intersect1(&ray).map(|h| scene.surface(&h));
+            if !self.walk_continue(&mut walk, hit.as_ref(), step.rr) {
                 break;
             }
         }
         rec.li_w = walk.l;
         rec
+    }
+
+    /// `*rec = self.first_record(*sp, eye)`, written field by field: a record built aside and
+    /// copied in is read with wide loads right after narrow stores, which the store buffer
+    /// cannot forward (the wavefront fills its records in place).
+    #[inline(always)]
+    pub(crate) fn fill_first_record(&self, rec: &mut FirstHit, sp: &SurfacePoint, eye: Vec3) {
+        rec.sp = *sp;
+        rec.m = self.scene.material(sp);
+        rec.wo = (eye - sp.p).normalize();
+        rec.w = None;
+        rec.pdf_w = 0.0;
+        rec.f_w = Vec3::ZERO;
+        rec.le_w = Vec3::ZERO;
+        rec.pdf_light_w = 0.0;
+        rec.li_w = Vec3::ZERO;
+        rec.light = None;
     }
 
     /// The record of a camera sample whose primary ray from `eye` hit the surface at `sp`
@@ -528,7 +546,7 @@ impl<'a> Integrator<'a> {
     pub(crate) fn first_continue(
         &self,
         rec: &mut FirstHit,
-        hit: Option<SurfacePoint>,
+        hit: Option<&SurfacePoint>,
     ) -> Option<Walk> {
         let scene = self.scene;
         let wi = rec.w.expect("a continuation ray has a direction");
@@ -540,12 +558,11 @@ impl<'a> Integrator<'a> {
             }
             return None;
         };
-        rec.le_w = scene.emitted(&y, rec.sp.p);
+        rec.le_w = scene.emitted(y, rec.sp.p);
         if rec.le_w != Vec3::ZERO {
             rec.pdf_light_w = scene.light_pdf(rec.sp.p, y.p, y.prim);
         }
         Some(Walk {
-            sp: y,
             wo: -wi,
             beta: Vec3::ONE,
             l: Vec3::ZERO,
@@ -558,27 +575,27 @@ impl<'a> Integrator<'a> {
         })
     }
 
-    /// One vertex of the walk (radiance reflected at `walk.sp` along `walk.wo`, excluding the
-    /// vertex's own emission): the shadow ray of its light sample, if it needs one, and the
-    /// continuation ray, `None` where the walk ends (depth, a black material, a failed or
-    /// downward BSDF sample). `n` are the vertex's numbers and `light` is
-    /// `scene.sample_light(walk.sp.p, n.light)`.
+    /// One vertex of the walk (radiance reflected at `sp`, the surface the walk is at, along
+    /// `walk.wo`, excluding the vertex's own emission): the shadow ray of its light sample, if
+    /// it needs one, and the continuation ray, `None` where the walk ends (depth, a black
+    /// material, a failed or downward BSDF sample). `n` are the vertex's numbers and `light` is
+    /// `scene.sample_light(sp.p, n.light)`.
     #[inline(always)]
     pub(crate) fn walk_vertex(
         &self,
         walk: &mut Walk,
+        sp: &SurfacePoint,
         n: &StepNumbers,
         light: Option<LightSample>,
     ) -> (Option<Ray>, Option<Ray>) {
         if walk.depth > self.max_depth {
             return (None, None);
         }
-        let sp = walk.sp;
-        let m = self.scene.material(&sp);
+        let m = self.scene.material(sp);
         if !m.reflects() {
             return (None, None);
         }
-        let shadow = match self.direct(&sp, &m, walk.wo, light) {
+        let shadow = match self.direct(sp, &m, walk.wo, light) {
             (d, Some(ray)) => {
                 walk.shadow_beta = walk.beta;
                 walk.shadow_d = d;
@@ -589,7 +606,7 @@ impl<'a> Integrator<'a> {
                 None
             }
         };
-        let (ng, ns) = facing(&sp, walk.wo);
+        let (ng, ns) = facing(sp, walk.wo);
         let Some(bs) = m.sample(ns, walk.wo, n.lobe, n.bsdf) else {
             return (shadow, None);
         };
@@ -610,7 +627,7 @@ impl<'a> Integrator<'a> {
     pub(crate) fn walk_continue(
         &self,
         walk: &mut Walk,
-        hit: Option<SurfacePoint>,
+        hit: Option<&SurfacePoint>,
         rr: f32,
     ) -> bool {
         let scene = self.scene;
@@ -623,7 +640,7 @@ impl<'a> Integrator<'a> {
             }
             return false;
         };
-        let le = scene.emitted(&next, walk.from);
+        let le = scene.emitted(next, walk.from);
         if le != Vec3::ZERO {
             // beta already holds f cos / p_b: the BSDF technique's weight is all it lacks.
             let pl = scene.light_pdf(walk.from, next.p, next.prim);
@@ -636,7 +653,6 @@ impl<'a> Integrator<'a> {
             }
             walk.beta /= q;
         }
-        walk.sp = next;
         walk.wo = -walk.wi;
         walk.depth += 1;
         true

@@ -225,7 +225,7 @@ impl Integrator<'_> {
         let lights = scene.sample_lights(&wf.queries, &mut wf.light_lanes);
         for (i, (sp, light)) in wf.surfaces.iter().zip(lights).enumerate() {
             let rec = &mut wf.recs[i];
-            *rec = self.first_record(sp.expect("a primary hit"), eye);
+            self.fill_first_record(rec, sp.as_ref().expect("a primary hit"), eye);
             let (shadow, next) = self.first_samples(rec, &wf.numbers.get(i), *light);
             if let Some(ray) = shadow {
                 wf.shadows.push(i, &ray);
@@ -258,13 +258,13 @@ impl Integrator<'_> {
         wf.next_continuations.clear();
         for k in 0..wf.continuations.len() {
             let i = wf.continuations.paths[k] as usize;
-            let sp = wf.surfaces[k];
+            let sp = wf.surfaces[k].as_ref();
             let walk = &mut wf.walks[i];
             *walk = self.first_continue(&mut wf.recs[i], sp);
             // Every surface has its light sample, in order.
             let light = sp.and_then(|_| *lights.next().expect("a light sample per surface"));
-            if let Some(walk) = walk {
-                let (shadow, next) = self.walk_vertex(walk, &wf.numbers.get(k), light);
+            if let (Some(walk), Some(sp)) = (walk, sp) {
+                let (shadow, next) = self.walk_vertex(walk, sp, &wf.numbers.get(k), light);
                 queue(i, shadow, next, &mut wf.shadows, &mut wf.next_continuations);
             }
         }
@@ -292,13 +292,13 @@ impl Integrator<'_> {
             wf.next_continuations.clear();
             for k in 0..wf.continuations.len() {
                 let i = wf.continuations.paths[k] as usize;
-                let sp = wf.surfaces[k];
+                let sp = wf.surfaces[k].as_ref();
                 let walk = wf.walks[i].as_mut().expect("a continuation's path walks");
                 debug_assert_eq!(walk.depth + 1, depth, "a round's walks at one vertex");
                 let light = sp.and_then(|_| *lights.next().expect("a light sample per surface"));
                 let step = wf.numbers.get(k);
-                if self.walk_continue(walk, sp, step.rr) {
-                    let (shadow, next) = self.walk_vertex(walk, &step, light);
+                if let (true, Some(sp)) = (self.walk_continue(walk, sp, step.rr), sp) {
+                    let (shadow, next) = self.walk_vertex(walk, sp, &step, light);
                     queue(i, shadow, next, &mut wf.shadows, &mut wf.next_continuations);
                 }
             }
