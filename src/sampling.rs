@@ -362,6 +362,19 @@ impl Sampler {
         }
     }
 
+    /// Sample `index` of the same stream as this stratified sampler (bitwise
+    /// `Sampler::stratified` with this one's key and `index`): a tile keeps its pixels' streams
+    /// and takes each sample index from them, instead of hashing the key again.
+    #[inline]
+    pub fn at_index(&self, index: u32) -> Sampler {
+        debug_assert!(self.index_reversed.is_some(), "a stratified sampler");
+        Sampler {
+            key: self.key,
+            dim: 0,
+            index_reversed: Some(index.reverse_bits()),
+        }
+    }
+
     /// The hash of dimension `d` of this sample: its independent number, or its seeds.
     #[inline]
     fn dim_hash(&self, d: u64) -> u64 {

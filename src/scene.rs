@@ -211,6 +211,20 @@ pub struct Lights {
     /// Per triangle of the scene: probability of choosing it divided by its area (0 if not a
     /// light), i.e. the area density of light sampling on it.
     pdf_area: Vec<f32>,
+    /// Per light, what sampling a point on it reads, in one place (`Scene::area_inputs`).
+    table: Vec<LightTriangle>,
+}
+
+/// A light triangle as `Scene::sample_light` reads it: its corners and normal, its area
+/// density, its share `[lo, lo + width)` of the CDF, and its index among the scene's triangles.
+#[derive(Clone, Copy, Debug)]
+struct LightTriangle {
+    corners: [Vec3; 3],
+    n: Vec3,
+    pdf_area: f32,
+    lo: f32,
+    width: f32,
+    tri: u32,
 }
 
 /// A point sampled on a light, seen from a shading point (for the environment: a direction, with
@@ -235,13 +249,12 @@ enum LightPick {
     Area(AreaPick),
 }
 
-/// An area light triangle picked by `u.x` in `[lo, lo + width)`.
+/// The area light `light` (an index into `Lights::table`), picked by `u.x` in its share of
+/// the CDF.
 #[derive(Clone, Copy, Debug)]
 struct AreaPick {
-    tri: u32,
+    light: u32,
     u: Vec2,
-    lo: f32,
-    width: f32,
 }
 
 /// What the arithmetic of an area light's sample reads (`area_sample`): the pick's number and
@@ -747,14 +760,8 @@ impl Scene {
             return None;
         }
         let i = l.cdf.partition_point(|&c| c <= u.x).min(l.tris.len() - 1);
-        let lo = if i == 0 { 0.0 } else { l.cdf[i - 1] };
-        // The stretch of `u.x` over `[lo, cdf[i])` is `area_sample`'s.
-        Some(LightPick::Area(AreaPick {
-            tri: l.tris[i],
-            u,
-            lo,
-            width: l.cdf[i] - lo,
-        }))
+        // The stretch of `u.x` over the light's share of the CDF is `area_sample`'s.
+        Some(LightPick::Area(AreaPick { light: i as u32, u }))
     }
 
     /// A direction towards the environment, picked with the stretched `u`.
@@ -774,19 +781,14 @@ impl Scene {
     /// What `area_sample` reads for the point `pick` asks for, seen from `x`.
     #[inline(always)]
     fn area_inputs(&self, pick: &AreaPick, x: Vec3) -> AreaInputs {
-        let tri = pick.tri as usize;
-        let [i0, i1, i2] = self.triangles[tri];
+        let t = &self.lights.table[pick.light as usize];
         AreaInputs {
             u: pick.u,
-            lo: pick.lo,
-            width: pick.width,
-            corners: [
-                self.positions[i0 as usize],
-                self.positions[i1 as usize],
-                self.positions[i2 as usize],
-            ],
-            n: self.tri_normal[tri],
-            pdf_area: self.lights.pdf_area[tri] * (1.0 - self.env_select),
+            lo: t.lo,
+            width: t.width,
+            corners: t.corners,
+            n: t.n,
+            pdf_area: t.pdf_area * (1.0 - self.env_select),
             x,
         }
     }
@@ -798,7 +800,8 @@ impl Scene {
         if at.dist <= 0.0 || at.cos_l.abs() <= 1e-7 {
             return None;
         }
-        let tri = pick.tri as usize;
+        let light = &self.lights.table[pick.light as usize];
+        let tri = light.tri as usize;
         let le = if at.cos_l > 0.0 {
             let [i0, i1, i2] = self.triangles[tri];
             let (b1, b2) = (at.b1, at.b2);
@@ -815,7 +818,7 @@ impl Scene {
         };
         Some(LightSample {
             p: at.p,
-            n: self.tri_normal[tri],
+            n: light.n,
             wi: at.wi,
             dist: at.dist,
             le,
@@ -886,6 +889,7 @@ impl Lights {
                 tris,
                 cdf: Vec::new(),
                 pdf_area: vec![0.0; mesh.triangles.len()],
+                table: Vec::new(),
             };
         }
         let total: f64 = power.iter().sum();
@@ -899,10 +903,27 @@ impl Lights {
             pdf_area[t] = ((p / total) / mesh.tri_area[t] as f64) as f32;
         }
         *cdf.last_mut().unwrap() = 1.0;
+        let table = tris
+            .iter()
+            .enumerate()
+            .map(|(i, &tri)| {
+                let t = tri as usize;
+                let lo = if i == 0 { 0.0 } else { cdf[i - 1] };
+                LightTriangle {
+                    corners: mesh.triangles[t].map(|v| mesh.positions[v as usize]),
+                    n: mesh.tri_normal[t],
+                    pdf_area: pdf_area[t],
+                    lo,
+                    width: cdf[i] - lo,
+                    tri,
+                }
+            })
+            .collect();
         Lights {
             tris,
             cdf,
             pdf_area,
+            table,
         }
     }
 }

@@ -60,6 +60,10 @@ fn render_tile(
     let mut slots: Vec<usize> = Vec::with_capacity(n);
     let mut hits: Vec<Hit> = Vec::with_capacity(n);
     let mut path_samplers: Vec<Sampler> = Vec::with_capacity(n);
+    // Each pixel's stream, hashed once per tile (row by row in the tile).
+    let streams: Vec<Sampler> = (y0..y1)
+        .flat_map(|y| (x0..x1).map(move |x| Sampler::stratified(seed, frame, y * w + x, 0, 0)))
+        .collect();
     for s in 0..spp {
         slots.clear();
         hits.clear();
@@ -71,9 +75,10 @@ fn render_tile(
                 dirs.clear();
                 for y in by..(by + BLOCK).min(y1) {
                     for x in bx..(bx + BLOCK).min(x1) {
-                        let mut sampler = Sampler::stratified(seed, frame, y * w + x, 0, s);
+                        let slot = ((y - y0) * tw + (x - x0)) as usize;
+                        let mut sampler = streams[slot].at_index(s);
                         let r = Vec2::new(x as f32, y as f32) + sampler.next_2d();
-                        lanes.push(((y - y0) * tw + (x - x0)) as usize);
+                        lanes.push(slot);
                         dirs.push(cam.direction(r));
                         samplers.push(sampler);
                     }
