@@ -160,6 +160,28 @@ impl Wavefront {
         Wavefront::default()
     }
 
+    /// Before the paths whose continuation rays were just answered take their step to vertex
+    /// `depth`: their numbers, the surfaces their rays hit and the light samples there
+    /// (`light_lanes.samples()`, one per surface, in order), and empty queues for the rays the
+    /// step asks for.
+    fn prepare_round(&mut self, integrator: &Integrator, depth: u32) {
+        let dims = integrator.step_dims(depth);
+        self.lanes
+            .draw(&self.continuations.paths, dims, &mut self.numbers);
+        let hits = (0..self.continuations.len()).map(|k| self.continuations.hit(k));
+        let scene = integrator.scene;
+        surfaces_and_lights(
+            scene,
+            hits,
+            &self.numbers,
+            &mut self.surfaces,
+            &mut self.queries,
+        );
+        scene.sample_lights(&self.queries, &mut self.light_lanes);
+        self.shadows.clear();
+        self.next_continuations.clear();
+    }
+
     /// Bytes a batch holds per path, at most: its record, walk, sampler and hit, and a lane in
     /// each of the three ray queues (for `RenderOptions::memory_estimate`).
     pub fn bytes_per_path() -> usize {
@@ -245,17 +267,8 @@ impl Integrator<'_> {
         // walk's shadow rays of a round are answered before the hits, as the scalar walk adds
         // them first.
         let mut depth = 2;
-        wf.lanes.draw(
-            &wf.continuations.paths,
-            self.step_dims(depth),
-            &mut wf.numbers,
-        );
-        let hits = (0..wf.continuations.len()).map(|k| wf.continuations.hit(k));
-        surfaces_and_lights(scene, hits, &wf.numbers, &mut wf.surfaces, &mut wf.queries);
-        let lights = scene.sample_lights(&wf.queries, &mut wf.light_lanes);
-        let mut lights = lights.iter();
-        wf.shadows.clear();
-        wf.next_continuations.clear();
+        wf.prepare_round(self, depth);
+        let mut lights = wf.light_lanes.samples().iter();
         for k in 0..wf.continuations.len() {
             let i = wf.continuations.paths[k] as usize;
             let sp = wf.surfaces[k].as_ref();
@@ -279,17 +292,8 @@ impl Integrator<'_> {
             wf.continuations.intersect(geometry, self.paths, t);
             // The walks answered here are all at vertex `depth`: the step to the next one.
             depth += 1;
-            wf.lanes.draw(
-                &wf.continuations.paths,
-                self.step_dims(depth),
-                &mut wf.numbers,
-            );
-            let hits = (0..wf.continuations.len()).map(|k| wf.continuations.hit(k));
-            surfaces_and_lights(scene, hits, &wf.numbers, &mut wf.surfaces, &mut wf.queries);
-            let lights = scene.sample_lights(&wf.queries, &mut wf.light_lanes);
-            let mut lights = lights.iter();
-            wf.shadows.clear();
-            wf.next_continuations.clear();
+            wf.prepare_round(self, depth);
+            let mut lights = wf.light_lanes.samples().iter();
             for k in 0..wf.continuations.len() {
                 let i = wf.continuations.paths[k] as usize;
                 let sp = wf.surfaces[k].as_ref();

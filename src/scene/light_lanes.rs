@@ -101,6 +101,11 @@ pub struct LightLanes {
 }
 
 impl LightLanes {
+    /// The light samples of the last `Scene::sample_lights`, one per query, in order.
+    pub fn samples(&self) -> &[Option<LightSample>] {
+        &self.out
+    }
+
     /// Bytes held per query (for memory estimates).
     pub const BYTES_PER_QUERY: usize = std::mem::size_of::<Option<LightSample>>();
 }
