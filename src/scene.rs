@@ -325,7 +325,7 @@ impl LightSample {
 }
 
 /// The geometry at a hit, built from Embree's minimal hit only when it is shaded.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 pub struct SurfacePoint {
     pub p: Vec3,
     /// Unit geometric normal, as wound (front side = emitting side).

@@ -150,7 +150,9 @@ pub struct Wavefront {
     all: Vec<u32>,
     /// The surfaces a round's rays hit, the points and light numbers of their light samples,
     /// and the room in which those are taken together.
-    surfaces: Vec<Option<SurfacePoint>>,
+    surfaces: Vec<SurfacePoint>,
+    /// Whether each of the round's rays hit a surface (`surfaces[k]` is stale where not).
+    hit: Vec<bool>,
     queries: Vec<(Vec3, Vec2)>,
     light_lanes: LightLanes,
 }
@@ -168,15 +170,11 @@ impl Wavefront {
         let dims = integrator.step_dims(depth);
         self.lanes
             .draw(&self.continuations.paths, dims, &mut self.numbers);
-        let hits = (0..self.continuations.len()).map(|k| self.continuations.hit(k));
+        let n = self.continuations.len();
+        let hits = (0..n).map(|k| self.continuations.hit(k));
         let scene = integrator.scene;
-        surfaces_and_lights(
-            scene,
-            hits,
-            &self.numbers,
-            &mut self.surfaces,
-            &mut self.queries,
-        );
+        let surfaces = (&mut self.surfaces, &mut self.hit);
+        surfaces_and_lights(scene, n, hits, &self.numbers, surfaces, &mut self.queries);
         scene.sample_lights(&self.queries, &mut self.light_lanes);
         self.shadows.clear();
         self.next_continuations.clear();
@@ -194,7 +192,8 @@ impl Wavefront {
             + StepLanes::BYTES_PER_PATH
             + StepBatch::BYTES_PER_PATH
             + size_of::<u32>()
-            + size_of::<Option<SurfacePoint>>()
+            + size_of::<SurfacePoint>()
+            + size_of::<bool>()
             + size_of::<(Vec3, Vec2)>()
             + LightLanes::BYTES_PER_QUERY
     }
@@ -237,17 +236,12 @@ impl Integrator<'_> {
         wf.all.extend(0..n as u32);
         wf.lanes.draw(&wf.all, self.step_dims(1), &mut wf.numbers);
         let primary = hits.iter().map(|h| Some(*h));
-        surfaces_and_lights(
-            scene,
-            primary,
-            &wf.numbers,
-            &mut wf.surfaces,
-            &mut wf.queries,
-        );
+        let surfaces = (&mut wf.surfaces, &mut wf.hit);
+        surfaces_and_lights(scene, n, primary, &wf.numbers, surfaces, &mut wf.queries);
         let lights = scene.sample_lights(&wf.queries, &mut wf.light_lanes);
         for (i, (sp, light)) in wf.surfaces.iter().zip(lights).enumerate() {
             let rec = &mut wf.recs[i];
-            self.fill_first_record(rec, sp.as_ref().expect("a primary hit"), eye);
+            self.fill_first_record(rec, sp, eye);
             let (shadow, next) = self.first_samples(rec, &wf.numbers.get(i), *light);
             if let Some(ray) = shadow {
                 wf.shadows.push(i, &ray);
@@ -271,7 +265,7 @@ impl Integrator<'_> {
         let mut lights = wf.light_lanes.samples().iter();
         for k in 0..wf.continuations.len() {
             let i = wf.continuations.paths[k] as usize;
-            let sp = wf.surfaces[k].as_ref();
+            let sp = wf.hit[k].then(|| &wf.surfaces[k]);
             let walk = &mut wf.walks[i];
             *walk = self.first_continue(&mut wf.recs[i], sp);
             // Every surface has its light sample, in order.
@@ -296,7 +290,7 @@ impl Integrator<'_> {
             let mut lights = wf.light_lanes.samples().iter();
             for k in 0..wf.continuations.len() {
                 let i = wf.continuations.paths[k] as usize;
-                let sp = wf.surfaces[k].as_ref();
+                let sp = wf.hit[k].then(|| &wf.surfaces[k]);
                 let walk = wf.walks[i].as_mut().expect("a continuation's path walks");
                 debug_assert_eq!(walk.depth + 1, depth, "a round's walks at one vertex");
                 let light = sp.and_then(|_| *lights.next().expect("a light sample per surface"));
@@ -316,24 +310,30 @@ impl Integrator<'_> {
     }
 }
 
-/// The surfaces that a round's rays hit (`wf.surfaces`, none where a ray left the scene) and,
-/// for each surface in turn, the query of its light sample (`wf.queries`: the point and the
-/// path's light numbers, `wf.numbers`).
+/// The surfaces that a round's `n` rays hit (`surfaces.0[k]`, where `surfaces.1[k]`: a ray
+/// that left the scene hit none) and, for each surface in turn, the query of its light sample
+/// (`queries`: the point and the path's light numbers). Each surface is written in its place
+/// in a vector kept from round to round (a surface pushed is built aside and copied in, read
+/// back wider than it was written).
 fn surfaces_and_lights(
     scene: &Scene,
+    n: usize,
     hits: impl Iterator<Item = Option<Hit>>,
     numbers: &StepBatch,
-    surfaces: &mut Vec<Option<SurfacePoint>>,
+    (surfaces, hit_any): (&mut Vec<SurfacePoint>, &mut Vec<bool>),
     queries: &mut Vec<(Vec3, Vec2)>,
 ) {
-    surfaces.clear();
+    if surfaces.len() < n {
+        surfaces.resize(n, SurfacePoint::default());
+    }
+    hit_any.clear();
     queries.clear();
     for (k, hit) in hits.enumerate() {
-        let sp = hit.map(|h| scene.surface(&h));
-        if let Some(sp) = &sp {
-            queries.push((sp.p, numbers.light(k)));
+        hit_any.push(hit.is_some());
+        if let Some(h) = hit {
+            surfaces[k] = scene.surface(&h);
+            queries.push((surfaces[k].p, numbers.light(k)));
         }
-        surfaces.push(sp);
     }
 }
 
