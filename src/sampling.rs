@@ -230,7 +230,7 @@ impl StepBatch {
     pub fn get(&self, k: usize) -> StepNumbers {
         StepNumbers {
             rr: self.rr[k],
-            light: Vec2::new(self.light_x[k], self.light_y[k]),
+            light: self.light(k),
             lobe: self.lobe[k],
             bsdf: Vec2::new(self.bsdf_x[k], self.bsdf_y[k]),
         }

@@ -284,14 +284,20 @@ struct AreaSample {
     pdf: f32,
 }
 
+/// The part `[lo, lo + p)` of [0, 1) in which `v` picked a light, stretched back to [0, 1)
+/// (docs/sampler.md, "Picking a light with the same 2D point").
+#[inline(always)]
+fn stretch(v: f32, lo: f32, p: f32) -> f32 {
+    ((v - lo) / p).clamp(0.0, 1.0 - f32::EPSILON)
+}
+
 /// A point on a triangle light, uniform by area, seen from `x`: the arithmetic of the sample,
 /// with no branch and no memory access, so that `light_lanes` runs it across SIMD lanes and
 /// gives `Scene::sample_light`'s bits. Where the point coincides with `x` (distance 0) the
 /// direction is not finite, and `Scene::finish_area` drops the sample.
 #[inline(always)]
 fn area_sample(a: &AreaInputs) -> AreaSample {
-    // `u.x` stretched back to [0, 1) over the pick's share (docs/sampler.md).
-    let ux = ((a.u.x - a.lo) / a.width).clamp(0.0, 1.0 - f32::EPSILON);
+    let ux = stretch(a.u.x, a.lo, a.width);
     let (b1, b2) = uniform_triangle(Vec2::new(ux, a.u.y));
     let [c0, c1, c2] = a.corners;
     let p = c0 * (1.0 - b1 - b2) + c1 * b1 + c2 * b2;
@@ -741,8 +747,6 @@ impl Scene {
     /// The light that `sample_light` picks with `u`, and the rest of `u` for the point on it.
     #[inline(always)]
     fn pick_light(&self, u: Vec2) -> Option<LightPick> {
-        // Stretch the part `[lo, lo + p)` of [0, 1) that chose a light back to [0, 1).
-        let stretch = |v: f32, lo: f32, p: f32| ((v - lo) / p).clamp(0.0, 1.0 - f32::EPSILON);
         let mut u = u;
         let p_env = self.env_select;
         if p_env > 0.0 {

@@ -153,7 +153,7 @@ pub struct FirstLight {
 
 /// The primary hit of a camera sample and everything gathered there that does not depend on
 /// the eye (docs/estimators.md's native sample), plus the generating eye's BSDF density.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 pub struct FirstHit {
     pub sp: SurfacePoint,
     /// The material at `x`, its textures looked up once here (not once per eye).
@@ -412,9 +412,10 @@ impl<'a> Integrator<'a> {
     pub fn first_hit_at(&self, hit: &Hit, eye: Vec3, s: &mut Sampler, t: &mut Tally) -> FirstHit {
         let geometry = &self.scene.geometry;
         let scene = self.scene;
-        let mut rec = self.first_record(scene.surface(hit), eye);
+        let mut rec = FirstHit::default();
+        self.fill_first_record(&mut rec, &scene.surface(hit), eye);
         let step = s.step(self.step_dims(1));
-        let light = self.scene.sample_light(rec.sp.p, step.light);
+        let light = scene.sample_light(rec.sp.p, step.light);
         let (shadow, next) = self.first_samples(&mut rec, &step, light);
         if let Some(ray) = shadow {
             t.shadow(&ray);
@@ -431,7 +432,7 @@ impl<'a> Integrator<'a> {
         let mut step = s.step(self.step_dims(2));
         // The surface the walk is at.
         while let Some(sp) = hit {
-            let light = self.scene.sample_light(sp.p, step.light);
+            let light = scene.sample_light(sp.p, step.light);
             let (shadow, next) = self.walk_vertex(&mut walk, &sp, &step, light);
             if let Some(ray) = shadow {
                 t.shadow(&ray);
@@ -451,9 +452,11 @@ impl<'a> Integrator<'a> {
         rec
     }
 
-    /// `*rec = self.first_record(*sp, eye)`, written field by field: a record built aside and
-    /// copied in is read with wide loads right after narrow stores, which the store buffer
-    /// cannot forward (the wavefront fills its records in place).
+    /// The record of a camera sample whose primary ray from `eye` hit the surface at `sp`
+    /// (`Scene::surface` of the hit), before its samples (`first_samples` draws them), written
+    /// field by field into `rec`: a record built aside and copied in is read with wide loads
+    /// right after narrow stores, which the store buffer cannot forward (the wavefront fills its
+    /// records in place).
     #[inline(always)]
     pub(crate) fn fill_first_record(&self, rec: &mut FirstHit, sp: &SurfacePoint, eye: Vec3) {
         rec.sp = *sp;
@@ -466,26 +469,6 @@ impl<'a> Integrator<'a> {
         rec.pdf_light_w = 0.0;
         rec.li_w = Vec3::ZERO;
         rec.light = None;
-    }
-
-    /// The record of a camera sample whose primary ray from `eye` hit the surface at `sp`
-    /// (`Scene::surface` of the hit), before its samples: `first_samples` draws them.
-    #[inline(always)]
-    pub(crate) fn first_record(&self, sp: SurfacePoint, eye: Vec3) -> FirstHit {
-        let m = self.scene.material(&sp);
-        let wo = (eye - sp.p).normalize();
-        FirstHit {
-            sp,
-            m,
-            wo,
-            w: None,
-            pdf_w: 0.0,
-            f_w: Vec3::ZERO,
-            le_w: Vec3::ZERO,
-            pdf_light_w: 0.0,
-            li_w: Vec3::ZERO,
-            light: None,
-        }
     }
 
     /// The samples of the first vertex: the shadow ray of its light sample (`light_blocked`

@@ -218,11 +218,7 @@ impl Integrator<'_> {
         // cannot be forwarded from the store buffer.
         let n = hits.len();
         let scene = self.scene;
-        if wf.recs.len() < n {
-            let blank = self.first_record(scene.surface(&hits[0]), eye);
-            wf.recs.resize(n, blank);
-        }
-        wf.recs.truncate(n);
+        wf.recs.resize(n, FirstHit::default());
         wf.walks.clear();
         wf.walks.resize(n, None);
         wf.shadows.clear();
@@ -239,7 +235,7 @@ impl Integrator<'_> {
         let surfaces = (&mut wf.surfaces, &mut wf.hit);
         surfaces_and_lights(scene, n, primary, &wf.numbers, surfaces, &mut wf.queries);
         let lights = scene.sample_lights(&wf.queries, &mut wf.light_lanes);
-        for (i, (sp, light)) in wf.surfaces.iter().zip(lights).enumerate() {
+        for (i, (sp, light)) in wf.surfaces[..n].iter().zip(lights).enumerate() {
             let rec = &mut wf.recs[i];
             self.fill_first_record(rec, sp, eye);
             let (shadow, next) = self.first_samples(rec, &wf.numbers.get(i), *light);
