@@ -7,11 +7,11 @@
 //! in flight (16 for the methods that average by count, 24 with `--aov`).
 use super::progress_bar;
 use super::run::{Graceful, Run};
-use crate::film::tiles::tiles;
+use crate::film::tiles::{tiles, tiles_of};
 use crate::film::{develop, FrameAccum, Layout, Sink, View};
 use crate::integrator::{Integrator, RayCounts, Tally};
 use crate::reuse::adaptive::adaptive_counts;
-use crate::reuse::shade::{shade_tile, Target};
+use crate::reuse::shade::{block_side, shade_block, Target};
 use crate::reuse::Params;
 use crate::state::Record;
 use anyhow::{bail, Result};
@@ -101,6 +101,8 @@ pub fn run_groups(
         .collect();
     let nonfinite = AtomicU64::new(0);
     let tile_list = tiles(w, h);
+    // The reuse kernel's unit of parallel work (`shade_block`); the adaptive pilot's is a tile.
+    let blocks = tiles_of(w, h, block_side(w, h, rayon::current_num_threads()));
     let mut written = 0;
     let _graceful = Graceful::begin(run);
     for g0 in run.next..=last_group {
@@ -139,15 +141,15 @@ pub fn run_groups(
             None => (None, RayCounts::default()),
         };
         run.counters.counts.add(&pilot_rays);
-        let group_counts: RayCounts = tile_list
+        let group_counts: RayCounts = blocks
             .par_iter()
-            .map(|&tile| {
+            .map(|&block| {
                 let mut tally = Tally::default();
-                let bad = shade_tile(
+                let bad = shade_block(
                     integrator,
                     &s.params,
                     &group,
-                    tile,
+                    block,
                     g0,
                     native_counts.as_deref(),
                     &mut tally,

@@ -15,27 +15,43 @@ use std::sync::Mutex;
 /// Fixed-point scale of the accumulators: 2^20 steps per unit of (pre-scaled) radiance.
 pub const FIXED: f64 = (1u64 << 20) as f64;
 
+/// `1.5 2^52`: a float between 2^52 and 2^53 whose unit in the last place is 1 (`round_bits`).
+const ROUND: f64 = 6755399441055744.0;
+/// Values below 2^51 in size round through `ROUND` (`round_bits`).
+const LIMIT: f64 = 2251799813685248.0;
+
+/// `floor(x)` for `|x| < 2^51` in plain float arithmetic: `x + 1.5 2^52` rounds `x` to the
+/// nearest integer `n` and holds it in its low bits (the sum lies between 2^52 and 2^53, where
+/// the float's unit in the last place is 1), so `n` is the difference of the two bit patterns,
+/// and `n - 1` where `n > x` is the floor. No float-to-integer conversion, which x86-64 has only
+/// one value at a time and which `as` follows with saturation checks.
+#[inline]
+fn floor_small(x: f64) -> i64 {
+    let y = x + ROUND;
+    let n = y.to_bits() as i64 - ROUND.to_bits() as i64;
+    n - ((y - ROUND) > x) as i64
+}
+
 /// `floor(v 2^20 + u)`, saturating at the ends of i64 (as `f64::floor` followed by `as i64`,
 /// to the bit): stochastic rounding of `v` with the dither `u` in [0, 1). Written out because
-/// `f64::floor` is a call into libm on x86-64 without SSE4.1, and every splat rounds.
+/// `f64::floor` is a call into libm on x86-64 without SSE4.1, and every splat rounds; all but
+/// absurd splats take `floor_small`.
 #[inline]
 pub fn quantize(v: f32, u: f64) -> i64 {
     let x = v as f64 * FIXED + u;
+    if x.abs() < LIMIT {
+        return floor_small(x);
+    }
     let t = x as i64; // rounds towards zero, saturates, NaN to 0
     t.saturating_sub(((t as f64) > x) as i64)
 }
 
-/// `quantize` of three values at once, to the bit, in two SIMD lanes' worth of plain float
-/// arithmetic that the compiler vectorises: where every `x = v 2^20 + u` is below 2^51 in size
-/// (all but absurd splats), `x + 1.5 2^52` rounds `x` to the nearest integer `n` and holds it in
-/// its low bits (the sum lies between 2^52 and 2^53, where the float's unit in the last
-/// place is 1), so `n` is the difference of the two bit patterns and `n - 1` where `n > x` is the
-/// floor; no float-to-integer conversion, which x86-64 has only one value at a time, with
-/// saturation checks. Elsewhere each value goes through `quantize`.
+/// `quantize` of three values at once, to the bit: where every `x = v 2^20 + u` is below 2^51
+/// in size, the three `floor_small`s (and a fourth lane of padding) in plain float arithmetic
+/// that the compiler vectorises, two channels per instruction; elsewhere each value goes
+/// through `quantize`.
 #[inline]
 pub fn quantize3(v: [f32; 3], u: [f64; 3]) -> [i64; 3] {
-    const ROUND: f64 = 6755399441055744.0; // 1.5 * 2^52
-    const LIMIT: f64 = 2251799813685248.0; // 2^51
     let x = [
         v[0] as f64 * FIXED + u[0],
         v[1] as f64 * FIXED + u[1],
@@ -45,9 +61,7 @@ pub fn quantize3(v: [f32; 3], u: [f64; 3]) -> [i64; 3] {
     if x.iter().all(|x| x.abs() < LIMIT) {
         let mut q = [0i64; 4];
         for c in 0..4 {
-            let y = x[c] + ROUND;
-            let n = y.to_bits() as i64 - ROUND.to_bits() as i64;
-            q[c] = n - ((y - ROUND) > x[c]) as i64;
+            q[c] = floor_small(x[c]);
         }
         return [q[0], q[1], q[2]];
     }

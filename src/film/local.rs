@@ -1,10 +1,10 @@
-//! A worker's private share of one frame's sums, over a window of pixels around the tile it
-//! works on, added into the frame's shared accumulator once at the end (`flush`).
+//! A worker's private share of one frame's sums, over a window of pixels around the block of
+//! tiles it works on, added into the frame's shared accumulator once at the end (`flush`).
 //!
 //! Why: a reuse splats into the film of another frame, which other workers splat into too, so a
 //! direct splat is three or four atomic read-modify-writes on cells that are often not in cache
 //! (`perf` put them at 18% of a `mis-cv` render at n_f = 17). The samples a worker reuses into
-//! one frame land close together, around the worker's tile (the frames of a group see the scene
+//! one frame land close together, around the worker's block (the frames of a group see the scene
 //! from nearby eyes), and a window pixel receives several of them: summed here with plain
 //! integer adds, the frame sees one atomic add per touched cell instead of one per splat.
 //!
@@ -16,10 +16,11 @@
 use super::fixed::FixedSums;
 use super::tiles::Tile;
 use super::FrameAccum;
+use crate::sampling::mix64;
 use glam::Vec3;
 use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
 
-/// Pixels of margin around the tile that a window starts with, and that it grows by beyond a
+/// Pixels of margin around the block that a window starts with, and that it grows by beyond a
 /// splat that falls outside it: the reprojected samples of a group's frames land near their
 /// native pixel, farther the farther apart the frames are and the faster the camera moves.
 pub const MARGIN: u32 = 8;
@@ -51,7 +52,8 @@ pub struct LocalFilm<'a> {
 }
 
 impl<'a> LocalFilm<'a> {
-    /// An empty window of `film` around `tile` (grown by `MARGIN`, clipped to the frame).
+    /// An empty window of `film` around `tile` (a block of tiles, grown by `MARGIN`, clipped
+    /// to the frame).
     pub fn new(film: &'a FrameAccum, (tx0, ty0, tx1, ty1): Tile) -> LocalFilm<'a> {
         let (fw, fh) = (film.view.width, film.view.height);
         let x0 = tx0.saturating_sub(MARGIN);
@@ -151,6 +153,61 @@ impl<'a> LocalFilm<'a> {
         let cell = l * self.cells_px + 3 * fold;
         for (c, q) in q.into_iter().enumerate() {
             Self::add(&mut self.cells, cell + c, &self.film.sum, base + c, q);
+        }
+        true
+    }
+
+    /// One reuse into pixel `i`, which is found in the window once: `splat(i, fold, v,
+    /// dither)`, `splat_weight(i, fold, w, mix64(dither))` unless `w` is NaN (no weight), and
+    /// with `count`, `land(i, 1)` and `try_reuse(i, false)`. Returns what `splat` returns.
+    #[inline]
+    pub fn reuse(
+        &mut self,
+        i: usize,
+        fold: usize,
+        v: Vec3,
+        w: f32,
+        dither: u64,
+        count: bool,
+    ) -> bool {
+        let Some(l) = self.local(i) else {
+            if count {
+                self.film.land(i, 1);
+                self.film.try_reuse(i, false);
+            }
+            let ok = self.film.splat(i, fold, v, dither);
+            if !w.is_nan() {
+                self.film.splat_weight(i, fold, w, mix64(dither));
+            }
+            return ok;
+        };
+        if count && self.counts_px > 0 {
+            let at = l * self.counts_px;
+            let landed = usize::from(self.film.landed.is_some());
+            if landed == 1 {
+                self.counts[at] = self.counts[at].wrapping_add(1);
+            }
+            if self.film.loss.is_some() {
+                self.counts[at + landed] = self.counts[at + landed].wrapping_add(1);
+            }
+        }
+        let cell = l * self.cells_px;
+        if let (Some(ws), false) = (&self.film.weights, w.is_nan()) {
+            let q = FrameAccum::quantize_weight(w, mix64(dither));
+            Self::add(&mut self.cells, cell + self.rgb + fold, ws, 2 * i + fold, q);
+        }
+        let Some(q) = self.film.quantize_rgb(v, dither) else {
+            return false;
+        };
+        let base = self.film.rgb_cell(i, fold);
+        for (c, q) in q.into_iter().enumerate() {
+            Self::add(
+                &mut self.cells,
+                cell + 3 * fold + c,
+                &self.film.sum,
+                base + c,
+                q,
+            );
         }
         true
     }
@@ -310,6 +367,20 @@ mod tests {
                     0.25,
                 ) * scale;
                 let d = mix64(h);
+                if k % 4 == 1 {
+                    // One reuse at once, with and without its count and weight.
+                    let (count, w) = (k % 8 == 1, if k % 12 == 1 { f32::NAN } else { v.y });
+                    let ok = direct.splat(i, fold, v, d);
+                    if !w.is_nan() {
+                        direct.splat_weight(i, fold, w, mix64(d));
+                    }
+                    if count {
+                        direct.land(i, 1);
+                        direct.try_reuse(i, false);
+                    }
+                    assert_eq!(ok, local.reuse(i, fold, v, w, d, count));
+                    continue;
+                }
                 assert_eq!(direct.splat(i, fold, v, d), local.splat(i, fold, v, d));
                 direct.splat_weight(i, fold, v.x, d);
                 local.splat_weight(i, fold, v.x, d);
@@ -320,6 +391,8 @@ mod tests {
             }
             let nan = Vec3::new(f32::NAN, 0.0, 0.0);
             assert!(!local.splat(20 * 300 + 20, 0, nan, 1));
+            direct.splat_weight(20 * 300 + 21, 0, 0.5, mix64(1));
+            assert!(!local.reuse(20 * 300 + 21, 0, nan, 0.5, 1, false));
             assert!(local.w * local.h > 32 * 32, "the window never grew");
             assert!((local.w * local.h) as usize <= MAX_PIXELS);
             direct.add_counts(5, 6, 7);

@@ -9,10 +9,15 @@ pub type Tile = (u32, u32, u32, u32);
 
 /// The tiles of a `w` x `h` image, row by row.
 pub fn tiles(w: u32, h: u32) -> Vec<Tile> {
+    tiles_of(w, h, TILE)
+}
+
+/// The tiles of side `side` of a `w` x `h` image, row by row.
+pub fn tiles_of(w: u32, h: u32, side: u32) -> Vec<Tile> {
     let mut v = Vec::new();
-    for y0 in (0..h).step_by(TILE as usize) {
-        for x0 in (0..w).step_by(TILE as usize) {
-            v.push((x0, y0, (x0 + TILE).min(w), (y0 + TILE).min(h)));
+    for y0 in (0..h).step_by(side as usize) {
+        for x0 in (0..w).step_by(side as usize) {
+            v.push((x0, y0, (x0 + side).min(w), (y0 + side).min(h)));
         }
     }
     v

@@ -1,11 +1,13 @@
-//! The reuse kernel: trace the native samples of one tile of each frame of a group, find where
-//! each hit lands in every eye of the group, and splat its weighted value into each of those
-//! frames' films.
+//! The reuse kernel: trace the native samples of one block of tiles of each frame of a group,
+//! find where each hit lands in every eye of the group, and splat its weighted value into each
+//! of those frames' films.
 //!
-//! The unit of work is one tile of every frame of the group: the samples that the group's eyes
-//! reuse into a frame around that tile are summed in a window private to the worker
-//! (`film::local::LocalFilm`) and added into the frame once, at the end, instead of with atomic
-//! adds splat by splat.
+//! The unit of parallel work is one block of every frame of the group: the samples that the
+//! group's eyes reuse into a frame around that block are summed in a window private to the
+//! worker (`film::local::LocalFilm`) and added into the frame once, at the end, instead of with
+//! atomic adds splat by splat. The block is traced tile by tile (a tile's samples are one
+//! wavefront batch), and its splats are made frame by frame, so that consecutive splats fall on
+//! neighbouring pixels of one window.
 //!
 //! Streaming and determinism: contributions are quantised as they are made into fixed-point
 //! sums with a hashed rounding dither: integer addition is associative, so the frames are
@@ -49,38 +51,65 @@ impl Target<'_> {
     }
 }
 
-/// Trace the native samples of tile `tile` of every frame of a group (the group starts at frame
-/// `g0`) and splat every reuse of them into the group's films. `counts`: per frame of the group,
-/// the adaptive native count of each pixel (`None`: `n_r` everywhere). Returns the number of
-/// non-finite contributions dropped.
-pub fn shade_tile(
+/// The side of the reuse kernel's blocks (`shade_block`) for a `w` x `h` frame and `threads`
+/// workers: the largest of 64, 32 and 16 pixels that leaves every worker four blocks or more.
+///
+/// Why large: a window gathers what the group's eyes reuse into its frame around the block,
+/// which the group's other eyes see shifted (on `vase` at n_f = 17, a 16-pixel tile's window
+/// grows to about 66 x 66 pixels), so with small blocks a window pixel receives about one splat
+/// and adding the window into the frame costs as many atomic adds as direct splats would. A
+/// 64-pixel block's windows receive several splats per pixel. Why not larger: fewer blocks than
+/// workers leave workers idle at the end of each group.
+pub fn block_side(w: u32, h: u32, threads: usize) -> u32 {
+    for side in [4 * TILE, 2 * TILE] {
+        if (w.div_ceil(side) * h.div_ceil(side)) as usize >= 4 * threads {
+            return side;
+        }
+    }
+    TILE
+}
+
+/// Trace the native samples of block `block` (`block_side`) of every frame of a group (the
+/// group starts at frame `g0`), a tile at a time, and splat every reuse of them into the
+/// group's films. `counts`: per frame of the group, the adaptive native count of each pixel
+/// (`None`: `n_r` everywhere). Returns the number of non-finite contributions dropped.
+pub fn shade_block(
     integrator: &Integrator,
     p: &Params,
     group: &[Target],
-    tile: Tile,
+    block: Tile,
     g0: u32,
     counts: Option<&[Vec<u16>]>,
     tally: &mut Tally,
 ) -> u64 {
-    let mut films: Vec<LocalFilm> = group.iter().map(|t| LocalFilm::new(t.film, tile)).collect();
+    let mut films: Vec<LocalFilm> = group
+        .iter()
+        .map(|t| LocalFilm::new(t.film, block))
+        .collect();
     let mut scratch = Scratch {
         pixel_areas: group.iter().map(|t| t.cam.pixel_area()).collect(),
         ..Scratch::default()
     };
     let mut bad = 0;
-    for m in 0..group.len() {
-        bad += shade_eye(
-            integrator,
-            p,
-            group,
-            m,
-            tile,
-            g0,
-            counts,
-            &mut films,
-            &mut scratch,
-            tally,
-        );
+    let (x0, y0, x1, y1) = block;
+    for ty in (y0..y1).step_by(TILE as usize) {
+        for tx in (x0..x1).step_by(TILE as usize) {
+            let tile = (tx, ty, (tx + TILE).min(x1), (ty + TILE).min(y1));
+            for m in 0..group.len() {
+                bad += shade_eye(
+                    integrator,
+                    p,
+                    group,
+                    m,
+                    tile,
+                    g0,
+                    counts,
+                    &mut films,
+                    &mut scratch,
+                    tally,
+                );
+            }
+        }
     }
     for f in films {
         f.flush();
@@ -107,6 +136,11 @@ struct Scratch {
     /// direction), row by row.
     pending: Vec<(u32, u32, Sampler, Vec3)>,
     natives: Natives,
+    /// What each hit adds where it lands in each eye, eye by eye (`[k * hits + hi]`): RGB and
+    /// the control variate's weight.
+    splats: Vec<[f32; 4]>,
+    /// Each hit's rounding dither, before the target frame is hashed in.
+    dithers: Vec<Dither>,
 }
 
 /// The native samples of tile `(x0, y0, x1, y1)` of frame `group[m]`, splatted into `films`
@@ -156,6 +190,8 @@ fn shade_eye(
         pixel_areas,
         pending,
         natives,
+        splats,
+        dithers,
     } = scratch;
     hits.clear();
     escapes.clear();
@@ -238,8 +274,16 @@ fn shade_eye(
     films[m].add_counts(landed_native, 0, 0);
     eyes.clear();
     eyes.resize(n_f, EyeTerms::new(Vec3::ZERO, 0.0, 0.0));
+    // First what every hit is worth in every eye that sees it, hit by hit (the weights need
+    // all the eyes of a hit at once), then the splats eye by eye: one frame's window at a time,
+    // in the tile's pixel order, so that consecutive splats fall on neighbouring pixels of one
+    // window, which stays in cache, where hit by hit they went to every window of the group in
+    // turn. The sums are integers, so the order does not change a bit.
+    let nh = hits.len();
+    splats.clear();
+    splats.resize(nh * n_f, [0.0; 4]);
+    dithers.clear();
     for (hi, (pixel, index, fh)) in hits.iter().enumerate() {
-        let x = fh.sp.p;
         // Each field written in place: a whole `EyeTerms` built aside and copied in is read
         // back wider than it was written, which stalls the store buffer (a third of this
         // loop's time in `perf`).
@@ -259,39 +303,46 @@ fn shade_eye(
                 }
             }
         }
-        let sample_dither = Dither::of(p.seed, native_frame, *pixel, *index);
+        dithers.push(Dither::of(p.seed, native_frame, *pixel, *index));
         let weighing = Weighing::new(weights, fh, eyes, spp);
+        // The sample's weight in eye k, `(J_k / A_pix,k) / sum_k' D_k'` (the control
+        // variate's; NaN where there is none, which would quantise to nothing).
+        let d = weighing.denominators().emit;
         for (k, t) in group.iter().enumerate() {
+            if land[hi * n_f + k].is_some() {
+                let v = weighing.value(t.cam.eye, &eyes[k]);
+                let w = if cv && d > 0.0 {
+                    eyes[k].j_over_a / d
+                } else {
+                    f32::NAN
+                };
+                splats[k * nh + hi] = [v.x, v.y, v.z, w];
+            }
+        }
+    }
+    for (k, (t, film)) in group.iter().zip(films.iter_mut()).enumerate() {
+        let frame = t.film.frame();
+        let splats = &splats[k * nh..(k + 1) * nh];
+        for (hi, ((_, index, fh), &[x, y, z, w])) in hits.iter().zip(splats).enumerate() {
             let Some(i) = land[hi * n_f + k] else {
                 if k != m {
-                    films[k].add_counts(0, 1, 1);
+                    film.add_counts(0, 1, 1);
                     // Only reuses lost to occlusion fall on a pixel of the target.
                     if t.film.layout.loss {
-                        if let Some(i) = t.cam.pixel_of(x) {
-                            films[k].try_reuse(i as usize, true);
+                        if let Some(i) = t.cam.pixel_of(fh.sp.p) {
+                            film.try_reuse(i as usize, true);
                         }
                     }
                 }
                 continue;
             };
-            let i = i as usize;
             if k != m {
-                films[k].add_counts(1, 1, 0);
-                films[k].land(i, 1);
-                films[k].try_reuse(i, false);
+                film.add_counts(1, 1, 0);
             }
-            let v = weighing.value(t.cam.eye, &eyes[k]);
-            let dither = sample_dither.to(t.film.frame());
+            let dither = dithers[hi].to(frame);
             let fold = t.fold(g0, index - first_index);
-            if !films[k].splat(i, fold, v, dither) {
+            if !film.reuse(i as usize, fold, Vec3::new(x, y, z), w, dither, k != m) {
                 bad += 1;
-            }
-            if cv {
-                // The sample's weight in eye k, `(J_k / A_pix,k) / sum_k' D_k'`.
-                let d = weighing.denominators().emit;
-                if d > 0.0 {
-                    films[k].splat_weight(i, fold, eyes[k].j_over_a / d, mix64(dither));
-                }
             }
         }
     }
@@ -331,13 +382,14 @@ const BATCH: usize = (TILE * TILE) as usize;
 /// Bytes a worker holds for one tile of one frame's native samples, at most `samples` per pixel
 /// (`--spp`, or `n_f` times it with `--adaptive`) in a group of `n_f` frames: every camera
 /// sample before its primary ray, every hit's record, its point and normal in lanes, and its
-/// landing and view terms in each eye, the escapes, and one wavefront batch (for
+/// landing, view terms and splat in each eye, its dither, the escapes, and one wavefront batch (for
 /// `RenderOptions::memory_estimate`).
 pub fn worker_bytes(samples: u32, n_f: u32) -> u64 {
     use std::mem::size_of;
     let per_sample = size_of::<(u32, u32, Sampler, Vec3)>()
         + size_of::<NativeHit>()
-        + n_f as usize * (size_of::<Landing>() + size_of::<EyeView>())
+        + n_f as usize * (size_of::<Landing>() + size_of::<EyeView>() + size_of::<[f32; 4]>())
+        + size_of::<Dither>()
         + HitLanes::bytes_per_hit()
         + size_of::<(u32, u32, Vec3)>();
     let tile = (TILE * TILE) as u64 * samples as u64 * per_sample as u64;
@@ -416,7 +468,7 @@ impl Natives {
 /// The rounding dither of a native sample's splats: a hash of the sample and the target frame,
 /// `mix64(mix64(seed ^ (frame << 32 | pixel)) ^ (index << 32 | target))`, of which the part that
 /// names the sample is hashed once per sample.
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Default)]
 struct Dither(u64);
 
 impl Dither {
