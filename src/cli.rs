@@ -275,6 +275,10 @@ pub struct BenchArgs {
     /// Longest path, in bounces.
     #[arg(long, default_value_t = 16)]
     pub max_depth: u32,
+    /// Timed runs of each kind (the independent render, the bare replay, each speed-up run's
+    /// reuse and independent renders, alternating), whose medians are reported.
+    #[arg(long, default_value_t = 3)]
+    pub repeats: usize,
     /// Write the figures as JSON.
     #[arg(long)]
     pub json: Option<PathBuf>,

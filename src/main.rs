@@ -255,6 +255,7 @@ fn run(cli: Cli) -> Result<()> {
                 speedup_method: a.method,
                 windows: a.windows,
                 max_depth: a.max_depth,
+                repeats: a.repeats,
                 ..Default::default()
             };
             let report = reframe::eval::bench::run(&scene, &opts)?;

@@ -22,10 +22,21 @@ fn bench_writes_the_cost_model_figures() {
         "2",
         "--windows",
         "3,7",
+        "--repeats",
+        "2",
         "--json",
         out.to_str().unwrap(),
     ]);
     let b = json(&out);
+    // Every speed-up run timed twice, the reuse and independent renders alternating.
+    assert_eq!(b["repeats"].as_u64(), Some(2));
+    for r in b["speedup_runs"].as_array().unwrap() {
+        for key in ["reuse_seconds_all", "independent_seconds_all"] {
+            let all = r[key].as_array().unwrap();
+            assert_eq!(all.len(), 2, "{key}");
+            assert!(all.iter().all(|t| t.as_f64().unwrap() > 0.0), "{key}");
+        }
+    }
     for key in ["c_e", "c_l", "c_v_single", "c_v_packet", "ratio"] {
         let v = b[key].as_f64().unwrap_or_else(|| panic!("{key} missing"));
         assert!(v.is_finite() && v > 0.0, "{key} = {v}");
@@ -39,6 +50,13 @@ fn bench_writes_the_cost_model_figures() {
         assert!(m.is_finite() && m > 0.0, "measured {m}");
     }
     assert!(b["predicted_speedup"].get("17").is_none());
+    // No timed run at all is refused, in one line.
+    let o = common::reframe(&["bench", "cornell", "--res", "16x16", "--repeats", "0"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("--repeats 0"), "{err}");
 }
 
 #[test]

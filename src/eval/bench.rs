@@ -12,6 +12,9 @@
 //!   the middle frame's primary hits towards the eyes of the frames up to 4 away.
 //! - `c_e` and the two `c_v` are each the median of 5 passes (single rays and packets
 //!   alternating): one pass takes tens of milliseconds and alone moved by up to 2x between runs.
+//!   The independent render behind `c_l` and the ray rate, the bare replay and each speed-up
+//!   run (reuse and independent alternating) are the median of `--repeats` runs (3): single
+//!   runs of one build moved by 10-50% on a shared machine.
 //!
 //! The speed-up (eq. 16, `n_f (c_e + c_l) / ((c_e + c_l) + (n_f - 1) c_v)`) is measured the way
 //! the paper derives it: one group of `n_f` frames around the middle of the animation rendered
@@ -72,6 +75,10 @@ pub struct BenchOptions {
     pub seed: u64,
     /// Longest path, in bounces.
     pub max_depth: u32,
+    /// Timed runs of each kind whose median is reported: the independent render of `c_l` and
+    /// the ratio, the bare replay, and each speed-up run's reuse and independent renders
+    /// (alternating).
+    pub repeats: usize,
 }
 
 impl Default for BenchOptions {
@@ -86,6 +93,7 @@ impl Default for BenchOptions {
             windows: vec![3, 7, 17, 33],
             seed: 1,
             max_depth: 16,
+            repeats: 3,
         }
     }
 }
@@ -96,10 +104,15 @@ pub struct SpeedupRun {
     pub window: u32,
     pub first_frame: u32,
     pub last_frame: u32,
-    /// The independent tracer on the group's frames at `window * speedup_spp` samples per pixel.
+    /// The independent tracer on the group's frames at `window * speedup_spp` samples per pixel
+    /// (the median of `independent_seconds_all`).
     pub independent_seconds: f64,
-    /// The reuse method over the group at `speedup_spp` native samples per pixel.
+    /// The reuse method over the group at `speedup_spp` native samples per pixel (the median of
+    /// `reuse_seconds_all`).
     pub reuse_seconds: f64,
+    /// Every timed run (`--repeats`), reuse and independent alternating.
+    pub independent_seconds_all: Vec<f64>,
+    pub reuse_seconds_all: Vec<f64>,
     pub visibility_tests: u64,
     pub lost_reuse_fraction: f64,
 }
@@ -131,11 +144,15 @@ pub struct BenchReport {
     pub speedup_spp: u32,
     pub speedup_method: Method,
     pub speedup_runs: Vec<SpeedupRun>,
+    /// The timed independent render of `c_l` and `ratio`: the median of `--repeats` runs.
     pub render_seconds: f64,
     pub rays: RayCounts,
     pub render_rays_per_second: f64,
+    /// The replay through bare Embree calls: the median of `--repeats` runs.
     pub bare_seconds: f64,
     pub bare_rays_per_second: f64,
+    /// Timed runs of each kind whose median is reported.
+    pub repeats: usize,
     /// Renderer rate over bare Embree rate.
     pub ratio: f64,
     /// The independent tracer on the same frame with its primary rays in 16-wide packets and one
@@ -251,18 +268,26 @@ pub fn measure_costs(
     frame: u32,
     spp: u32,
     seed: u64,
+    repeats: usize,
 ) -> (Costs, FrameResult, f64) {
     let scene = integrator.scene;
     let threads = pool.current_num_threads();
     let (w, h) = (cam.width, cam.height);
     let none = |_: &RayCounts| {};
     let samples = (w * h * spp) as u64;
-    // Warm caches and the allocator, then time the independent tracer: c_e + c_l.
+    // Warm caches and the allocator, then time the independent tracer: c_e + c_l, the median
+    // of `repeats` runs.
     pool.install(|| render_frame_independent(integrator, cam, frame, 1, seed, false, &none));
-    let t0 = Instant::now();
-    let timed =
-        pool.install(|| render_frame_independent(integrator, cam, frame, spp, seed, false, &none));
-    let render_seconds = t0.elapsed().as_secs_f64();
+    let mut timed = None;
+    let render_seconds = median((0..repeats.max(1)).map(|_| {
+        let t0 = Instant::now();
+        let r = pool
+            .install(|| render_frame_independent(integrator, cam, frame, spp, seed, false, &none));
+        let seconds = t0.elapsed().as_secs_f64();
+        timed.get_or_insert(r);
+        seconds
+    }));
+    let timed = timed.expect("at least one timed run");
     let c_el = per_core_ns(render_seconds, threads, samples);
 
     // c_e: the same camera samples, the eye ray and its surface record only. This pass and the
@@ -328,6 +353,9 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     if !opts.speedup_method.reuses() {
         bail!("--method independent: the speed-up runs need a reuse method");
     }
+    if opts.repeats == 0 {
+        bail!("--repeats 0: at least one timed run of each kind is needed");
+    }
     if opts.spp == 0 || opts.speedup_spp == 0 {
         bail!("--spp 0: at least one sample per pixel is needed");
     }
@@ -342,7 +370,8 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     let (spp, seed) = (opts.spp, opts.seed);
     let none = |_: &RayCounts| {};
 
-    let (costs, timed, render_seconds) = measure_costs(&integrator, &pool, &cam, frame, spp, seed);
+    let (costs, timed, render_seconds) =
+        measure_costs(&integrator, &pool, &cam, frame, spp, seed, opts.repeats);
     let Costs {
         c_e,
         c_l,
@@ -368,19 +397,29 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
             progress: false,
             ..RenderOptions::default()
         };
-        let t0 = Instant::now();
-        let mut discard = |_: crate::film::Developed| Ok(());
-        let stats = pool.install(|| render_frames(&integrator, &ropts, &mut discard))?;
-        let reuse_seconds = t0.elapsed().as_secs_f64();
-        let t0 = Instant::now();
-        for f in first..=last {
-            let cam = scene.camera(f, w, h);
-            let spp = n_f * opts.speedup_spp;
-            pool.install(|| {
-                render_frame_independent(&integrator, &cam, f, spp, seed, false, &none)
-            });
+        // The reuse run and the independent one alternate, so that load on the machine hits
+        // both alike; the medians are reported.
+        let (mut reuse_all, mut independent_all) = (Vec::new(), Vec::new());
+        let mut stats = None;
+        for _ in 0..opts.repeats {
+            let t0 = Instant::now();
+            let mut discard = |_: crate::film::Developed| Ok(());
+            let s = pool.install(|| render_frames(&integrator, &ropts, &mut discard))?;
+            reuse_all.push(t0.elapsed().as_secs_f64());
+            stats.get_or_insert(s);
+            let t0 = Instant::now();
+            for f in first..=last {
+                let cam = scene.camera(f, w, h);
+                let spp = n_f * opts.speedup_spp;
+                pool.install(|| {
+                    render_frame_independent(&integrator, &cam, f, spp, seed, false, &none)
+                });
+            }
+            independent_all.push(t0.elapsed().as_secs_f64());
         }
-        let independent_seconds = t0.elapsed().as_secs_f64();
+        let stats = stats.expect("at least one timed run");
+        let reuse_seconds = median(reuse_all.iter().copied());
+        let independent_seconds = median(independent_all.iter().copied());
         let native = (w * h * opts.speedup_spp * n_f) as u64;
         let per_native = per_core_ns(reuse_seconds, threads, native);
         let key = n_f.to_string();
@@ -399,6 +438,8 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
             last_frame: last,
             independent_seconds,
             reuse_seconds,
+            independent_seconds_all: independent_all,
+            reuse_seconds_all: reuse_all,
             visibility_tests: stats.counts.visibility,
             lost_reuse_fraction: stats.lost_reuse_fraction(),
         });
@@ -410,27 +451,29 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
         pool.install(|| render_frame_independent(&integrator, &cam, frame, spp, seed, true, &none));
     debug_assert_eq!(logged.counts, timed.counts);
     let geometry = &scene.geometry;
-    let t1 = Instant::now();
-    let hit_count: u64 = pool.install(|| {
-        logged
-            .ray_logs
-            .par_iter()
-            .map(|log| {
-                let mut hits = 0u64;
-                for (ray, occlusion) in log {
-                    let hit = if *occlusion {
-                        geometry.occluded1(ray)
-                    } else {
-                        geometry.intersect1(ray).is_some()
-                    };
-                    hits += hit as u64;
-                }
-                hits
-            })
-            .sum()
-    });
-    let bare_seconds = t1.elapsed().as_secs_f64();
-    std::hint::black_box(hit_count);
+    let bare_seconds = median((0..opts.repeats).map(|_| {
+        let t1 = Instant::now();
+        let hit_count: u64 = pool.install(|| {
+            logged
+                .ray_logs
+                .par_iter()
+                .map(|log| {
+                    let mut hits = 0u64;
+                    for (ray, occlusion) in log {
+                        let hit = if *occlusion {
+                            geometry.occluded1(ray)
+                        } else {
+                            geometry.intersect1(ray).is_some()
+                        };
+                        hits += hit as u64;
+                    }
+                    hits
+                })
+                .sum()
+        });
+        std::hint::black_box(hit_count);
+        t1.elapsed().as_secs_f64()
+    }));
     // Primary and path rays in packets against single rays, alternating so that load hits all
     // alike.
     let (mut packet_times, mut single_times, mut paths_single_times) =
@@ -476,6 +519,7 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
         render_rays_per_second: render_rate,
         bare_seconds,
         bare_rays_per_second: bare_rate,
+        repeats: opts.repeats,
         ratio: render_rate / bare_rate,
         primary_packet_seconds: median(packet_times.into_iter()),
         primary_single_seconds: median(single_times.into_iter()),

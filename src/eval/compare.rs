@@ -517,7 +517,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
 
     // Cost model: measured on the middle frame, as `reframe bench` does.
     let cam = scene.camera(crop_frame, w, h);
-    let (costs, _, _) = measure_costs(&integrator, &pool, &cam, crop_frame, 2, opts.seed);
+    let (costs, _, _) = measure_costs(&integrator, &pool, &cam, crop_frame, 2, opts.seed, 1);
 
     // Fits and derived figures.
     const INDEPENDENT: Candidate = Candidate::plain(Method::Independent);
