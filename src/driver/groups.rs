@@ -7,7 +7,7 @@
 //! in flight (16 for the methods that average by count, 24 with `--aov`).
 use super::progress_bar;
 use super::run::{Graceful, Run};
-use crate::film::tiles::{tiles, tiles_of};
+use crate::film::tiles::{tiles, tiles_in};
 use crate::film::{develop, FrameAccum, Layout, Sink, View};
 use crate::integrator::{Integrator, RayCounts, Tally};
 use crate::reuse::adaptive::adaptive_counts;
@@ -102,7 +102,7 @@ pub fn run_groups(
     let nonfinite = AtomicU64::new(0);
     let tile_list = tiles(w, h);
     // The reuse kernel's unit of parallel work (`shade_block`); the adaptive pilot's is a tile.
-    let blocks = tiles_of(w, h, block_side(w, h, rayon::current_num_threads()));
+    let blocks = tiles_in((0, 0, w, h), block_side(w, h, rayon::current_num_threads()));
     let mut written = 0;
     let _graceful = Graceful::begin(run);
     for g0 in run.next..=last_group {

@@ -15,9 +15,9 @@ use std::sync::Mutex;
 /// Fixed-point scale of the accumulators: 2^20 steps per unit of (pre-scaled) radiance.
 pub const FIXED: f64 = (1u64 << 20) as f64;
 
-/// `1.5 2^52`: a float between 2^52 and 2^53 whose unit in the last place is 1 (`round_bits`).
+/// `1.5 2^52`: a float between 2^52 and 2^53 whose unit in the last place is 1 (`floor_small`).
 const ROUND: f64 = 6755399441055744.0;
-/// Values below 2^51 in size round through `ROUND` (`round_bits`).
+/// Values below 2^51 in size round through `ROUND` (`floor_small`).
 const LIMIT: f64 = 2251799813685248.0;
 
 /// `floor(x)` for `|x| < 2^51` in plain float arithmetic: `x + 1.5 2^52` rounds `x` to the

@@ -143,18 +143,10 @@ impl<'a> LocalFilm<'a> {
     /// `v` is not finite.
     #[inline]
     pub fn splat(&mut self, i: usize, fold: usize, v: Vec3, dither: u64) -> bool {
-        let Some(l) = self.local(i) else {
-            return self.film.splat(i, fold, v, dither);
-        };
-        let Some(q) = self.film.quantize_rgb(v, dither) else {
-            return false;
-        };
-        let base = self.film.rgb_cell(i, fold);
-        let cell = l * self.cells_px + 3 * fold;
-        for (c, q) in q.into_iter().enumerate() {
-            Self::add(&mut self.cells, cell + c, &self.film.sum, base + c, q);
+        match self.local(i) {
+            Some(l) => self.splat_at(l, i, fold, v, dither),
+            None => self.film.splat(i, fold, v, dither),
         }
-        true
     }
 
     /// One reuse into pixel `i`, which is found in the window once: `splat(i, fold, v,
@@ -175,55 +167,31 @@ impl<'a> LocalFilm<'a> {
                 self.film.land(i, 1);
                 self.film.try_reuse(i, false);
             }
-            let ok = self.film.splat(i, fold, v, dither);
             if !w.is_nan() {
                 self.film.splat_weight(i, fold, w, mix64(dither));
             }
-            return ok;
+            return self.film.splat(i, fold, v, dither);
         };
-        if count && self.counts_px > 0 {
-            let at = l * self.counts_px;
-            let landed = usize::from(self.film.landed.is_some());
-            if landed == 1 {
-                self.counts[at] = self.counts[at].wrapping_add(1);
-            }
-            if self.film.loss.is_some() {
-                self.counts[at + landed] = self.counts[at + landed].wrapping_add(1);
-            }
+        if count {
+            self.land_at(l, 1);
+            self.try_reuse_at(l, false);
         }
-        let cell = l * self.cells_px;
-        if let (Some(ws), false) = (&self.film.weights, w.is_nan()) {
-            let q = FrameAccum::quantize_weight(w, mix64(dither));
-            Self::add(&mut self.cells, cell + self.rgb + fold, ws, 2 * i + fold, q);
+        if !w.is_nan() {
+            self.weight_at(l, i, fold, w, mix64(dither));
         }
-        let Some(q) = self.film.quantize_rgb(v, dither) else {
-            return false;
-        };
-        let base = self.film.rgb_cell(i, fold);
-        for (c, q) in q.into_iter().enumerate() {
-            Self::add(
-                &mut self.cells,
-                cell + 3 * fold + c,
-                &self.film.sum,
-                base + c,
-                q,
-            );
-        }
-        true
+        self.splat_at(l, i, fold, v, dither)
     }
 
     /// As `FrameAccum::splat_weight`.
     #[inline]
     pub fn splat_weight(&mut self, i: usize, fold: usize, w: f32, dither: u64) {
-        let Some(ws) = &self.film.weights else {
+        if self.film.weights.is_none() {
             return;
-        };
-        let Some(l) = self.local(i) else {
-            return self.film.splat_weight(i, fold, w, dither);
-        };
-        let q = FrameAccum::quantize_weight(w, dither);
-        let cell = l * self.cells_px + self.rgb + fold;
-        Self::add(&mut self.cells, cell, ws, 2 * i + fold, q);
+        }
+        match self.local(i) {
+            Some(l) => self.weight_at(l, i, fold, w, dither),
+            None => self.film.splat_weight(i, fold, w, dither),
+        }
     }
 
     /// As `FrameAccum::land`.
@@ -233,10 +201,7 @@ impl<'a> LocalFilm<'a> {
             return;
         }
         match self.local(i) {
-            Some(l) => {
-                let c = &mut self.counts[l * self.counts_px];
-                *c = c.wrapping_add(n);
-            }
+            Some(l) => self.land_at(l, n),
             None => self.film.land(i, n),
         }
     }
@@ -248,12 +213,52 @@ impl<'a> LocalFilm<'a> {
             return;
         }
         match self.local(i) {
-            Some(l) => {
-                let at = l * self.counts_px + usize::from(self.film.landed.is_some());
-                self.counts[at] = self.counts[at].wrapping_add(1);
-                self.counts[at + 1] = self.counts[at + 1].wrapping_add(u32::from(lost));
-            }
+            Some(l) => self.try_reuse_at(l, lost),
             None => self.film.try_reuse(i, lost),
+        }
+    }
+
+    /// `splat` into window pixel `l`, which is frame pixel `i`.
+    #[inline]
+    fn splat_at(&mut self, l: usize, i: usize, fold: usize, v: Vec3, dither: u64) -> bool {
+        let Some(q) = self.film.quantize_rgb(v, dither) else {
+            return false;
+        };
+        let base = self.film.rgb_cell(i, fold);
+        let cell = l * self.cells_px + 3 * fold;
+        for (c, q) in q.into_iter().enumerate() {
+            Self::add(&mut self.cells, cell + c, &self.film.sum, base + c, q);
+        }
+        true
+    }
+
+    /// `splat_weight` into window pixel `l`, which is frame pixel `i` (nothing where the film
+    /// keeps no weights).
+    #[inline]
+    fn weight_at(&mut self, l: usize, i: usize, fold: usize, w: f32, dither: u64) {
+        if let Some(ws) = &self.film.weights {
+            let q = FrameAccum::quantize_weight(w, dither);
+            let cell = l * self.cells_px + self.rgb + fold;
+            Self::add(&mut self.cells, cell, ws, 2 * i + fold, q);
+        }
+    }
+
+    /// `land` in window pixel `l` (nothing where the film keeps no counts).
+    #[inline]
+    fn land_at(&mut self, l: usize, n: u32) {
+        if self.film.landed.is_some() {
+            let c = &mut self.counts[l * self.counts_px];
+            *c = c.wrapping_add(n);
+        }
+    }
+
+    /// `try_reuse` in window pixel `l` (nothing where the film keeps no losses).
+    #[inline]
+    fn try_reuse_at(&mut self, l: usize, lost: bool) {
+        if self.film.loss.is_some() {
+            let at = l * self.counts_px + usize::from(self.film.landed.is_some());
+            self.counts[at] = self.counts[at].wrapping_add(1);
+            self.counts[at + 1] = self.counts[at + 1].wrapping_add(u32::from(lost));
         }
     }
 

@@ -9,15 +9,16 @@ pub type Tile = (u32, u32, u32, u32);
 
 /// The tiles of a `w` x `h` image, row by row.
 pub fn tiles(w: u32, h: u32) -> Vec<Tile> {
-    tiles_of(w, h, TILE)
+    tiles_in((0, 0, w, h), TILE)
 }
 
-/// The tiles of side `side` of a `w` x `h` image, row by row.
-pub fn tiles_of(w: u32, h: u32, side: u32) -> Vec<Tile> {
+/// The tiles of side `side` of the area `(x0, y0, x1, y1)` (an image, or a block of tiles),
+/// row by row; those at its right and bottom edges are cut to it.
+pub fn tiles_in((x0, y0, x1, y1): Tile, side: u32) -> Vec<Tile> {
     let mut v = Vec::new();
-    for y0 in (0..h).step_by(side as usize) {
-        for x0 in (0..w).step_by(side as usize) {
-            v.push((x0, y0, (x0 + side).min(w), (y0 + side).min(h)));
+    for ty in (y0..y1).step_by(side as usize) {
+        for tx in (x0..x1).step_by(side as usize) {
+            v.push((tx, ty, (tx + side).min(x1), (ty + side).min(y1)));
         }
     }
     v

@@ -18,7 +18,7 @@ use super::{Params, Weights};
 use crate::camera::Camera;
 use crate::embree::{Hit, Packet16, Ray};
 use crate::film::local::LocalFilm;
-use crate::film::tiles::{Tile, TILE};
+use crate::film::tiles::{tiles_in, Tile, TILE};
 use crate::film::FrameAccum;
 use crate::integrator::wavefront::Wavefront;
 use crate::integrator::{Integrator, Tally};
@@ -91,24 +91,20 @@ pub fn shade_block(
         ..Scratch::default()
     };
     let mut bad = 0;
-    let (x0, y0, x1, y1) = block;
-    for ty in (y0..y1).step_by(TILE as usize) {
-        for tx in (x0..x1).step_by(TILE as usize) {
-            let tile = (tx, ty, (tx + TILE).min(x1), (ty + TILE).min(y1));
-            for m in 0..group.len() {
-                bad += shade_eye(
-                    integrator,
-                    p,
-                    group,
-                    m,
-                    tile,
-                    g0,
-                    counts,
-                    &mut films,
-                    &mut scratch,
-                    tally,
-                );
-            }
+    for tile in tiles_in(block, TILE) {
+        for m in 0..group.len() {
+            bad += shade_eye(
+                integrator,
+                p,
+                group,
+                m,
+                tile,
+                g0,
+                counts,
+                &mut films,
+                &mut scratch,
+                tally,
+            );
         }
     }
     for f in films {
@@ -279,8 +275,9 @@ fn shade_eye(
     // in the tile's pixel order, so that consecutive splats fall on neighbouring pixels of one
     // window, which stays in cache, where hit by hit they went to every window of the group in
     // turn. The sums are integers, so the order does not change a bit.
+    // (`splats` is written where a hit lands and read only there, so what an earlier tile left
+    // in it needs no clearing.)
     let nh = hits.len();
-    splats.clear();
     splats.resize(nh * n_f, [0.0; 4]);
     dithers.clear();
     for (hi, (pixel, index, fh)) in hits.iter().enumerate() {
@@ -468,7 +465,7 @@ impl Natives {
 /// The rounding dither of a native sample's splats: a hash of the sample and the target frame,
 /// `mix64(mix64(seed ^ (frame << 32 | pixel)) ^ (index << 32 | target))`, of which the part that
 /// names the sample is hashed once per sample.
-#[derive(Clone, Copy, Default)]
+#[derive(Clone, Copy)]
 struct Dither(u64);
 
 impl Dither {
