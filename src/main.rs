@@ -189,6 +189,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Merge(a) => {
+            reframe::driver::options::check_threads(a.threads)?;
             let partials = match a.chunks {
                 Some(0) => bail!("--chunks 0: at least one chunk is needed"),
                 Some(n) => {
@@ -245,6 +246,7 @@ fn run(cli: Cli) -> Result<()> {
             let scene = load(&scene_name, &device, a.strict)?;
             if let Some(p) = &a.json {
                 check_file_target("--json", p)?;
+                reframe::driver::guard::check_outputs([("--json", p.clone())], &scene.inputs)?;
             }
             let opts = reframe::eval::bench::BenchOptions {
                 spp: a.spp,

@@ -84,7 +84,7 @@ pub use crate::util::input::{read_input, read_input_or_missing, InputError, MAX_
 use mesh::Mesh;
 pub use mtl::{MAX_KE, MAX_NS};
 use repairs::{Kind, Repairs};
-use text::{as_text, line_at, quote, MAX_COORD};
+use text::{as_text, fov_fault, line_at, quote, Lines, MAX_COORD};
 
 /// Most frames a scene may have: every frame of the camera path is checked when it loads.
 pub const MAX_FRAMES: u32 = 1_000_000;
@@ -964,7 +964,8 @@ fn check_camera(
     f: &SceneFile,
     read_camera: impl FnOnce(&Spanned<String>, u32) -> Result<Vec<Pose>>,
 ) -> Result<(u32, u32, Cameras)> {
-    let line = |span: Range<usize>| line_at(text.as_bytes(), span.start);
+    let lines = Lines::new(text.as_bytes());
+    let line = |span: Range<usize>| lines.at(span.start);
     let [w, h] = f.resolution.get_ref().0;
     let at = format!("{label}: line {}: resolution", line(f.resolution.span()));
     if w == 0 || h == 0 {
@@ -1048,11 +1049,8 @@ fn check_camera(
             }
         }
         let fov = *k.fov.get_ref();
-        if !(fov > 0.0 && fov < 180.0) {
-            bail!(
-                "{}: fov {fov} must be in (0, 180) degrees",
-                at(k.fov.span())
-            );
+        if let Some(why) = fov_fault(fov) {
+            bail!("{}: {why}", at(k.fov.span()));
         }
         keys.push(Keyframe {
             frame,
@@ -1084,6 +1082,8 @@ fn check_camera(
                  use interpolation = \"linear\"",
                 k.fov
             )
+        } else if let Some(why) = fov_fault(k.fov) {
+            format!("the spline goes to {why}: add a keyframe or use interpolation = \"linear\"")
         } else if coords
             .iter()
             .any(|c| !c.is_finite() || c.abs().max_element() > MAX_COORD)
@@ -1223,19 +1223,22 @@ fn load_objects(
     textures: &mut Option<Textures>,
     repairs: &mut Repairs,
 ) -> Result<Objects> {
-    // The placements of each distinct OBJ, in order of first appearance.
+    // The placements of each distinct OBJ, in order of first appearance (`first`: its group).
+    let lines = Lines::new(text.as_bytes());
     let mut groups: Vec<(PathBuf, String, Vec<glam::DMat4>)> = Vec::new();
+    let mut first: HashMap<PathBuf, usize> = HashMap::new();
     for o in list {
-        let m = o.transform(label, text)?;
+        let m = o.transform(label, &lines)?;
         let path = dir.join(o.obj.get_ref());
-        match groups.iter_mut().find(|g| g.0 == path) {
-            Some(g) => g.2.push(m),
+        match first.get(&path) {
+            Some(&g) => groups[g].2.push(m),
             None => {
                 let at = format!(
                     "{label}: line {}: object '{}'",
-                    line_at(text.as_bytes(), o.obj.span().start),
+                    lines.at(o.obj.span().start),
                     quote(o.obj.get_ref())
                 );
+                first.insert(path.clone(), groups.len());
                 groups.push((path, at, vec![m]));
             }
         }

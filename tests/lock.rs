@@ -4,6 +4,7 @@
 mod common;
 
 use common::{assert_identical, reframe, reframe_ok};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 #[test]
@@ -67,4 +68,111 @@ fn a_second_render_on_the_same_output_is_refused() {
     let mut again = args("c");
     again.push("--resume".into());
     reframe_ok(&again);
+}
+
+/// What the command line names as an output is replaced by a rename, so it must be a regular
+/// file (or new): a FIFO, a device or a symbolic link given as `--stats` is refused before
+/// anything is rendered and left as it was. A lock file planted as a symbolic or hard link to
+/// another file is refused too, and that file keeps its content. `bench --json` never writes
+/// over the scene.
+#[test]
+fn outputs_and_locks_never_replace_or_write_through_what_is_not_theirs() {
+    use std::os::unix::fs::FileTypeExt;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("s.toml");
+    for f in ["s.toml", "s.obj", "s.mtl"] {
+        let from = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/base");
+        std::fs::copy(from.join(f), d.join(f)).unwrap();
+    }
+    let victim = d.join("victim.txt");
+    std::fs::write(&victim, "precious\n").unwrap();
+    let render = |extra: &[&str]| {
+        let mut a: Vec<String> = [
+            "render",
+            scene.to_str().unwrap(),
+            "--spp",
+            "1",
+            "--threads",
+            "1",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        a.extend(extra.iter().map(|s| s.to_string()));
+        reframe(&a).output().unwrap()
+    };
+    let refused = |o: &std::process::Output, want: &str| {
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains(want) && err.trim().lines().count() == 1,
+            "{err}"
+        );
+    };
+    let out = d.join("o/f_####.png");
+    let out = out.to_str().unwrap();
+    // --stats as a FIFO and as a symbolic link to another file.
+    let fifo = d.join("fifo");
+    assert!(Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap()
+        .success());
+    let link = d.join("link.json");
+    std::os::unix::fs::symlink(&victim, &link).unwrap();
+    for (p, what) in [
+        (&fifo, "is a named pipe (FIFO)"),
+        (&link, "is a symbolic link"),
+    ] {
+        refused(
+            &render(&["--out", out, "--stats", p.to_str().unwrap()]),
+            what,
+        );
+    }
+    assert!(std::fs::symlink_metadata(&fifo)
+        .unwrap()
+        .file_type()
+        .is_fifo());
+    assert!(std::fs::symlink_metadata(&link)
+        .unwrap()
+        .file_type()
+        .is_symlink());
+    assert!(
+        !d.join("o").exists(),
+        "a refused render left its output folder"
+    );
+    // A lock file planted as a link to the victim.
+    std::fs::create_dir(d.join("o")).unwrap();
+    let lock = d.join("o/.f.lock");
+    std::os::unix::fs::symlink(&victim, &lock).unwrap();
+    refused(&render(&["--out", out]), "is a symbolic link");
+    std::fs::remove_file(&lock).unwrap();
+    std::fs::hard_link(&victim, &lock).unwrap();
+    refused(&render(&["--out", out]), "(a hard link)");
+    std::fs::remove_file(&lock).unwrap();
+    assert_eq!(std::fs::read_to_string(&victim).unwrap(), "precious\n");
+    // With the lock gone, the same render goes ahead.
+    reframe_ok(&[
+        "render",
+        scene.to_str().unwrap(),
+        "--spp",
+        "1",
+        "--out",
+        out,
+    ]);
+    // bench --json naming the scene.
+    let before = std::fs::read(&scene).unwrap();
+    let o = reframe(&[
+        "bench",
+        scene.to_str().unwrap(),
+        "--res",
+        "8x6",
+        "--json",
+        scene.to_str().unwrap(),
+    ])
+    .output()
+    .unwrap();
+    refused(&o, "that is an input of this command");
+    assert_eq!(std::fs::read(&scene).unwrap(), before);
 }

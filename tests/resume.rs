@@ -104,6 +104,34 @@ fn killed_render_resumes_to_identical_frames() {
         !o.status.success() && err.contains("spp: 3 vs 2") | err.contains("spp: 2 vs 3"),
         "{err}"
     );
+    // A finished frame deleted or damaged since the stop is refused, naming it, and so is a
+    // resume that writes elsewhere (another --out with the same checkpoint).
+    let f0 = killed.join("f_0004.exr");
+    let kept = std::fs::read(&f0).unwrap();
+    for damage in [None, Some(&b"garbage"[..])] {
+        match damage {
+            None => std::fs::remove_file(&f0).unwrap(),
+            Some(b) => std::fs::write(&f0, b).unwrap(),
+        }
+        let o = reframe().args(&args).arg("--resume").output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            o.status.code() == Some(1)
+                && err.contains("frame 4 was finished before the stop")
+                && err.contains(&f0.display().to_string()),
+            "{err}"
+        );
+    }
+    std::fs::write(&f0, kept).unwrap();
+    let mut png = args.clone();
+    let at = png.iter().position(|a| a == "--out").unwrap() + 1;
+    png[at] = format!("{}/killed/f_####.png", d.display());
+    let o = reframe().args(&png).arg("--resume").output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.code() == Some(1) && err.contains("the checkpoint is of --out"),
+        "{err}"
+    );
     let resumed = reframe().args(&args).arg("--resume").output().unwrap();
     assert!(
         resumed.status.success(),
@@ -343,6 +371,19 @@ fn a_killed_chunk_resumes_and_merges_identically() {
     assert!(!o.status.success());
     let mut resume = chunk(1);
     resume.push("--resume".into());
+    // A record the checkpoint counts, damaged in the log since: the resume refuses it (the
+    // frames in the log are not rendered again), and goes ahead once it is whole again.
+    let mut bytes = std::fs::read(&log).unwrap();
+    bytes[1000] ^= 0x40;
+    std::fs::write(&log, &bytes).unwrap();
+    let o = reframe().args(&resume).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.code() == Some(1) && err.contains("at byte 0 is damaged"),
+        "{err}"
+    );
+    bytes[1000] ^= 0x40;
+    std::fs::write(&log, &bytes).unwrap();
     run(&resume.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(!log.exists() && !state.exists());
     run(&[

@@ -26,45 +26,13 @@ residual_noise.py.
 import sys
 
 import numpy as np
-import OpenImageIO as oiio
+
+from frame36 import luminance, read, regions
 
 root = sys.argv[1] if len(sys.argv) > 1 else "lw"
 SEEDS = range(16)
-
-
-def read(path):
-    i = oiio.ImageInput.open(path)
-    spec = i.spec()
-    a = np.asarray(i.read_image(format="float"))
-    names = list(spec.channelnames)
-    i.close()
-    return a.reshape(spec.height, spec.width, len(names)), names
-
-
-def luminance(a):
-    return a[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
-
-
 ref = luminance(read(f"{root}/ref_0036.exr")[0])
-gy, gx = np.gradient(ref)
-grad = np.hypot(gx, gy) / (ref + 0.05)
-edge = grad > np.quantile(grad, 0.93)
-
-
-def box(x0, y0, x1, y1):
-    m = np.zeros(ref.shape, bool)
-    m[y0:y1, x0:x1] = True
-    return m & ~edge
-
-
-regions = {
-    "back wall": box(10, 5, 310, 60),
-    "glossy vase": box(145, 95, 176, 145),
-    "floor in the shadow of the table": box(60, 200, 260, 236),
-    "table top": box(180, 158, 262, 178),
-    "silhouettes and edges": edge,
-    "whole frame": np.ones(ref.shape, bool),
-}
+regions = regions(ref)
 
 
 def per_sample(tag, spp=None):

@@ -2,10 +2,11 @@
 //! exclusive advisory lock, `flock` through `std::fs::File::try_lock`, released by the kernel
 //! when its holder dies, so no stale lock survives a SIGKILL), and inputs that are never outputs.
 use crate::util::fs::{parent_dir, Temporary};
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
+use std::collections::HashMap;
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Seek, Write};
-use std::os::unix::fs::MetadataExt;
+use std::os::unix::fs::{MetadataExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 
 /// An exclusive lock on a lock file, held until dropped; the file (which holds the holder's pid)
@@ -22,13 +23,41 @@ impl OutputLock {
     /// process that holds it.
     pub fn acquire(path: &Path, what: &str) -> Result<OutputLock> {
         loop {
+            // Never through a symbolic link, never blocking on a FIFO, and only a regular file
+            // of one name: a lock file planted as a link to another file (or a hard link of
+            // one) would have that file's content replaced by a pid.
             let mut f = OpenOptions::new()
                 .read(true)
                 .write(true)
                 .create(true)
                 .truncate(false)
+                .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
                 .open(path)
-                .with_context(|| format!("creating the lock file {}", path.display()))?;
+                .map_err(|e| {
+                    if e.raw_os_error() == Some(libc::ELOOP) {
+                        anyhow!(
+                            "the lock file {} is a symbolic link; remove it (reframe makes its \
+                             own) and run again",
+                            path.display()
+                        )
+                    } else {
+                        anyhow!("creating the lock file {}: {e}", path.display())
+                    }
+                })?;
+            let meta = f
+                .metadata()
+                .with_context(|| format!("the lock file {}", path.display()))?;
+            if !meta.is_file() || meta.nlink() != 1 {
+                bail!(
+                    "the lock file {} is {}; remove it (reframe makes its own) and run again",
+                    path.display(),
+                    if meta.is_file() {
+                        "a file with other names (a hard link)"
+                    } else {
+                        "not a regular file"
+                    }
+                );
+            }
             if f.try_lock().is_err() {
                 let mut pid = String::new();
                 let _ = f.read_to_string(&mut pid);
@@ -83,8 +112,11 @@ fn resolved(p: &Path) -> Option<PathBuf> {
     Some(dir.join(p.file_name()?))
 }
 
-/// Refuse any output (`flag`, the path) that resolves to one of `inputs`.
-pub fn check_not_inputs<'a>(
+/// Refuse, before anything is written, any output of a command (`flag`, the path) that
+/// resolves to one of its `inputs`, that resolves to another of its outputs (`--stats` naming a
+/// frame, say), or that exists as anything but a regular file (`check_replaceable`: a device,
+/// a FIFO or a symbolic link would be replaced, not written through).
+pub fn check_outputs<'a>(
     outputs: impl IntoIterator<Item = (&'a str, PathBuf)>,
     inputs: &[PathBuf],
 ) -> Result<()> {
@@ -92,10 +124,10 @@ pub fn check_not_inputs<'a>(
         .iter()
         .filter_map(|p| Some((p.canonicalize().ok()?, p)))
         .collect();
-    if inputs.is_empty() {
-        return Ok(());
-    }
+    let mut seen: HashMap<PathBuf, (&str, PathBuf)> = HashMap::new();
     for (flag, out) in outputs {
+        crate::util::fs::check_replaceable(&out)
+            .map_err(|e| anyhow!("{flag} {e}; nothing was written"))?;
         let Some(r) = resolved(&out) else { continue };
         if let Some((_, input)) = inputs.iter().find(|(c, _)| *c == r) {
             bail!(
@@ -104,6 +136,15 @@ pub fn check_not_inputs<'a>(
                 input.display()
             );
         }
+        if let Some((other_flag, other)) = seen.get(&r) {
+            bail!(
+                "{flag} {}: that is also where {other_flag} {} goes; one of them would \
+                 overwrite the other, so nothing was written",
+                out.display(),
+                other.display()
+            );
+        }
+        seen.insert(r, (flag, out));
     }
     Ok(())
 }

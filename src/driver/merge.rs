@@ -170,7 +170,7 @@ pub fn merge(
         .clone()
         .map(|f| ("--out", out.path(f)))
         .chain([("--out", lock.clone())]);
-    super::guard::check_not_inputs(outputs, &inputs)?;
+    super::guard::check_outputs(outputs, &inputs)?;
     let _lock = super::guard::OutputLock::acquire(&lock, pattern)?;
     // Where each frame's shares are: frame -> (file, offset).
     let mut shares: BTreeMap<u32, Vec<(usize, u64)>> = BTreeMap::new();

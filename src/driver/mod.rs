@@ -33,6 +33,7 @@ pub use run::Interrupted;
 pub use stats::RenderStats;
 
 use crate::film::{FrameAccum, Sink};
+use crate::image::OutputPattern;
 use crate::integrator::Integrator;
 use crate::reuse::Params;
 use crate::scene::Scene;
@@ -40,7 +41,7 @@ use crate::state::checkpoint::{Checkpointer, Counters};
 use crate::state::key::{output_stem, partial_path, scene_and_build_hashes, Chunk, RunKey};
 use crate::state::Trailer;
 use crate::util::fs::{parent_dir, remove_stale_tmp, write_json};
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use groups::{run_groups, GroupSettings};
 use indicatif::{ProgressBar, ProgressStyle};
 use run::Run;
@@ -58,6 +59,40 @@ pub fn lock_path(pattern: &str, chunk: Option<Chunk>) -> PathBuf {
 }
 
 /// A rayon pool whose workers set FTZ/DAZ, as Embree asks of every tracing thread.
+/// A resumed render's outputs must be where its checkpoint left them: the same `--out`, and
+/// every frame it finished (the first `next_unit - first unit` frames of the plan; a chunk's are
+/// in its log) still there and readable. A frame deleted or damaged since would otherwise be
+/// reported as written.
+fn check_resumed_outputs(
+    t: &Trailer,
+    opts: &RenderOptions,
+    plan: &Plan,
+    out: &OutputPattern,
+) -> Result<()> {
+    if t.out != opts.out {
+        bail!(
+            "--resume: the checkpoint is of --out {}, not {}; resume with the same --out",
+            t.out,
+            opts.out
+        );
+    }
+    if opts.chunk.is_some() {
+        return Ok(());
+    }
+    let done = t.next_unit.saturating_sub(*plan.units.start()) as usize;
+    for f in plan.frames.clone().take(done) {
+        let p = out.path(f);
+        if let Err(e) = crate::image::read_metadata(&p) {
+            bail!(
+                "--resume: frame {f} was finished before the stop, but {} cannot be read ({e:#}); \
+                 delete the checkpoint folder to render every frame again",
+                p.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
     options::check_threads(threads)?;
     rayon::ThreadPoolBuilder::new()
@@ -200,7 +235,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
             .map(|d| ("--checkpoint", d.join("state"))),
     );
     outputs.push(("--out", lock.clone()));
-    guard::check_not_inputs(outputs, &scene.inputs)?;
+    guard::check_outputs(outputs, &scene.inputs)?;
     let _lock = guard::OutputLock::acquire(&lock, &opts.out)?;
     let (ckpt, resumed) = if opts.checkpoint.is_some() || opts.chunk.is_some() {
         let key = run_key(scene, opts, &plan)?;
@@ -226,6 +261,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     created.keep();
     let (counters, next, active) = match resumed {
         Some(r) => {
+            check_resumed_outputs(&r.trailer, opts, &plan, &out)?;
             // Frame files a killed process was writing when it died.
             let names: Vec<String> = plan
                 .frames

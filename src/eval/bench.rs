@@ -36,7 +36,7 @@
 //! # anyhow::Ok(())
 //! ```
 use crate::camera::Camera;
-use crate::driver::options::{check_max_depth, check_resolution};
+use crate::driver::options::{check_max_depth, check_resolution, check_spp};
 use crate::driver::{
     render_frame_independent, render_frames, thread_pool, FrameResult, RenderOptions,
 };
@@ -340,6 +340,10 @@ fn per_core_ns(seconds: f64, threads: usize, items: u64) -> f64 {
     seconds * threads as f64 / items.max(1) as f64 * 1e9
 }
 
+/// The most timed runs of each kind `--repeats` may ask for (a median of 101 is already far
+/// steadier than this machine's noise; more is a typo, and each run can take seconds).
+pub const MAX_REPEATS: usize = 101;
+
 pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     let (w, h) = opts.res.unwrap_or((scene.width, scene.height));
     check_resolution((w, h))?;
@@ -356,11 +360,22 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     if opts.repeats == 0 {
         bail!("--repeats 0: at least one timed run of each kind is needed");
     }
-    if opts.spp == 0 || opts.speedup_spp == 0 {
-        bail!("--spp 0: at least one sample per pixel is needed");
+    if opts.repeats > MAX_REPEATS {
+        bail!(
+            "--repeats {}: at most {MAX_REPEATS} timed runs of each kind",
+            opts.repeats
+        );
     }
+    check_spp("--spp", opts.spp)?;
+    check_spp("--speedup-spp", opts.speedup_spp)?;
     if let Some(&n) = opts.windows.iter().find(|&&n| n < 3 || n % 2 == 0) {
         bail!("window {n}: a reuse group is an odd number of frames, at least 3");
+    }
+    if let Some(&n) = opts.windows.iter().find(|&&n| n > scene.frames) {
+        bail!(
+            "--windows {n}: a group of {n} frames does not fit the scene's {} frames",
+            scene.frames
+        );
     }
     let pool = thread_pool(opts.threads)?;
     let threads = pool.current_num_threads();

@@ -8,7 +8,7 @@ use super::errors::{
 };
 use super::reference::{reference, PASSES};
 use crate::driver::denoise::{denoise_frame, Layers};
-use crate::driver::guard::{check_not_inputs, OutputLock};
+use crate::driver::guard::{check_outputs, OutputLock};
 use crate::driver::options::{check_max_depth, check_resolution, check_spp, check_threads};
 use crate::driver::{check_frames, progress_bar, render_frames, thread_pool, RenderOptions};
 use crate::film::Developed;
@@ -284,8 +284,11 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     check_resolution((w, h))?;
     check_max_depth(opts.max_depth)?;
     let n_frames = last - first + 1;
-    for &b in opts.budgets.iter().chain(&opts.reuse_budgets) {
+    for &b in &opts.budgets {
         check_spp("--budgets", b)?;
+    }
+    for &b in &opts.reuse_budgets {
+        check_spp("--reuse-budgets", b)?;
     }
     check_threads(opts.threads)?;
     if opts.budgets.contains(&0) || opts.reuse_budgets.contains(&0) {
@@ -348,7 +351,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         .iter()
         .map(|c| format!("bias_{}.exr", c.name()))
         .collect();
-    check_not_inputs(
+    check_outputs(
         written
             .iter()
             .copied()

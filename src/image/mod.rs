@@ -317,6 +317,7 @@ pub fn write_image(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOption
 
 fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOptions) -> Result<()> {
     img.check()?;
+    crate::util::fs::check_replaceable(path)?;
     let kind = FileKind::of(path)?;
     let name = path
         .file_name()

@@ -77,7 +77,9 @@ pub struct DenoiseInput<'a> {
 
 fn candidates() -> Vec<PathBuf> {
     let mut c = Vec::new();
-    if let Some(p) = std::env::var_os("REFRAME_OIDN_LIB") {
+    // Set but empty counts as unset: an empty name would make the loader return the program
+    // itself.
+    if let Some(p) = std::env::var_os("REFRAME_OIDN_LIB").filter(|p| !p.is_empty()) {
         c.push(PathBuf::from(p));
         return c;
     }
@@ -94,10 +96,17 @@ impl Denoiser {
         let mut tried = Vec::new();
         let mut found = None;
         for path in candidates() {
-            // A bare name goes to the system's loader; a path must exist.
-            if path.components().count() > 1 && !path.exists() {
-                tried.push(format!("{}: no such file", path.display()));
-                continue;
+            // A bare name goes to the system's loader; a path must be a file (the loader would
+            // wait forever on a FIFO, and read a device).
+            if path.components().count() > 1 {
+                if !path.exists() {
+                    tried.push(format!("{}: no such file", path.display()));
+                    continue;
+                }
+                if !path.is_file() {
+                    tried.push(format!("{}: not a regular file", path.display()));
+                    continue;
+                }
             }
             // SAFETY: loading OIDN runs its initialisers, which only register its devices.
             match unsafe { Library::new(&path) } {

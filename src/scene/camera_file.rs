@@ -15,7 +15,7 @@
 //! read as f32 like any coordinate.
 //!
 //! Every refusal is one line naming the file, the line and the frame (for JSON also the entry).
-use super::text::{line_at, quote, MAX_COORD};
+use super::text::{fov_fault, line_at, quote, Lines, MAX_COORD};
 use crate::camera::Pose;
 use anyhow::{anyhow, bail, Result};
 use serde::Deserialize;
@@ -119,8 +119,8 @@ pub fn parse(label: &str, bytes: &[u8], format: Format, frames: u32) -> Result<V
 /// The checked pose of an entry, or why it is refused.
 fn pose(e: &Entry) -> Result<Pose, String> {
     let fov = e.fov;
-    if !(fov > 0.0 && fov < 180.0) {
-        return Err(format!("fov {fov} must be in (0, 180) degrees"));
+    if let Some(why) = fov_fault(fov) {
+        return Err(why);
     }
     let pose = match &e.form {
         Form::LookAt {
@@ -309,10 +309,11 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
         anyhow!("{label}: line {}: {}{hint}", e.line(), json_message(&e))
     })?;
     let mut entries = Vec::with_capacity(file.frames.len());
+    let lines = Lines::new(text.as_bytes());
     for (i, raw) in file.frames.iter().enumerate() {
         // The entry's place in the file: `raw` borrows from `text`.
         let offset = raw.get().as_ptr() as usize - text.as_ptr() as usize;
-        let line = line_at(text.as_bytes(), offset);
+        let line = lines.at(offset);
         let at = format!("line {line} (entry {})", i + 1);
         let e: JsonEntry = serde_json::from_str(raw.get()).map_err(|e| {
             anyhow!(

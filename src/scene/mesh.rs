@@ -164,7 +164,20 @@ pub fn build(
             let cr = (b - a).cross(c - a);
             let len = cr.length();
             let scale = (b - a).length_squared().max((c - a).length_squared());
-            if !len.is_finite() || len <= 1e-7 * scale {
+            // Corners may be up to the 1e18 the scene allows, where the f32 cross product's
+            // length overflows (from edges of about 4e9 on: a floor 1e10 wide would be "zero
+            // area"): such a triangle is measured in f64, whose normal and area fit f32.
+            let (n, len, degenerate) = if len.is_finite() && scale.is_finite() {
+                (cr / len, len, len <= 1e-7 * scale)
+            } else {
+                let [a, b, c] = [a, b, c].map(|p| p.as_dvec3());
+                let cr = (b - a).cross(c - a);
+                let len = cr.length();
+                let scale = (b - a).length_squared().max((c - a).length_squared());
+                let ok = len.is_finite() && len > 1e-7 * scale;
+                ((cr / len).as_vec3(), len as f32, !ok)
+            };
+            if degenerate {
                 skipped += 1;
                 if first_skipped == 0 {
                     first_skipped = f.line;
@@ -174,7 +187,7 @@ pub fn build(
             }
             mesh.triangles.push(tri);
             mesh.tri_material.push(mat);
-            mesh.tri_normal.push(cr / len);
+            mesh.tri_normal.push(n);
             mesh.tri_area.push(0.5 * len);
         }
     }

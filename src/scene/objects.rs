@@ -19,7 +19,7 @@
 //! instanced, because light sampling picks points of the lights in world space.
 use super::maps::Maps;
 use super::mesh::Mesh;
-use super::text::{line_at, MAX_COORD};
+use super::text::{Lines, MAX_COORD};
 use anyhow::{bail, Result};
 use glam::{DMat3, DMat4, DVec3, Mat3, Mat4, Vec2, Vec3};
 use serde::Deserialize;
@@ -46,9 +46,9 @@ enum Scale {
 impl ObjectFile {
     /// The object-to-world transform, checked: finite, within `MAX_COORD`, invertible (a
     /// volume of its unit-scaled axes above 1e-9: a flattened object has no inside to shade).
-    /// `label` and `text` are the scene file's, for the line in errors.
-    pub fn transform(&self, label: &str, text: &str) -> Result<DMat4> {
-        let line = |start: usize| line_at(text.as_bytes(), start);
+    /// `label` and `lines` are the scene file's, for the line in errors.
+    pub fn transform(&self, label: &str, lines: &Lines) -> Result<DMat4> {
+        let line = |start: usize| lines.at(start);
         let at = format!(
             "{label}: line {}: object '{}'",
             line(self.obj.span().start),
@@ -286,7 +286,7 @@ mod tests {
         let parse = |s: &str| -> Result<DMat4> {
             let text = format!("obj = \"a.obj\"\n{s}\n");
             let o: ObjectFile = toml::from_str(&text).unwrap();
-            o.transform("s.toml", &text)
+            o.transform("s.toml", &Lines::new(text.as_bytes()))
         };
         // Scale x by 2, turn 90 degrees about Y (x -> -z), move up 1.
         let m = parse("scale = [2.0, 1.0, 1.0]\nrotate = [0.0, 90.0, 0.0]\ntranslate = [0, 1, 0]")

@@ -10,6 +10,25 @@ use std::borrow::Cow;
 /// squared distances) must stay finite in f32, and 4 * (2e18)^2 < 3.4e38.
 pub const MAX_COORD: f32 = 1e18;
 
+/// The narrowest field of view a camera may have, in degrees (3.6 arcseconds, far narrower than
+/// any lens): below about 1e-20 degrees a pixel's film area underflows f32 and the reuse
+/// methods' film Jacobians come out infinite (every frame black).
+pub const MIN_FOV: f32 = 1e-3;
+
+/// Why a vertical field of view (degrees) is refused, if it is.
+pub fn fov_fault(fov: f32) -> Option<String> {
+    if !(fov > 0.0 && fov < 180.0) {
+        Some(format!("fov {fov} must be in (0, 180) degrees"))
+    } else if fov < MIN_FOV {
+        Some(format!(
+            "fov {fov:e} is narrower than {MIN_FOV} degrees, which no lens is (the film area of a \
+             pixel would underflow)"
+        ))
+    } else {
+        None
+    }
+}
+
 /// `bytes` as text, or an error naming the line of the first byte that is not text.
 pub fn as_text(bytes: &[u8]) -> Result<&str> {
     let text = std::str::from_utf8(bytes).map_err(|e| {
@@ -119,6 +138,30 @@ pub fn quote_line(bytes: &[u8], n: usize) -> String {
     format!("'{}'", quote(&String::from_utf8_lossy(line.unwrap_or(b""))))
 }
 
+/// The line numbers of byte offsets in one text, each found by a binary search over the
+/// text's line starts: a loader that names the line of every entry (a camera file's 30000
+/// frames, a scene's `[[object]]` tables) would scan the text from the start for each with
+/// `line_at`, which is quadratic in the entries.
+pub struct Lines(Vec<usize>);
+
+impl Lines {
+    pub fn new(bytes: &[u8]) -> Lines {
+        Lines(
+            bytes
+                .iter()
+                .enumerate()
+                .filter(|(_, &b)| b == b'\n')
+                .map(|(i, _)| i)
+                .collect(),
+        )
+    }
+
+    /// The 1-based line of byte `offset` (`line_at(bytes, offset)`).
+    pub fn at(&self, offset: usize) -> usize {
+        self.0.partition_point(|&nl| nl < offset) + 1
+    }
+}
+
 /// 1-based line of the byte at `offset`.
 pub fn line_at(bytes: &[u8], offset: usize) -> usize {
     let offset = offset.min(bytes.len());
@@ -137,6 +180,20 @@ pub fn quote(line: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn lines_finds_what_line_at_finds() {
+        for text in [&b""[..], b"\n", b"a", b"a\nbc\n\nd", b"\n\nx\ny\n"] {
+            let lines = Lines::new(text);
+            for offset in 0..=text.len() + 2 {
+                assert_eq!(
+                    lines.at(offset),
+                    line_at(text, offset),
+                    "{text:?} at {offset}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn text_names_the_line_of_binary_data() {

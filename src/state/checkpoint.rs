@@ -12,16 +12,16 @@
 //! `DIR/NAME.chunk-K-of-N.partial` (`key`). A render that finishes removes its checkpoint.
 use super::key::{partial_path, RunKey};
 use super::{
-    accum_bytes, pixels_bytes, write_accum, write_pixels, write_state, write_trailer, Kind, Record,
-    StateFile, Trailer,
+    accum_bytes, pixels_bytes, read_record, write_accum, write_pixels, write_state, write_trailer,
+    Kind, Record, StateFile, Trailer,
 };
 use crate::film::{FrameAccum, FrameReuse, Norm};
 use crate::integrator::RayCounts;
 use crate::util::fs::{check_writable_dir, remove_stale_tmp};
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use serde::{Deserialize, Serialize};
 use std::fs::{File, OpenOptions};
-use std::io::{BufWriter, Seek, SeekFrom};
+use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -87,6 +87,33 @@ pub struct Checkpointer {
     /// Time spent writing checkpoints, for the statistics.
     pub spent: Duration,
     pub written: u32,
+}
+
+/// Read back every record of a chunk's log that a checkpoint counts (`recs`: frame and offset,
+/// in file order; the last ends at `len`): each must pass its checksum and be of its frame.
+fn check_log(lp: &Path, recs: &[(u32, u64)], len: u64, norm: Norm) -> Result<()> {
+    if recs.is_empty() {
+        return Ok(());
+    }
+    let mut r =
+        BufReader::new(File::open(lp).with_context(|| format!("opening {}", lp.display()))?);
+    for (k, &(frame, off)) in recs.iter().enumerate() {
+        let end = recs.get(k + 1).map_or(len, |n| n.1);
+        let damaged = |why: String| {
+            anyhow!(
+                "{}: the record of frame {frame} at byte {off} is damaged ({why}); delete the \
+                 checkpoint and the log to start the chunk over",
+                lp.display()
+            )
+        };
+        r.seek(SeekFrom::Start(off))?;
+        let rec = read_record(&mut (&mut r).take(end.saturating_sub(off)), norm, end - off)
+            .map_err(|e| damaged(e.to_string()))?;
+        if rec.frame() != frame {
+            return Err(damaged(format!("it holds frame {}", rec.frame())));
+        }
+    }
+    Ok(())
 }
 
 impl Checkpointer {
@@ -194,6 +221,10 @@ impl Checkpointer {
                 if f.metadata()?.len() < len {
                     bail!("{}: shorter than its checkpoint says; delete the checkpoint and the log to start the chunk over", lp.display());
                 }
+                // The frames the log holds are not rendered again: each must read back whole
+                // (its checksum), or the chunk would finish on a damaged record that only
+                // `merge` would find.
+                check_log(&lp, &recs, len, norm)?;
                 f.set_len(len)?;
                 let mut f = f;
                 f.seek(SeekFrom::Start(len))?;

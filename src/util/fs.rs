@@ -156,11 +156,40 @@ pub fn remove_stale_tmp(dir: &Path, ours: impl Fn(&str) -> bool) {
     }
 }
 
-/// Write a file atomically: a temporary name in the same folder, then a rename.
+/// Fail if `p` exists as anything but a regular file. Outputs are written under a temporary name
+/// and renamed into place, and a rename replaces what is there: a device (`/dev/null`), a FIFO,
+/// a socket or a symbolic link would be replaced by a plain file, not written through.
+pub fn check_replaceable(p: &Path) -> Result<()> {
+    let Ok(m) = std::fs::symlink_metadata(p) else {
+        return Ok(());
+    };
+    let t = m.file_type();
+    if t.is_file() {
+        return Ok(());
+    }
+    let what = if t.is_symlink() {
+        "a symbolic link"
+    } else {
+        super::input::kind(t)
+    };
+    anyhow::bail!(
+        "{} is {what}: reframe writes a new file and renames it into place, which would replace \
+         it, not write through it",
+        p.display()
+    )
+}
+
+/// Write a file atomically: a temporary name in the same folder, then a rename (never over
+/// anything but a regular file, `check_replaceable`). The temporary file is removed if either
+/// step fails.
 pub fn write_atomic(p: &Path, bytes: &[u8]) -> Result<()> {
+    check_replaceable(p)?;
     let tmp = tmp_name(p);
     let _live = Temporary::new(&tmp);
-    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
+    if let Err(e) = std::fs::write(&tmp, bytes) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e).with_context(|| format!("writing {}", tmp.display()));
+    }
     std::fs::rename(&tmp, p).with_context(|| {
         let _ = std::fs::remove_file(&tmp);
         format!("renaming {} to {}", tmp.display(), p.display())
@@ -178,6 +207,7 @@ pub fn check_file_target(flag: &str, p: &Path) -> Result<()> {
     if p.is_dir() {
         anyhow::bail!("{flag} {}: that is a folder, not a file", p.display());
     }
+    check_replaceable(p).map_err(|e| anyhow!("{flag} {e}; name a regular file or a new one"))?;
     let dir = parent_dir(p);
     if !dir.is_dir() {
         anyhow::bail!(

@@ -49,8 +49,8 @@ impl std::fmt::Display for InputError {
 
 impl std::error::Error for InputError {}
 
-/// What a file of type `t` is, in words.
-fn kind(t: FileType) -> &'static str {
+/// What a file of type `t` is, in words (for anything but a regular file).
+pub fn kind(t: FileType) -> &'static str {
     if t.is_dir() {
         "a directory"
     } else if t.is_fifo() {

@@ -24,8 +24,25 @@ fn proc_status_bytes(key: &str) -> u64 {
         .map_or(0, |kb| kb * 1024)
 }
 
+/// The soft limit on this process's address space (`ulimit -v`, `RLIMIT_AS`) less the address
+/// space it already maps (`VmSize`); `None` where there is no limit.
+fn address_space_left() -> Option<u64> {
+    let limits = std::fs::read_to_string("/proc/self/limits").ok()?;
+    // "Max address space    unlimited    unlimited    bytes"
+    let soft = limits
+        .lines()
+        .find(|l| l.starts_with("Max address space"))?
+        .trim_start_matches("Max address space")
+        .split_whitespace()
+        .next()?
+        .parse::<u64>()
+        .ok()?;
+    Some(soft.saturating_sub(proc_status_bytes("VmSize:")))
+}
+
 /// Memory this process can still take: `MemAvailable` of `/proc/meminfo`, or less where the
-/// cgroup (v2) limit `memory.max` minus `memory.current` is lower. `None` where neither is known.
+/// cgroup (v2) limit `memory.max` minus `memory.current`, or the address space left under
+/// `ulimit -v`, is lower. `None` where none is known.
 pub fn available_bytes() -> Option<u64> {
     let meminfo = std::fs::read_to_string("/proc/meminfo").ok().and_then(|s| {
         s.lines()
@@ -42,10 +59,10 @@ pub fn available_bytes() -> Option<u64> {
     // "max" (no limit) does not parse: no cgroup bound.
     let cgroup =
         read("memory.max").map(|max| max.saturating_sub(read("memory.current").unwrap_or(0)));
-    match (meminfo, cgroup) {
-        (Some(a), Some(b)) => Some(a.min(b)),
-        (a, b) => a.or(b),
-    }
+    [meminfo, cgroup, address_space_left()]
+        .into_iter()
+        .flatten()
+        .min()
 }
 
 #[cfg(test)]
