@@ -109,7 +109,7 @@ fn install_signal_handler() -> Result<Arc<AtomicBool>> {
             return;
         }
         if again {
-            eprintln!("\nstopping now; the last checkpoint is kept");
+            eprintln!("\nstopping now; a checkpoint already written is kept");
         } else {
             eprintln!("\ninterrupted: stopped at once; nothing is left half-written");
         }

@@ -472,7 +472,7 @@ impl Scene {
                 let obj_at = format!(
                     "{label}: line {}: obj '{}'",
                     line_at(toml_text.as_bytes(), obj.span().start),
-                    obj.get_ref()
+                    quote(obj.get_ref())
                 );
                 let (obj_label, obj_bytes, files) = match &source {
                     Source::Files { toml } => {

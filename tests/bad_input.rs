@@ -57,9 +57,13 @@ fn corpus() -> PathBuf {
 fn stage(case: &Path, m: &Manifest, dir: &Path) -> Vec<String> {
     for from in [corpus().join("base"), case.to_path_buf()] {
         for f in files_under(&from) {
-            let name = f.file_name().unwrap();
-            if name != "case.toml" {
-                std::fs::copy(&f, dir.join(name)).unwrap();
+            // Kept in its folder: `tex-folder`'s `wood.png/` is a folder (held in git by a
+            // `.keep` file inside it).
+            let rel = f.strip_prefix(&from).unwrap();
+            if rel != Path::new("case.toml") {
+                let to = dir.join(rel);
+                std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+                std::fs::copy(&f, to).unwrap();
             }
         }
     }

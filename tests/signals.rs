@@ -206,3 +206,52 @@ fn two_quick_interrupts_leave_no_temporary_file() {
         assert!(dir.join("out/f_0047.exr").exists());
     }
 }
+
+/// A render stopped at once before its first checkpoint leaves no empty checkpoint folder (it
+/// created the folder at start).
+#[test]
+fn a_stop_before_the_first_checkpoint_leaves_no_checkpoint_folder() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let args = [
+        "render",
+        "vase",
+        "--method",
+        "mis-exact",
+        "--window",
+        "5",
+        "--spp",
+        "16",
+        "--res",
+        "160x120",
+        "--out",
+        "out/f_####.exr",
+        "--checkpoint-every",
+        "600",
+    ];
+    let child = reframe(&args)
+        .current_dir(dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while !dir.join("out/f.checkpoint").exists() {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "no checkpoint folder"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    std::thread::sleep(Duration::from_millis(200));
+    // The first asks for a checkpoint after the group (seconds away at 16 spp), the second
+    // stops at once, before it.
+    assert!(signal(&child, "INT"));
+    std::thread::sleep(Duration::from_millis(50));
+    assert!(signal(&child, "INT"));
+    let (code, err) = wait(child, Duration::from_secs(10));
+    assert_eq!(code, Some(130), "{err}");
+    assert!(err.contains("stopping now"), "{err}");
+    assert!(!dir.join("out/f.checkpoint").exists(), "{err}");
+    assert_eq!(leftovers(dir), Vec::<String>::new());
+}

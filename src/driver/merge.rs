@@ -139,9 +139,17 @@ pub fn merge(
         d => bail!("{}: unknown denoise setting '{d}'", label(&files[0])),
     };
     // Denoised chunks: the scene is checked and the denoiser loaded before anything is written.
-    // (A scene given for chunks rendered without --denoise is not needed, and not used.)
+    // (A scene given for chunks rendered without --denoise is not needed, and not used: said.)
     let denoise = match (layers, denoising) {
-        (None, _) => None,
+        (None, Some(d)) => {
+            eprintln!(
+                "warning: --scene {}: the chunks were rendered without --denoise, so the merge \
+                 does not use the scene",
+                d.scene.name
+            );
+            None
+        }
+        (None, None) => None,
         (Some(_), None) => bail!(
             "the chunks were rendered with --denoise: the merge traces the denoiser's guides in \
              the scene, so name it with --scene (the scene the chunks rendered, '{}')",

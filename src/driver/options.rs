@@ -376,6 +376,13 @@ impl RenderOptions {
         if !self.packets && !self.method.reuses() {
             w.push("--visibility: the independent tracer tests no reuse; ignored".into());
         }
+        if self.adaptive.is_some() && self.window == 1 {
+            w.push(
+                "--adaptive with --window 1: a group of one frame lands nothing from other \
+                 frames, so every pixel gets --spp; ignored"
+                    .into(),
+            );
+        }
         w
     }
 }

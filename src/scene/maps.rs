@@ -5,6 +5,7 @@ use super::mtl::{MapSpec, MtlMaterial, Slot};
 use super::text::quote;
 use crate::bsdf::Material;
 use crate::image::{TextureId, Textures};
+use crate::util::input::{open_input_or_missing, InputError};
 use anyhow::{anyhow, Result};
 use glam::{Vec2, Vec3};
 use std::path::{Path, PathBuf};
@@ -50,8 +51,14 @@ impl Maps {
                 return Err(anyhow!("{at}: a shipped scene has no texture files"));
             };
             let path = dir.join(&spec.file);
-            if !path.is_file() {
-                return Err(anyhow!("{at}: no file '{}'", path.display()));
+            // Missing, or there but not a regular file (a folder, a FIFO, a device, a symlink
+            // loop): said as such, as for every other input.
+            match open_input_or_missing(&path, "texture", u64::MAX) {
+                Ok(_) => {}
+                Err(InputError::NotFound(_)) => {
+                    return Err(anyhow!("{at}: no file '{}'", path.display()))
+                }
+                Err(e) => return Err(anyhow!("{at}: {e}")),
             }
             let t = match textures {
                 Some(t) => t,

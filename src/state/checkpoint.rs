@@ -17,7 +17,7 @@ use super::{
 };
 use crate::film::{FrameAccum, FrameReuse, Norm};
 use crate::integrator::RayCounts;
-use crate::util::fs::{check_writable_dir, remove_stale_tmp};
+use crate::util::fs::{check_writable_dir, remove_stale_tmp, Temporary};
 use anyhow::{anyhow, bail, Context, Result};
 use serde::{Deserialize, Serialize};
 use std::fs::{File, OpenOptions};
@@ -87,6 +87,8 @@ pub struct Checkpointer {
     /// Time spent writing checkpoints, for the statistics.
     pub spent: Duration,
     pub written: u32,
+    /// The checkpoint folder, registered while this process may leave it empty (it created it).
+    _made: Option<Temporary>,
 }
 
 /// Read back every record of a chunk's log that a checkpoint counts (`recs`: frame and offset,
@@ -128,6 +130,7 @@ impl Checkpointer {
             partial: None,
             spent: Duration::ZERO,
             written: 0,
+            _made: None,
         }
     }
 
@@ -151,6 +154,7 @@ impl Checkpointer {
         norm: Norm,
     ) -> Result<(Checkpointer, Option<Resumed>)> {
         let mut resumed = None;
+        let mut made = None;
         if let Some(d) = &dir {
             let state = d.join("state");
             if state.exists() {
@@ -197,6 +201,10 @@ impl Checkpointer {
                     d.display()
                 );
             }
+            if !d.exists() {
+                // A stop before the first checkpoint leaves no empty folder behind.
+                made = Some(Temporary::new(d));
+            }
             std::fs::create_dir_all(d)
                 .with_context(|| format!("creating the checkpoint folder {}", d.display()))?;
             check_writable_dir(d)?;
@@ -241,6 +249,7 @@ impl Checkpointer {
                 partial,
                 spent: Duration::ZERO,
                 written: 0,
+                _made: made,
             },
             resumed,
         ))

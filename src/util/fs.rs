@@ -16,7 +16,8 @@ fn live() -> MutexGuard<'static, Vec<(u64, PathBuf)>> {
     LIVE.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// A file this process is writing under a temporary name (or holds as a lock), registered
+/// A file this process is writing under a temporary name (or holds as a lock, or a folder it
+/// created that must not outlive a stop while still empty), registered
 /// before the file is created and until the guard is dropped (after the rename), so that a
 /// stop by signal at any moment can remove it (`exit_removing_temporaries`).
 pub struct Temporary(u64);
@@ -57,8 +58,12 @@ pub fn exit_with(code: i32) -> ! {
 pub fn exit_removing_temporaries(code: i32) -> ! {
     STOPPING.store(true, Ordering::SeqCst);
     let files = live();
-    for (_, p) in files.iter() {
-        let _ = std::fs::remove_file(p);
+    // Newest first, so that a folder registered before the files in it (a checkpoint folder
+    // this process created) is tried once they are gone; only an empty folder is removed.
+    for (_, p) in files.iter().rev() {
+        if std::fs::remove_file(p).is_err() {
+            let _ = std::fs::remove_dir(p);
+        }
     }
     // Other threads are still rendering inside Embree and OpenImageIO: no exit handler may run
     // under them (see `sys`).

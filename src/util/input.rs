@@ -72,7 +72,8 @@ pub fn open_input(path: &Path, what: &str, max_bytes: u64) -> Result<File> {
     Ok(open_input_or_missing(path, what, max_bytes)?)
 }
 
-fn open_input_or_missing(path: &Path, what: &str, max_bytes: u64) -> Result<File, InputError> {
+/// `open_input`, telling a missing file apart from one that cannot be used.
+pub fn open_input_or_missing(path: &Path, what: &str, max_bytes: u64) -> Result<File, InputError> {
     let p = path.display();
     let refuse = |why: String| InputError::Refused(format!("{what} '{p}': {why}"));
     let io = |e: std::io::Error| match e.kind() {
