@@ -57,6 +57,28 @@ fn bench_writes_the_cost_model_figures() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("--repeats 0"), "{err}");
+    // Nor more than 101 (a typo would run for days, or fail to allocate), nor a group longer
+    // than the scene (which was skipped in silence).
+    for (args, want) in [
+        (
+            ["--repeats", "4294967295"],
+            "--repeats 4294967295: at most 101",
+        ),
+        (
+            ["--windows", "99999"],
+            "--windows 99999: a group of 99999 frames does not fit",
+        ),
+    ] {
+        let mut a = vec!["bench", "cornell", "--res", "16x16"];
+        a.extend(args);
+        let o = common::reframe(&a).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains(want) && err.trim().lines().count() == 1,
+            "{err}"
+        );
+    }
 }
 
 #[test]

@@ -191,6 +191,20 @@ fn png_output_gets_the_denoised_frame_and_a_missing_library_is_one_line() {
     assert!(!o.status.success());
     assert!(err.contains("is not Open Image Denoise 2"), "{err}");
     assert!(!d.path().join("missing").exists());
+    // A FIFO in its place is refused at once (the loader would wait on it forever).
+    let fifo = d.path().join("oidn-fifo");
+    assert!(std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap()
+        .success());
+    let o = run(
+        &["--denoise", "--out", out.to_str().unwrap()],
+        Some(fifo.to_str().unwrap()),
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("not a regular file"), "{err}");
 }
 
 #[test]

@@ -619,6 +619,49 @@ fn check_trailer(t: &Trailer, trailer_start: u64) -> Result<Vec<(u32, u64, u64)>
     if t.kind == Kind::Partial && t.records.is_empty() {
         return Err("a partial file without records".into());
     }
+    // The counters a resume or a merge carries into its statistics: a trailer whose checksum
+    // was recomputed over nonsense must not report negative seconds or wrap a sum.
+    let p = &t.progress;
+    if !(p.seconds.is_finite() && p.seconds >= 0.0) {
+        return Err(format!("{} seconds of rendering", p.seconds));
+    }
+    // 2^56 rays would take a century at a billion rays a second.
+    let c = &p.counts;
+    if [
+        c.primary,
+        c.path,
+        c.shadow,
+        c.visibility,
+        p.nonfinite_samples,
+        p.nonfinite_pixels,
+    ]
+    .iter()
+    .any(|&n| n >= 1 << 56)
+    {
+        return Err("a counter past 2^56".into());
+    }
+    let mut seen: Vec<u32> = Vec::with_capacity(p.per_frame.len());
+    for f in &p.per_frame {
+        if f.frame < k.first_frame || f.frame > k.last_frame {
+            return Err(format!(
+                "reuse figures of frame {}, outside the run",
+                f.frame
+            ));
+        }
+        let sane = f.mean_effective_spp.is_finite()
+            && f.mean_effective_spp >= 0.0
+            && (0.0..=1.0).contains(&f.lost_reuse_fraction)
+            && f.lost <= f.tried
+            && f.landed.max(f.tried) < 1 << 56;
+        if !sane {
+            return Err(format!("impossible reuse figures of frame {}", f.frame));
+        }
+        seen.push(f.frame);
+    }
+    seen.sort_unstable();
+    if seen.windows(2).any(|w| w[0] == w[1]) {
+        return Err("reuse figures of a frame given twice".into());
+    }
     let mut spans: Vec<(u32, u64)> = t.records.clone();
     spans.sort_by_key(|s| s.1);
     let mut frames: Vec<u32> = spans.iter().map(|s| s.0).collect();
@@ -811,6 +854,54 @@ mod tests {
             },
         );
         assert!(a.absorb(&other).is_err());
+    }
+
+    #[test]
+    fn forged_counters_are_refused() {
+        use crate::film::FrameReuse;
+        // A trailer whose checksum is right but whose counters cannot be: each refused by
+        // `check_trailer` (what `StateFile::open` runs), the untouched one accepted.
+        let key = RunKey {
+            first_frame: 0,
+            last_frame: 9,
+            window: 3,
+            ..RunKey::default()
+        };
+        let mut t = Trailer::new(key, None, &(0..=7), "o_####.exr".into(), false);
+        t.next_unit = 3;
+        t.progress.seconds = 12.5;
+        t.progress.per_frame = (0..3)
+            .map(|frame| FrameReuse {
+                frame,
+                mean_effective_spp: 3.0,
+                lost_reuse_fraction: 0.25,
+                landed: 30,
+                tried: 8,
+                lost: 2,
+            })
+            .collect();
+        assert!(check_trailer(&t, 0).is_ok());
+        type Forge = fn(&mut Trailer);
+        let forged: [(&str, Forge); 8] = [
+            ("seconds", |t| t.progress.seconds = -5.0),
+            ("seconds", |t| t.progress.seconds = f64::NAN),
+            ("2^56", |t| t.progress.counts.primary = u64::MAX),
+            ("outside the run", |t| t.progress.per_frame[1].frame = 99),
+            ("given twice", |t| t.progress.per_frame[2].frame = 0),
+            ("impossible", |t| t.progress.per_frame[0].lost = 9),
+            ("impossible", |t| {
+                t.progress.per_frame[0].lost_reuse_fraction = 1.5
+            }),
+            ("impossible", |t| {
+                t.progress.per_frame[0].mean_effective_spp = f64::INFINITY
+            }),
+        ];
+        for (want, forge) in forged {
+            let mut f = t.clone();
+            forge(&mut f);
+            let err = check_trailer(&f, 0).unwrap_err();
+            assert!(err.contains(want), "{want}: {err}");
+        }
     }
 
     #[test]
