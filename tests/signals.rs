@@ -33,6 +33,15 @@ fn wait(mut child: Child, limit: Duration) -> (Option<i32>, String) {
 }
 
 /// Files whose names say they are temporary (`.tmp-`), probes or locks.
+/// Wait (a minute at most, else fail with `what`) until `p` exists.
+fn wait_for(p: &Path, what: &str) {
+    let start = Instant::now();
+    while !p.exists() {
+        assert!(start.elapsed() < Duration::from_secs(60), "{what}");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
 fn leftovers(d: &Path) -> Vec<String> {
     files_under(d)
         .into_iter()
@@ -174,14 +183,7 @@ fn two_quick_interrupts_leave_no_temporary_file() {
             .spawn()
             .unwrap();
         // Wait until frames are being written.
-        let start = Instant::now();
-        while !dir.join("out/f_0002.exr").exists() {
-            assert!(
-                start.elapsed() < Duration::from_secs(60),
-                "no frame written"
-            );
-            std::thread::sleep(Duration::from_millis(5));
-        }
+        wait_for(&dir.join("out/f_0002.exr"), "no frame written");
         std::thread::sleep(Duration::from_millis(7 * attempt as u64));
         assert!(signal(&child, "INT"));
         std::thread::sleep(Duration::from_millis(50));
@@ -213,36 +215,17 @@ fn two_quick_interrupts_leave_no_temporary_file() {
 fn a_stop_before_the_first_checkpoint_leaves_no_checkpoint_folder() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
-    let args = [
-        "render",
-        "vase",
-        "--method",
-        "mis-exact",
-        "--window",
-        "5",
-        "--spp",
-        "16",
-        "--res",
-        "160x120",
-        "--out",
-        "out/f_####.exr",
-        "--checkpoint-every",
-        "600",
-    ];
+    let args: Vec<&str> = "render vase --method mis-exact --window 5 --spp 16 --res 160x120 \
+                           --out out/f_####.exr --checkpoint-every 600"
+        .split_whitespace()
+        .collect();
     let child = reframe(&args)
         .current_dir(dir)
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let start = Instant::now();
-    while !dir.join("out/f.checkpoint").exists() {
-        assert!(
-            start.elapsed() < Duration::from_secs(60),
-            "no checkpoint folder"
-        );
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    wait_for(&dir.join("out/f.checkpoint"), "no checkpoint folder");
     std::thread::sleep(Duration::from_millis(200));
     // The first asks for a checkpoint after the group (seconds away at 16 spp), the second
     // stops at once, before it.
