@@ -462,7 +462,8 @@ impl Scene {
         let (environment, env_input) = match &file.environment {
             None => (None, None),
             Some(e) => {
-                let (env, input) = load_environment(&label, toml_text, e, dir.as_deref())?;
+                let (env, input) =
+                    load_environment(&label, toml_text, e, dir.as_deref(), &mut repairs)?;
                 (Some(env), input)
             }
         };
@@ -1108,6 +1109,13 @@ fn check_camera(
     Ok((w, h, Cameras::Path(path)))
 }
 
+/// An environment texel (times `intensity`) brighter than `MAX_KE`, clamped to it (as the
+/// `radiance` key and `Ke` refuse or clamp it).
+const ENV_CLAMPED: Kind = Kind {
+    one: "environment texel above 1e9 clamped to 1e9",
+    many: "environment texels above 1e9 clamped to 1e9",
+};
+
 /// Most texels of an environment image (16384 x 4096): 24 bytes each once loaded.
 pub const MAX_ENV_TEXELS: u64 = 1 << 26;
 
@@ -1117,6 +1125,7 @@ fn load_environment(
     text: &str,
     e: &Spanned<EnvironmentFile>,
     dir: Option<&Path>,
+    repairs: &mut Repairs,
 ) -> Result<(Environment, Option<PathBuf>)> {
     let line = |span: Range<usize>| line_at(text.as_bytes(), span.start);
     let at =
@@ -1193,7 +1202,21 @@ fn load_environment(
                          non-negative"
                     );
                 }
-                texels.push((t * intensity).min(Vec3::splat(MAX_KE)));
+                let l = t * intensity;
+                if l.max_element() > MAX_KE {
+                    let (x, y) = (i as u32 % image.width, i as u32 / image.width);
+                    let line = line(e.span());
+                    repairs.note(label, line, ENV_CLAMPED, || {
+                        format!(
+                            "environment image {}: pixel ({x}, {y}) is ({:e}, {:e}, {:e})",
+                            path.display(),
+                            l.x,
+                            l.y,
+                            l.z
+                        )
+                    })?;
+                }
+                texels.push(l.min(Vec3::splat(MAX_KE)));
             }
             let env = Environment::from_texels(image.width, image.height, texels, rotation);
             Ok((env, Some(path)))
