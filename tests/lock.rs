@@ -176,3 +176,37 @@ fn outputs_and_locks_never_replace_or_write_through_what_is_not_theirs() {
     refused(&o, "that is an input of this command");
     assert_eq!(std::fs::read(&scene).unwrap(), before);
 }
+
+/// Outputs of one stem share a lock (`f_####.exr` and `f_####.png`): the refusal names what the
+/// holder writes, not the refused command's pattern.
+#[test]
+fn a_refusal_names_what_the_holder_writes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let args = |ext: &str| -> Vec<String> {
+        let out = d.join(format!("f_####.{ext}")).display().to_string();
+        "render vase --frames 0-40 --spp 64 --out"
+            .split_whitespace()
+            .map(String::from)
+            .chain([out])
+            .collect()
+    };
+    let mut first = reframe(&args("exr")).spawn().unwrap();
+    let lock = d.join(".f.lock");
+    let start = Instant::now();
+    while !lock.exists() {
+        assert!(start.elapsed() < Duration::from_secs(60), "no lock file");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let o = reframe(&args("png")).output().unwrap();
+    let still_running = first.try_wait().unwrap().is_none();
+    first.kill().unwrap();
+    first.wait().unwrap();
+    assert!(still_running, "the first render finished before the test");
+    let err = String::from_utf8_lossy(&o.stderr);
+    let held = d.join("f_####.exr").display().to_string();
+    assert!(
+        o.status.code() == Some(1) && err.contains(&format!("is writing {held} ")),
+        "{err}"
+    );
+}

@@ -59,17 +59,22 @@ impl OutputLock {
                 );
             }
             if f.try_lock().is_err() {
-                let mut pid = String::new();
-                let _ = f.read_to_string(&mut pid);
-                let pid = pid.trim();
+                // The holder's pid and what it writes (the first line and the rest): outputs of
+                // one stem share a lock (`v_####.png` and `v_####.exr`), so it may be another
+                // pattern than this command's. Read at most a line's worth of it.
+                let mut held = String::new();
+                let _ = (&mut f).take(4096).read_to_string(&mut held);
+                let (pid, its) = held.split_once('\n').unwrap_or((&held, ""));
+                let (pid, its) = (pid.trim(), its.trim());
                 bail!(
-                    "another reframe{} is writing {what} (its lock is {}): wait for it to \
-                     finish, or stop it",
+                    "another reframe{} is writing {} (its lock is {}): wait for it to finish, or \
+                     stop it",
                     if pid.is_empty() {
                         String::new()
                     } else {
                         format!(" (pid {pid})")
                     },
+                    if its.is_empty() { what } else { its },
                     path.display()
                 );
             }
@@ -84,7 +89,7 @@ impl OutputLock {
             }
             f.set_len(0)?;
             f.rewind()?;
-            write!(f, "{}", std::process::id())?;
+            write!(f, "{}\n{what}\n", std::process::id())?;
             return Ok(OutputLock {
                 path: path.to_path_buf(),
                 file: Some(f),
