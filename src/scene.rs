@@ -84,7 +84,7 @@ pub use crate::util::input::{read_input, read_input_or_missing, InputError, MAX_
 use mesh::Mesh;
 pub use mtl::{MAX_KE, MAX_NS};
 use repairs::{Kind, Repairs};
-use text::{as_text, fov_fault, line_at, quote, Lines, MAX_COORD};
+use text::{as_text, fov_fault, line_at, quote, Lines, MAX_COORD, MAX_DEGREES};
 
 /// Most frames a scene may have: every frame of the camera path is checked when it loads.
 pub const MAX_FRAMES: u32 = 1_000_000;
@@ -154,7 +154,7 @@ struct EnvironmentFile {
     image: Option<Spanned<String>>,
     radiance: Option<Spanned<Exactly<f32, 3>>>,
     intensity: Option<Spanned<f32>>,
-    rotation: Option<Spanned<f32>>,
+    rotation: Option<Spanned<f64>>,
 }
 
 /// An array of exactly `N` values: serde's `[T; N]` takes the first `N` of a longer TOML array
@@ -1147,13 +1147,13 @@ fn load_environment(
     let rotation = match &f.rotation {
         Some(r) => {
             let v = *r.get_ref();
-            if !(v.is_finite() && v.abs() <= 1e6) {
+            if !(v.is_finite() && v.abs() <= MAX_DEGREES) {
                 bail!(
-                    "{} {v}: must be finite degrees (at most 1e6 in magnitude)",
+                    "{} {v:e}: must be finite degrees (at most {MAX_DEGREES:e} in magnitude)",
                     at(r.span(), "rotation")
                 );
             }
-            v
+            v as f32
         }
         None => 0.0,
     };

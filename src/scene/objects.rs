@@ -19,7 +19,7 @@
 //! instanced, because light sampling picks points of the lights in world space.
 use super::maps::Maps;
 use super::mesh::Mesh;
-use super::text::{quote, Lines, MAX_COORD};
+use super::text::{quote, Lines, MAX_COORD, MAX_DEGREES};
 use anyhow::{bail, Result};
 use glam::{DMat3, DMat4, DVec3, Mat3, Mat4, Vec2, Vec3};
 use serde::Deserialize;
@@ -82,6 +82,11 @@ impl ObjectFile {
             };
             if !t.iter().chain(&r).chain(&s).all(|x| x.is_finite()) {
                 bail!("{at}: translate, rotate and scale must be finite");
+            }
+            // As the environment's rotation: past a million degrees an angle's sine and cosine
+            // keep few correct digits.
+            if let Some(a) = r.iter().find(|a| a.abs() > MAX_DEGREES) {
+                bail!("{at}: rotate {a:e}: at most {MAX_DEGREES:e} degrees in magnitude");
             }
             if s.contains(&0.0) {
                 bail!("{at}: scale has a zero (the object would be flat)");
@@ -317,6 +322,10 @@ mod tests {
             ("translate = [nan, 0, 0]", "must be finite"),
             ("scale = 1e7", "scales an axis by 1e7"),
             ("translate = [1e19, 0, 0]", "over 1e18"),
+            (
+                "rotate = [1e300, 0, 0]",
+                "rotate 1e300: at most 1e6 degrees",
+            ),
         ] {
             let e = parse(bad).unwrap_err().to_string();
             assert!(

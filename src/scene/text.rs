@@ -10,6 +10,10 @@ use std::borrow::Cow;
 /// squared distances) must stay finite in f32, and 4 * (2e18)^2 < 3.4e38.
 pub const MAX_COORD: f32 = 1e18;
 
+/// The largest angle, in degrees, a scene may give (an object's `rotate`, the environment's
+/// `rotation`): past it an angle's sine and cosine keep few correct digits in f64, none in f32.
+pub const MAX_DEGREES: f64 = 1e6;
+
 /// The narrowest field of view a camera may have, in degrees (3.6 arcseconds, far narrower than
 /// any lens): below about 1e-20 degrees a pixel's film area underflows f32 and the reuse
 /// methods' film Jacobians come out infinite (every frame black).
