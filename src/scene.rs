@@ -1193,6 +1193,7 @@ fn load_environment(
                 .map_err(|e| anyhow!("{at}: environment image: {e}"))?;
             let at = format!("{at}: environment image {}", path.display());
             let mut texels = Vec::with_capacity(image.data.len() / 3);
+            let table_line = line(e.span());
             for (i, c) in image.data.chunks_exact(3).enumerate() {
                 let t = Vec3::new(c[0], c[1], c[2]);
                 if !t.is_finite() || t.min_element() < 0.0 {
@@ -1205,8 +1206,7 @@ fn load_environment(
                 let l = t * intensity;
                 if l.max_element() > MAX_KE {
                     let (x, y) = (i as u32 % image.width, i as u32 / image.width);
-                    let line = line(e.span());
-                    repairs.note(label, line, ENV_CLAMPED, || {
+                    repairs.note(label, table_line, ENV_CLAMPED, || {
                         format!(
                             "environment image {}: pixel ({x}, {y}) is ({:e}, {:e}, {:e})",
                             path.display(),

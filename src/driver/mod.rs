@@ -58,7 +58,6 @@ pub fn lock_path(pattern: &str, chunk: Option<Chunk>) -> PathBuf {
     }
 }
 
-/// A rayon pool whose workers set FTZ/DAZ, as Embree asks of every tracing thread.
 /// A resumed render's outputs must be where its checkpoint left them: the same `--out`, and
 /// every frame it finished (the first `next_unit - first unit` frames of the plan; a chunk's are
 /// in its log) still there and readable. A frame deleted or damaged since would otherwise be
@@ -93,6 +92,7 @@ fn check_resumed_outputs(
     Ok(())
 }
 
+/// A rayon pool whose workers set FTZ/DAZ, as Embree asks of every tracing thread.
 pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
     options::check_threads(threads)?;
     rayon::ThreadPoolBuilder::new()

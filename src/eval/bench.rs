@@ -398,7 +398,7 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     // The speed-up runs.
     let mut runs = Vec::new();
     let mut report_maps: [BTreeMap<String, f64>; 4] = Default::default();
-    for &n_f in opts.windows.iter().filter(|&&n| n <= scene.frames) {
+    for &n_f in &opts.windows {
         let first = (frame.saturating_sub(n_f / 2)).min(scene.frames - n_f);
         let last = first + n_f - 1;
         let ropts = RenderOptions {

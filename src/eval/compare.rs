@@ -291,9 +291,6 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         check_spp("--reuse-budgets", b)?;
     }
     check_threads(opts.threads)?;
-    if opts.budgets.contains(&0) || opts.reuse_budgets.contains(&0) {
-        bail!("a budget of 0 samples per pixel: every run needs at least one");
-    }
     if let Some(&n) = opts.windows.iter().find(|&&n| n % 2 == 0) {
         bail!("--windows {n}: a group is n_f = 2n+1 frames, so windows must be odd");
     }

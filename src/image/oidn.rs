@@ -6,6 +6,7 @@
 //! Where the library is looked for, first found wins: `$REFRAME_OIDN_LIB` (a path to
 //! `libOpenImageDenoise.so.2`), the runtime `setup.sh` unpacked into `.deps/oidn/lib` (its path
 //! is fixed at build time), then the system's loader path.
+use crate::util::input::{open_input_or_missing, InputError};
 use anyhow::{anyhow, bail, Context, Result};
 use libloading::Library;
 use std::ffi::{c_char, c_void, CStr, CString};
@@ -96,16 +97,19 @@ impl Denoiser {
         let mut tried = Vec::new();
         let mut found = None;
         for path in candidates() {
-            // A bare name goes to the system's loader; a path must be a file (the loader would
-            // wait forever on a FIFO, and read a device).
+            // A bare name goes to the system's loader; a path must be a regular file, as every
+            // input (the loader would wait forever on a FIFO, and read a device).
             if path.components().count() > 1 {
-                if !path.exists() {
-                    tried.push(format!("{}: no such file", path.display()));
-                    continue;
-                }
-                if !path.is_file() {
-                    tried.push(format!("{}: not a regular file", path.display()));
-                    continue;
+                match open_input_or_missing(&path, "library", u64::MAX) {
+                    Ok(_) => {}
+                    Err(InputError::NotFound(_)) => {
+                        tried.push(format!("{}: no such file", path.display()));
+                        continue;
+                    }
+                    Err(e) => {
+                        tried.push(e.to_string());
+                        continue;
+                    }
                 }
             }
             // SAFETY: loading OIDN runs its initialisers, which only register its devices.

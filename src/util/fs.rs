@@ -212,7 +212,6 @@ pub fn check_file_target(flag: &str, p: &Path) -> Result<()> {
     if p.is_dir() {
         anyhow::bail!("{flag} {}: that is a folder, not a file", p.display());
     }
-    check_replaceable(p).map_err(|e| anyhow!("{flag} {e}; name a regular file or a new one"))?;
     let dir = parent_dir(p);
     if !dir.is_dir() {
         anyhow::bail!(
