@@ -261,7 +261,7 @@ pub struct BenchArgs {
     /// Reuse method of the speed-up runs.
     #[arg(long, value_enum, default_value_t = Method::MisExact)]
     pub method: Method,
-    /// Group sizes n_f of the speed-up runs, comma-separated (longer than the animation: skipped).
+    /// Group sizes n_f of the speed-up runs, comma-separated (odd, at most the scene's frames).
     #[arg(long, value_delimiter = ',', default_values_t = [3, 7, 17, 33])]
     pub windows: Vec<u32>,
     /// Resolution "WxH" (default: the scene's).

@@ -30,12 +30,19 @@ fn main() {
         Ok(cli) => cli,
         Err(e) if !e.use_stderr() => e.exit(), // --help, --version
         Err(e) => {
-            // Keep usage errors to one line too; `--help` has the rest.
+            // Keep usage errors to one line too; `--help` has the rest. The line is clap's first
+            // paragraph, joined: a list of missing arguments follows its heading, indented.
             let text = e.render().to_string();
-            eprintln!(
-                "{} (see --help)",
-                text.lines().next().unwrap_or("invalid arguments")
-            );
+            let first: Vec<&str> = text
+                .lines()
+                .map(str::trim)
+                .take_while(|l| !l.is_empty())
+                .collect();
+            let line = match first.join(" ") {
+                l if l.is_empty() => "invalid arguments".to_string(),
+                l => l,
+            };
+            eprintln!("{line} (see --help)");
             std::process::exit(2);
         }
     };

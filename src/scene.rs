@@ -200,7 +200,8 @@ struct KeyframeFile {
     position: Spanned<Exactly<f32, 3>>,
     look_at: Spanned<Exactly<f32, 3>>,
     up: Spanned<Exactly<f32, 3>>,
-    fov: Spanned<f32>,
+    /// Read in double precision so that a refusal names the value given (`text::fov_fault`).
+    fov: Spanned<f64>,
 }
 
 /// Emitting triangles, sampled in proportion to their power (area times luminance of `Ke`).
@@ -456,7 +457,8 @@ impl Scene {
             };
             let bytes = read_input(&path, "camera file", MAX_INPUT_BYTES)
                 .map_err(|e| anyhow!("{at}: {e}"))?;
-            camera_file::parse(&path.display().to_string(), &bytes, format, frames)
+            let label = path.display().to_string();
+            camera_file::parse(&label, &bytes, format, frames, &mut repairs)
         };
         let (width, height, cameras) = check_camera(&label, toml_text, &file, read_camera)?;
         let (environment, env_input) = match &file.environment {
@@ -1049,10 +1051,10 @@ fn check_camera(
                 );
             }
         }
-        let fov = *k.fov.get_ref();
-        if let Some(why) = fov_fault(fov) {
+        if let Some(why) = fov_fault(*k.fov.get_ref()) {
             bail!("{}: {why}", at(k.fov.span()));
         }
+        let fov = *k.fov.get_ref() as f32;
         keys.push(Keyframe {
             frame,
             position: Vec3::from(k.position.get_ref().0),
@@ -1083,7 +1085,7 @@ fn check_camera(
                  use interpolation = \"linear\"",
                 k.fov
             )
-        } else if let Some(why) = fov_fault(k.fov) {
+        } else if let Some(why) = fov_fault(k.fov as f64) {
             format!("the spline goes to {why}: add a keyframe or use interpolation = \"linear\"")
         } else if coords
             .iter()

@@ -209,3 +209,31 @@ fn corpus_fails_cleanly() {
     );
     assert!(failures.is_empty(), "\n{}", failures.join("\n"));
 }
+
+#[test]
+fn usage_errors_are_one_line_that_says_what_is_missing() {
+    // clap puts a list of missing arguments on the lines below its heading: the one line must
+    // carry it (it once read "were not provided: (see --help)").
+    for (args, want) in [
+        (
+            &["merge"][..],
+            "required arguments were not provided: <PARTIALS>...",
+        ),
+        (
+            &["render", "--method"],
+            "a value is required for '--method <METHOD>'",
+        ),
+        (
+            &["bench", "--spp", "x"],
+            "invalid value 'x' for '--spp <SPP>'",
+        ),
+    ] {
+        let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+        let line = refusal(&run_reframe(&args, Duration::from_secs(60)))
+            .unwrap_or_else(|e| panic!("{args:?}: {e}"));
+        assert!(
+            line.contains(want) && line.ends_with("(see --help)"),
+            "{args:?}: {line}"
+        );
+    }
+}

@@ -70,7 +70,7 @@ pub struct BenchOptions {
     pub speedup_spp: u32,
     /// The reuse method of the speed-up runs.
     pub speedup_method: Method,
-    /// Group sizes `n_f` of the speed-up runs (those longer than the animation are skipped).
+    /// Group sizes `n_f` of the speed-up runs (odd, at most the scene's frames: others are refused).
     pub windows: Vec<u32>,
     pub seed: u64,
     /// Longest path, in bounces.

@@ -15,6 +15,7 @@
 //! read as f32 like any coordinate.
 //!
 //! Every refusal is one line naming the file, the line and the frame (for JSON also the entry).
+use super::repairs::{Kind, Repairs};
 use super::text::{fov_fault, line_at, quote, Lines, MAX_COORD};
 use crate::camera::Pose;
 use anyhow::{anyhow, bail, Result};
@@ -57,13 +58,22 @@ enum Form {
 struct Entry {
     /// "line 7" (CSV) or "line 7 (entry 3)" (JSON).
     at: String,
+    /// The line the entry starts on (for repair warnings).
+    line: usize,
     frame: u32,
-    fov: f32,
+    /// As read (`text::fov_fault` checks it before it becomes the pose's f32).
+    fov: f64,
     form: Form,
 }
 
 /// The poses of frames `0..frames` from the camera file `label` (its bytes, in `format`).
-pub fn parse(label: &str, bytes: &[u8], format: Format, frames: u32) -> Result<Vec<Pose>> {
+pub fn parse(
+    label: &str,
+    bytes: &[u8],
+    format: Format,
+    frames: u32,
+    repairs: &mut Repairs,
+) -> Result<Vec<Pose>> {
     let text = super::text::as_text(bytes).map_err(|e| anyhow!("{label}: {e}"))?;
     // A byte order mark, as spreadsheets write it, is not part of the first line.
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
@@ -102,6 +112,17 @@ pub fn parse(label: &str, bytes: &[u8], format: Format, frames: u32) -> Result<V
             );
         }
         poses.push(pose(e).map_err(|why| anyhow!("{at}: {why}"))?);
+        if let Form::Matrix(m, _) = &e.form {
+            let shear = shear_degrees(m);
+            if shear > MAX_SHEAR_DEGREES {
+                repairs.note(label, e.line, SHEARED, || {
+                    format!(
+                        "frame {}: the matrix's axes are {shear:.2} degrees from perpendicular",
+                        e.frame
+                    )
+                })?;
+            }
+        }
     }
     let n = poses.len() as u32;
     if n < frames {
@@ -118,10 +139,10 @@ pub fn parse(label: &str, bytes: &[u8], format: Format, frames: u32) -> Result<V
 
 /// The checked pose of an entry, or why it is refused.
 fn pose(e: &Entry) -> Result<Pose, String> {
-    let fov = e.fov;
-    if let Some(why) = fov_fault(fov) {
+    if let Some(why) = fov_fault(e.fov) {
         return Err(why);
     }
+    let fov = e.fov as f32;
     let pose = match &e.form {
         Form::LookAt {
             position,
@@ -202,6 +223,30 @@ fn check_matrix(m: &[f64; 16]) -> Result<(), String> {
         ));
     }
     Ok(())
+}
+
+/// A camera-to-world matrix whose axes are further than this from perpendicular is noted as
+/// repaired (`SHEARED`): an exporter's rounding leaves thousandths of a degree, while a camera
+/// parented to a non-uniformly scaled, rotated object is sheared by whole degrees, and its
+/// image is then not the one `Pose::from_camera_to_world` makes (view kept, up made
+/// perpendicular to it, right perpendicular to both).
+pub const MAX_SHEAR_DEGREES: f64 = 0.1;
+
+const SHEARED: Kind = Kind {
+    one: "sheared camera made rigid (view kept, up made perpendicular to it)",
+    many: "sheared cameras made rigid (view kept, up made perpendicular to it)",
+};
+
+/// How far the axes of a matrix's 3x3 part are from perpendicular: the largest of the three
+/// pairs' departures from 90 degrees (scale does not count; `check_matrix` has refused zero
+/// and parallel axes).
+fn shear_degrees(m: &[f64; 16]) -> f64 {
+    let col = |c: usize| glam::DVec3::new(m[c], m[4 + c], m[8 + c]).normalize();
+    let (x, y, z) = (col(0), col(1), col(2));
+    [(x, y), (y, z), (z, x)]
+        .into_iter()
+        .map(|(a, b)| (90.0 - a.dot(b).clamp(-1.0, 1.0).acos().to_degrees()).abs())
+        .fold(0.0, f64::max)
 }
 
 /// A JSON number as written (any JSON value, refused later if not a number).
@@ -348,6 +393,7 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
         };
         entries.push(Entry {
             at,
+            line,
             frame: e.frame,
             fov,
             form,
@@ -424,6 +470,7 @@ fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
         };
         entries.push(Entry {
             at,
+            line: n,
             frame,
             fov,
             form,
@@ -450,9 +497,15 @@ mod tests {
     /// The error of a file that must be refused: one line.
     fn refused(name: &str, text: &str, frames: u32) -> String {
         let format = Format::of(name).unwrap();
-        let e = parse(name, text.as_bytes(), format, frames)
-            .err()
-            .unwrap_or_else(|| panic!("{name} loaded:\n{text}"));
+        let e = parse(
+            name,
+            text.as_bytes(),
+            format,
+            frames,
+            &mut Repairs::new(false),
+        )
+        .err()
+        .unwrap_or_else(|| panic!("{name} loaded:\n{text}"));
         let e = format!("{e:#}");
         assert!(!e.contains('\n'), "more than one line: {e}");
         e
@@ -466,7 +519,14 @@ mod tests {
              \"up\": [0, 1, 0]}"
                 .to_string(),
         ]);
-        let poses = parse("c.json", text.as_bytes(), Format::Json, 2).unwrap();
+        let poses = parse(
+            "c.json",
+            text.as_bytes(),
+            Format::Json,
+            2,
+            &mut Repairs::new(false),
+        )
+        .unwrap();
         let eye = Vec3::new(0.5, 1.5, 4.0);
         assert_eq!(
             poses[0],
@@ -481,7 +541,14 @@ mod tests {
         assert_eq!(poses[1].fov, 30.0);
         let csv =
             "frame,fov,px,py,pz,lx,ly,lz,ux,uy,uz\r\n0, 40, 0.5,1.5,4, 0.5,1.5,3, 0,1,0\r\n\n";
-        let p = parse("c.csv", csv.as_bytes(), Format::Csv, 1).unwrap();
+        let p = parse(
+            "c.csv",
+            csv.as_bytes(),
+            Format::Csv,
+            1,
+            &mut Repairs::new(false),
+        )
+        .unwrap();
         assert_eq!((p[0].eye, p[0].view, p[0].up), (eye, -Vec3::Z, Vec3::Y));
         let m: Vec<String> = ["frame", "fov"]
             .iter()
@@ -491,7 +558,14 @@ mod tests {
         let row = ID.trim_matches(['[', ']']).replace(' ', "");
         let csv = format!("\u{feff}{}\n0,40,{row}\n", m.join(","));
         assert_eq!(
-            parse("c.csv", csv.as_bytes(), Format::Csv, 1).unwrap(),
+            parse(
+                "c.csv",
+                csv.as_bytes(),
+                Format::Csv,
+                1,
+                &mut Repairs::new(false)
+            )
+            .unwrap(),
             poses[..1]
         );
     }
@@ -504,7 +578,14 @@ mod tests {
             "{{\"frame\": 0, \"fov\": 40, \"position\": [{x}, 0, 0], \"look_at\": [0, 0, -1], \
              \"up\": [0, 1, 0]}}"
         )]);
-        let p = parse("c.json", text.as_bytes(), Format::Json, 1).unwrap();
+        let p = parse(
+            "c.json",
+            text.as_bytes(),
+            Format::Json,
+            1,
+            &mut Repairs::new(false),
+        )
+        .unwrap();
         assert_eq!(p[0].eye.x.to_bits(), x.to_bits());
     }
 
@@ -576,8 +657,64 @@ mod tests {
         }
         // A scaled matrix is fine: only its rotation is used.
         let scaled = "[3, 0, 0, 0, 0, 3, 0, 0, 0, 0, 3, 0, 0, 0, 0, 1]";
-        let p = parse("c.json", m(scaled).as_bytes(), Format::Json, 1).unwrap();
+        let p = parse(
+            "c.json",
+            m(scaled).as_bytes(),
+            Format::Json,
+            1,
+            &mut Repairs::new(false),
+        )
+        .unwrap();
         assert_eq!((p[0].view, p[0].up), (-Vec3::Z, Vec3::Y));
+    }
+
+    #[test]
+    fn a_sheared_matrix_is_made_rigid_with_a_warning() {
+        // Z tilted 42 degrees towards Y (a camera under a non-uniformly scaled, rotated parent):
+        // the view is kept, up made perpendicular, and the loader says so once for the file,
+        // or refuses under strict loading. A shear of 0.01 degrees (an exporter's rounding) is
+        // silent.
+        let (s, c) = 42f64.to_radians().sin_cos();
+        let sheared = format!("[1, 0, 0, 0, 0, 1, {s}, 0, 0, 0, {c}, 0, 0, 0, 0, 1]");
+        let text = json(&[entry(0, &sheared), entry(1, &sheared)]);
+        let mut r = Repairs::new(false);
+        let p = parse("c.json", text.as_bytes(), Format::Json, 2, &mut r).unwrap();
+        let view = -Vec3::new(0.0, s as f32, c as f32);
+        assert!(p[0].view.abs_diff_eq(view, 1e-6), "{}", p[0].view);
+        let cam = crate::camera::Camera::from_pose(&p[0], 4, 4);
+        assert!(
+            cam.up.dot(cam.forward).abs() < 1e-6 && cam.up.y > 0.7,
+            "{}",
+            cam.up
+        );
+        assert_eq!(
+            r.into_warnings(),
+            [
+                "c.json: 2 sheared cameras made rigid (view kept, up made perpendicular to it) \
+              (first at line 2: frame 0: the matrix's axes are 42.00 degrees from perpendicular)"
+            ]
+        );
+        let e = parse(
+            "c.json",
+            text.as_bytes(),
+            Format::Json,
+            2,
+            &mut Repairs::new(true),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("42.00 degrees from perpendicular") && e.contains("strict"),
+            "{e}"
+        );
+        let slight = 0.01f64.to_radians().sin();
+        let text = json(&[entry(
+            0,
+            &format!("[1, 0, 0, 0, 0, 1, {slight}, 0, 0, 0, 1, 0, 0, 0, 0, 1]"),
+        )]);
+        let mut r = Repairs::new(true);
+        parse("c.json", text.as_bytes(), Format::Json, 1, &mut r).unwrap();
+        assert!(r.into_warnings().is_empty());
     }
 
     #[test]
@@ -594,6 +731,7 @@ mod tests {
             (json(&[entry(0, ID).replace("fov", "fvo")]), "c.json: line 2 (entry 1): unknown field `fvo`"),
             (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 0.0")]), "c.json: line 2 (entry 1): invalid type: floating point `0.0`, expected u32"),
             (json(&[entry(0, ID).replace("40.0", "180")]), "c.json: line 2 (entry 1): frame 0: fov 180 must be in (0, 180) degrees"),
+            (json(&[entry(0, ID).replace("40.0", "179.9999999")]), "frame 0: fov 179.9999999 rounds to 180 degrees in single precision: at most 179.99998"),
             (
                 json(&[entry(0, ID).replace('}', ", \"position\": [0, 0, 0]}")]),
                 "frame 0: both matrix and position/look_at/up: give one",

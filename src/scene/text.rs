@@ -19,11 +19,18 @@ pub const MAX_DEGREES: f64 = 1e6;
 /// methods' film Jacobians come out infinite (every frame black).
 pub const MIN_FOV: f32 = 1e-3;
 
-/// Why a vertical field of view (degrees) is refused, if it is.
-pub fn fov_fault(fov: f32) -> Option<String> {
+/// Why a vertical field of view (degrees), as read (in double precision), is refused, if it is.
+/// The renderer keeps it in single precision, where everything above 179.99998 rounds to 180:
+/// such a value is named as given, not as the 180 it would become.
+pub fn fov_fault(fov: f64) -> Option<String> {
     if !(fov > 0.0 && fov < 180.0) {
         Some(format!("fov {fov} must be in (0, 180) degrees"))
-    } else if fov < MIN_FOV {
+    } else if fov as f32 >= 180.0 {
+        Some(format!(
+            "fov {fov} rounds to 180 degrees in single precision: at most {} (and below 180)",
+            f32::from_bits(180f32.to_bits() - 1)
+        ))
+    } else if fov < MIN_FOV as f64 {
         Some(format!(
             "fov {fov:e} is narrower than {MIN_FOV} degrees, which no lens is (the film area of a \
              pixel would underflow)"
