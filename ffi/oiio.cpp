@@ -291,36 +291,54 @@ TextureSet::TextureSet() : ts_(OIIO::TextureSystem::create(/*shared=*/false)) {
 
 TextureSet::~TextureSet() { OIIO::TextureSystem::destroy(ts_, /*teardown_imagecache=*/true); }
 
-uint32_t TextureSet::add(rust::Str path, uint32_t channels) {
+uint32_t TextureSet::add(rust::Str path, uint32_t chbegin, uint32_t chend) {
     OIIO::ustring name{std::string(path)};
     OIIO::TextureSystem::TextureHandle* handle;
-    bool good;
+    const OIIO::ImageSpec* spec = nullptr;
     {
         QuietStderr quiet;
         handle = ts_->get_texture_handle(name);
-        good = handle != nullptr && ts_->good(handle);
+        if (handle != nullptr && ts_->good(handle)) {
+            spec = ts_->imagespec(handle, nullptr, 0);
+        }
     }
-    if (!good) {
+    if (spec == nullptr) {
         std::string msg = ts_->geterror();
         throw std::runtime_error(msg.empty() ? "the texture system could not open it" : msg);
     }
-    handles_.push_back(handle);
-    channels_.push_back(static_cast<int>(channels));
-    return static_cast<uint32_t>(handles_.size() - 1);
+    if (spec->width <= 0 || spec->height <= 0 || int(chend) > spec->nchannels || chbegin >= chend) {
+        throw std::runtime_error("the texture system sees other pixels or channels than the file");
+    }
+    textures_.push_back(Texture{handle, spec->x, spec->y, spec->width, spec->height, int(chbegin),
+                                int(chend)});
+    return static_cast<uint32_t>(textures_.size() - 1);
 }
 
-bool TextureSet::lookup(uint32_t id, float s, float t, rust::Slice<float> out) const {
+bool TextureSet::texels(uint32_t id, int64_t x, int64_t y, rust::Slice<float> out) const {
+    const Texture& t = textures_[id];
+    const int n = t.chend - t.chbegin;
+    auto wrap = [](int64_t v, int64_t size) { return int(((v % size) + size) % size); };
+    const int x0 = wrap(x, t.width), x1 = wrap(x0 + 1, t.width);
+    const int y0 = wrap(y, t.height), y1 = wrap(y0 + 1, t.height);
     OIIO::TextureOpt opt;
-    opt.swrap = OIIO::TextureOpt::WrapPeriodic;
-    opt.twrap = OIIO::TextureOpt::WrapPeriodic;
-    opt.interpmode = OIIO::TextureOpt::InterpBilinear;
-    opt.mipmode = OIIO::TextureOpt::MipModeOneLevel;
-    int n = channels_[id];
-    bool ok = ts_->texture(handles_[id], ts_->get_perthread_info(), opt, s, t, 0.0f, 0.0f, 0.0f,
-                           0.0f, n, out.data());
+    OIIO::TextureSystem::Perthread* thread = ts_->get_perthread_info();
+    bool ok = true;
+    if (x1 == x0 + 1 && y1 == y0 + 1) {
+        // The usual case, the four in one block of the cache.
+        ok = ts_->get_texels(t.handle, thread, opt, 0, t.x + x0, t.x + x0 + 2, t.y + y0,
+                             t.y + y0 + 2, 0, 1, t.chbegin, t.chend, OIIO::TypeFloat, out.data());
+    } else {
+        // At the right or bottom edge the block wraps: one texel at a time.
+        const int xs[2] = {x0, x1}, ys[2] = {y0, y1};
+        for (int k = 0; k < 4 && ok; ++k) {
+            int px = t.x + xs[k % 2], py = t.y + ys[k / 2];
+            ok = ts_->get_texels(t.handle, thread, opt, 0, px, px + 1, py, py + 1, 0, 1,
+                                 t.chbegin, t.chend, OIIO::TypeFloat, out.data() + k * n);
+        }
+    }
     if (!ok) {
         (void)ts_->geterror();  // clear this thread's message; the caller counts the failure
-        for (int c = 0; c < n; ++c) {
+        for (size_t c = 0; c < out.size(); ++c) {
             out[c] = 0.0f;
         }
     }

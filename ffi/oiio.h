@@ -44,16 +44,23 @@ public:
     ~TextureSet();
     TextureSet(const TextureSet&) = delete;
     TextureSet& operator=(const TextureSet&) = delete;
-    // Opens `path` through the cache and returns its index; `channels` (1 or 3) per lookup.
-    uint32_t add(rust::Str path, uint32_t channels);
-    // Bilinear lookup at (s, t) (t = 0 at the image's top row), repeating outside [0, 1);
-    // false (and `out` filled with 0) if the texture system failed.
-    bool lookup(uint32_t id, float s, float t, rust::Slice<float> out) const;
+    // Opens `path` through the cache and returns its index. `chbegin..chend`: the channels
+    // `texels` fetches (those the caller takes its colour from).
+    uint32_t add(rust::Str path, uint32_t chbegin, uint32_t chend);
+    // The 2 x 2 texels whose top-left one is column `x`, row `y` (row 0 the image's top; both
+    // wrapped into the image, as is the second column and row), finest level, through the
+    // cache: `out` holds them row by row, each its channels. False (and `out` filled with 0)
+    // if the texture system failed.
+    bool texels(uint32_t id, int64_t x, int64_t y, rust::Slice<float> out) const;
 
 private:
+    struct Texture {
+        OIIO::TextureSystem::TextureHandle* handle;
+        int x, y, width, height;  // the data window
+        int chbegin, chend;
+    };
     OIIO::TextureSystem* ts_;
-    std::vector<OIIO::TextureSystem::TextureHandle*> handles_;
-    std::vector<int> channels_;
+    std::vector<Texture> textures_;
 };
 
 std::unique_ptr<TextureSet> new_texture_set();

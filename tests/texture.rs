@@ -7,10 +7,10 @@ mod common;
 mod stats;
 
 use common::{files_under, render_in_memory};
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use reframe::driver::{render_frame_independent, thread_pool, RenderOptions};
 use reframe::embree::Device;
-use reframe::image::{write_image, Image, Metadata, WriteOptions};
+use reframe::image::{write_image, Image, Metadata, Textures, WriteOptions};
 use reframe::integrator::Integrator;
 use reframe::reuse::Method;
 use reframe::scene::Scene;
@@ -69,6 +69,69 @@ fn toml(w: u32, h: u32, position: [f32; 3], fov: f32, extra: &str) -> String {
          [[keyframe]]\nframe = 0\nposition = {position:?}\nlook_at = [0.0, 0.0, 0.0]\n\
          up = [0.0, 1.0, 0.0]\nfov = {fov}\n"
     )
+}
+
+#[test]
+fn textures_are_filtered_in_linear_values() {
+    // A black and a white column of texels, as an 8-bit sRGB PNG and as a float EXR. Half way
+    // between the two texel centres a lookup is their linear mean, 0.5, in both, as renderers
+    // that filter radiance give it (OIIO's own bilinear lookup of the PNG mixes the encoded
+    // values: 0.5 encoded is 0.214); at a centre it is the texel, a quarter of the way 0.25,
+    // and across the right and left edges the texture repeats.
+    let tmp = tempfile::tempdir().unwrap();
+    for (name, exr_float) in [("t.png", false), ("t.exr", true)] {
+        let path = tmp.path().join(name);
+        write_texture(&path, 2, |x, _| Vec3::splat(x as f32), exr_float);
+        let mut t = Textures::new().unwrap();
+        let id = t.open(&path).unwrap();
+        for (u, want) in [
+            (0.5, 0.5),
+            (0.25, 0.0),
+            (0.75, 1.0),
+            (0.375, 0.25),
+            (1.0, 0.5),
+            (0.0, 0.5),
+            (-0.875, 0.25),
+        ] {
+            let got = t.rgb(id, Vec2::new(u, 0.3));
+            assert!(
+                (got - Vec3::splat(want)).abs().max_element() < 1e-6,
+                "{name} u {u}: {got}, want {want}"
+            );
+        }
+    }
+    // An EXR of channels R and G is red and green (it was read as grey); one of alpha alone is
+    // refused.
+    let mut rg = Image::new(2, 2, &["R", "G"]);
+    rg.data
+        .chunks_exact_mut(2)
+        .for_each(|px| px.copy_from_slice(&[0.8, 0.1]));
+    let path = tmp.path().join("rg.exr");
+    write_image(
+        &path,
+        &rg,
+        &Metadata::default(),
+        &WriteOptions { exr_float: true },
+    )
+    .unwrap();
+    let mut t = Textures::new().unwrap();
+    let id = t.open(&path).unwrap();
+    let got = t.rgb(id, Vec2::new(0.3, 0.6));
+    assert!(
+        (got - Vec3::new(0.8, 0.1, 0.0)).abs().max_element() < 1e-6,
+        "{got}"
+    );
+    let path = tmp.path().join("a.exr");
+    let alpha = Image::new(2, 2, &["A"]);
+    write_image(
+        &path,
+        &alpha,
+        &Metadata::default(),
+        &WriteOptions { exr_float: true },
+    )
+    .unwrap();
+    let e = t.open(&path).map(|_| ()).unwrap_err().to_string();
+    assert!(e.contains("its channels (A) hold no colour"), "{e}");
 }
 
 #[test]

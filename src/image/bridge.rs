@@ -86,10 +86,12 @@ pub(crate) mod ffi {
         /// A private `OIIO::TextureSystem` and the textures opened through it.
         type TextureSet;
         fn new_texture_set() -> Result<UniquePtr<TextureSet>>;
-        /// Opens `path` through the texture cache; its index. `channels`: 1 or 3 per lookup.
-        fn add(self: Pin<&mut TextureSet>, path: &str, channels: u32) -> Result<u32>;
-        /// Bilinear, repeating, finest level; `out` holds the texture's `channels` values.
-        fn lookup(self: &TextureSet, id: u32, s: f32, t: f32, out: &mut [f32]) -> bool;
+        /// Opens `path` through the texture cache; its index. `texels` fetches channels
+        /// `chbegin..chend`.
+        fn add(self: Pin<&mut TextureSet>, path: &str, chbegin: u32, chend: u32) -> Result<u32>;
+        /// The 2 x 2 texels from column `x`, row `y` (0: the top row), each wrapped into the
+        /// image, finest level, row by row; `out` holds 4 times the texture's channels.
+        fn texels(self: &TextureSet, id: u32, x: i64, y: i64, out: &mut [f32]) -> bool;
         fn info(self: &ImageReader) -> ImageInfo;
         /// Every attribute of the first subimage's spec.
         fn attributes(self: &ImageReader) -> Vec<Attribute>;

@@ -611,9 +611,52 @@ fn read_all(
     Ok(data)
 }
 
+/// Where an image's colour is (`colour_channels`): the channels of red, green and blue (`None`:
+/// zero), or one channel taken as grey.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Colour {
+    Rgb([Option<usize>; 3]),
+    Grey(usize),
+}
+
+impl Colour {
+    /// The channel of red, green and blue in turn (a grey channel three times).
+    pub fn indices(self) -> [Option<usize>; 3] {
+        match self {
+            Colour::Rgb(c) => c,
+            Colour::Grey(c) => [Some(c); 3],
+        }
+    }
+}
+
+/// The colour of an image with channels `names` (as OIIO names them): the channels named R, G
+/// and B, those missing zero (an EXR of R and G is red and green, not grey); else one named Y,
+/// as grey (OIIO's name for the channel of a grey PNG or TIFF); else the first three channels,
+/// or a single one as grey. An image whose only channels are alpha (or alpha and one more,
+/// unnamed) has no colour and is refused.
+pub fn colour_channels(names: &[String]) -> Result<Colour> {
+    let find = |c: &str| names.iter().position(|n| n == c);
+    let rgb = ["R", "G", "B"].map(find);
+    if rgb.iter().any(Option::is_some) {
+        return Ok(Colour::Rgb(rgb));
+    }
+    if let Some(y) = find("Y") {
+        return Ok(Colour::Grey(y));
+    }
+    match names {
+        [] => bail!("the image has no channels"),
+        [a, ..] if a == "A" && names.len() <= 2 => bail!(
+            "its channels ({}) hold no colour: an alpha channel alone is not a colour",
+            names.join(", ")
+        ),
+        [_] | [_, _] => Ok(Colour::Grey(0)),
+        _ => Ok(Colour::Rgb([Some(0), Some(1), Some(2)])),
+    }
+}
+
 /// Reads a colour input (an environment map, a texture) as linear RGB: refuses images of more
-/// than `max_pixels` pixels before reading their pixels; takes the channels named R, G, B, or
-/// the first three, or a single channel as grey; decodes sRGB where the file says its pixels are
+/// than `max_pixels` pixels before reading their pixels; takes its colour from the channels
+/// `colour_channels` names; decodes sRGB where the file says its pixels are
 /// sRGB (OIIO's `oiio:ColorSpace`, which it sets for 8-bit PNG and JPEG), so that an 8-bit file
 /// gives the same linear values as the HDR it was made from.
 pub fn read_linear_rgb(path: &Path, max_pixels: u64) -> Result<Image> {
@@ -628,17 +671,12 @@ pub fn read_linear_rgb(path: &Path, max_pixels: u64) -> Result<Image> {
                 && a.text.to_ascii_lowercase().contains("srgb")
         });
         let nch = info.channels.len();
+        let pick = colour_channels(&info.channels)?.indices();
         let data = read_all(&mut reader, &info)?;
-        let named = ["R", "G", "B"].map(|c| info.channels.iter().position(|n| n == c));
-        let pick: [usize; 3] = match named {
-            [Some(r), Some(g), Some(b)] => [r, g, b],
-            _ if nch >= 3 => [0, 1, 2],
-            _ => [0, 0, 0],
-        };
         let decode = |v: f32| if srgb { srgb_eotf(v as f64) as f32 } else { v };
         let mut rgb = Vec::with_capacity(pixels as usize * 3);
         for px in data.chunks_exact(nch) {
-            rgb.extend(pick.map(|c| decode(px[c])));
+            rgb.extend(pick.map(|c| c.map_or(0.0, |c| decode(px[c]))));
         }
         Ok(Image {
             width: info.width,

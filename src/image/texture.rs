@@ -11,7 +11,13 @@
 //! everything else; a footprint-driven MIP level would make a first hit's value depend on the
 //! eye whose pixel it was traced for, which frame reuse cannot have (one hit is shaded for every
 //! eye of a group), and it would blur the converged image away from the scene as modelled.
-//! 8-bit sRGB files (OIIO's `oiio:ColorSpace`) are decoded to linear after the bilinear step.
+//!
+//! The filtering is done here, in linear values: the cache gives the four texels around the
+//! point (`get_texels`), each is decoded from sRGB where the file is 8-bit sRGB (OIIO's
+//! `oiio:ColorSpace`), and then they are interpolated. OIIO 2.4's texture system has no colour
+//! conversion, and its own bilinear lookup of an sRGB file interpolates the encoded values,
+//! which darkens every edge between texels (down to half, between black and white) and a
+//! texture's mean by a few percent against renderers that filter radiance.
 //!
 //! ```no_run
 //! use reframe::image::Textures;
@@ -21,7 +27,7 @@
 //! # anyhow::Ok(())
 //! ```
 use super::bridge::ffi;
-use super::{path_str, read_linear_rgb, srgb_eotf};
+use super::{colour_channels, path_str, read_linear_rgb, srgb_eotf, Colour};
 use crate::util::hash::Fnv;
 use anyhow::{anyhow, bail, Result};
 use glam::{Vec2, Vec3};
@@ -36,12 +42,38 @@ pub const MAX_TEXELS: u64 = 1 << 26;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct TextureId(u32);
 
+/// The most channels a texture's colour may be spread over (`texels` fetches them all).
+const MAX_SPREAD: usize = 16;
+
 struct Info {
-    /// One channel looked up and taken as grey (grey and grey-alpha files), else three.
-    grey: bool,
+    width: u32,
+    height: u32,
+    /// Channels fetched per texel (from the first colour channel to the last), and where red,
+    /// green and blue are among them (`None`: zero).
+    fetched: usize,
+    pick: [Option<usize>; 3],
     srgb: bool,
     /// FNV-1a of the decoded texels and the size: the texture's identity in a scene's hash.
     digest: u64,
+}
+
+/// The linear value of each 8-bit sRGB code (`srgb_eotf(k / 255)`).
+fn srgb8() -> &'static [f32; 256] {
+    static TABLE: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| std::array::from_fn(|k| srgb_eotf(k as f64 / 255.0) as f32))
+}
+
+/// The linear value of an sRGB-encoded value `v` in \[0, 1] as OIIO gives it (an 8-bit code
+/// over 255, found in the table; any other value decoded).
+#[inline]
+fn decode_srgb(v: f32) -> f32 {
+    let k = v * 255.0;
+    let r = (k + 0.5) as i32;
+    if (0..256).contains(&r) && (k - r as f32).abs() < 1e-3 {
+        srgb8()[r as usize]
+    } else {
+        srgb_eotf(v as f64) as f32
+    }
 }
 
 /// The textures of a scene and the texture system they are looked up through.
@@ -89,25 +121,43 @@ impl Textures {
                 path.display()
             );
         }
-        let (grey, srgb) = {
+        let (srgb, colour) = {
             let reader = ffi::open_reader(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
             let srgb = reader.attributes().into_iter().any(|a| {
                 a.name.eq_ignore_ascii_case("oiio:ColorSpace")
                     && a.text.to_ascii_lowercase().contains("srgb")
             });
-            (reader.info().channels.len() < 3, srgb)
+            let colour = colour_channels(&reader.info().channels)
+                .map_err(|e| anyhow!("cannot use {}: {e}", path.display()))?;
+            (srgb, colour)
         };
+        let used = colour.indices().into_iter().flatten();
+        let (first, last) = (used.clone().min().unwrap_or(0), used.max().unwrap_or(0));
+        if last - first >= MAX_SPREAD {
+            bail!(
+                "cannot use {}: its colour channels are {} channels apart (at most {MAX_SPREAD})",
+                path.display(),
+                last - first
+            );
+        }
         let id = self
             .set
             .pin_mut()
-            .add(path_str(path)?, if grey { 1 } else { 3 })
+            .add(path_str(path)?, first as u32, last as u32 + 1)
             .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
         let id = TextureId(id);
         let mut f = Fnv::default();
         f.bytes(&[img.width.to_le_bytes(), img.height.to_le_bytes()].concat());
         f.f32s(img.data.iter().copied());
+        let pick = match colour {
+            Colour::Grey(c) => [Some(c - first); 3],
+            Colour::Rgb(c) => c.map(|c| c.map(|c| c - first)),
+        };
         self.info.push(Info {
-            grey,
+            width: img.width,
+            height: img.height,
+            fetched: last - first + 1,
+            pick,
             srgb,
             digest: f.0,
         });
@@ -116,24 +166,42 @@ impl Textures {
     }
 
     /// The linear RGB of texture `id` at texture coordinates `uv` (`v` up, as in OBJ files:
-    /// `(0, 0)` is the image's bottom-left corner), repeating outside \[0, 1).
+    /// `(0, 0)` is the image's bottom-left corner), repeating outside \[0, 1): bilinear between
+    /// the four texel centres around it, in linear values.
     #[inline]
     pub fn rgb(&self, id: TextureId, uv: Vec2) -> Vec3 {
         let info = &self.info[id.0 as usize];
-        let mut out = [0.0f32; 3];
-        let n = if info.grey { 1 } else { 3 };
-        if !self.set.lookup(id.0, uv.x, 1.0 - uv.y, &mut out[..n]) {
+        // Texel centres at half-integers; row 0 is the image's top.
+        let x = uv.x * info.width as f32 - 0.5;
+        let y = (1.0 - uv.y) * info.height as f32 - 0.5;
+        let (x0, y0) = (x.floor(), y.floor());
+        // A coordinate too large for f32 to hold a fraction has none.
+        let frac = |v: f32, v0: f32| {
+            if (0.0..1.0).contains(&(v - v0)) {
+                v - v0
+            } else {
+                0.0
+            }
+        };
+        let (fx, fy) = (frac(x, x0), frac(y, y0));
+        let mut out = [0.0f32; 4 * MAX_SPREAD];
+        let n = info.fetched;
+        if !self
+            .set
+            .texels(id.0, x0 as i64, y0 as i64, &mut out[..4 * n])
+        {
             self.failures.fetch_add(1, Ordering::Relaxed);
         }
-        let mut c = if info.grey {
-            Vec3::splat(out[0])
-        } else {
-            Vec3::from(out)
+        let texel = |k: usize| {
+            let px = &out[k * n..(k + 1) * n];
+            Vec3::from(
+                info.pick
+                    .map(|c| c.map_or(0.0, |c| if info.srgb { decode_srgb(px[c]) } else { px[c] })),
+            )
         };
-        if info.srgb {
-            c = c.map(|e| srgb_eotf(e as f64) as f32);
-        }
-        c
+        let top = texel(0) * (1.0 - fx) + texel(1) * fx;
+        let bottom = texel(2) * (1.0 - fx) + texel(3) * fx;
+        top * (1.0 - fy) + bottom * fy
     }
 
     /// Each texture's content hash (decoded texels and size), in id order: what a scene's hash
