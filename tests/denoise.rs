@@ -8,7 +8,7 @@ mod common;
 use reframe::driver::denoise::Layers;
 use reframe::driver::{render, RenderOptions};
 use reframe::embree::Device;
-use reframe::image::{read_image, Image};
+use reframe::image::{read_image, write_image, Image, Metadata, WriteOptions};
 use reframe::reuse::Method;
 use reframe::scene::Scene;
 use std::path::Path;
@@ -372,4 +372,65 @@ fn chunks_rendered_with_denoise_merge_into_the_one_process_denoised_frames() {
     common::assert_identical(&one, &chunked, (0..5).map(|f| format!("f_{f:04}.exr")));
     let img = read_image(&chunked.join("f_0002.exr")).unwrap();
     assert_ne!(rgb(&img, ""), rgb(&img, "raw."));
+}
+
+#[test]
+fn merge_never_writes_over_the_scene_it_denoises_with() {
+    // The merge's --scene brings its own inputs: an --out pattern that names one of them (here
+    // the environment image, e_0000.exr) is refused and the file left as it was (the merge
+    // wrote the frame over it, exit 0, before the check took the scene's files).
+    let d = tempfile::tempdir().unwrap();
+    let base = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/base");
+    for f in ["s.obj", "s.mtl"] {
+        std::fs::copy(base.join(f), d.path().join(f)).unwrap();
+    }
+    let toml = std::fs::read_to_string(base.join("s.toml")).unwrap();
+    let toml = format!("{toml}[environment]\nimage = \"e_0000.exr\"\n");
+    std::fs::write(d.path().join("s.toml"), toml).unwrap();
+    let mut sky = Image::new(4, 2, &["R", "G", "B"]);
+    sky.data.fill(0.5);
+    let env = d.path().join("e_0000.exr");
+    write_image(&env, &sky, &Metadata::default(), &WriteOptions::default()).unwrap();
+    let before = std::fs::read(&env).unwrap();
+    let at = |name: &str| d.path().join(name).to_str().unwrap().to_string();
+    let scene = at("s.toml");
+    let out = at("o/f_####.exr");
+    common::reframe_ok(&[
+        "render",
+        &scene,
+        "--spp",
+        "1",
+        "--frames",
+        "0",
+        "--chunk",
+        "1/1",
+        "--denoise",
+        "--threads",
+        "1",
+        "--out",
+        &out,
+    ]);
+    let partial = at("o/f.chunk-1-of-1.partial");
+    let o = common::reframe(&[
+        "merge",
+        &partial,
+        "--scene",
+        &scene,
+        "--out",
+        &at("e_####.exr"),
+    ])
+    .output()
+    .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("that is an input of this command"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(&env).unwrap(),
+        before,
+        "the environment image was written over"
+    );
+    common::reframe_ok(&["merge", &partial, "--scene", &scene]);
+    assert!(d.path().join("o/f_0000.exr").exists());
 }

@@ -393,3 +393,35 @@ fn a_killed_chunk_resumes_and_merges_identically() {
     ]);
     assert_identical(&whole, &sub, 4..=23);
 }
+
+#[test]
+fn a_report_never_replaces_a_state_file() {
+    // Chunk 1's --stats naming chunk 2's finished partial was written over it (exit 0; the
+    // merge then found no partial). A report must not replace any run's state file.
+    let dir = tempfile::tempdir().unwrap();
+    let out = format!("{}/f_####.exr", dir.path().display());
+    let chunk = |k: &str| -> Vec<String> {
+        let args = [
+            "render", "cornell", "--spp", "1", "--frames", "0-1", "--res", "16x12",
+        ];
+        let more = ["--chunk", k, "--out", &out];
+        args.iter().chain(&more).map(|a| a.to_string()).collect()
+    };
+    run(&chunk("2/2"));
+    let partial = dir.path().join("f.chunk-2-of-2.partial");
+    let before = std::fs::read(&partial).unwrap();
+    let stats = partial.to_str().unwrap();
+    let o = reframe()
+        .args(chunk("1/2"))
+        .args(["--stats", stats])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("that is a reframe state file"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(&partial).unwrap(), before);
+    run(&chunk("1/2"));
+    run(&["merge", "--chunks", "2", "--out", &out]);
+}

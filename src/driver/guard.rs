@@ -120,7 +120,8 @@ fn resolved(p: &Path) -> Option<PathBuf> {
 /// Refuse, before anything is written, any output of a command (`flag`, the path) that
 /// resolves to one of its `inputs`, that resolves to another of its outputs (`--stats` naming a
 /// frame, say), or that exists as anything but a regular file (`check_replaceable`: a device,
-/// a FIFO or a symbolic link would be replaced, not written through).
+/// a FIFO or a symbolic link would be replaced, not written through), or that is a report
+/// (`--stats`, `--json`) naming an existing state file (another chunk's partial, say).
 pub fn check_outputs<'a>(
     outputs: impl IntoIterator<Item = (&'a str, PathBuf)>,
     inputs: &[PathBuf],
@@ -133,6 +134,14 @@ pub fn check_outputs<'a>(
     for (flag, out) in outputs {
         crate::util::fs::check_replaceable(&out)
             .map_err(|e| anyhow!("{flag} {e}; nothing was written"))?;
+        // A report (--stats, bench's --json) is never written over a run's state.
+        if matches!(flag, "--stats" | "--json") && crate::state::is_state_file(&out) {
+            bail!(
+                "{flag} {}: that is a reframe state file (a checkpoint or a chunk's partial), \
+                 which a report must not replace; nothing was written",
+                out.display()
+            );
+        }
         let Some(r) = resolved(&out) else { continue };
         if let Some((_, input)) = inputs.iter().find(|(c, _)| *c == r) {
             bail!(

@@ -173,7 +173,14 @@ pub fn merge(
     let pattern = out.unwrap_or(&t0.out);
     let (out, created) = check_output(pattern, &range)?;
     let lock = super::lock_path(pattern, None);
-    let inputs: Vec<PathBuf> = files.iter().map(|f| f.path.clone()).collect();
+    // The partials, and with --scene every file of the scene (its textures too): none may be
+    // written over.
+    let scene_inputs = denoising.map_or(&[][..], |d| &d.scene.inputs[..]);
+    let inputs: Vec<PathBuf> = files
+        .iter()
+        .map(|f| f.path.clone())
+        .chain(scene_inputs.iter().cloned())
+        .collect();
     let outputs = range
         .clone()
         .map(|f| ("--out", out.path(f)))

@@ -32,6 +32,23 @@ use std::ops::RangeInclusive;
 use std::path::{Path, PathBuf};
 
 const MAGIC: &[u8; 8] = b"RFSTATE1";
+
+/// Whether `p` is a complete state file (a checkpoint or a chunk's partial, of any run): it
+/// ends in the magic. Outputs that are not state files must not replace one (`--stats` naming
+/// another chunk's finished partial would destroy it).
+pub fn is_state_file(p: &Path) -> bool {
+    let read = || -> std::io::Result<bool> {
+        let mut f = File::open(p)?;
+        if !f.metadata()?.is_file() || f.metadata()?.len() < MAGIC.len() as u64 {
+            return Ok(false);
+        }
+        f.seek(SeekFrom::End(-(MAGIC.len() as i64)))?;
+        let mut tail = [0u8; 8];
+        f.read_exact(&mut tail)?;
+        Ok(&tail == MAGIC)
+    };
+    read().unwrap_or(false)
+}
 const RECORD_MAGIC: u32 = 0x4341_4652; // "RFAC"
 /// Version 2: the trailer's counters keep reuse figures per frame only (version 1 also kept run
 /// totals). Version 1 files are refused with a line that says so.
