@@ -240,3 +240,28 @@ fn compare_rejects_bad_settings_before_rendering() {
         assert_eq!(err.trim().lines().count(), 1, "{a:?}: {err}");
     }
 }
+
+#[test]
+fn compare_refuses_a_bias_seed_count_that_would_run_for_days() {
+    // --bias-seeds 4294967295 was accepted (every seed renders each denoised method's strip).
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("cmp");
+    let out = out.to_str().unwrap();
+    let o = common::reframe(&[
+        "compare",
+        "cornell",
+        "--bias-seeds",
+        "4294967295",
+        "--out",
+        out,
+    ])
+    .output()
+    .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("--bias-seeds 4294967295: at most 64") && err.trim().lines().count() == 1,
+        "{err}"
+    );
+    assert!(!dir.path().join("cmp").exists());
+}

@@ -18,6 +18,7 @@ in the scene TOML. See the README, "Scenes", and docs/camera.md.
 """
 import json
 import math
+import os
 import sys
 
 import bpy
@@ -76,7 +77,12 @@ def main():
     pct = render.resolution_percentage / 100.0
     w, h = round(render.resolution_x * pct), round(render.resolution_y * pct)
     print(f"export_camera: wrote {len(entries)} frames to {out}; in the scene TOML:")
-    print(f'frames = {len(entries)}\nresolution = [{w}, {h}]\ncamera = "{out}"')
+    # A TOML string, escaped as JSON escapes it (backslashes of a Windows path, quotes and
+    # control characters; JSON's escapes are TOML's). The TOML reads the path relative to its
+    # own folder: the name alone, for the camera file kept beside the scene.
+    name = json.dumps(os.path.basename(out), ensure_ascii=False)
+    print(f"frames = {len(entries)}\nresolution = [{w}, {h}]")
+    print(f"camera = {name}  # read relative to the scene TOML's folder: keep the file beside it")
 
 
 main()

@@ -114,6 +114,10 @@ pub enum Regime {
     Range,
 }
 
+/// Most seeds of the denoised methods' bias estimate (`--bias-seeds`), as `bench::MAX_REPEATS`
+/// bounds its repeats: beyond it a typo would be hours of renders.
+pub const MAX_BIAS_SEEDS: u32 = 64;
+
 /// What to compare.
 #[derive(Clone, Debug)]
 pub struct CompareOptions {
@@ -299,6 +303,13 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     }
     if opts.bias_seeds == 1 {
         bail!("--bias-seeds 1: a bias estimate needs at least 2 seeds (0: no bias images)");
+    }
+    if opts.bias_seeds > MAX_BIAS_SEEDS {
+        bail!(
+            "--bias-seeds {}: at most {MAX_BIAS_SEEDS} (each seed renders every denoised method's \
+             strip again)",
+            opts.bias_seeds
+        );
     }
     // The denoiser is loaded before anything is rendered: a missing library is one line now.
     let mut denoiser = if opts.methods.iter().any(|c| c.denoise) {
