@@ -313,19 +313,22 @@ fn strict_flag_turns_repairs_into_refusals() {
 /// The memory a render is refused for passing (`RenderOptions::memory_estimate`) covers what a
 /// real render takes beyond the process at start: `mis-cv` with `--aov` at n_f = 9 (its
 /// accumulators, 40 bytes per pixel per frame in flight, are most of it), `mis-cv` at a high
-/// `--spp` on a small film (the workers' native samples of a tile are most of it), and the
-/// independent tracer; and it does not overstate it more than a few times.
+/// `--spp` on a small film (the workers' native samples of a tile are most of it), the
+/// independent tracer, and it with `--denoise`; and it does not overstate it more than a few times.
 #[test]
 fn memory_estimate_covers_a_real_render() {
     use reframe::reuse::Method;
     let d = tempfile::tempdir().unwrap();
-    // (method, window, --aov, frames, resolution, spp)
+    // (method, window, --aov, frames, resolution, spp, --denoise)
     let cases = [
-        (Method::MisCv, 9, true, "0-8", (640, 480), 1),
-        (Method::MisCv, 3, false, "0-2", (64, 64), 256),
-        (Method::Independent, 1, false, "0-1", (640, 480), 1),
+        (Method::MisCv, 9, true, "0-8", (640, 480), 1, false),
+        (Method::MisCv, 3, false, "0-2", (64, 64), 256, false),
+        (Method::Independent, 1, false, "0-1", (640, 480), 1, false),
+        // The denoiser's images and scratch (a render that fitted without them aborted in
+        // the denoiser when memory ran short).
+        (Method::Independent, 1, false, "0", (1920, 1440), 1, true),
     ];
-    for (k, (method, window, aov, frames, (w, h), spp)) in cases.into_iter().enumerate() {
+    for (k, (method, window, aov, frames, (w, h), spp, denoise)) in cases.into_iter().enumerate() {
         let stats = d.path().join(format!("s{k}.json"));
         let mut args: Vec<String> = vec![
             "render".into(),
@@ -353,6 +356,9 @@ fn memory_estimate_covers_a_real_render() {
         if aov {
             args.push("--aov".into());
         }
+        if denoise {
+            args.extend(["--denoise".into(), "--max-depth".into(), "1".into()]);
+        }
         reframe_ok(&args);
         let s: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
@@ -364,6 +370,7 @@ fn memory_estimate_covers_a_real_render() {
             resolution: Some((w, h)),
             spp,
             threads: 2,
+            denoise: denoise.then_some(reframe::driver::denoise::Layers::None),
             ..RenderOptions::default()
         };
         let estimate = opts.memory_estimate((w, h));

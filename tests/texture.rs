@@ -476,3 +476,63 @@ fn damaged_textures_are_refused_before_anything_is_written() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+#[test]
+fn a_texture_larger_than_the_memory_left_is_one_line() {
+    // An 8192 x 8192 texture is within MAX_TEXELS but needs about 1.6 GB to decode: under a
+    // 1.5 GB address-space limit the render aborted with a backtrace when the allocation
+    // failed; it is refused in one line, naming the MTL's line, before anything is written.
+    let dir = tempfile::tempdir().unwrap();
+    let mut img = Image::new(8192, 8192, &["R", "G", "B"]);
+    img.data.fill(0.5);
+    write_image(
+        &dir.path().join("big.exr"),
+        &img,
+        &Metadata::default(),
+        &WriteOptions::default(),
+    )
+    .unwrap();
+    drop(img);
+    let mtl = "newmtl q\nKd 1 1 1\nmap_Kd big.exr\nnewmtl lamp\nKd 0 0 0\nKe 1 1 1\n";
+    let obj = format!("{QUAD}v -1 -1 3\nv 1 -1 3\nv 0 1 3\nusemtl lamp\nf 5 7 6\n");
+    let scene = write_scene(
+        dir.path(),
+        &obj,
+        mtl,
+        &toml(8, 6, [0.0, 0.0, 2.0], 60.0, ""),
+    );
+    let out = dir.path().join("o/f_####.exr");
+    let limited = |scene: &str| {
+        let cmd = format!(
+            "ulimit -v 1500000 && exec '{}' render '{scene}' --spp 1 --threads 1 --out '{}'",
+            env!("CARGO_BIN_EXE_reframe"),
+            out.display()
+        );
+        std::process::Command::new("sh")
+            .args(["-c", &cmd])
+            .output()
+            .unwrap()
+    };
+    // The limit leaves room for the process itself only where its libraries and threads take
+    // less address space than that (a machine of many cores reserves more): the same scene
+    // with a small texture must render under it, else there is nothing to test here.
+    let small = dir.path().join("small");
+    std::fs::create_dir(&small).unwrap();
+    write_texture(&small.join("big.exr"), 4, |_, _| Vec3::splat(0.5), false);
+    let small_scene = write_scene(&small, &obj, mtl, &toml(8, 6, [0.0, 0.0, 2.0], 60.0, ""));
+    if !limited(&small_scene).status.success() {
+        eprintln!("skipped: reframe does not start under a 1.5 GB address-space limit here");
+        return;
+    }
+    std::fs::remove_dir_all(dir.path().join("o")).unwrap();
+    let o = limited(&scene);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("s.mtl: line 3: 'map_Kd big.exr': cannot read")
+            && err.contains("needs about 1.6 GB")
+            && err.trim().lines().count() == 1,
+        "{err}"
+    );
+    assert!(!dir.path().join("o").exists());
+}

@@ -274,7 +274,8 @@ impl RenderOptions {
     /// independent tracer), the adaptive counts, a developed frame and its copy for the file
     /// writer, every worker's windows of the group's frames (`film::local`, at their largest),
     /// every worker's native samples of a tile (`reuse::shade::worker_bytes`) or wavefront batch
-    /// (`integrator::wavefront`), and 32 MB for the rest. The process as it starts (the scene,
+    /// (`integrator::wavefront`), with `--denoise` the denoiser's images and scratch
+    /// (`image::oidn`), and 32 MB for the rest. The process as it starts (the scene,
     /// and mostly OpenImageIO's libraries) is not counted.
     pub fn memory_estimate(&self, (w, h): (u32, u32)) -> u64 {
         let pixels = w as u64 * h as u64;
@@ -312,9 +313,16 @@ impl RenderOptions {
         };
         // A developed frame (RGB and `--aov`'s two channels, f32), and the writer's copies.
         let develop = 3 * 4 * 5 * pixels;
+        // The denoiser's images and its bounded scratch.
+        let denoise = if self.denoise.is_some() {
+            use crate::image::oidn;
+            oidn::BYTES_PER_PIXEL * pixels + ((oidn::MAX_SCRATCH_MB as u64) << 20)
+        } else {
+            0
+        };
         // Thread stacks, Embree's and the image library's working memory.
         let rest = 32 << 20;
-        frames + adaptive + workers + develop + rest
+        frames + adaptive + workers + develop + denoise + rest
     }
 
     /// Refuse a render whose `memory_estimate` passes `available` (where known), naming the
@@ -323,10 +331,15 @@ impl RenderOptions {
         let need = self.memory_estimate((w, h));
         match available {
             Some(a) if need > a => bail!(
-                "--res {w}x{h} with --method {} --window {}: the frames in flight need about \
-                 {:.1} GB, but {:.1} GB of memory is available; lower --res{}",
+                "--res {w}x{h} with --method {} --window {}{}: the frames in flight need \
+                 about {:.1} GB, but {:.1} GB of memory is available; lower --res{}",
                 self.method.name(),
                 self.window,
+                if self.denoise.is_some() {
+                    " --denoise"
+                } else {
+                    ""
+                },
                 need as f64 / 1e9,
                 a as f64 / 1e9,
                 if self.method.reuses() {

@@ -672,6 +672,19 @@ pub fn read_linear_rgb(path: &Path, max_pixels: u64) -> Result<Image> {
         });
         let nch = info.channels.len();
         let pick = colour_channels(&info.channels)?.indices();
+        // Every channel as f32, then the RGB: refused in one line if that does not fit (an
+        // allocation that fails aborts the process).
+        let need = pixels * (4 * nch as u64 + 12);
+        if let Some(a) = crate::util::mem::available_bytes().filter(|&a| need > a) {
+            bail!(
+                "reading its {}x{} pixels of {nch} channels needs about {:.1} GB, but {:.1} GB \
+                 of memory is available",
+                info.width,
+                info.height,
+                need as f64 / 1e9,
+                a as f64 / 1e9
+            );
+        }
         let data = read_all(&mut reader, &info)?;
         let decode = |v: f32| if srgb { srgb_eotf(v as f64) as f32 } else { v };
         let mut rgb = Vec::with_capacity(pixels as usize * 3);

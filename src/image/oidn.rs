@@ -43,10 +43,20 @@ struct Api {
         usize,
     ),
     set_filter_bool: unsafe extern "C" fn(Handle, *const c_char, bool),
+    set_filter_int: unsafe extern "C" fn(Handle, *const c_char, i32),
     commit_filter: unsafe extern "C" fn(Handle),
     execute_filter: unsafe extern "C" fn(Handle),
     release_filter: unsafe extern "C" fn(Handle),
 }
+
+/// The most scratch memory a filter may take, in MB (OIDN's `maxMemoryMB`; its default grows
+/// with the frame).
+pub const MAX_SCRATCH_MB: i32 = 1024;
+
+/// Bytes per pixel a denoised frame holds besides the render's own: the filter's colour,
+/// albedo, normal and output images and the traced guides (RGB f32 each), and the colour
+/// handed to the filter.
+pub const BYTES_PER_PIXEL: u64 = 7 * 12;
 
 /// An OIDN CPU device, ready to denoise frames. Filters are made per frame (a frame's size may
 /// differ from the last one's); the device and its threads are made once.
@@ -306,6 +316,9 @@ impl Denoiser {
             }
             (self.api.set_filter_bool)(filter, c"hdr".as_ptr(), true);
             (self.api.set_filter_bool)(filter, c"cleanAux".as_ptr(), true);
+            // Bounded scratch (a large frame is denoised in overlapping tiles), so that the
+            // render's memory estimate can count it (`RenderOptions::memory_estimate`).
+            (self.api.set_filter_int)(filter, c"maxMemoryMB".as_ptr(), MAX_SCRATCH_MB);
             (self.api.commit_filter)(filter);
             if let Err(e) = self.check("setting up a filter") {
                 (self.api.release_filter)(filter);
@@ -365,6 +378,7 @@ fn resolve(lib: &Library) -> Result<Api> {
             new_filter: f!(b"oidnNewFilter\0"),
             set_shared_filter_image: f!(b"oidnSetSharedFilterImage\0"),
             set_filter_bool: f!(b"oidnSetFilterBool\0"),
+            set_filter_int: f!(b"oidnSetFilterInt\0"),
             commit_filter: f!(b"oidnCommitFilter\0"),
             execute_filter: f!(b"oidnExecuteFilter\0"),
             release_filter: f!(b"oidnReleaseFilter\0"),
