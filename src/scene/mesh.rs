@@ -21,8 +21,10 @@ pub const DEGENERATE: Kind = Kind {
     many: "degenerate (zero-area) triangles skipped",
 };
 const FANNED: Kind = Kind {
-    one: "polygon that ear clipping could not triangulate split as a fan",
-    many: "polygons that ear clipping could not triangulate split as fans",
+    one: "polygon that winds over itself (or that ear clipping could not triangulate) split as \
+          a fan",
+    many: "polygons that wind over themselves (or that ear clipping could not triangulate) \
+           split as fans",
 };
 
 /// Triangle soup with per-triangle materials, as loaded from OBJ/MTL and checked.
@@ -42,6 +44,89 @@ pub struct Mesh {
     /// The texture maps of each material; empty when no material has one.
     pub maps: Vec<super::maps::Maps>,
     pub material_names: Vec<String>,
+}
+
+/// Polygons of at most this many corners go to ear clipping unchecked (its slow passes cost
+/// little there).
+const MAX_UNCHECKED_CORNERS: usize = 32;
+
+/// Whether the closed 2D polygon `flat` (x, y pairs) winds over itself: a directed edge
+/// repeated (a loop walked twice: `f 1 2 3 1 2 3 ...`) or two edges that cross (each
+/// passes strictly through the other's line; a vertex shared by a polygon with a hole bridged
+/// to its outline, or an edge walked back, is not a crossing). Edges are bucketed in a grid of
+/// about one cell per edge, and pairs are tested within cells, up to a budget proportional to
+/// the corners: past it (many long edges through the same cells) the answer is `false`, and
+/// ear clipping takes the polygon as it would have.
+fn winds_over_itself(flat: &[f64]) -> bool {
+    let n = flat.len() / 2;
+    let pt = |i: usize| (flat[2 * (i % n)], flat[2 * (i % n) + 1]);
+    let mut directed = std::collections::HashSet::with_capacity(n);
+    for i in 0..n {
+        let ((ax, ay), (bx, by)) = (pt(i), pt(i + 1));
+        if (ax, ay) != (bx, by) && !directed.insert([ax, ay, bx, by].map(f64::to_bits)) {
+            return true;
+        }
+    }
+    let (mut lo, mut hi) = ((f64::MAX, f64::MAX), (f64::MIN, f64::MIN));
+    for i in 0..n {
+        let (x, y) = pt(i);
+        lo = (lo.0.min(x), lo.1.min(y));
+        hi = (hi.0.max(x), hi.1.max(y));
+    }
+    let g = (n as f64).sqrt().ceil().max(1.0) as usize;
+    let (w, h) = ((hi.0 - lo.0) / g as f64, (hi.1 - lo.1) / g as f64);
+    if !(w > 0.0 && h > 0.0 && w.is_finite() && h.is_finite()) {
+        return false; // on a line: nothing crosses properly
+    }
+    let cell = |v: f64, lo: f64, size: f64| (((v - lo) / size) as usize).min(g - 1);
+    // Each edge in the cells of the columns it spans, rows from its extent within each column.
+    let mut cells: Vec<Vec<u32>> = vec![Vec::new(); g * g];
+    for i in 0..n {
+        let ((ax, ay), (bx, by)) = (pt(i), pt(i + 1));
+        let (c0, c1) = (cell(ax.min(bx), lo.0, w), cell(ax.max(bx), lo.0, w));
+        for c in c0..=c1 {
+            let (x0, x1) = (lo.0 + c as f64 * w, lo.0 + (c + 1) as f64 * w);
+            let y_at = |x: f64| {
+                if bx == ax {
+                    (ay, by)
+                } else {
+                    let t = ((x - ax) / (bx - ax)).clamp(0.0, 1.0);
+                    let y = ay + t * (by - ay);
+                    (y, y)
+                }
+            };
+            let ((p, q), (r, s)) = (y_at(x0.max(ax.min(bx))), y_at(x1.min(ax.max(bx))));
+            let (ylo, yhi) = (p.min(q).min(r).min(s), p.max(q).max(r).max(s));
+            for r in cell(ylo, lo.1, h)..=cell(yhi, lo.1, h) {
+                cells[r * g + c].push(i as u32);
+            }
+        }
+    }
+    // The side of line a-b that c is on: 1, -1, or 0 on it (`signum` would give 1 for 0).
+    let orient = |a: (f64, f64), b: (f64, f64), c: (f64, f64)| {
+        let v = (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0);
+        (v > 0.0) as i32 - (v < 0.0) as i32
+    };
+    let mut budget = 64 * n + 4096;
+    for list in &cells {
+        for (k, &i) in list.iter().enumerate() {
+            for &j in &list[k + 1..] {
+                let (i, j) = (i as usize, j as usize);
+                if (i + 1) % n == j || (j + 1) % n == i {
+                    continue; // neighbours share a corner
+                }
+                if budget == 0 {
+                    return false;
+                }
+                budget -= 1;
+                let (a, b, c, d) = (pt(i), pt(i + 1), pt(j), pt(j + 1));
+                if orient(a, b, c) * orient(a, b, d) < 0 && orient(c, d, a) * orient(c, d, b) < 0 {
+                    return true;
+                }
+            }
+        }
+    }
+    false
 }
 
 /// The triangles of a polygon, as indices into `p` (its corners in order).
@@ -69,6 +154,12 @@ pub fn triangulate(p: &[Vec3]) -> Option<Vec<[usize; 3]>> {
         (0, 1)
     };
     let flat: Vec<f64> = d.iter().flat_map(|q| [q[u], q[v]]).collect();
+    // Ear clipping meets a polygon that winds over itself with passes of cubic cost (a
+    // 2000-corner face took 37 s): such a polygon has no inside to triangulate anyway, and
+    // is split as a fan (the caller's repair) instead.
+    if p.len() > MAX_UNCHECKED_CORNERS && winds_over_itself(&flat) {
+        return None;
+    }
     let idx = earcutr::earcut(&flat, &[], 2).ok()?;
     if idx.is_empty() {
         return None;
@@ -245,5 +336,66 @@ mod tests {
         star.insert(10, star[10]);
         let t = triangulate(&star).unwrap();
         assert!((area(&star, &t) - centre_area).abs() < 1e-4 * centre_area);
+    }
+
+    #[test]
+    fn polygons_that_wind_over_themselves_are_left_to_the_fan() {
+        // One triangle walked 700 times (2100 corners) and a spiral of 2000 corners that
+        // crosses itself took ear clipping 37 s and 10 s; both are found at once and left to
+        // the caller's fan. A simple polygon as large (a comb of 2000 corners, concave) and a
+        // square with a hole bridged to it (two corners walked twice, the bridge there and
+        // back) still go to ear clipping, their area kept.
+        let tri = [Vec3::ZERO, Vec3::X, Vec3::Z];
+        let walked: Vec<Vec3> = (0..2100).map(|k| tri[k % 3]).collect();
+        let spiral: Vec<Vec3> = (0..2000)
+            .map(|k| tri[k % 3] + Vec3::splat(1e-4 * (k / 3) as f32))
+            .collect();
+        for p in [&walked, &spiral] {
+            let start = std::time::Instant::now();
+            assert!(triangulate(p).is_none());
+            assert!(start.elapsed().as_secs_f32() < 30.0, "a hang guard");
+        }
+        let comb: Vec<Vec3> = (0..1000)
+            .flat_map(|k| {
+                let x = k as f32;
+                [Vec3::new(x, 0.0, 10.0), Vec3::new(x + 0.5, 0.0, 1.0)]
+            })
+            .chain([Vec3::new(1000.0, 0.0, 0.0), Vec3::new(0.0, 0.0, 0.0)])
+            .collect();
+        let t = triangulate(&comb).unwrap();
+        let shoelace = |p: &[Vec3]| {
+            (0..p.len())
+                .map(|k| {
+                    let (a, b) = (p[k], p[(k + 1) % p.len()]);
+                    0.5 * (a.x as f64 * b.z as f64 - b.x as f64 * a.z as f64)
+                })
+                .sum::<f64>()
+                .abs() as f32
+        };
+        assert!((area(&comb, &t) - shoelace(&comb)).abs() < 1e-3 * shoelace(&comb));
+        // A 40-gon with a 20-gon hole, bridged at their first corners.
+        let circle = |n: usize, r: f32, turn: f32| -> Vec<Vec3> {
+            (0..n)
+                .map(|k| {
+                    let a = turn * k as f32 * std::f32::consts::TAU / n as f32;
+                    Vec3::new(r * a.cos(), 0.0, r * a.sin())
+                })
+                .collect()
+        };
+        let (outer, hole) = (circle(40, 20.0, 1.0), circle(20, 10.0, -1.0));
+        let bridged: Vec<Vec3> = outer
+            .iter()
+            .chain(&outer[..1])
+            .chain(&hole)
+            .chain(&hole[..1])
+            .copied()
+            .collect();
+        let t = triangulate(&bridged).unwrap();
+        let want = shoelace(&outer) - shoelace(&hole);
+        assert!(
+            (area(&bridged, &t) - want).abs() < 1e-4 * want,
+            "{} {want}",
+            area(&bridged, &t)
+        );
     }
 }
