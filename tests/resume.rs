@@ -425,3 +425,64 @@ fn a_report_never_replaces_a_state_file() {
     run(&chunk("1/2"));
     run(&["merge", "--chunks", "2", "--out", &out]);
 }
+
+#[test]
+fn a_checkpoint_folder_named_like_a_frame_is_refused_at_once() {
+    // It rendered frame 0 and then failed writing frame 1 ("is a directory"), leaving a
+    // checkpoint folder named f_0001.exr.
+    let dir = tempfile::tempdir().unwrap();
+    let out = format!("{}/o/f_####.exr", dir.path().display());
+    let ckpt = format!("{}/o/f_0001.exr", dir.path().display());
+    let o = reframe()
+        .args([
+            "render",
+            "cornell",
+            "--method",
+            "mis-exact",
+            "--window",
+            "3",
+            "--spp",
+            "1",
+        ])
+        .args([
+            "--frames",
+            "0-2",
+            "--res",
+            "16x12",
+            "--out",
+            &out,
+            "--checkpoint",
+            &ckpt,
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success()
+            && err.contains("that is also where --out")
+            && err.trim().lines().count() == 1,
+        "{err}"
+    );
+    assert!(!dir.path().join("o").exists());
+}
+
+#[test]
+fn a_render_clears_the_temporary_frames_a_killed_one_left() {
+    // A process killed while writing a frame leaves `.NAME.tmp-PID-N.ext`; the next render of
+    // the same pattern (holding its lock) removes those of its frames, and nothing else.
+    let dir = tempfile::tempdir().unwrap();
+    let o = dir.path().join("o");
+    std::fs::create_dir(&o).unwrap();
+    let (ours, other) = (
+        o.join(".f_0001.exr.tmp-4194303-7.exr"),
+        o.join(".g_0001.exr.tmp-4194303-7.exr"),
+    );
+    std::fs::write(&ours, b"half a frame").unwrap();
+    std::fs::write(&other, b"another pattern's").unwrap();
+    let out = format!("{}/f_####.exr", o.display());
+    run(&[
+        "render", "cornell", "--spp", "1", "--frames", "0-2", "--res", "16x12", "--out", &out,
+    ]);
+    assert!(!ours.exists() && other.exists());
+    assert!(o.join("f_0001.exr").exists());
+}

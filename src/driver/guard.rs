@@ -109,12 +109,28 @@ impl Drop for OutputLock {
 
 /// `p` as it will resolve once written: its folder canonicalised (symlinks, `..`), its name
 /// kept. `None` if the folder does not exist.
-fn resolved(p: &Path) -> Option<PathBuf> {
+pub fn resolved(p: &Path) -> Option<PathBuf> {
     if let Ok(c) = p.canonicalize() {
         return Some(c);
     }
     let dir = parent_dir(p).canonicalize().ok()?;
     Some(dir.join(p.file_name()?))
+}
+
+/// Refuse a folder a command creates (`flag`, `--checkpoint`) at the path of one of its
+/// `outputs` (a checkpoint named like a later frame made that frame's write fail at its turn).
+pub fn check_folder_apart(flag: &str, dir: &Path, outputs: &[(&str, PathBuf)]) -> Result<()> {
+    let Some(d) = resolved(dir) else {
+        return Ok(());
+    };
+    if let Some((other, out)) = outputs.iter().find(|(_, o)| resolved(o) == Some(d.clone())) {
+        bail!(
+            "{flag} {}: that is also where {other} {} goes; nothing was written",
+            dir.display(),
+            out.display()
+        );
+    }
+    Ok(())
 }
 
 /// Refuse, before anything is written, any output of a command (`flag`, the path) that

@@ -187,6 +187,7 @@ pub fn merge(
         .chain([("--out", lock.clone())]);
     super::guard::check_outputs(outputs, &inputs)?;
     let _lock = super::guard::OutputLock::acquire(&lock, pattern)?;
+    super::remove_stale_frames(&out, range.clone());
     // Where each frame's shares are: frame -> (file, offset).
     let mut shares: BTreeMap<u32, Vec<(usize, u64)>> = BTreeMap::new();
     for (i, f) in files.iter().enumerate() {

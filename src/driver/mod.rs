@@ -62,13 +62,38 @@ pub fn lock_path(pattern: &str, chunk: Option<Chunk>) -> PathBuf {
 /// every frame it finished (the first `next_unit - first unit` frames of the plan; a chunk's are
 /// in its log) still there and readable. A frame deleted or damaged since would otherwise be
 /// reported as written.
+/// Remove the temporary frame files (`.NAME.tmp-PID-N.ext`) that a process killed while
+/// writing frames `frames` of `out` left: called with the pattern's lock held, so no other
+/// process is writing them.
+pub(crate) fn remove_stale_frames(out: &OutputPattern, frames: std::ops::RangeInclusive<u32>) {
+    // The frames' names, made only if the folder holds a temporary file at all.
+    let names = std::cell::OnceCell::<std::collections::HashSet<String>>::new();
+    let dir = parent_dir(&out.path(*frames.start()));
+    remove_stale_tmp(&dir, |n| {
+        names
+            .get_or_init(|| {
+                frames
+                    .clone()
+                    .filter_map(|f| Some(out.path(f).file_name()?.to_string_lossy().into_owned()))
+                    .collect()
+            })
+            .contains(n)
+    });
+}
+
 fn check_resumed_outputs(
     t: &Trailer,
     opts: &RenderOptions,
     plan: &Plan,
     out: &OutputPattern,
 ) -> Result<()> {
-    if t.out != opts.out {
+    // The same pattern, written alike or not (`o/f_####.exr`, `./o/f_####.exr`, absolute).
+    let same = |a: &str, b: &str| {
+        a == b
+            || guard::resolved(Path::new(a))
+                .is_some_and(|r| guard::resolved(Path::new(b)) == Some(r))
+    };
+    if !same(&t.out, &opts.out) {
         bail!(
             "--resume: the checkpoint is of --out {}, not {}; resume with the same --out",
             t.out,
@@ -235,6 +260,9 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
             .map(|d| ("--checkpoint", d.join("state"))),
     );
     outputs.push(("--out", lock.clone()));
+    if let Some(d) = &opts.checkpoint {
+        guard::check_folder_apart("--checkpoint", d, &outputs)?;
+    }
     guard::check_outputs(outputs, &scene.inputs)?;
     let _lock = guard::OutputLock::acquire(&lock, &opts.out)?;
     let (ckpt, resumed) = if opts.checkpoint.is_some() || opts.chunk.is_some() {
@@ -259,17 +287,12 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     };
     // Every check has passed: the output folder stays.
     created.keep();
+    if opts.chunk.is_none() {
+        remove_stale_frames(&out, plan.frames.clone());
+    }
     let (counters, next, active) = match resumed {
         Some(r) => {
             check_resumed_outputs(&r.trailer, opts, &plan, &out)?;
-            // Frame files a killed process was writing when it died.
-            let names: Vec<String> = plan
-                .frames
-                .clone()
-                .filter_map(|f| Some(out.path(f).file_name()?.to_string_lossy().into_owned()))
-                .collect();
-            let dir = parent_dir(&out.path(*plan.frames.start()));
-            remove_stale_tmp(&dir, |n| names.iter().any(|m| m == n));
             (r.trailer.progress, r.trailer.next_unit, r.active)
         }
         None => (Counters::default(), *plan.units.start(), vec![]),

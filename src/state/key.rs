@@ -104,9 +104,15 @@ impl RunKey {
             serde_json::to_value(o).ok()?,
         );
         let (a, b) = (a.as_object()?, b.as_object()?);
+        // Text as itself, not JSON-quoted; the scene's hash said for what it is.
+        let show = |v: &serde_json::Value| v.as_str().map_or_else(|| v.to_string(), str::to_string);
         a.iter().find_map(|(k, v)| {
-            let w = &b[k];
-            (v != w).then(|| format!("{k}: {v} vs {w}"))
+            let (v, w) = (show(v), show(&b[k]));
+            (v != w).then(|| match k.as_str() {
+                "scene_hash" => format!("the scene's files differ: content hash {v} vs {w}"),
+                "build_hash" => format!("another build of reframe: {v} vs {w}"),
+                _ => format!("{k}: {v} vs {w}"),
+            })
         })
     }
 }

@@ -965,5 +965,22 @@ mod tests {
         let mut other = key.clone();
         other.spp = 2;
         assert_eq!(key.difference(&other).unwrap(), "spp: 1 vs 2");
+        // Text without JSON's quotes, and the scene's hash said for what it is.
+        let other = RunKey {
+            primary: "single".into(),
+            ..key.clone()
+        };
+        assert_eq!(
+            key.difference(&other).unwrap(),
+            format!("primary: {} vs single", key.primary)
+        );
+        let other = RunKey {
+            scene_hash: "5fb8".into(),
+            ..key.clone()
+        };
+        assert!(key
+            .difference(&other)
+            .unwrap()
+            .starts_with("the scene's files differ: content hash "));
     }
 }
