@@ -2,6 +2,7 @@
 mod common;
 
 use common::reframe_ok as reframe;
+use reframe::image::read_image;
 use serde_json::Value;
 use std::path::Path;
 
@@ -209,6 +210,46 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
     ]);
     assert!(String::from_utf8_lossy(&o.stdout).contains("(cached)"));
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 1);
+    // A cached frame replaced by another frame's file (it was taken as it was) is found, said
+    // once, and the reference made again, as it was.
+    let refdir = std::fs::read_dir(&cache)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let made = std::fs::read(refdir.join("ref_0005.exr")).unwrap();
+    std::fs::copy(refdir.join("ref_0004.exr"), refdir.join("ref_0005.exr")).unwrap();
+    let o = reframe(&[
+        "reference",
+        "cornell",
+        "--res",
+        "40x40",
+        "--frames",
+        "4-8",
+        "--reference-spp",
+        "64",
+        "--cache",
+        cache.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.success()
+            && err
+                .contains("is damaged (frame 5 is not the one that was made); rendering it again"),
+        "{err}"
+    );
+    let again = read_image(&refdir.join("ref_0005.exr")).unwrap();
+    let want = read_image_bytes(&made);
+    assert_eq!(again.data, want.data, "made again as it was");
+}
+
+/// An image from its file's bytes (through a temporary file).
+fn read_image_bytes(bytes: &[u8]) -> reframe::image::Image {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("x.exr");
+    std::fs::write(&p, bytes).unwrap();
+    read_image(&p).unwrap()
 }
 
 #[test]

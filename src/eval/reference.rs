@@ -59,6 +59,35 @@ struct ReferenceInfo {
     max_depth: u32,
     key: String,
     seconds: f64,
+    /// Each frame's content hash (`frame_digest`), in order: a frame changed or damaged since
+    /// (a file replaced by another frame's, a value edited) is found and made again.
+    #[serde(default)]
+    digests: Vec<String>,
+}
+
+/// The hash of a reference frame's values (mean and variance, as f32 bits).
+fn frame_digest(f: &RefFrame) -> String {
+    let mut h = Fnv::default();
+    h.f32s(f.mean.iter().chain(&f.var).flat_map(|v| v.to_array()));
+    h.hex()
+}
+
+/// The cached frames of a reference if every one reads back as it was made; why not, else.
+fn read_cached(
+    info: &ReferenceInfo,
+    range: &RangeInclusive<u32>,
+    (w, h): (u32, u32),
+    frame_path: impl Fn(u32) -> PathBuf,
+) -> Result<Vec<RefFrame>> {
+    let mut frames = Vec::new();
+    for (k, f) in range.clone().enumerate() {
+        let frame = read_reference_frame(&frame_path(f), w, h)?;
+        if info.digests.get(k) != Some(&frame_digest(&frame)) {
+            bail!("frame {f} is not the one that was made");
+        }
+        frames.push(frame);
+    }
+    Ok(frames)
 }
 
 /// The cache key of a reference (see the module note).
@@ -106,18 +135,23 @@ pub fn reference(
     if let Ok(text) = std::fs::read_to_string(&info_path) {
         let info: ReferenceInfo = serde_json::from_str(&text)
             .with_context(|| format!("{}: not a reference description", info_path.display()))?;
-        let mut frames = Vec::new();
-        for f in range.clone() {
-            frames.push(read_reference_frame(&frame_path(f), w, h)?);
+        match read_cached(&info, &range, (w, h), frame_path) {
+            Ok(frames) => {
+                return Ok(Reference {
+                    first,
+                    frames,
+                    dir,
+                    spp,
+                    cached: true,
+                    seconds: info.seconds,
+                })
+            }
+            // A cache is a copy of what can be made again: made again, said once.
+            Err(e) => eprintln!(
+                "warning: the cached reference in {} is damaged ({e:#}); rendering it again",
+                dir.display()
+            ),
         }
-        return Ok(Reference {
-            first,
-            frames,
-            dir,
-            spp,
-            cached: true,
-            seconds: info.seconds,
-        });
     }
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     check_writable_dir(&dir)?;
@@ -178,6 +212,7 @@ pub fn reference(
             max_depth,
             key,
             seconds,
+            digests: frames.iter().map(frame_digest).collect(),
         },
     )?;
     Ok(Reference {
