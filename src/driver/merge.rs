@@ -184,7 +184,7 @@ pub fn merge(
     let outputs = range
         .clone()
         .map(|f| ("--out", out.path(f)))
-        .chain([("--out", lock.clone())]);
+        .chain([("the lock of --out", lock.clone())]);
     super::guard::check_outputs(outputs, &inputs)?;
     let _lock = super::guard::OutputLock::acquire(&lock, pattern)?;
     super::remove_stale_frames(&out, range.clone());

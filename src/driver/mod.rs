@@ -259,7 +259,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
             .iter()
             .map(|d| ("--checkpoint", d.join("state"))),
     );
-    outputs.push(("--out", lock.clone()));
+    outputs.push(("the lock of --out", lock.clone()));
     if let Some(d) = &opts.checkpoint {
         guard::check_folder_apart("--checkpoint", d, &outputs)?;
     }

@@ -229,7 +229,7 @@ impl RenderOptions {
         }
         if !(0.0..=MAX_CHECKPOINT_EVERY).contains(&self.checkpoint_every) {
             bail!(
-                "--checkpoint-every {:e}: seconds from 0 to {MAX_CHECKPOINT_EVERY} (a year)",
+                "--checkpoint-every {}: seconds from 0 to {MAX_CHECKPOINT_EVERY} (a year)",
                 self.checkpoint_every
             );
         }
@@ -246,17 +246,16 @@ impl RenderOptions {
         let all_units = run_units(*range.start(), *range.end(), self.window);
         let units = match self.chunk {
             Some(c) => c.share(all_units.clone()).with_context(|| {
-                format!(
-                    "{} of frames {}-{} with window {}",
-                    if self.method.reuses() {
-                        "groups"
-                    } else {
-                        "frames"
-                    },
-                    range.start(),
-                    range.end(),
-                    self.window
-                )
+                if self.method.reuses() {
+                    format!(
+                        "the groups of {} frames over frames {}-{}",
+                        self.window,
+                        range.start(),
+                        range.end()
+                    )
+                } else {
+                    format!("frames {}-{}", range.start(), range.end())
+                }
             })?,
             None => all_units.clone(),
         };

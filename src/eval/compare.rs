@@ -420,7 +420,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
                         match opts.regime {
                             Regime::Range => format!("longer than the {n_frames} frames"),
                             Regime::Steady => format!(
-                                "its steady state needs frames {}-{}, the scene has 0-{}",
+                                "its steady state needs frames {} to {}, the scene has 0 to {}",
                                 first as i64 + 1 - n_f as i64,
                                 last + n_f - 1,
                                 scene.frames - 1
@@ -499,9 +499,15 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         } else {
             (None, None)
         };
+        // Flicker is measured between consecutive frames: none for one frame.
+        let shown = if per_frame.len() < 2 {
+            "-".to_string()
+        } else {
+            format!("{flicker:.5}")
+        };
         pb.suspend(|| {
             eprintln!(
-                "{:>16} window {window:>2} spp {spp:>3}: {seconds:>7.2} s  rmse {rmse:.5}  relMSE {relmse:.5}  flicker {flicker:.5}",
+                "{:>16} window {window:>2} spp {spp:>3}: {seconds:>7.2} s  rmse {rmse:.5}  relMSE {relmse:.5}  flicker {shown}",
                 method.name()
             )
         });
@@ -1031,14 +1037,18 @@ pub fn summary(r: &CompareReport) -> String {
     for run in &r.runs {
         let _ = writeln!(
             s,
-            "{:<17} {:>6} {:>4} {:>9.2} {:>10.5} {:>10.5} {:>10.5}",
+            "{:<17} {:>6} {:>4} {:>9.2} {:>10.5} {:>10.5} {:>10}",
             run.method.name(),
             run.window,
             run.spp,
             run.seconds,
             run.rmse,
             run.relmse,
-            run.flicker
+            if run.per_frame.len() < 2 {
+                "-".to_string()
+            } else {
+                format!("{:.5}", run.flicker)
+            }
         );
     }
     let speedups = [
@@ -1094,7 +1104,9 @@ pub fn summary(r: &CompareReport) -> String {
             None => format!("n_f {n}: {x:.2}x / - (no mis-exact run)"),
         })
         .collect();
-    let _ = write!(s, "same-spp speed-up, eq. 16 / measured: {}", p.join(", "));
+    if !p.is_empty() {
+        let _ = write!(s, "same-spp speed-up, eq. 16 / measured: {}", p.join(", "));
+    }
     s
 }
 
