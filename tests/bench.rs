@@ -196,18 +196,21 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
     // Second time: the reference comes from the cache, and `reframe reference` finds it too.
     run(args(&["--methods", "independent"]));
     assert_eq!(json(&out.join("compare.json"))["reference"]["cached"], true);
-    let o = reframe(&[
-        "reference",
-        "cornell",
-        "--res",
-        "40x40",
-        "--frames",
-        "4-8",
-        "--reference-spp",
-        "64",
-        "--cache",
-        cache.to_str().unwrap(),
-    ]);
+    let reference = || {
+        reframe(&[
+            "reference",
+            "cornell",
+            "--res",
+            "40x40",
+            "--frames",
+            "4-8",
+            "--reference-spp",
+            "64",
+            "--cache",
+            cache.to_str().unwrap(),
+        ])
+    };
+    let o = reference();
     assert!(String::from_utf8_lossy(&o.stdout).contains("(cached)"));
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 1);
     // A cached frame replaced by another frame's file (it was taken as it was) is found, said
@@ -220,18 +223,7 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
         .path();
     let made = std::fs::read(refdir.join("ref_0005.exr")).unwrap();
     std::fs::copy(refdir.join("ref_0004.exr"), refdir.join("ref_0005.exr")).unwrap();
-    let o = reframe(&[
-        "reference",
-        "cornell",
-        "--res",
-        "40x40",
-        "--frames",
-        "4-8",
-        "--reference-spp",
-        "64",
-        "--cache",
-        cache.to_str().unwrap(),
-    ]);
+    let o = reference();
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         o.status.success()

@@ -229,7 +229,7 @@ impl RenderOptions {
         }
         if !(0.0..=MAX_CHECKPOINT_EVERY).contains(&self.checkpoint_every) {
             bail!(
-                "--checkpoint-every {}: seconds from 0 to {MAX_CHECKPOINT_EVERY} (a year)",
+                "--checkpoint-every {:?}: seconds from 0 to {MAX_CHECKPOINT_EVERY} (a year)",
                 self.checkpoint_every
             );
         }
