@@ -7,11 +7,16 @@
 //! row from the -Z direction through +X, and `v = acos(d.y) / π` down the rows from +Y (top row)
 //! to -Y (bottom row). `rotation` turns the environment about +Y (right-handed, degrees).
 //!
-//! A texel's radiance is constant over its cell (no filtering), and sampling picks a texel with
-//! probability proportional to its luminance times its solid angle, then a direction uniformly
-//! in solid angle inside the cell: the density is constant over each cell,
-//! `pdf(d) = P(texel) / Ω(texel)`, with no singularity at the poles, and a uniform environment is
-//! sampled uniformly over the sphere.
+//! The radiance is interpolated bilinearly as Mitsuba 3's `envmap` interpolates it: along a row
+//! between texel centres (`x = u W - 1/2`, wrapping around), and down the rows between rows
+//! placed from the top pole to the bottom one (`y = v (H - 1)`: row 0 is exactly +Y and row
+//! `H - 1` exactly -Y). Sampling divides the sphere into cells, one per texel (`u` in
+//! `[c, c + 1] / W`, `v` in `[r, r + 1] / H`), picks a cell with probability proportional to the
+//! largest luminance among the texels that the interpolation can reach in it (its texel and
+//! the eight around it, so no direction of positive radiance has zero density) times its solid
+//! angle, then a direction uniformly in solid angle inside the cell: the density is constant
+//! over each cell, `pdf(d) = P(cell) / Ω(cell)`, with no singularity at the poles, and a
+//! uniform environment is sampled uniformly over the sphere.
 //!
 //! ```
 //! use reframe::scene::environment::Environment;
@@ -65,16 +70,26 @@ impl Environment {
     pub fn from_texels(width: u32, height: u32, texels: Vec<Vec3>, rotation_deg: f32) -> Self {
         let (w, h) = (width as usize, height as usize);
         assert_eq!(texels.len(), w * h, "texel count");
-        // Weights: luminance times the texel's solid angle, 2π/W (cos θ0 - cos θ1).
+        // A saturated colour can have zero luminance: its max keeps it samplable.
+        let lum = |t: Vec3| luminance(t).max(t.max_element() * 1e-3) as f64;
+        // Weights: the largest luminance the interpolation reaches in a cell (its texel's row and
+        // column and their neighbours: `x` spans a column either side of the centre, and `y`
+        // of a cell between rows `r - 1` and `r + 1`), times the cell's solid angle,
+        // 2π/W (cos θ0 - cos θ1).
         let mut col_cdf = vec![0.0f64; w * h];
         let mut row_weight = vec![0.0f64; h];
         for r in 0..h {
             let omega = cell_solid_angle(r, w, h);
+            let rows = r.saturating_sub(1)..=(r + 1).min(h - 1);
             let mut acc = 0.0;
             for c in 0..w {
-                let t = texels[r * w + c];
-                // A saturated colour can have zero luminance: its max keeps it samplable.
-                acc += luminance(t).max(t.max_element() * 1e-3) as f64 * omega;
+                let mut reach = 0.0f64;
+                for rr in rows.clone() {
+                    for cc in [c + w - 1, c, c + 1] {
+                        reach = reach.max(lum(texels[rr * w + cc % w]));
+                    }
+                }
+                acc += reach * omega;
                 col_cdf[r * w + c] = acc;
             }
             row_weight[r] = acc;
@@ -134,22 +149,51 @@ impl Environment {
         )
     }
 
-    /// The texel a world direction falls in.
+    /// The image coordinates `(u, v)` in [0, 1) x [0, 1] of a world direction.
     #[inline]
-    fn texel(&self, d: Vec3) -> usize {
+    fn uv(&self, d: Vec3) -> (f64, f64) {
         let l = self.to_local(d);
         let u = (l.x as f64).atan2(-l.z as f64) / (2.0 * PI);
         let u = if u < 0.0 { u + 1.0 } else { u };
         let v = (l.y.clamp(-1.0, 1.0) as f64).acos() / PI;
+        (u, v)
+    }
+
+    /// The sampling cell a world direction falls in (one per texel).
+    #[inline]
+    fn texel(&self, d: Vec3) -> usize {
+        let (u, v) = self.uv(d);
         let c = ((u * self.width as f64) as usize).min(self.width as usize - 1);
         let r = ((v * self.height as f64) as usize).min(self.height as usize - 1);
         r * self.width as usize + c
     }
 
-    /// Radiance arriving from world direction `d` (unit).
+    /// Radiance arriving from world direction `d` (unit): bilinear between texel centres along
+    /// a row (wrapping) and between rows placed pole to pole down the image (see the module
+    /// note).
     #[inline]
     pub fn radiance(&self, d: Vec3) -> Vec3 {
-        self.texels[self.texel(d)]
+        let (w, h) = (self.width as usize, self.height as usize);
+        if w * h == 1 {
+            return self.texels[0];
+        }
+        let (u, v) = self.uv(d);
+        let x = u * w as f64 - 0.5;
+        let x0 = x.floor();
+        let fx = (x - x0) as f32;
+        let c0 = (x0 as i64).rem_euclid(w as i64) as usize;
+        let c1 = (c0 + 1) % w;
+        let (r0, r1, fy) = if h == 1 {
+            (0, 0, 0.0)
+        } else {
+            let y = v * (h - 1) as f64;
+            let r0 = (y as usize).min(h - 2);
+            (r0, r0 + 1, (y - r0 as f64).clamp(0.0, 1.0) as f32)
+        };
+        let t = |r: usize, c: usize| self.texels[r * w + c];
+        let top = t(r0, c0) * (1.0 - fx) + t(r0, c1) * fx;
+        let bottom = t(r1, c0) * (1.0 - fx) + t(r1, c1) * fx;
+        top * (1.0 - fy) + bottom * fy
     }
 
     /// Solid-angle density with which `sample` picks world direction `d`.
@@ -190,7 +234,7 @@ impl Environment {
         }
         Some(EnvSample {
             wi,
-            le: self.texels[i],
+            le: self.radiance(wi),
             pdf,
         })
     }
@@ -263,24 +307,83 @@ mod tests {
         let (w, h) = (8u32, 4u32);
         let t: Vec<Vec3> = (0..w * h).map(|i| Vec3::splat(i as f32)).collect();
         let env = Environment::from_texels(w, h, t.clone(), 0.0);
-        let at = |d: Vec3| env.radiance(d.normalize()).x as u32;
+        let at = |d: Vec3| env.radiance(d.normalize()).x;
         // Up is the top row, down the bottom row; -Z is the start of a row (u = 0), +X a quarter
-        // along (u = 1/4), +Z the middle (u = 1/2), -X three quarters (u = 3/4).
-        assert_eq!(at(Vec3::new(0.01, 1.0, -0.01)) / w, 0);
-        assert_eq!(at(Vec3::new(0.01, -1.0, -0.01)) / w, h - 1);
-        let eq = |d: Vec3| at(d + Vec3::new(0.0, 0.1, 0.0)) % w; // just above the horizon: row 1
-        assert_eq!(eq(Vec3::new(0.01, 0.0, -1.0)), 0);
-        assert_eq!(eq(Vec3::new(1.0, 0.0, 0.01)), 2);
-        assert_eq!(eq(Vec3::new(-0.01, 0.0, 1.0)), 4);
-        assert_eq!(eq(Vec3::new(-1.0, 0.0, -0.01)), 6);
+        // along (u = 1/4), +Z the middle (u = 1/2), -X three quarters (u = 3/4). At a texel's
+        // centre along the row, the radiance is the texel's.
+        let dir = |u: f64, v: f64| {
+            let (th, ph) = (PI * v, 2.0 * PI * u);
+            Vec3::new(
+                (th.sin() * ph.sin()) as f32,
+                th.cos() as f32,
+                (-th.sin() * ph.cos()) as f32,
+            )
+        };
+        assert!((at(Vec3::Y) - 3.5).abs() < 1e-4, "{}", at(Vec3::Y)); // the top row, wrapped
+        let row1 = 1.0 / 3.0; // rows at v = r / (h - 1)
+        for (u, c) in [
+            (0.5 / 8.0, 0.0),
+            (2.5 / 8.0, 2.0),
+            (4.5 / 8.0, 4.0),
+            (6.5 / 8.0, 6.0),
+        ] {
+            let got = at(dir(u, row1));
+            assert!((got - (w as f32 + c)).abs() < 1e-3, "u {u}: {got}");
+        }
         // Turned by 90 degrees about +Y: what was seen towards -Z is now seen towards -X
         // (right-handed: -Z turns into -X).
         let turned = Environment::from_texels(w, h, t, 90.0);
         let d = Vec3::new(-1.0, 0.1, 0.01).normalize();
-        assert_eq!(
+        let (a, b) = (
             turned.radiance(d),
-            env.radiance(Vec3::new(-0.01, 0.1, -1.0).normalize())
+            env.radiance(Vec3::new(-0.01, 0.1, -1.0).normalize()),
         );
+        assert!((a - b).abs().max_element() < 1e-4, "{a} {b}");
+    }
+
+    #[test]
+    fn radiance_is_interpolated_as_mitsuba_3_interpolates_it() {
+        // Rows of 1, 10 and 100, and 1000 more red in column 1: the values Mitsuba 3.9.1's
+        // `envmap` (scalar_rgb) returned for these directions, read from it.
+        let (w, h) = (4u32, 3u32);
+        let t: Vec<Vec3> = (0..w * h)
+            .map(|i| {
+                let v = [1.0, 10.0, 100.0][(i / w) as usize];
+                Vec3::new(v + if i % w == 1 { 1000.0 } else { 0.0 }, v, v)
+            })
+            .collect();
+        let env = Environment::from_texels(w, h, t, 0.0);
+        let dir = |theta: f64, u: f64| {
+            let ph = 2.0 * PI * u;
+            Vec3::new(
+                (theta.sin() * ph.sin()) as f32,
+                theta.cos() as f32,
+                (-theta.sin() * ph.cos()) as f32,
+            )
+        };
+        let q = PI / 4.0;
+        for (theta, want) in [
+            (0.0, 1.0),
+            (q / 2.0, 3.25),
+            (q, 5.5),
+            (PI / 3.0, 7.0),
+            (2.0 * q, 10.0),
+            (3.0 * q, 55.0),
+            (PI, 100.0),
+        ] {
+            let got = env.radiance(dir(theta, 0.0)).y;
+            assert!(
+                (got - want).abs() < 1e-3 * want,
+                "theta {theta}: {got}, Mitsuba {want}"
+            );
+        }
+        for (u, want) in [(0.0, 10.0), (0.25, 510.0), (0.375, 1010.0), (0.5, 510.0)] {
+            let got = env.radiance(dir(2.0 * q, u)).x;
+            assert!(
+                (got - want).abs() < 1e-3 * want,
+                "u {u}: {got}, Mitsuba {want}"
+            );
+        }
     }
 
     /// A grid of world directions over the sphere, `nt` rows uniform in θ from +Y and `np`
