@@ -1042,7 +1042,8 @@ fn check_camera(
         ] {
             let c = &v.get_ref().0;
             if !c.iter().all(|c| c.is_finite()) {
-                bail!("{}: {key} {c:?} is not finite", at(v.span()));
+                let why = text::beyond_f32(c.iter().copied());
+                bail!("{}: {key} {c:?} is not finite{why}", at(v.span()));
             }
             if c.iter().any(|c| c.abs() > MAX_COORD) {
                 bail!(

@@ -151,7 +151,8 @@ fn pose(e: &Entry) -> Result<Pose, String> {
         } => {
             for (key, c) in [("position", position), ("look_at", look_at), ("up", up)] {
                 if !c.iter().all(|c| c.is_finite()) {
-                    return Err(format!("{key} {c:?} is not finite"));
+                    let why = super::text::beyond_f32(c.iter().copied());
+                    return Err(format!("{key} {c:?} is not finite{why}"));
                 }
                 if c.iter().any(|c| c.abs() > MAX_COORD) {
                     return Err(format!("{key} {c:?} is too large (at most {MAX_COORD:e})"));

@@ -111,7 +111,8 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                 }
                 count[0] += 1;
                 if !p.iter().all(|c| c.is_finite()) {
-                    return Err(err(format!("vertex {} is not finite", count[0])));
+                    let why = super::text::beyond_f32(p.iter().copied());
+                    return Err(err(format!("vertex {} is not finite{why}", count[0])));
                 }
                 if let Some(c) = p.iter().find(|c| c.abs() > MAX_COORD) {
                     return Err(err(format!(
@@ -309,6 +310,10 @@ mod tests {
             ),
             ("f 1 2 x", "'x': expected v"),
             ("v 1 nan 0", "vertex 5 is not finite"),
+            (
+                "v 1 1e39 0",
+                "vertex 5 is not finite (a number beyond single precision",
+            ),
             ("v 1 2", "expected 'v x y z'"),
             ("v 1 2 3 0", "w = 0"),
             ("v 1e30 0 0", "too large"),
