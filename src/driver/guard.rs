@@ -123,7 +123,10 @@ pub fn check_folder_apart(flag: &str, dir: &Path, outputs: &[(&str, PathBuf)]) -
     let Some(d) = resolved(dir) else {
         return Ok(());
     };
-    if let Some((other, out)) = outputs.iter().find(|(_, o)| resolved(o) == Some(d.clone())) {
+    if let Some((other, out)) = outputs
+        .iter()
+        .find(|(_, o)| resolved(o).as_ref() == Some(&d))
+    {
         bail!(
             "{flag} {}: that is also where {other} {} goes; nothing was written",
             dir.display(),

@@ -58,10 +58,6 @@ pub fn lock_path(pattern: &str, chunk: Option<Chunk>) -> PathBuf {
     }
 }
 
-/// A resumed render's outputs must be where its checkpoint left them: the same `--out`, and
-/// every frame it finished (the first `next_unit - first unit` frames of the plan; a chunk's are
-/// in its log) still there and readable. A frame deleted or damaged since would otherwise be
-/// reported as written.
 /// Remove the temporary frame files (`.NAME.tmp-PID-N.ext`) that a process killed while
 /// writing frames `frames` of `out` left: called with the pattern's lock held, so no other
 /// process is writing them.
@@ -81,6 +77,10 @@ pub(crate) fn remove_stale_frames(out: &OutputPattern, frames: std::ops::RangeIn
     });
 }
 
+/// A resumed render's outputs must be where its checkpoint left them: the same `--out`, and
+/// every frame it finished (the first `next_unit - first unit` frames of the plan; a chunk's are
+/// in its log) still there and readable. A frame deleted or damaged since would otherwise be
+/// reported as written.
 fn check_resumed_outputs(
     t: &Trailer,
     opts: &RenderOptions,

@@ -660,7 +660,21 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
 /// sRGB (OIIO's `oiio:ColorSpace`, which it sets for 8-bit PNG and JPEG), so that an 8-bit file
 /// gives the same linear values as the HDR it was made from.
 pub fn read_linear_rgb(path: &Path, max_pixels: u64) -> Result<Image> {
-    let read = || -> Result<Image> {
+    read_colour(path, max_pixels).map(|(img, _)| img)
+}
+
+/// How a colour input's file holds its colour: in which channels (`colour_channels`), and
+/// whether they are sRGB-encoded (OIIO's `oiio:ColorSpace`).
+#[derive(Clone, Copy, Debug)]
+pub struct ColourLayout {
+    pub colour: Colour,
+    pub srgb: bool,
+}
+
+/// `read_linear_rgb`, and how the file held the colour (for a lookup that reads the file's own
+/// texels later, `Textures`).
+pub fn read_colour(path: &Path, max_pixels: u64) -> Result<(Image, ColourLayout)> {
+    let read = || -> Result<(Image, ColourLayout)> {
         let (mut reader, info) = open_checked(path, max_pixels)?;
         let pixels = info.width as u64 * info.height as u64;
         if pixels == 0 || info.channels.is_empty() {
@@ -671,7 +685,8 @@ pub fn read_linear_rgb(path: &Path, max_pixels: u64) -> Result<Image> {
                 && a.text.to_ascii_lowercase().contains("srgb")
         });
         let nch = info.channels.len();
-        let pick = colour_channels(&info.channels)?.indices();
+        let colour = colour_channels(&info.channels)?;
+        let pick = colour.indices();
         // Every channel as f32, then the RGB: refused in one line if that does not fit (an
         // allocation that fails aborts the process).
         let need = pixels * (4 * nch as u64 + 12);
@@ -691,12 +706,13 @@ pub fn read_linear_rgb(path: &Path, max_pixels: u64) -> Result<Image> {
         for px in data.chunks_exact(nch) {
             rgb.extend(pick.map(|c| c.map_or(0.0, |c| decode(px[c]))));
         }
-        Ok(Image {
+        let img = Image {
             width: info.width,
             height: info.height,
             channels: vec!["R".into(), "G".into(), "B".into()],
             data: rgb,
-        })
+        };
+        Ok((img, ColourLayout { colour, srgb }))
     };
     read().map_err(|e| anyhow!("cannot read {}: {e}", path.display()))
 }

@@ -27,7 +27,7 @@
 //! # anyhow::Ok(())
 //! ```
 use super::bridge::ffi;
-use super::{colour_channels, path_str, read_linear_rgb, srgb_eotf, Colour};
+use super::{path_str, read_colour, srgb_eotf, Colour, ColourLayout};
 use crate::util::hash::Fnv;
 use anyhow::{anyhow, bail, Result};
 use glam::{Vec2, Vec3};
@@ -114,23 +114,13 @@ impl Textures {
             return Ok(id);
         }
         // Decoded whole once, for the checks; the cache reads it again on demand.
-        let img = read_linear_rgb(path, MAX_TEXELS)?;
+        let (img, ColourLayout { colour, srgb }) = read_colour(path, MAX_TEXELS)?;
         if let Some(v) = img.data.iter().find(|v| !v.is_finite() || **v < 0.0) {
             bail!(
                 "cannot use {}: it has a texel of {v} (textures must be finite and non-negative)",
                 path.display()
             );
         }
-        let (srgb, colour) = {
-            let reader = ffi::open_reader(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
-            let srgb = reader.attributes().into_iter().any(|a| {
-                a.name.eq_ignore_ascii_case("oiio:ColorSpace")
-                    && a.text.to_ascii_lowercase().contains("srgb")
-            });
-            let colour = colour_channels(&reader.info().channels)
-                .map_err(|e| anyhow!("cannot use {}: {e}", path.display()))?;
-            (srgb, colour)
-        };
         let used = colour.indices().into_iter().flatten();
         let (first, last) = (used.clone().min().unwrap_or(0), used.max().unwrap_or(0));
         if last - first >= MAX_SPREAD {

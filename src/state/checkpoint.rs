@@ -201,15 +201,15 @@ impl Checkpointer {
                     d.display()
                 );
             }
-            if !d.exists() {
-                // A stop before the first checkpoint leaves no empty folder behind.
-                made = Some(Temporary::new(d));
-            }
             if d.exists() && !d.is_dir() {
                 bail!(
                     "--checkpoint {}: that is a file, not a folder (the checkpoint is a folder)",
                     d.display()
                 );
+            }
+            if !d.exists() {
+                // A stop before the first checkpoint leaves no empty folder behind.
+                made = Some(Temporary::new(d));
             }
             std::fs::create_dir_all(d)
                 .with_context(|| format!("creating the checkpoint folder {}", d.display()))?;

@@ -32,6 +32,10 @@ use std::ops::RangeInclusive;
 use std::path::{Path, PathBuf};
 
 const MAGIC: &[u8; 8] = b"RFSTATE1";
+const RECORD_MAGIC: u32 = 0x4341_4652; // "RFAC"
+/// Version 2: the trailer's counters keep reuse figures per frame only (version 1 also kept run
+/// totals). Version 1 files are refused with a line that says so.
+const VERSION: u32 = 2;
 
 /// Whether `p` is a complete state file (a checkpoint or a chunk's partial, of any run): it
 /// ends in the magic. Outputs that are not state files must not replace one (`--stats` naming
@@ -39,7 +43,8 @@ const MAGIC: &[u8; 8] = b"RFSTATE1";
 pub fn is_state_file(p: &Path) -> bool {
     let read = || -> std::io::Result<bool> {
         let mut f = File::open(p)?;
-        if !f.metadata()?.is_file() || f.metadata()?.len() < MAGIC.len() as u64 {
+        let m = f.metadata()?;
+        if !m.is_file() || m.len() < MAGIC.len() as u64 {
             return Ok(false);
         }
         f.seek(SeekFrom::End(-(MAGIC.len() as i64)))?;
@@ -49,10 +54,6 @@ pub fn is_state_file(p: &Path) -> bool {
     };
     read().unwrap_or(false)
 }
-const RECORD_MAGIC: u32 = 0x4341_4652; // "RFAC"
-/// Version 2: the trailer's counters keep reuse figures per frame only (version 1 also kept run
-/// totals). Version 1 files are refused with a line that says so.
-const VERSION: u32 = 2;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]

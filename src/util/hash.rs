@@ -40,7 +40,7 @@ pub fn hash_exe(f: &mut Fnv) -> Result<()> {
         Some(&v) => v,
         None => {
             let exe = std::env::current_exe().context("finding the reframe executable")?;
-            // Streamed: read whole, the binary would show in the peak memory.
+            // Streamed: read whole, the ~50 MB binary would show in the peak memory.
             let mut r =
                 std::fs::File::open(&exe).with_context(|| format!("reading {}", exe.display()))?;
             let (mut h, mut len) = (crc32fast::Hasher::new(), 0u64);
