@@ -27,7 +27,7 @@ use embree4_sys as sys;
 use glam::Vec3;
 use std::ffi::{c_char, c_void, CStr};
 use std::ptr;
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
 /// `RTC_INVALID_GEOMETRY_ID` (a `#define` that bindgen does not carry over).
 const INVALID_ID: u32 = u32::MAX;
@@ -344,6 +344,55 @@ pub struct TriangleScene {
     /// The prototypes' own scenes, which the instances reference.
     prototypes: Vec<sys::RTCScene>,
     device: sys::RTCDevice,
+    /// The cut-out tests the geometries' filter functions call, boxed so that the address each
+    /// geometry holds as its user data stays put for as long as the scene lives.
+    #[allow(clippy::vec_box)]
+    cutouts: Vec<Box<Arc<dyn Cutout>>>,
+}
+
+/// Where a mesh is cut out (an alpha mask): Embree asks `opaque` of every candidate hit on a
+/// mesh that has one, by the triangle (`prim`, the mesh's own index) and the hit's barycentric
+/// coordinates `(u, v)`, and goes on through the points where it answers `false`, for every
+/// query: closest hits and occlusion, single rays and packets. The answer must be a function
+/// of the point alone, so that every ray and every eye sees one surface.
+pub trait Cutout: Send + Sync {
+    fn opaque(&self, prim: u32, u: f32, v: f32) -> bool;
+}
+
+/// The cut-out tests of `TriangleScene::build`'s meshes: the scene's own and each prototype's
+/// (`None`, or a shorter list: opaque).
+#[derive(Default)]
+pub struct Cutouts {
+    pub own: Option<Arc<dyn Cutout>>,
+    pub prototypes: Vec<Option<Arc<dyn Cutout>>>,
+}
+
+/// Embree's filter function for a geometry with a `Cutout` (the same for closest hits and for
+/// occlusion): every valid candidate at a point the cut-out leaves out is made invalid, so
+/// that traversal goes on past it.
+unsafe extern "C" fn cutout_filter(args: *const sys::RTCFilterFunctionNArguments) {
+    // SAFETY: Embree passes valid arguments for the duration of the call; the user data is the
+    // `Arc<dyn Cutout>` boxed in `TriangleScene::cutouts`, alive as long as the scene. The hit
+    // is `N` lanes of structure-of-arrays floats: `Ng_x`, `Ng_y`, `Ng_z`, `u`, `v`, `primID`
+    // (Embree's `RTCHitN_u` etc.), the same in the 4.2 headers and the 4.4 runtime.
+    unsafe {
+        let args = &*args;
+        let cut = &*(args.geometryUserPtr as *const Arc<dyn Cutout>);
+        let n = args.N as usize;
+        let hit = args.hit as *const f32;
+        let valid = std::slice::from_raw_parts_mut(args.valid, n);
+        for (i, valid) in valid.iter_mut().enumerate() {
+            if *valid == 0 {
+                continue;
+            }
+            let u = *hit.add(3 * n + i);
+            let v = *hit.add(4 * n + i);
+            let prim = *(hit as *const u32).add(5 * n + i);
+            if !cut.opaque(prim, u, v) {
+                *valid = 0;
+            }
+        }
+    }
 }
 
 /// A mesh for `TriangleScene::build`: vertices and triangles.
@@ -379,8 +428,14 @@ fn check_mesh((vertices, triangles): MeshRef) -> Result<()> {
     Ok(())
 }
 
-/// A committed triangle geometry of `mesh` (checked by `check_mesh`); the caller owns it.
-fn triangle_geometry(device: &Device, (vertices, triangles): MeshRef) -> Result<sys::RTCGeometry> {
+/// A committed triangle geometry of `mesh` (checked by `check_mesh`), cut out by the test at
+/// `cutout` (kept alive by the caller as long as the geometry) where there is one; the caller
+/// owns it.
+fn triangle_geometry(
+    device: &Device,
+    (vertices, triangles): MeshRef,
+    cutout: Option<&Arc<dyn Cutout>>,
+) -> Result<sys::RTCGeometry> {
     // SAFETY: every handle is checked before use; buffers are sized from the slices and filled
     // before the geometry is committed.
     unsafe {
@@ -414,6 +469,11 @@ fn triangle_geometry(device: &Device, (vertices, triangles): MeshRef) -> Result<
         for (i, t) in triangles.iter().enumerate() {
             is[3 * i..3 * i + 3].copy_from_slice(t);
         }
+        if let Some(cut) = cutout {
+            sys::rtcSetGeometryUserData(geom, cut as *const Arc<dyn Cutout> as *mut c_void);
+            sys::rtcSetGeometryIntersectFilterFunction(geom, Some(cutout_filter));
+            sys::rtcSetGeometryOccludedFilterFunction(geom, Some(cutout_filter));
+        }
         sys::rtcCommitGeometry(geom);
         Ok(geom)
     }
@@ -422,16 +482,23 @@ fn triangle_geometry(device: &Device, (vertices, triangles): MeshRef) -> Result<
 impl TriangleScene {
     /// A scene of one mesh.
     pub fn new(device: &Device, vertices: &[Vec3], triangles: &[[u32; 3]]) -> Result<Self> {
-        Self::build(device, Some((vertices, triangles)), &[], &[])
+        Self::build(
+            device,
+            Some((vertices, triangles)),
+            &[],
+            &[],
+            Cutouts::default(),
+        )
     }
 
-    /// A scene of its own mesh `own` (if any) and `instances` of `prototypes`. Each prototype is
-    /// built once, however often it is placed.
+    /// A scene of its own mesh `own` (if any) and `instances` of `prototypes`, each cut out
+    /// where `cutouts` says. Each prototype is built once, however often it is placed.
     pub fn build(
         device: &Device,
         own: Option<MeshRef>,
         prototypes: &[MeshRef],
         instances: &[Placement],
+        cutouts: Cutouts,
     ) -> Result<Self> {
         if own.is_none() && instances.is_empty() {
             bail!("the scene has no triangles");
@@ -461,9 +528,21 @@ impl TriangleScene {
                 raw: scene,
                 prototypes: Vec::with_capacity(prototypes.len()),
                 device: device.raw,
+                cutouts: Vec::new(),
             };
-            for m in prototypes {
-                let geom = triangle_geometry(device, *m)?;
+            // Boxed before any geometry takes its address.
+            let mut keep = |c: Option<Arc<dyn Cutout>>| {
+                c.map(|c| {
+                    s.cutouts.push(Box::new(c));
+                    s.cutouts.len() - 1
+                })
+            };
+            let own_cut = keep(cutouts.own);
+            let proto_cuts: Vec<Option<usize>> = (0..prototypes.len())
+                .map(|i| keep(cutouts.prototypes.get(i).cloned().flatten()))
+                .collect();
+            for (m, cut) in prototypes.iter().zip(proto_cuts) {
+                let geom = triangle_geometry(device, *m, cut.map(|c| &*s.cutouts[c]))?;
                 let proto = sys::rtcNewScene(device.raw);
                 sys::rtcSetSceneBuildQuality(proto, sys::RTCBuildQuality::HIGH);
                 sys::rtcAttachGeometry(proto, geom);
@@ -474,7 +553,7 @@ impl TriangleScene {
             }
             sys::rtcSetSceneBuildQuality(scene, sys::RTCBuildQuality::HIGH);
             if let Some(m) = own {
-                let geom = triangle_geometry(device, m)?;
+                let geom = triangle_geometry(device, m, own_cut.map(|c| &*s.cutouts[c]))?;
                 sys::rtcAttachGeometryByID(scene, geom, 0);
                 sys::rtcReleaseGeometry(geom);
             }

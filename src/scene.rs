@@ -26,7 +26,8 @@
 //! side of the counter-clockwise face normal). Every triangle with `Ke > 0` is an area light.
 //! `map_Kd`, `map_Ks` and `map_Ke` multiply their colour by a texture at the OBJ's `vt`
 //! coordinates (`scene/maps.rs`, looked up through `image::Textures`); `Scene::material` gives
-//! the material at a point with its textures applied.
+//! the material at a point with its textures applied. `map_d` cuts a surface out where its mask
+//! is below one half (`scene/cutout.rs`, a filter inside Embree's traversal).
 //! `[environment]` (an `image` or a `radiance`, `intensity`, `rotation`) adds the environment
 //! light of `scene/environment.rs`. A scene needs an area light or an environment that emits.
 //!
@@ -54,10 +55,11 @@
 //! ```
 use crate::bsdf::{luminance, Material};
 use crate::camera::{Camera, CameraPath, Cameras, Interpolation, Keyframe, Pose};
-use crate::embree::{Device, Hit, MeshRef, Placement, Ray, TriangleScene};
+use crate::embree::{Cutout, Cutouts, Device, Hit, MeshRef, Placement, Ray, TriangleScene};
 use crate::image::Textures;
 use crate::sampling::uniform_triangle;
 use anyhow::{anyhow, bail, Context, Result};
+use cutout::MeshCutout;
 use environment::Environment;
 use glam::{Vec2, Vec3};
 pub use light_lanes::LightLanes;
@@ -68,9 +70,11 @@ use std::collections::HashMap;
 use std::ops::Range;
 use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use toml::Spanned;
 
 mod camera_file;
+mod cutout;
 pub mod environment;
 mod light_lanes;
 mod maps;
@@ -364,8 +368,9 @@ pub struct Scene {
     pub materials: Vec<Material>,
     /// The texture maps of each material (`map_Kd`, `map_Ks`, `map_Ke`); empty when none has one.
     maps: Vec<Maps>,
-    /// The textures the maps look up, if any material has one.
-    pub textures: Option<Textures>,
+    /// The textures the maps look up, if any material has one (shared with the geometry's
+    /// cut-outs, `scene::cutout`).
+    pub textures: Option<Arc<Textures>>,
     /// Meshes placed more than once, by Embree instances (`instances`), in object space.
     pub prototypes: Vec<Prototype>,
     pub instances: Vec<Instance>,
@@ -542,7 +547,19 @@ impl Scene {
         let placements: Vec<Placement> = instances.iter().map(|i| (i.proto, i.rows())).collect();
         let own = (!mesh.triangles.is_empty())
             .then_some((mesh.positions.as_slice(), mesh.triangles.as_slice()));
-        let geometry = TriangleScene::build(device, own, &proto_meshes, &placements)
+        let textures = textures.map(Arc::new);
+        let cut = |tris: &[[u32; 3]], uvs: &[Vec2], tri_material: &[u32]| {
+            MeshCutout::new(textures.as_ref(), &mesh.maps, tris, uvs, tri_material)
+                .map(|c| Arc::new(c) as Arc<dyn Cutout>)
+        };
+        let cutouts = Cutouts {
+            own: cut(&mesh.triangles, &mesh.uvs, &mesh.tri_material),
+            prototypes: prototypes
+                .iter()
+                .map(|p| cut(&p.triangles, &p.uvs, &p.tri_material))
+                .collect(),
+        };
+        let geometry = TriangleScene::build(device, own, &proto_meshes, &placements, cutouts)
             .with_context(|| format!("{obj_label}: building the Embree scene"))?;
         let lights = Lights::new(&mesh);
         let env_emits = environment.as_ref().is_some_and(Environment::emits);
@@ -1426,13 +1443,15 @@ fn load_obj_files(
                     continue;
                 }
                 by_name.insert(m.name.clone(), materials.len() as u32);
-                materials.push(m.material(&mtl_label, repairs)?);
+                let material = m.material(&mtl_label, repairs)?;
+                materials.push(material);
                 maps.push(Maps::open(
                     &mtl_label,
                     mtl_dir.as_deref(),
-                    m,
+                    (m, material.is_emissive()),
                     textures,
                     &mut texture_files,
+                    repairs,
                 )?);
                 names.push(m.name.clone());
             }

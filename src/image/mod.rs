@@ -598,6 +598,23 @@ fn open_checked(
     Ok((reader, info))
 }
 
+/// Refuses, in one line, to read the image `info` describes when reading it needs `need` bytes
+/// and less memory than that is available (an allocation that fails aborts the process).
+fn check_room(info: &ffi::ImageInfo, need: u64) -> Result<()> {
+    if let Some(a) = crate::util::mem::available_bytes().filter(|&a| need > a) {
+        bail!(
+            "reading its {}x{} pixels of {} channels needs about {:.1} GB, but {:.1} GB of \
+             memory is available",
+            info.width,
+            info.height,
+            info.channels.len(),
+            need as f64 / 1e9,
+            a as f64 / 1e9
+        );
+    }
+    Ok(())
+}
+
 /// Every channel of the first subimage of an open file as f32.
 fn read_all(
     reader: &mut cxx::UniquePtr<ffi::ImageReader>,
@@ -690,16 +707,7 @@ pub fn read_colour(path: &Path, max_pixels: u64) -> Result<(Image, ColourLayout)
         // Every channel as f32, then the RGB: refused in one line if that does not fit (an
         // allocation that fails aborts the process).
         let need = pixels * (4 * nch as u64 + 12);
-        if let Some(a) = crate::util::mem::available_bytes().filter(|&a| need > a) {
-            bail!(
-                "reading its {}x{} pixels of {nch} channels needs about {:.1} GB, but {:.1} GB \
-                 of memory is available",
-                info.width,
-                info.height,
-                need as f64 / 1e9,
-                a as f64 / 1e9
-            );
-        }
+        check_room(&info, need)?;
         let data = read_all(&mut reader, &info)?;
         let decode = |v: f32| if srgb { srgb_eotf(v as f64) as f32 } else { v };
         let mut rgb = Vec::with_capacity(pixels as usize * 3);
@@ -713,6 +721,43 @@ pub fn read_colour(path: &Path, max_pixels: u64) -> Result<(Image, ColourLayout)
             data: rgb,
         };
         Ok((img, ColourLayout { colour, srgb }))
+    };
+    read().map_err(|e| anyhow!("cannot read {}: {e}", path.display()))
+}
+
+/// The channel of an image (channels `names`, as OIIO names them) that a cut-out mask
+/// (`map_d`) reads: its alpha (`A`), else a grey channel (`Y`), else the first.
+pub fn mask_channel(names: &[String]) -> Result<usize> {
+    let find = |c: &str| names.iter().position(|n| n == c);
+    match find("A").or_else(|| find("Y")) {
+        Some(c) => Ok(c),
+        None if names.is_empty() => bail!("the image has no channels"),
+        None => Ok(0),
+    }
+}
+
+/// Reads a cut-out mask: the channel `mask_channel` picks, as the file holds it (coverage is
+/// not a colour: an 8-bit file's codes / 255, never decoded from sRGB), as a one-channel image
+/// named `A`, and that channel's index in the file. Refused as `read_colour` refuses.
+pub fn read_mask(path: &Path, max_pixels: u64) -> Result<(Image, usize)> {
+    let read = || -> Result<(Image, usize)> {
+        let (mut reader, info) = open_checked(path, max_pixels)?;
+        let pixels = info.width as u64 * info.height as u64;
+        if pixels == 0 || info.channels.is_empty() {
+            bail!("the image has no pixels");
+        }
+        let nch = info.channels.len();
+        let channel = mask_channel(&info.channels)?;
+        let need = pixels * (4 * nch as u64 + 4);
+        check_room(&info, need)?;
+        let data = read_all(&mut reader, &info)?;
+        let img = Image {
+            width: info.width,
+            height: info.height,
+            channels: vec!["A".into()],
+            data: data.chunks_exact(nch).map(|px| px[channel]).collect(),
+        };
+        Ok((img, channel))
     };
     read().map_err(|e| anyhow!("cannot read {}: {e}", path.display()))
 }

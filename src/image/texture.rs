@@ -27,7 +27,7 @@
 //! # anyhow::Ok(())
 //! ```
 use super::bridge::ffi;
-use super::{path_str, read_colour, srgb_eotf, Colour, ColourLayout};
+use super::{path_str, read_colour, read_mask, srgb_eotf, Colour, ColourLayout};
 use crate::util::hash::Fnv;
 use anyhow::{anyhow, bail, Result};
 use glam::{Vec2, Vec3};
@@ -57,6 +57,17 @@ struct Info {
     digest: u64,
 }
 
+/// Refuses a texture with a texel that is negative or not finite.
+fn check_texels(path: &Path, data: &[f32]) -> Result<()> {
+    if let Some(v) = data.iter().find(|v| !v.is_finite() || **v < 0.0) {
+        bail!(
+            "cannot use {}: it has a texel of {v} (textures must be finite and non-negative)",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
 /// The linear value of each 8-bit sRGB code (`srgb_eotf(k / 255)`).
 fn srgb8() -> &'static [f32; 256] {
     static TABLE: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
@@ -80,7 +91,8 @@ fn decode_srgb(v: f32) -> f32 {
 pub struct Textures {
     set: cxx::UniquePtr<ffi::TextureSet>,
     info: Vec<Info>,
-    by_path: HashMap<PathBuf, TextureId>,
+    /// The textures open, by path and whether opened as a mask (`open_mask`).
+    by_path: HashMap<(PathBuf, bool), TextureId>,
     /// Lookups the texture system failed (a file changed or vanished during the render); they
     /// return black.
     failures: AtomicU64,
@@ -110,17 +122,12 @@ impl Textures {
     /// is missing or no image, damaged anywhere in its pixels, larger than `MAX_TEXELS`, with a
     /// texel that is negative or not finite.
     pub fn open(&mut self, path: &Path) -> Result<TextureId> {
-        if let Some(&id) = self.by_path.get(path) {
+        if let Some(&id) = self.by_path.get(&(path.to_path_buf(), false)) {
             return Ok(id);
         }
         // Decoded whole once, for the checks; the cache reads it again on demand.
         let (img, ColourLayout { colour, srgb }) = read_colour(path, MAX_TEXELS)?;
-        if let Some(v) = img.data.iter().find(|v| !v.is_finite() || **v < 0.0) {
-            bail!(
-                "cannot use {}: it has a texel of {v} (textures must be finite and non-negative)",
-                path.display()
-            );
-        }
+        check_texels(path, &img.data)?;
         let used = colour.indices().into_iter().flatten();
         let (first, last) = (used.clone().min().unwrap_or(0), used.max().unwrap_or(0));
         if last - first >= MAX_SPREAD {
@@ -135,24 +142,62 @@ impl Textures {
             .pin_mut()
             .add(path_str(path)?, first as u32, last as u32 + 1)
             .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
-        let id = TextureId(id);
-        let mut f = Fnv::default();
-        f.bytes(&[img.width.to_le_bytes(), img.height.to_le_bytes()].concat());
-        f.f32s(img.data.iter().copied());
         let pick = match colour {
             Colour::Grey(c) => [Some(c - first); 3],
             Colour::Rgb(c) => c.map(|c| c.map(|c| c - first)),
         };
+        Ok(self.add(path, id, &img, (last - first + 1, pick, srgb), false))
+    }
+
+    /// Open the texture at `path` as a cut-out mask (once: a second time gives the same id):
+    /// its alpha channel, else its grey one, else its first (`image::mask_channel`), as the
+    /// file holds it (never decoded from sRGB: coverage is not a colour). `value` looks it up.
+    /// Refused as `open` refuses.
+    pub fn open_mask(&mut self, path: &Path) -> Result<TextureId> {
+        if let Some(&id) = self.by_path.get(&(path.to_path_buf(), true)) {
+            return Ok(id);
+        }
+        let (img, channel) = read_mask(path, MAX_TEXELS)?;
+        check_texels(path, &img.data)?;
+        let id = self
+            .set
+            .pin_mut()
+            .add(path_str(path)?, channel as u32, channel as u32 + 1)
+            .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
+        Ok(self.add(path, id, &img, (1, [Some(0), None, None], false), true))
+    }
+
+    /// Record texture `id` of the texture set, read from `path` as `img` (what its identity
+    /// hashes), fetched as `(channels, pick, srgb)` (`Info`).
+    fn add(
+        &mut self,
+        path: &Path,
+        id: u32,
+        img: &super::Image,
+        (fetched, pick, srgb): (usize, [Option<usize>; 3], bool),
+        mask: bool,
+    ) -> TextureId {
+        let mut f = Fnv::default();
+        f.bytes(&[img.width.to_le_bytes(), img.height.to_le_bytes()].concat());
+        f.f32s(img.data.iter().copied());
         self.info.push(Info {
             width: img.width,
             height: img.height,
-            fetched: last - first + 1,
+            fetched,
             pick,
             srgb,
             digest: f.0,
         });
-        self.by_path.insert(path.to_path_buf(), id);
-        Ok(id)
+        let id = TextureId(id);
+        self.by_path.insert((path.to_path_buf(), mask), id);
+        id
+    }
+
+    /// The value of mask `id` (`open_mask`) at texture coordinates `uv`: bilinear between the
+    /// four texels around it, as `rgb`.
+    #[inline]
+    pub fn value(&self, id: TextureId, uv: Vec2) -> f32 {
+        self.rgb(id, uv).x
     }
 
     /// The linear RGB of texture `id` at texture coordinates `uv` (`v` up, as in OBJ files:

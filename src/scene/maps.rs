@@ -1,7 +1,9 @@
 //! Textured materials: the maps of a material (`map_Kd`, `map_Ks`, `map_Ke` of its MTL) and the
-//! material they make at a point of a surface. The textures themselves are looked up through
+//! material they make at a point of a surface, and its cut-out mask (`map_d`, which
+//! `scene::cutout` hands to Embree). The textures themselves are looked up through
 //! `image::Textures` (OpenImageIO's texture system).
 use super::mtl::{MapSpec, MtlMaterial, Slot};
+use super::repairs::{Kind, Repairs};
 use super::text::quote;
 use crate::bsdf::Material;
 use crate::image::{TextureId, Textures};
@@ -19,26 +21,39 @@ pub struct Map {
     pub offset: Vec2,
 }
 
-/// The maps of one material; each multiplies the colour it names.
+/// The maps of one material; each multiplies the colour it names, except `cutout` (`map_d`),
+/// the mask that cuts the surface out where it is below `CUTOFF`.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Maps {
     pub kd: Option<Map>,
     pub ks: Option<Map>,
     pub ke: Option<Map>,
+    pub cutout: Option<Map>,
 }
+
+/// A `map_d` mask cuts its surface out where its value (bilinear between texels, as the
+/// colours) is below this: glTF's default `alphaCutoff`, Blender's alpha clip.
+pub const CUTOFF: f32 = 0.5;
+
+const EMITTER_CUTOUT: Kind = Kind {
+    one: "map_d on an emitting material ignored (lights are opaque)",
+    many: "map_d on emitting materials ignored (lights are opaque)",
+};
 
 impl Maps {
     /// Open the textures `m`'s MTL (`mtl_label`, in folder `dir`) names, refusing a texture
     /// that cannot be used with one line naming the MTL file and line. `opened` gets each
-    /// texture's path.
+    /// texture's path. A light's mask (`emits`) is left out, with a note in `repairs`: light
+    /// sampling picks points on the whole triangle.
     pub fn open(
         mtl_label: &str,
         dir: Option<&Path>,
-        m: &MtlMaterial,
+        (m, emits): (&MtlMaterial, bool),
         textures: &mut Option<Textures>,
         opened: &mut Vec<PathBuf>,
+        repairs: &mut Repairs,
     ) -> Result<Maps> {
-        let mut open = |spec: &Option<MapSpec>| -> Result<Option<Map>> {
+        let mut open = |spec: &Option<MapSpec>, mask: bool| -> Result<Option<Map>> {
             let Some(spec) = spec else {
                 return Ok(None);
             };
@@ -64,7 +79,12 @@ impl Maps {
                 Some(t) => t,
                 None => textures.insert(Textures::new().map_err(|e| anyhow!("{at}: {e}"))?),
             };
-            let tex = t.open(&path).map_err(|e| anyhow!("{at}: {e}"))?;
+            let tex = if mask {
+                t.open_mask(&path)
+            } else {
+                t.open(&path)
+            };
+            let tex = tex.map_err(|e| anyhow!("{at}: {e}"))?;
             if !opened.contains(&path) {
                 opened.push(path);
             }
@@ -74,15 +94,32 @@ impl Maps {
                 offset: spec.offset,
             }))
         };
-        Ok(Maps {
-            kd: open(&m.maps[Slot::Kd as usize])?,
-            ks: open(&m.maps[Slot::Ks as usize])?,
-            ke: open(&m.maps[Slot::Ke as usize])?,
-        })
+        let kd = open(&m.maps[Slot::Kd as usize], false)?;
+        let ks = open(&m.maps[Slot::Ks as usize], false)?;
+        let ke = open(&m.maps[Slot::Ke as usize], false)?;
+        let cutout = match &m.maps[Slot::D as usize] {
+            Some(spec) if emits => {
+                repairs.note(mtl_label, spec.line, EMITTER_CUTOUT, || {
+                    format!("'{}' in '{}'", quote(&spec.statement), m.name)
+                })?;
+                None
+            }
+            spec => open(spec, true)?,
+        };
+        Ok(Maps { kd, ks, ke, cutout })
     }
 
     pub fn is_empty(&self) -> bool {
-        self.kd.is_none() && self.ks.is_none() && self.ke.is_none()
+        self.kd.is_none() && self.ks.is_none() && self.ke.is_none() && self.cutout.is_none()
+    }
+
+    /// Whether the mask keeps the surface at texture coordinates `uv` (true where there is none).
+    #[inline]
+    pub fn opaque(&self, textures: &Textures, uv: Vec2) -> bool {
+        match &self.cutout {
+            Some(map) => textures.value(map.tex, uv * map.scale + map.offset) >= CUTOFF,
+            None => true,
+        }
     }
 
     /// `m` with its textured colours at texture coordinates `uv`. Reflectances stay in

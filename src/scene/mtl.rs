@@ -1,6 +1,7 @@
 //! The MTL reader: the values reframe's BSDF uses (`Kd`, `Ks`, `Ns`, `Ke`) of each `newmtl`,
-//! each with its line, turned into `Material`s clamped to where the BSDF is stable, and the
-//! texture maps that scale them (`map_Kd`, `map_Ks`, `map_Ke`).
+//! each with its line, turned into `Material`s clamped to where the BSDF is stable, the
+//! texture maps that scale them (`map_Kd`, `map_Ks`, `map_Ke`), and the cut-out mask `map_d`
+//! (`scene::cutout`).
 //!
 //! A map multiplies its colour, as the MTL format defines it (`Kd` times the texture at the
 //! hit); a map whose colour line is missing takes the colour 1 (the texture as it is). Of a
@@ -11,7 +12,8 @@
 //!
 //! Read as production loaders read them: any whitespace between words, lines that are not UTF-8
 //! (Latin-1), a colour of one number (grey, as the MTL format allows). Statements reframe does
-//! not use (`Ka`, `d`, `Ni`, `illum`, texture maps, ...) are skipped without a look. Refused,
+//! not use (`Ka`, `Ni`, `illum`, `Tr`, other texture maps, ...) are skipped without a look; `d`
+//! (dissolve) below 1 is not rendered and says so (a repair: the surface stays opaque). Refused,
 //! naming the line, because the material would be ambiguous or meaningless: a used value that
 //! is not a number, negative or not finite, a colour of two numbers, a value before any
 //! `newmtl`, and a material defined twice in one file.
@@ -45,6 +47,10 @@ const MAP_OPTION: Kind = Kind {
     one: "texture map option ignored (reframe applies -o and -s only)",
     many: "texture map options ignored (reframe applies -o and -s only)",
 };
+const DISSOLVE: Kind = Kind {
+    one: "dissolve (d) below 1 not rendered: the surface is opaque (map_d cut-outs are rendered)",
+    many: "materials with dissolve (d) below 1 rendered opaque (map_d cut-outs are rendered)",
+};
 const KE: Kind = Kind {
     one: "Ke capped (radiance sums would overflow above it)",
     many: "materials with Ke capped (radiance sums would overflow above it)",
@@ -59,8 +65,8 @@ pub struct MtlMaterial {
     ks: Option<(Vec3, usize)>,
     ke: Option<(Vec3, usize)>,
     ns: Option<(f32, usize)>,
-    /// `map_Kd`, `map_Ks`, `map_Ke`, in that order.
-    pub maps: [Option<MapSpec>; 3],
+    /// `map_Kd`, `map_Ks`, `map_Ke`, `map_d`, in that order.
+    pub maps: [Option<MapSpec>; 4],
 }
 
 /// Which colour a texture map scales.
@@ -69,6 +75,8 @@ pub enum Slot {
     Kd = 0,
     Ks = 1,
     Ke = 2,
+    /// `map_d`: the cut-out mask, not a colour.
+    D = 3,
 }
 
 /// A `map_K?` statement: the file (relative to the MTL's folder), the texture-coordinate
@@ -121,6 +129,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
             "map_Kd" => Some(Slot::Kd),
             "map_Ks" => Some(Slot::Ks),
             "map_Ke" => Some(Slot::Ke),
+            "map_d" => Some(Slot::D),
             _ => None,
         };
         if let Some(slot) = slot {
@@ -132,6 +141,21 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
                 repairs.note(label, n, MAP_OPTION, || format!("'{}'", quote(text)))?;
             }
             m.maps[slot as usize] = Some(spec);
+            continue;
+        }
+        if key == "d" {
+            // Dissolve (partial transparency) is not rendered; say so where it would show. A
+            // value that is not a number (`d -halo 0.5` takes the last word) is passed over, as
+            // before reframe looked at `d` at all.
+            let d = args.last().and_then(|a| a.parse::<f32>().ok());
+            if let (Some(d), Some(m)) = (d, out.materials.last()) {
+                if (0.0..1.0).contains(&d) {
+                    let name = m.name.clone();
+                    repairs.note(label, n, DISSOLVE, || {
+                        format!("'{}' in '{name}'", quote(text))
+                    })?;
+                }
+            }
             continue;
         }
         if !matches!(key, "Kd" | "Ks" | "Ke" | "Ns") {
@@ -387,7 +411,7 @@ mod tests {
                     newmtl b\nKd 0.5\nmap_Ke -o 0.25 0.5 0 glow.png\n";
         let mut r = Repairs::new(false);
         let mtl = parse("a.mtl", text.as_bytes(), &mut r).unwrap();
-        let [kd, ks, ke] = &mtl.materials[0].maps;
+        let [kd, ks, ke, _] = &mtl.materials[0].maps;
         let kd = kd.as_ref().unwrap();
         assert_eq!(kd.file, "wood grain.png");
         assert_eq!(

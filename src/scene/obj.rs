@@ -9,7 +9,7 @@
 //! distinct vertices (skipped), points `p` and polylines `l` (ignored), vertex colours
 //! (ignored).
 //! Texture coordinates (`vt u [v [w]]`, `v` 0 if left out, `w` ignored) are kept for the
-//! textures of `map_Kd`, `map_Ks` and `map_Ke`. Statements reframe does not draw (`o`, `g`, `s`,
+//! textures of `map_Kd`, `map_Ks`, `map_Ke` and `map_d`. Statements reframe does not draw (`o`, `g`, `s`,
 //! `vp`, curves) are skipped silently. Refused, naming the line: a position that is not finite
 //! or is larger than `MAX_COORD`, a texture coordinate that is not finite, a malformed `v`, `vt`,
 //! `vn` or face vertex, a face index of 0 or one that refers

@@ -1,0 +1,362 @@
+//! Cut-outs (`map_d`): a masked quad renders as the geometry its mask keeps, placed once (the
+//! scene's own mesh) and instanced; the reuse methods stay unbiased when the eyes of a group see
+//! through its holes; packets and single rays see the same surface; masks are read from an
+//! alpha channel, a grey channel or the first, as the file holds them; and what reframe does not
+//! render (`d` below 1, a mask on a light) is said, or refused with `--strict`.
+mod common;
+mod stats;
+
+use common::render_in_memory;
+use glam::{Vec2, Vec3};
+use reframe::driver::{render_frame_independent, thread_pool, RenderOptions};
+use reframe::embree::Device;
+use reframe::image::{write_image, Image, Metadata, Textures, WriteOptions};
+use reframe::integrator::{Integrator, Rays};
+use reframe::reuse::Method;
+use reframe::scene::{LoadOptions, Scene};
+use stats::{assert_unbiased, block_moments, z_test};
+use std::path::Path;
+
+/// An uncompressed TGA (the format of many production assets' masks): 8-bit grey when
+/// `channels` is 1, BGRA when 4; `texel(x, y)` gives each pixel's values (grey, or RGBA), row 0
+/// at the top.
+fn write_tga(path: &Path, size: u16, channels: u8, texel: impl Fn(u16, u16) -> [u8; 4]) {
+    let (kind, bits, descriptor) = if channels == 1 {
+        (3u8, 8u8, 0x20u8)
+    } else {
+        (2, 32, 0x28)
+    };
+    let mut b = vec![0u8, 0, kind, 0, 0, 0, 0, 0, 0, 0, 0, 0];
+    b.extend_from_slice(&size.to_le_bytes());
+    b.extend_from_slice(&size.to_le_bytes());
+    b.extend_from_slice(&[bits, descriptor]);
+    for y in 0..size {
+        for x in 0..size {
+            let [r, g, bl, a] = texel(x, y);
+            if channels == 1 {
+                b.push(r);
+            } else {
+                b.extend_from_slice(&[bl, g, r, a]);
+            }
+        }
+    }
+    std::fs::write(path, b).unwrap();
+}
+
+/// The mask of the tests: 8 x 8 texels, the top-left and bottom-right quarters kept (255), the
+/// other two cut out (0).
+fn checker(x: u16, y: u16) -> u8 {
+    if (x < 4) == (y < 4) {
+        255
+    } else {
+        0
+    }
+}
+
+/// A quad z = 0 over x, y in [-1, 1] facing +z, texture coordinates (0, 0) at its bottom-left.
+const QUAD: &str = "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\n\
+    vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl leaf\nf 1/1 2/2 3/3 4/4\n";
+
+/// What the mask keeps of `QUAD`, as geometry: the top-left and bottom-right quarters.
+const SQUARES: &str = "v -1 0 0\nv 0 0 0\nv 0 1 0\nv -1 1 0\n\
+    v 0 -1 0\nv 1 -1 0\nv 1 0 0\nv 0 0 0\nusemtl leaf\nf 1 2 3 4\nf 5 6 7 8\n";
+
+/// A light behind the quad (6 x 6 at z = -2, facing +z) and a floor below it (relative
+/// indices: it follows the quad in one file).
+const ROOM: &str = "v -3 -3 -2\nv 3 -3 -2\nv 3 3 -2\nv -3 3 -2\nusemtl light\nf -4 -3 -2 -1\n\
+    v -4 -1.5 -4\nv 4 -1.5 -4\nv 4 -1.5 4\nv -4 -1.5 4\nusemtl floor\nf -1 -2 -3 -4\n";
+
+const MTL: &str = "newmtl leaf\nKd 0.8 0.3 0.2\nmap_d mask.tga\n\
+    newmtl light\nKd 0 0 0\nKe 2 2 2\nnewmtl floor\nKd 0.5 0.5 0.5\n";
+
+/// A camera that moves over `frames` frames, seeing the quad (and through it, the light)
+/// slightly from the side, under a dim sky that lights its front: the top-level keys, and the
+/// tables (which come after the scene's objects).
+fn camera(frames: u32, w: u32, h: u32) -> (String, String) {
+    let key = |frame: u32, position: &str| {
+        format!(
+            "[[keyframe]]\nframe = {frame}\nposition = {position}\nlook_at = [0.0, 0.0, 0.0]\n\
+             up = [0.0, 1.0, 0.0]\nfov = 45.0\n"
+        )
+    };
+    let mut tables =
+        "[environment]\nradiance = [0.3, 0.35, 0.4]\n".to_string() + &key(0, "[0.6, 0.4, 4.0]");
+    if frames > 1 {
+        tables += &key(frames - 1, "[-0.3, 0.2, 3.6]");
+    }
+    (
+        format!("frames = {frames}\nresolution = [{w}, {h}]\n"),
+        tables,
+    )
+}
+
+/// Write the scene of `objects` TOML (`obj = ...` or `[[object]]`s) with `files` (name and
+/// text) beside the mask, and give its path.
+fn write_scene(
+    d: &Path,
+    objects: &str,
+    cam: &(String, String),
+    files: &[(&str, String)],
+) -> String {
+    write_tga(&d.join("mask.tga"), 8, 1, |x, y| [checker(x, y); 4]);
+    std::fs::write(d.join("s.mtl"), MTL).unwrap();
+    for (name, text) in files {
+        std::fs::write(d.join(name), text).unwrap();
+    }
+    let p = d.join("s.toml");
+    std::fs::write(&p, format!("{}{objects}\n{}", cam.0, cam.1)).unwrap();
+    p.to_str().unwrap().to_string()
+}
+
+/// `k` independent renders of frame `frame` of `scene` at `w` x `h`, 16 spp, seeds from `seed`.
+fn renders(scene: &Scene, frame: u32, (w, h): (u32, u32), k: u64, seed: u64) -> Vec<Vec<Vec3>> {
+    let integ = Integrator::new(scene, 8);
+    let pool = thread_pool(0).unwrap();
+    (0..k)
+        .map(|s| {
+            pool.install(|| {
+                let cam = scene.camera(frame, w, h);
+                render_frame_independent(&integ, &cam, frame, 16, seed + s, false, &|_| {}).pixels
+            })
+        })
+        .collect()
+}
+
+/// The masked quad against the squares it keeps, modelled: the same picture block by block, for
+/// the scene's own mesh and for an OBJ placed twice (Embree instances of one prototype). A mask
+/// read upside down, or mirrored, or not at all, puts the light where the other has the quad.
+#[test]
+fn a_cut_out_quad_renders_as_the_geometry_its_mask_keeps() {
+    let (w, h, b) = (40u32, 40u32, 4usize);
+    let cam = camera(2, w, h);
+    let placed = |obj: &str| {
+        format!(
+            "[[object]]\nobj = \"room.obj\"\n\
+             [[object]]\nobj = \"{obj}\"\ntranslate = [-0.6, 0.0, 0.2]\nscale = 0.55\n\
+             [[object]]\nobj = \"{obj}\"\ntranslate = [0.6, 0.0, -0.2]\nscale = 0.55\n"
+        )
+    };
+    let mtllib = "mtllib s.mtl\n";
+    let files = [
+        ("cut.obj", format!("{mtllib}{QUAD}{ROOM}")),
+        ("kept.obj", format!("{mtllib}{SQUARES}{ROOM}")),
+        ("room.obj", format!("{mtllib}{ROOM}")),
+        ("quad.obj", format!("{mtllib}{QUAD}")),
+        ("squares.obj", format!("{mtllib}{SQUARES}")),
+    ];
+    let device = Device::new().unwrap();
+    for (what, cut, kept) in [
+        (
+            "own mesh",
+            "obj = \"cut.obj\"".to_string(),
+            "obj = \"kept.obj\"".to_string(),
+        ),
+        ("instanced", placed("quad.obj"), placed("squares.obj")),
+    ] {
+        let d = tempfile::tempdir().unwrap();
+        let cut = Scene::load(&write_scene(d.path(), &cut, &cam, &files), &device).unwrap();
+        let kept = Scene::load(&write_scene(d.path(), &kept, &cam, &files), &device).unwrap();
+        assert!(cut.warnings.is_empty(), "{:?}", cut.warnings);
+        if what == "instanced" {
+            assert_eq!(cut.instances.len(), 2, "the masked quad is instanced");
+        }
+        let test = block_moments(
+            &renders(&cut, 0, (w, h), 32, 100),
+            w as usize,
+            h as usize,
+            b,
+        );
+        let reference = block_moments(
+            &renders(&kept, 0, (w, h), 32, 900),
+            w as usize,
+            h as usize,
+            b,
+        );
+        assert_unbiased(
+            &format!("the cut-out quad ({what})"),
+            &z_test(&test, &reference),
+        );
+        assert_eq!(cut.textures.as_ref().unwrap().failures(), 0);
+    }
+}
+
+/// The reuse methods on the masked scene while the camera moves: a first hit seen through a
+/// hole by one eye is hidden by the quad from another, and every eye's visibility test and
+/// the weights must agree with it. `mis-exact` and `mis-cv` against an independent reference,
+/// block by block; and the tracer's packets against single rays, which must see the same
+/// surface.
+#[test]
+fn reuse_and_packets_agree_on_a_cut_out_scene() {
+    let (w, h, b, target) = (36usize, 36usize, 4, 3u32);
+    let d = tempfile::tempdir().unwrap();
+    let files = [("cut.obj", format!("mtllib s.mtl\n{QUAD}{ROOM}"))];
+    let path = write_scene(d.path(), "obj = \"cut.obj\"", &camera(7, 36, 36), &files);
+    let device = Device::new().unwrap();
+    let scene = Scene::load(&path, &device).unwrap();
+    let reference = block_moments(&renders(&scene, target, (36, 36), 64, 5000), w, h, b);
+    let integ = Integrator::new(&scene, 8);
+    let pool = thread_pool(0).unwrap();
+    for method in [Method::MisCv, Method::MisExact] {
+        let renders: Vec<Vec<Vec3>> = (0..64)
+            .map(|s| {
+                let opts = RenderOptions {
+                    method,
+                    window: 5,
+                    spp: 1,
+                    seed: 6000 + s,
+                    frames: Some(0..=6),
+                    resolution: Some((w as u32, h as u32)),
+                    progress: false,
+                    ..RenderOptions::default()
+                };
+                pool.install(|| {
+                    render_in_memory(&integ, &opts)
+                        .0
+                        .remove(&target)
+                        .unwrap()
+                        .pixels()
+                })
+            })
+            .collect();
+        let z = z_test(&block_moments(&renders, w, h, b), &reference);
+        assert_unbiased(&format!("{method:?} on the cut-out scene"), &z);
+    }
+    // Packets and single rays: the same frames, up to the last bits of a hit.
+    let frame = |rays: Rays, method: Method| {
+        let opts = RenderOptions {
+            method,
+            window: if method == Method::Independent { 1 } else { 3 },
+            spp: 4,
+            frames: Some(2..=4),
+            resolution: Some((w as u32, h as u32)),
+            primary: rays,
+            paths: rays,
+            progress: false,
+            ..RenderOptions::default()
+        };
+        pool.install(|| {
+            render_in_memory(&integ, &opts)
+                .0
+                .remove(&3)
+                .unwrap()
+                .pixels()
+        })
+    };
+    for method in [Method::Independent, Method::MisCv] {
+        let (single, packet) = (frame(Rays::Single, method), frame(Rays::Packet, method));
+        let worst = single
+            .iter()
+            .zip(&packet)
+            .map(|(a, b)| (*a - *b).abs().max_element())
+            .fold(0.0f32, f32::max);
+        assert!(
+            worst < 1e-3,
+            "{method:?}: packets and single rays differ by {worst}"
+        );
+    }
+}
+
+/// A mask is its file's alpha channel, else its grey one, else its first, as the file holds it:
+/// an 8-bit code of 128 is 0.502, not the 0.216 that decoding sRGB would make of it (coverage
+/// is not a colour). Interpolated bilinearly between texel centres, as colours are.
+#[test]
+fn masks_read_alpha_grey_or_first_channel_as_stored() {
+    let d = tempfile::tempdir().unwrap();
+    // Left column 0, right column 128 (of 255) in the mask channel; the colour white.
+    let value = |x: u16| if x == 0 { 0u8 } else { 128 };
+    let rgba = d.path().join("rgba.tga");
+    write_tga(&rgba, 2, 4, |x, _| [255, 255, 255, value(x)]);
+    let grey = d.path().join("grey.tga");
+    write_tga(&grey, 2, 1, |x, _| [value(x); 4]);
+    let exr = d.path().join("rgb.exr");
+    let mut img = Image::new(2, 2, &["R", "G", "B"]);
+    for (i, px) in img.data.chunks_exact_mut(3).enumerate() {
+        let r = if i % 2 == 0 { 0.0 } else { 128.0 / 255.0 };
+        px.copy_from_slice(&[r, 1.0, 1.0]);
+    }
+    let exr_opts = WriteOptions { exr_float: true };
+    write_image(&exr, &img, &Metadata::default(), &exr_opts).unwrap();
+    let mut t = Textures::new().unwrap();
+    for path in [&rgba, &grey, &exr] {
+        let id = t.open_mask(path).unwrap();
+        for (u, want) in [(0.25, 0.0), (0.75, 128.0 / 255.0), (0.5, 64.0 / 255.0)] {
+            let got = t.value(id, Vec2::new(u, 0.5));
+            assert!(
+                (got - want).abs() < 1e-6,
+                "{} at u {u}: {got}, want {want}",
+                path.display()
+            );
+        }
+    }
+    // The RGBA file's colour is still its colour when a material also takes it as its map_Kd.
+    let colour = t.open(&rgba).unwrap();
+    assert_ne!(colour, t.open_mask(&rgba).unwrap());
+}
+
+/// What reframe does not render is said: `d` below 1 (the surface stays opaque) and a mask on
+/// a light (lights are opaque), each a warning naming the line, refused with `--strict`; `d 1`
+/// says nothing. A missing mask is refused naming the MTL line.
+#[test]
+fn dissolve_and_masked_lights_are_said_and_missing_masks_refused() {
+    let device = Device::new().unwrap();
+    let cam = camera(1, 8, 8);
+    let obj = "obj = \"cut.obj\"";
+    for (mtl, warning) in [
+        (
+            "newmtl leaf\nKd 0.5 0.5 0.5\nd 0.4\nnewmtl light\nKe 1 1 1\nnewmtl floor\nKd 1 1 1\n",
+            Some("line 3: 'd 0.4' in 'leaf': dissolve (d) below 1 not rendered"),
+        ),
+        (
+            "newmtl leaf\nKd 0.5 0.5 0.5\nd 1.0\nTr 0\nnewmtl light\nKe 1 1 1\nnewmtl floor\n",
+            None,
+        ),
+        (
+            "newmtl leaf\nKd 0.5 0.5 0.5\nnewmtl light\nKe 1 1 1\nmap_d mask.tga\nnewmtl floor\n",
+            Some("line 5: 'map_d mask.tga' in 'light': map_d on an emitting material ignored"),
+        ),
+    ] {
+        let d = tempfile::tempdir().unwrap();
+        let files = [("cut.obj", format!("mtllib s.mtl\n{QUAD}{ROOM}"))];
+        let path = write_scene(d.path(), obj, &cam, &files);
+        std::fs::write(d.path().join("s.mtl"), mtl).unwrap();
+        let scene = Scene::load(&path, &device).unwrap();
+        match warning {
+            Some(w) => {
+                assert!(
+                    scene.warnings.iter().any(|x| x.contains(w)),
+                    "{:?} lacks {w}",
+                    scene.warnings
+                );
+                let strict = LoadOptions { strict: true };
+                let e = Scene::load_with(&path, &device, &strict).err().unwrap();
+                assert!(
+                    format!("{e:#}").contains("refused: strict loading"),
+                    "{e:#}"
+                );
+            }
+            None => assert!(scene.warnings.is_empty(), "{:?}", scene.warnings),
+        }
+    }
+    // The light's mask is left out: it emits over its whole quad, as if it had none.
+    let d = tempfile::tempdir().unwrap();
+    let files = [("cut.obj", format!("mtllib s.mtl\n{QUAD}{ROOM}"))];
+    let path = write_scene(d.path(), obj, &cam, &files);
+    std::fs::write(
+        d.path().join("s.mtl"),
+        "newmtl light\nKe 1 1 1\nmap_d mask.tga\n",
+    )
+    .unwrap();
+    let scene = Scene::load(&path, &device).unwrap();
+    assert!(scene.texture_maps().iter().all(|m| m.cutout.is_none()));
+    // A missing mask.
+    std::fs::write(
+        d.path().join("s.mtl"),
+        "newmtl leaf\nKd 1 1 1\nmap_d gone.tga\n",
+    )
+    .unwrap();
+    let e = format!("{:#}", Scene::load(&path, &device).err().unwrap());
+    assert!(
+        e.contains("s.mtl: line 3: 'map_d gone.tga': no file"),
+        "{e}"
+    );
+}
