@@ -12,8 +12,10 @@
 //!
 //! Read as production loaders read them: any whitespace between words, lines that are not UTF-8
 //! (Latin-1), a colour of one number (grey, as the MTL format allows). Statements reframe does
-//! not use (`Ka`, `Ni`, `illum`, `Tr`, other texture maps, ...) are skipped without a look; `d`
-//! (dissolve) below 1 is not rendered and says so (a repair: the surface stays opaque). Refused,
+//! not use (`Ka`, `Ni`, `illum`, `Tr`, `map_Ka`, ...) are skipped without a look; what would
+//! change the look and is not rendered says so, once per kind and file (a repair: `--strict`
+//! refuses it): `d` (dissolve) below 1, where the surface stays opaque, and the other texture
+//! maps (`bump`, `map_Bump`, `norm`, `disp`, `refl`, `map_Ns`, `map_Pr`, ...). Refused,
 //! naming the line, because the material would be ambiguous or meaningless: a used value that
 //! is not a number, negative or not finite, a colour of two numbers, a value before any
 //! `newmtl`, and a material defined twice in one file.
@@ -51,6 +53,24 @@ const DISSOLVE: Kind = Kind {
     one: "dissolve (d) below 1 not rendered: the surface is opaque (map_d cut-outs are rendered)",
     many: "materials with dissolve (d) below 1 rendered opaque (map_d cut-outs are rendered)",
 };
+const UNRENDERED_MAP: Kind = Kind {
+    one: "texture map not rendered (reframe renders map_Kd, map_Ks, map_Ke and map_d)",
+    many: "texture maps not rendered (reframe renders map_Kd, map_Ks, map_Ke and map_d)",
+};
+
+/// Whether `key` is a texture map that would change the look but that reframe does not render:
+/// bump, normal and displacement maps, maps of the exponent, reflection and the PBR extension's
+/// values (any case). `map_Ka` is passed over without a word: a path tracer has no ambient term
+/// (exporters write it as a copy of `map_Kd`).
+fn unrendered_map(key: &str) -> bool {
+    let k = key.to_ascii_lowercase();
+    let rendered = matches!(key, "map_Kd" | "map_Ks" | "map_Ke" | "map_d");
+    !rendered
+        && k != "map_ka"
+        && (k.starts_with("map_")
+            || matches!(k.as_str(), "bump" | "disp" | "decal" | "refl" | "norm"))
+}
+
 const KE: Kind = Kind {
     one: "Ke capped (radiance sums would overflow above it)",
     many: "materials with Ke capped (radiance sums would overflow above it)",
@@ -141,6 +161,15 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
                 repairs.note(label, n, MAP_OPTION, || format!("'{}'", quote(text)))?;
             }
             m.maps[slot as usize] = Some(spec);
+            continue;
+        }
+        if unrendered_map(key) {
+            if let Some(m) = out.materials.last() {
+                let name = m.name.clone();
+                repairs.note(label, n, UNRENDERED_MAP, || {
+                    format!("'{}' in '{name}'", quote(text))
+                })?;
+            }
             continue;
         }
         if key == "d" {
@@ -366,6 +395,28 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("before any newmtl"), "{e}");
+    }
+
+    #[test]
+    fn maps_that_are_not_rendered_are_said_once() {
+        // Blender's, 3ds Max's and the PBR extension's maps, any case; map_Ka, d 1 and a d
+        // that is no number say nothing; d below 1 says it is not rendered.
+        let text =
+            "map_Bump before.png\nnewmtl a\nmap_Bump -bm 1 n.png\nbump b.png\nmap_Ka a.png\n\
+                    d 1.0\nd -halo x\nnewmtl b\nNORM n.png\nmap_Pr r.png\nd 0.25\n";
+        let mut r = Repairs::new(false);
+        parse("a.mtl", text.as_bytes(), &mut r).unwrap();
+        assert_eq!(
+            r.into_warnings(),
+            [
+                "a.mtl: 4 texture maps not rendered (reframe renders map_Kd, map_Ks, map_Ke and \
+                 map_d) (first at line 3: 'map_Bump -bm 1 n.png' in 'a')",
+                "a.mtl: line 11: 'd 0.25' in 'b': dissolve (d) below 1 not rendered: the surface \
+                 is opaque (map_d cut-outs are rendered)"
+            ]
+        );
+        let e = parse("a.mtl", text.as_bytes(), &mut Repairs::new(true)).unwrap_err();
+        assert!(e.to_string().contains("line 3"), "{e}");
     }
 
     #[test]
