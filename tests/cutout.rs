@@ -6,7 +6,7 @@
 mod common;
 mod stats;
 
-use common::render_in_memory;
+use common::{render_in_memory, reuse_renders};
 use glam::{Vec2, Vec3};
 use reframe::driver::{render_frame_independent, thread_pool, RenderOptions};
 use reframe::embree::Device;
@@ -197,27 +197,9 @@ fn reuse_and_packets_agree_on_a_cut_out_scene() {
     let integ = Integrator::new(&scene, 8);
     let pool = thread_pool(0).unwrap();
     for method in [Method::MisCv, Method::MisExact] {
-        let renders: Vec<Vec<Vec3>> = (0..64)
-            .map(|s| {
-                let opts = RenderOptions {
-                    method,
-                    window: 5,
-                    spp: 1,
-                    seed: 6000 + s,
-                    frames: Some(0..=6),
-                    resolution: Some((w as u32, h as u32)),
-                    progress: false,
-                    ..RenderOptions::default()
-                };
-                pool.install(|| {
-                    render_in_memory(&integ, &opts)
-                        .0
-                        .remove(&target)
-                        .unwrap()
-                        .pixels()
-                })
-            })
-            .collect();
+        let res = (w as u32, h as u32);
+        let frames = (0..=6, target);
+        let renders = reuse_renders(&integ, &pool, (method, 5), frames, res, (64, 6000));
         let z = z_test(&block_moments(&renders, w, h, b), &reference);
         assert_unbiased(&format!("{method:?} on the cut-out scene"), &z);
     }

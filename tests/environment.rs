@@ -6,7 +6,7 @@
 mod common;
 mod stats;
 
-use common::render_in_memory;
+use common::{render_in_memory, reuse_renders};
 use glam::Vec3;
 use reframe::driver::{render_frame_independent, thread_pool, RenderOptions};
 use reframe::embree::Device;
@@ -222,27 +222,9 @@ fn reuse_is_unbiased_under_an_environment_with_background_pixels() {
         .collect();
     let reference = block_moments(&reference, w, h, b);
     for method in [Method::MisCv, Method::MisExact] {
-        let renders: Vec<Vec<Vec3>> = (0..k)
-            .map(|s| {
-                let opts = RenderOptions {
-                    method,
-                    window: 5,
-                    spp: 1,
-                    seed: 6000 + s,
-                    frames: Some(0..=8),
-                    resolution: Some((w as u32, h as u32)),
-                    progress: false,
-                    ..RenderOptions::default()
-                };
-                pool.install(|| {
-                    render_in_memory(&integ, &opts)
-                        .0
-                        .remove(&target)
-                        .unwrap()
-                        .pixels()
-                })
-            })
-            .collect();
+        let res = (w as u32, h as u32);
+        let frames = (0..=8, target);
+        let renders = reuse_renders(&integ, &pool, (method, 5), frames, res, (k, 6000));
         let z = z_test(&block_moments(&renders, w, h, b), &reference);
         assert_unbiased(&format!("{method:?} under the environment"), &z);
     }

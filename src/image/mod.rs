@@ -615,6 +615,20 @@ fn check_room(info: &ffi::ImageInfo, need: u64) -> Result<()> {
     Ok(())
 }
 
+/// An input image (a texture, a mask, an environment) opened for reading as `open_checked`
+/// opens it, with its pixel count; one without pixels or channels is refused.
+fn open_input_image(
+    path: &Path,
+    max_pixels: u64,
+) -> Result<(cxx::UniquePtr<ffi::ImageReader>, ffi::ImageInfo, u64)> {
+    let (reader, info) = open_checked(path, max_pixels)?;
+    let pixels = info.width as u64 * info.height as u64;
+    if pixels == 0 || info.channels.is_empty() {
+        bail!("the image has no pixels");
+    }
+    Ok((reader, info, pixels))
+}
+
 /// Every channel of the first subimage of an open file as f32.
 fn read_all(
     reader: &mut cxx::UniquePtr<ffi::ImageReader>,
@@ -692,11 +706,7 @@ pub struct ColourLayout {
 /// texels later, `Textures`).
 pub fn read_colour(path: &Path, max_pixels: u64) -> Result<(Image, ColourLayout)> {
     let read = || -> Result<(Image, ColourLayout)> {
-        let (mut reader, info) = open_checked(path, max_pixels)?;
-        let pixels = info.width as u64 * info.height as u64;
-        if pixels == 0 || info.channels.is_empty() {
-            bail!("the image has no pixels");
-        }
+        let (mut reader, info, pixels) = open_input_image(path, max_pixels)?;
         let srgb = reader.attributes().into_iter().any(|a| {
             a.name.eq_ignore_ascii_case("oiio:ColorSpace")
                 && a.text.to_ascii_lowercase().contains("srgb")
@@ -741,11 +751,7 @@ pub fn mask_channel(names: &[String]) -> Result<usize> {
 /// named `A`, and that channel's index in the file. Refused as `read_colour` refuses.
 pub fn read_mask(path: &Path, max_pixels: u64) -> Result<(Image, usize)> {
     let read = || -> Result<(Image, usize)> {
-        let (mut reader, info) = open_checked(path, max_pixels)?;
-        let pixels = info.width as u64 * info.height as u64;
-        if pixels == 0 || info.channels.is_empty() {
-            bail!("the image has no pixels");
-        }
+        let (mut reader, info, pixels) = open_input_image(path, max_pixels)?;
         let nch = info.channels.len();
         let channel = mask_channel(&info.channels)?;
         let need = pixels * (4 * nch as u64 + 4);

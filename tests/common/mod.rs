@@ -1,11 +1,13 @@
 //! What the integration tests share: one way to run the real binary (`reframe_ok` for runs that
 //! must succeed, `run_reframe` with a time limit for bad input, and the rules a failed run must
-//! follow), one in-memory render (`render_in_memory`), and one bitwise comparison of frame files
+//! follow), one in-memory render (`render_in_memory`, and `reuse_renders`, the seeds of one
+//! frame that the reuse z-tests compare), and one bitwise comparison of frame files
 //! (`assert_identical`). Each test file uses a part of it.
 #![allow(dead_code)]
 use reframe::driver::{render_frames, RenderOptions};
 use reframe::film::{Developed, MemorySink};
 use reframe::integrator::Integrator;
+use reframe::reuse::Method;
 use reframe::state::checkpoint::Counters;
 use std::collections::BTreeMap;
 use std::io::Read;
@@ -226,6 +228,40 @@ pub fn render_in_memory(
         );
     }
     (sink.0, counters)
+}
+
+/// `k` renders of frame `target` by `method` (1 native spp, group size `window`, seeds from
+/// `seed`), the frames `frames` rendered at `w` x `h` in memory on `pool`: the renders a reuse
+/// z-test sets against an independent reference.
+pub fn reuse_renders(
+    integ: &Integrator,
+    pool: &rayon::ThreadPool,
+    (method, window): (Method, u32),
+    (frames, target): (std::ops::RangeInclusive<u32>, u32),
+    (w, h): (u32, u32),
+    (k, seed): (u64, u64),
+) -> Vec<Vec<glam::Vec3>> {
+    (0..k)
+        .map(|s| {
+            let opts = RenderOptions {
+                method,
+                window,
+                spp: 1,
+                seed: seed + s,
+                frames: Some(frames.clone()),
+                resolution: Some((w, h)),
+                progress: false,
+                ..RenderOptions::default()
+            };
+            pool.install(|| {
+                render_in_memory(integ, &opts)
+                    .0
+                    .remove(&target)
+                    .unwrap()
+                    .pixels()
+            })
+        })
+        .collect()
 }
 
 /// Assert that the frame files `names` are bitwise identical in folders `a` and `b`: the same
