@@ -14,6 +14,7 @@ use reframe::image::{write_image, Image, Metadata, Textures, WriteOptions};
 use reframe::integrator::{Integrator, Rays};
 use reframe::reuse::Method;
 use reframe::scene::{LoadOptions, Scene};
+use reframe::state::key::scene_and_build_hashes;
 use stats::{assert_unbiased, block_moments, z_test};
 use std::path::Path;
 
@@ -277,9 +278,10 @@ fn masks_read_alpha_grey_or_first_channel_as_stored() {
 
 /// What reframe does not render is said: `d` below 1 (the surface stays opaque) and a mask on
 /// a light (lights are opaque), each a warning naming the line, refused with `--strict`; `d 1`
-/// says nothing. A missing mask is refused naming the MTL line.
+/// says nothing. The mask is part of the scene's identity. A missing mask is refused naming the
+/// MTL line.
 #[test]
-fn dissolve_and_masked_lights_are_said_and_missing_masks_refused() {
+fn dissolve_and_masked_lights_are_said_masks_hashed_and_missing_masks_refused() {
     let device = Device::new().unwrap();
     let cam = camera(1, 8, 8);
     let obj = "obj = \"cut.obj\"";
@@ -330,6 +332,20 @@ fn dissolve_and_masked_lights_are_said_and_missing_masks_refused() {
     .unwrap();
     let scene = Scene::load(&path, &device).unwrap();
     assert!(scene.texture_maps().iter().all(|m| m.cutout.is_none()));
+    // The mask's content is part of the scene's identity (checkpoints, chunk merges, cached
+    // references): another mask is another scene.
+    std::fs::write(d.path().join("s.mtl"), MTL).unwrap();
+    let hash = || {
+        scene_and_build_hashes(&Scene::load(&path, &device).unwrap())
+            .unwrap()
+            .0
+    };
+    let before = hash();
+    assert_eq!(before, hash());
+    write_tga(&d.path().join("mask.tga"), 8, 1, |x, y| {
+        [255 - checker(x, y); 4]
+    });
+    assert_ne!(before, hash());
     // A missing mask.
     std::fs::write(
         d.path().join("s.mtl"),
