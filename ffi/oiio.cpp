@@ -270,7 +270,10 @@ void ImageReader::read_f32(rust::Slice<float> out) {
         QuietStderr quiet;
         ok = in_->read_image(0, 0, 0, spec_.nchannels, OIIO::TypeDesc::FLOAT, out.data());
     }
-    if (!ok) {
+    // A reader may fill what it could not read (a TIFF strip cut off reads as zeros, a JPEG cut
+    // short as grey: "Premature end of JPEG file") and still report success, leaving only its
+    // error message set: that is a damaged file too.
+    if (!ok || in_->has_error()) {
         throw_input_error(*in_, "cannot read pixels");
     }
 }
