@@ -1361,17 +1361,56 @@ const DEFINED_AGAIN: Kind = Kind {
 };
 
 /// The files an `mtllib` line names: the whole rest of the line if there is such a file (names
-/// with spaces are common in exports), otherwise each word (the OBJ format's list).
-fn mtl_paths(dir: &Path, rest: &[u8]) -> Vec<PathBuf> {
+/// with spaces are common in exports), or found from it as `find_named_file` finds a path written
+/// on another machine (then `true`); otherwise each word (the OBJ format's list).
+fn mtl_paths(dir: &Path, rest: &[u8]) -> Vec<(PathBuf, bool)> {
     let whole = dir.join(std::ffi::OsStr::from_bytes(rest));
-    if whole.exists() || !rest.iter().any(|b| b.is_ascii_whitespace()) {
-        return vec![whole];
+    if whole.exists() {
+        return vec![(whole, false)];
+    }
+    if let Some(found) = std::str::from_utf8(rest)
+        .ok()
+        .and_then(|name| find_named_file(dir, name))
+    {
+        return vec![(found, true)];
+    }
+    if !rest.iter().any(|b| b.is_ascii_whitespace()) {
+        return vec![(whole, false)];
     }
     rest.split(|b| b.is_ascii_whitespace())
         .filter(|w| !w.is_empty())
-        .map(|w| dir.join(std::ffi::OsStr::from_bytes(w)))
+        .map(|w| (dir.join(std::ffi::OsStr::from_bytes(w)), false))
         .collect()
 }
+
+/// A file that an OBJ or MTL in `dir` names as `name` but that is not there as written, found
+/// where a path written on another machine leads: with Windows separators read as `/`
+/// (`textures\wood.png`; a drive's `C:\...` is no path here), then by its file name alone in
+/// `dir` (an absolute path of the artist's machine, a folder not shipped along). `None`: not
+/// found either way (the caller reports the path as written).
+pub(crate) fn find_named_file(dir: &Path, name: &str) -> Option<PathBuf> {
+    let slashed = name.replace('\\', "/");
+    let drive = slashed.len() >= 2
+        && slashed.as_bytes()[1] == b':'
+        && slashed.as_bytes()[0].is_ascii_alphabetic();
+    if slashed != name && !drive && !slashed.starts_with('/') {
+        let p = dir.join(&slashed);
+        if p.is_file() {
+            return Some(p);
+        }
+    }
+    let file = slashed
+        .rsplit('/')
+        .next()
+        .filter(|f| !f.is_empty() && *f != name)?;
+    Some(dir.join(file)).filter(|p| p.is_file())
+}
+
+/// A file named by a path that is not there, found by `find_named_file`.
+pub(crate) const FOUND_ELSEWHERE: Kind = Kind {
+    one: "path not found as written (from another machine?): the file was found as shown",
+    many: "paths not found as written (from another machine?): the files were found as shown",
+};
 
 /// Load the OBJ and the MTL files it names into a checked mesh, noting repairs.
 #[cfg(test)]
@@ -1411,7 +1450,12 @@ fn load_obj_files(
             }
             MtlSource::Dir(dir) => {
                 let mut v = Vec::new();
-                for path in mtl_paths(dir, rest) {
+                for (path, elsewhere) in mtl_paths(dir, rest) {
+                    if elsewhere {
+                        repairs.note(label, *line, FOUND_ELSEWHERE, || {
+                            format!("'mtllib {}': found '{}'", quote(&shown), path.display())
+                        })?;
+                    }
                     // The same file named twice is read once.
                     if read.contains(&path) {
                         continue;
@@ -1435,6 +1479,19 @@ fn load_obj_files(
         };
         for (mtl_label, mtl_dir, b) in loaded {
             let mtl = mtl::parse(&mtl_label, &b, repairs)?;
+            // The maps reframe does not render are inputs too: never written over.
+            if let Some(dir) = &mtl_dir {
+                for f in mtl.other_files.iter().filter(|f| !f.is_empty()) {
+                    let path = dir.join(f);
+                    let path = match path.exists() {
+                        true => path,
+                        false => find_named_file(dir, f).unwrap_or(path),
+                    };
+                    if !texture_files.contains(&path) {
+                        texture_files.push(path);
+                    }
+                }
+            }
             for m in &mtl.materials {
                 if by_name.contains_key(&m.name) {
                     repairs.note(&mtl_label, m.line, DEFINED_AGAIN, || {

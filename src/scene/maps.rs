@@ -65,7 +65,15 @@ impl Maps {
             let Some(dir) = dir else {
                 return Err(anyhow!("{at}: a shipped scene has no texture files"));
             };
-            let path = dir.join(&spec.file);
+            let mut path = dir.join(&spec.file);
+            if !path.exists() {
+                if let Some(found) = super::find_named_file(dir, &spec.file) {
+                    repairs.note(mtl_label, spec.line, super::FOUND_ELSEWHERE, || {
+                        format!("'{}': found '{}'", quote(&spec.statement), found.display())
+                    })?;
+                    path = found;
+                }
+            }
             // Missing, or there but not a regular file (a folder, a FIFO, a device, a symlink
             // loop): said as such, as for every other input.
             match open_input_or_missing(&path, "texture", u64::MAX) {
