@@ -358,3 +358,50 @@ fn dissolve_and_masked_lights_are_said_masks_hashed_and_missing_masks_refused() 
         "{e}"
     );
 }
+
+/// The files of maps reframe does not render (`map_Bump`, `map_Ka`, `norm`) are still the
+/// scene's inputs: a frame or a report named like one is refused and the file kept.
+#[test]
+fn maps_that_are_not_rendered_are_never_written_over() {
+    let d = tempfile::tempdir().unwrap();
+    let files = [("cut.obj", format!("mtllib s.mtl\n{QUAD}{ROOM}"))];
+    let path = write_scene(d.path(), "obj = \"cut.obj\"", &camera(1, 8, 8), &files);
+    let mtl = "newmtl leaf\nKd 0.5 0.5 0.5\nmap_Bump -bm 1 m_0000.png\nmap_Ka k.png\n\
+               norm n.json\nnewmtl light\nKe 1 1 1\nnewmtl floor\nKd 1 1 1\n";
+    std::fs::write(d.path().join("s.mtl"), mtl).unwrap();
+    for f in ["m_0000.png", "k.png", "n.json"] {
+        std::fs::write(d.path().join(f), "precious").unwrap();
+    }
+    let at = |f: &str| d.path().join(f).display().to_string();
+    for args in [
+        vec!["--out".to_string(), at("m_####.png")],
+        vec!["--out".to_string(), at("k.png")],
+        vec![
+            "--out".to_string(),
+            at("o_####.png"),
+            "--stats".into(),
+            at("n.json"),
+        ],
+    ] {
+        let o = common::reframe(
+            &[
+                vec!["render".into(), path.clone(), "--spp".into(), "1".into()],
+                args,
+            ]
+            .concat(),
+        )
+        .output()
+        .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains("that is an input of this command"),
+            "{err}"
+        );
+    }
+    for f in ["m_0000.png", "k.png", "n.json"] {
+        assert_eq!(
+            std::fs::read_to_string(d.path().join(f)).unwrap(),
+            "precious"
+        );
+    }
+}

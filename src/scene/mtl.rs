@@ -115,6 +115,9 @@ pub struct MapSpec {
 pub struct Mtl {
     pub materials: Vec<MtlMaterial>,
     pub index: HashMap<String, usize>,
+    /// The files named by map statements reframe does not render (`map_Bump`, `map_Ka`, ...):
+    /// never read, but a command must not write over them either.
+    pub other_files: Vec<String>,
 }
 
 /// Read an MTL file; `label` names it in errors ("label: line N: 'statement': why") and repairs.
@@ -163,8 +166,16 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
             m.maps[slot as usize] = Some(spec);
             continue;
         }
-        if unrendered_map(key) {
-            if let Some(m) = out.materials.last() {
+        if unrendered_map(key) || key.eq_ignore_ascii_case("map_Ka") {
+            // The file as a map statement names it; where the options do not parse, the rest of
+            // the line and its last word, either of which may be the file.
+            match map_spec(n, text, &args) {
+                Ok((spec, _)) => out.other_files.push(spec.file),
+                Err(_) => out
+                    .other_files
+                    .extend([args.join(" "), args.last().unwrap_or(&"").to_string()]),
+            }
+            if let (false, Some(m)) = (key.eq_ignore_ascii_case("map_Ka"), out.materials.last()) {
                 let name = m.name.clone();
                 repairs.note(label, n, UNRENDERED_MAP, || {
                     format!("'{}' in '{name}'", quote(text))
