@@ -202,7 +202,12 @@ std::unique_ptr<ImageReader> open_reader(rust::Str path) {
     std::unique_ptr<OIIO::ImageInput> in;
     {
         QuietStderr quiet;
-        in = OIIO::ImageInput::open(p);
+        // Colours as the file stores them: OIIO would multiply a PNG's or TGA's colour by its
+        // alpha (associate it), darkening a texture wherever it is partly transparent, and a
+        // mask read from a colour channel with it.
+        OIIO::ImageSpec config;
+        config.attribute("oiio:UnassociatedAlpha", 1);
+        in = OIIO::ImageInput::open(p, &config);
     }
     if (!in) {
         throw_global_error("cannot open");
@@ -289,6 +294,8 @@ TextureSet::TextureSet() : ts_(OIIO::TextureSystem::create(/*shared=*/false)) {
     // Scanline files (PNG, JPEG, plain EXR) are read whole into the cache; tiled, MIP-mapped
     // files (.tx, tiled EXR) a tile at a time.
     ts_->attribute("accept_untiled", 1);
+    // As `open_reader` reads them: colours not multiplied by alpha.
+    ts_->attribute("unassociatedalpha", 1);
     ts_->attribute("max_memory_MB", 1024.0f);
 }
 

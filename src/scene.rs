@@ -1377,8 +1377,10 @@ fn mtl_paths(dir: &Path, rest: &[u8]) -> Vec<(PathBuf, bool)> {
     if !rest.iter().any(|b| b.is_ascii_whitespace()) {
         return vec![(whole, false)];
     }
+    // The list ends at a comment (`mtllib a.mtl b.mtl # materials`).
     rest.split(|b| b.is_ascii_whitespace())
         .filter(|w| !w.is_empty())
+        .take_while(|w| !w.starts_with(b"#"))
         .map(|w| (dir.join(std::ffi::OsStr::from_bytes(w)), false))
         .collect()
 }
@@ -1405,6 +1407,11 @@ pub(crate) fn find_named_file(dir: &Path, name: &str) -> Option<PathBuf> {
         .filter(|f| !f.is_empty() && *f != name)?;
     Some(dir.join(file)).filter(|p| p.is_file())
 }
+
+const NO_TEXCOORDS: Kind = Kind {
+    one: "the OBJ has no texture coordinates (vt): its maps are read at (0, 0) everywhere",
+    many: "the OBJ has no texture coordinates (vt): its maps are read at (0, 0) everywhere",
+};
 
 /// A file named by a path that is not there, found by `find_named_file`.
 pub(crate) const FOUND_ELSEWHERE: Kind = Kind {
@@ -1548,6 +1555,19 @@ fn load_obj_files(
     }
     if maps.iter().any(|m| !m.is_empty()) {
         maps.resize(materials.len(), Maps::default());
+        // A map on faces without texture coordinates reads one texel, (0, 0), everywhere.
+        if parsed.uvs.is_empty() {
+            if let Some(t) = mesh
+                .tri_material
+                .iter()
+                .find(|&&m| !maps[m as usize].is_empty())
+            {
+                let name = &names[*t as usize];
+                repairs.note(label, 1, NO_TEXCOORDS, || {
+                    format!("material '{name}' has texture maps")
+                })?;
+            }
+        }
         mesh.maps = maps;
     }
     mesh.materials = materials;

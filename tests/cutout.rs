@@ -239,7 +239,8 @@ fn reuse_and_packets_agree_on_a_cut_out_scene() {
     }
 }
 
-/// A mask is its file's alpha channel, else its grey one, else its first, as the file holds it:
+/// A mask is the channel its `-imfchan` names, or its file's alpha channel, else its grey one,
+/// else its first, as the file holds it:
 /// an 8-bit code of 128 is 0.502, not the 0.216 that decoding sRGB would make of it (coverage
 /// is not a colour). Interpolated bilinearly between texel centres, as colours are.
 #[test]
@@ -261,7 +262,7 @@ fn masks_read_alpha_grey_or_first_channel_as_stored() {
     write_image(&exr, &img, &Metadata::default(), &exr_opts).unwrap();
     let mut t = Textures::new().unwrap();
     for path in [&rgba, &grey, &exr] {
-        let id = t.open_mask(path).unwrap();
+        let id = t.open_mask(path, None).unwrap();
         for (u, want) in [(0.25, 0.0), (0.75, 128.0 / 255.0), (0.5, 64.0 / 255.0)] {
             let got = t.value(id, Vec2::new(u, 0.5));
             assert!(
@@ -273,7 +274,20 @@ fn masks_read_alpha_grey_or_first_channel_as_stored() {
     }
     // The RGBA file's colour is still its colour when a material also takes it as its map_Kd.
     let colour = t.open(&rgba).unwrap();
-    assert_ne!(colour, t.open_mask(&rgba).unwrap());
+    assert_ne!(colour, t.open_mask(&rgba, None).unwrap());
+    // ... and not multiplied by its alpha (OIIO's default for PNG and TGA), which would darken
+    // it wherever it is partly transparent: white where alpha is 0, as stored.
+    assert_eq!(t.rgb(colour, Vec2::new(0.25, 0.5)), glam::Vec3::ONE);
+    // `-imfchan` picks the channel: r the (white) red, m the alpha; a grey file has no alpha.
+    let red = t.open_mask(&rgba, Some('r')).unwrap();
+    assert_eq!(t.value(red, Vec2::new(0.25, 0.5)), 1.0);
+    let matte = t.open_mask(&rgba, Some('m')).unwrap();
+    assert_eq!(t.value(matte, Vec2::new(0.25, 0.5)), 0.0);
+    let e = t.open_mask(&grey, Some('m')).unwrap_err().to_string();
+    assert!(
+        e.contains("-imfchan m names a channel it does not have"),
+        "{e}"
+    );
 }
 
 /// What reframe does not render is said: `d` below 1 (the surface stays opaque) and a mask on
@@ -288,7 +302,7 @@ fn dissolve_and_masked_lights_are_said_masks_hashed_and_missing_masks_refused() 
     for (mtl, warning) in [
         (
             "newmtl leaf\nKd 0.5 0.5 0.5\nd 0.4\nnewmtl light\nKe 1 1 1\nnewmtl floor\nKd 1 1 1\n",
-            Some("line 3: 'd 0.4' in 'leaf': dissolve (d) below 1 not rendered"),
+            Some("line 3: 'd 0.4' in 'leaf': dissolve (d) not rendered"),
         ),
         (
             "newmtl leaf\nKd 0.5 0.5 0.5\nd 1.0\nTr 0\nnewmtl light\nKe 1 1 1\nnewmtl floor\n",

@@ -111,7 +111,10 @@ fn render_tile(
             }
         }
     }
-    let px = sums.iter().map(|&sum| (sum / spp as f64).as_vec3()).collect();
+    let px = sums
+        .iter()
+        .map(|&sum| (sum / spp as f64).as_vec3())
+        .collect();
     (px, bad)
 }
 

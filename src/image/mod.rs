@@ -736,24 +736,41 @@ pub fn read_colour(path: &Path, max_pixels: u64) -> Result<(Image, ColourLayout)
 }
 
 /// The channel of an image (channels `names`, as OIIO names them) that a cut-out mask
-/// (`map_d`) reads: its alpha (`A`), else a grey channel (`Y`), else the first.
-pub fn mask_channel(names: &[String]) -> Result<usize> {
+/// (`map_d`) reads: the one its `-imfchan` names (`r`, `g`, `b` by name or else by place, `m`
+/// the alpha, `l` the grey channel or else the first, `z` the first), or by default its alpha
+/// (`A`), else a grey channel (`Y`), else the first.
+pub fn mask_channel(names: &[String], imfchan: Option<char>) -> Result<usize> {
     let find = |c: &str| names.iter().position(|n| n == c);
-    match find("A").or_else(|| find("Y")) {
-        Some(c) => Ok(c),
-        None if names.is_empty() => bail!("the image has no channels"),
-        None => Ok(0),
+    if names.is_empty() {
+        bail!("the image has no channels");
     }
+    let by_place = |i: usize| (i < names.len()).then_some(i);
+    let picked = match imfchan {
+        None => find("A").or_else(|| find("Y")).or(Some(0)),
+        Some('r') => find("R").or_else(|| by_place(0)),
+        Some('g') => find("G").or_else(|| by_place(1)),
+        Some('b') => find("B").or_else(|| by_place(2)),
+        Some('m') => find("A"),
+        Some('l') => find("Y").or(Some(0)),
+        Some(_) => Some(0),
+    };
+    picked.ok_or_else(|| {
+        anyhow!(
+            "-imfchan {} names a channel it does not have (its channels: {})",
+            imfchan.unwrap_or('?'),
+            names.join(", ")
+        )
+    })
 }
 
 /// Reads a cut-out mask: the channel `mask_channel` picks, as the file holds it (coverage is
 /// not a colour: an 8-bit file's codes / 255, never decoded from sRGB), as a one-channel image
 /// named `A`, and that channel's index in the file. Refused as `read_colour` refuses.
-pub fn read_mask(path: &Path, max_pixels: u64) -> Result<(Image, usize)> {
+pub fn read_mask(path: &Path, max_pixels: u64, imfchan: Option<char>) -> Result<(Image, usize)> {
     let read = || -> Result<(Image, usize)> {
         let (mut reader, info, pixels) = open_input_image(path, max_pixels)?;
         let nch = info.channels.len();
-        let channel = mask_channel(&info.channels)?;
+        let channel = mask_channel(&info.channels, imfchan)?;
         let need = pixels * (4 * nch as u64 + 4);
         check_room(&info, need)?;
         let data = read_all(&mut reader, &info)?;

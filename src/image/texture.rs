@@ -91,8 +91,8 @@ fn decode_srgb(v: f32) -> f32 {
 pub struct Textures {
     set: cxx::UniquePtr<ffi::TextureSet>,
     info: Vec<Info>,
-    /// The textures open, by path and whether opened as a mask (`open_mask`).
-    by_path: HashMap<(PathBuf, bool), TextureId>,
+    /// The textures open, by path and, for a mask (`open_mask`), its `-imfchan`.
+    by_path: HashMap<(PathBuf, Option<Option<char>>), TextureId>,
     /// Lookups the texture system failed (a file changed or vanished during the render); they
     /// return black.
     failures: AtomicU64,
@@ -122,7 +122,8 @@ impl Textures {
     /// is missing or no image, damaged anywhere in its pixels, larger than `MAX_TEXELS`, with a
     /// texel that is negative or not finite.
     pub fn open(&mut self, path: &Path) -> Result<TextureId> {
-        if let Some(&id) = self.by_path.get(&(path.to_path_buf(), false)) {
+        let key = (path.to_path_buf(), None);
+        if let Some(&id) = self.by_path.get(&key) {
             return Ok(id);
         }
         // Decoded whole once, for the checks; the cache reads it again on demand.
@@ -146,36 +147,36 @@ impl Textures {
             Colour::Grey(c) => [Some(c - first); 3],
             Colour::Rgb(c) => c.map(|c| c.map(|c| c - first)),
         };
-        Ok(self.add(path, id, &img, (last - first + 1, pick, srgb), false))
+        Ok(self.add(key, id, &img, (last - first + 1, pick, srgb)))
     }
 
     /// Open the texture at `path` as a cut-out mask (once: a second time gives the same id):
-    /// its alpha channel, else its grey one, else its first (`image::mask_channel`), as the
-    /// file holds it (never decoded from sRGB: coverage is not a colour). `value` looks it up.
-    /// Refused as `open` refuses.
-    pub fn open_mask(&mut self, path: &Path) -> Result<TextureId> {
-        if let Some(&id) = self.by_path.get(&(path.to_path_buf(), true)) {
+    /// the channel `imfchan` names, or by default its alpha channel, else its grey one, else its
+    /// first (`image::mask_channel`), as the file holds it (never decoded from sRGB: coverage is
+    /// not a colour). `value` looks it up. Refused as `open` refuses.
+    pub fn open_mask(&mut self, path: &Path, imfchan: Option<char>) -> Result<TextureId> {
+        let key = (path.to_path_buf(), Some(imfchan));
+        if let Some(&id) = self.by_path.get(&key) {
             return Ok(id);
         }
-        let (img, channel) = read_mask(path, MAX_TEXELS)?;
+        let (img, channel) = read_mask(path, MAX_TEXELS, imfchan)?;
         check_texels(path, &img.data)?;
         let id = self
             .set
             .pin_mut()
             .add(path_str(path)?, channel as u32, channel as u32 + 1)
             .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
-        Ok(self.add(path, id, &img, (1, [Some(0), None, None], false), true))
+        Ok(self.add(key, id, &img, (1, [Some(0), None, None], false)))
     }
 
-    /// Record texture `id` of the texture set, read from `path` as `img` (what its identity
-    /// hashes), fetched as `(channels, pick, srgb)` (`Info`).
+    /// Record texture `id` of the texture set, opened as `key` and read as `img` (what its
+    /// identity hashes), fetched as `(channels, pick, srgb)` (`Info`).
     fn add(
         &mut self,
-        path: &Path,
+        key: (PathBuf, Option<Option<char>>),
         id: u32,
         img: &super::Image,
         (fetched, pick, srgb): (usize, [Option<usize>; 3], bool),
-        mask: bool,
     ) -> TextureId {
         let mut f = Fnv::default();
         f.bytes(&[img.width.to_le_bytes(), img.height.to_le_bytes()].concat());
@@ -189,7 +190,7 @@ impl Textures {
             digest: f.0,
         });
         let id = TextureId(id);
-        self.by_path.insert((path.to_path_buf(), mask), id);
+        self.by_path.insert(key, id);
         id
     }
 

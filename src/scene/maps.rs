@@ -88,7 +88,7 @@ impl Maps {
                 None => textures.insert(Textures::new().map_err(|e| anyhow!("{at}: {e}"))?),
             };
             let tex = if mask {
-                t.open_mask(&path)
+                t.open_mask(&path, spec.channel)
             } else {
                 t.open(&path)
             };

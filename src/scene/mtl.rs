@@ -24,7 +24,7 @@
 //! down in that channel, so the Phong model conserves energy), `Ns` above `MAX_NS`, `Ke` above
 //! `MAX_KE`.
 use super::repairs::{Kind, Repairs};
-use super::text::{lines, quote, rest};
+use super::text::{joined, lines, quote, rest};
 use crate::bsdf::Material;
 /// Largest Phong exponent: the BSDF's own bound (`bsdf::MAX_NS`).
 pub use crate::bsdf::MAX_NS;
@@ -50,13 +50,24 @@ const MAP_OPTION: Kind = Kind {
     many: "texture map options ignored (reframe applies -o and -s only)",
 };
 const DISSOLVE: Kind = Kind {
-    one: "dissolve (d) below 1 not rendered: the surface is opaque (map_d cut-outs are rendered)",
-    many: "materials with dissolve (d) below 1 rendered opaque (map_d cut-outs are rendered)",
+    one: "dissolve (d) not rendered: the surface is opaque (map_d cut-outs are rendered)",
+    many: "materials with dissolve (d) rendered opaque (map_d cut-outs are rendered)",
 };
 const UNRENDERED_MAP: Kind = Kind {
     one: "texture map not rendered (reframe renders map_Kd, map_Ks, map_Ke and map_d)",
     many: "texture maps not rendered (reframe renders map_Kd, map_Ks, map_Ke and map_d)",
 };
+
+/// The statements reframe reads, in any case (`kd`, `KD` and `map_kd` are `Kd` and `map_Kd`:
+/// exporters differ), as written in the format; other keys as they are.
+fn canonical(key: &str) -> &str {
+    const KEYS: [&str; 10] = [
+        "newmtl", "Kd", "Ks", "Ke", "Ns", "d", "map_Kd", "map_Ks", "map_Ke", "map_d",
+    ];
+    KEYS.into_iter()
+        .find(|k| k.eq_ignore_ascii_case(key))
+        .unwrap_or(key)
+}
 
 /// Whether `key` is a texture map that would change the look but that reframe does not render:
 /// bump, normal and displacement maps, maps of the exponent, reflection and the PBR extension's
@@ -108,6 +119,8 @@ pub struct MapSpec {
     pub offset: Vec2,
     pub line: usize,
     pub statement: String,
+    /// `-imfchan r|g|b|m|l|z`: the channel a scalar map reads (`map_d` honours it).
+    pub channel: Option<char>,
 }
 
 /// The materials of one MTL file, in order, and where each name is.
@@ -123,12 +136,13 @@ pub struct Mtl {
 /// Read an MTL file; `label` names it in errors ("label: line N: 'statement': why") and repairs.
 pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
     let mut out = Mtl::default();
-    for line in lines(bytes).map_err(|e| anyhow!("{label}: {e}"))? {
+    for line in joined(lines(bytes).map_err(|e| anyhow!("{label}: {e}"))?) {
         let (n, text) = (line.n, line.text.as_ref());
         let err = |msg: String| anyhow!("{label}: line {n}: '{}': {msg}", quote(text));
         let Some((key, args)) = line.statement(label, repairs)? else {
             continue;
         };
+        let key = canonical(key);
         if key == "newmtl" {
             let name = rest(text);
             if name.is_empty() {
@@ -159,7 +173,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
             let Some(m) = out.materials.last_mut() else {
                 return Err(err(format!("'{key}' before any newmtl")));
             };
-            let (spec, ignored) = map_spec(n, text, &args).map_err(err)?;
+            let (spec, ignored) = map_spec(n, text, &args, slot == Slot::D).map_err(err)?;
             if ignored {
                 repairs.note(label, n, MAP_OPTION, || format!("'{}'", quote(text)))?;
             }
@@ -169,7 +183,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
         if unrendered_map(key) || key.eq_ignore_ascii_case("map_Ka") {
             // The file as a map statement names it; where the options do not parse, the rest of
             // the line and its last word, either of which may be the file.
-            match map_spec(n, text, &args) {
+            match map_spec(n, text, &args, false) {
                 Ok((spec, _)) => out.other_files.push(spec.file),
                 Err(_) => out
                     .other_files
@@ -184,12 +198,13 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
             continue;
         }
         if key == "d" {
-            // Dissolve (partial transparency) is not rendered; say so where it would show. A
-            // value that is not a number (`d -halo 0.5` takes the last word) is passed over, as
-            // before reframe looked at `d` at all.
+            // Dissolve (partial transparency) is not rendered: say so where it would show
+            // (`d -halo 0.5` takes the last word).
             let d = args.last().and_then(|a| a.parse::<f32>().ok());
-            if let (Some(d), Some(m)) = (d, out.materials.last()) {
-                if (0.0..1.0).contains(&d) {
+            if let Some(m) = out.materials.last() {
+                // Anything but a number of at least 1 (opaque): below 1, negative, not a
+                // number, a decimal comma.
+                if !d.is_some_and(|d| d >= 1.0) {
                     let name = m.name.clone();
                     repairs.note(label, n, DISSOLVE, || {
                         format!("'{}' in '{name}'", quote(text))
@@ -297,7 +312,12 @@ impl MtlMaterial {
 
 /// The options and file name of a `map_K?` line (`args`: its words after the key), and whether
 /// it has options reframe ignores.
-fn map_spec(n: usize, text: &str, args: &[&str]) -> std::result::Result<(MapSpec, bool), String> {
+fn map_spec(
+    n: usize,
+    text: &str,
+    args: &[&str],
+    scalar: bool,
+) -> std::result::Result<(MapSpec, bool), String> {
     let mut ignored = false;
     let mut spec = MapSpec {
         file: String::new(),
@@ -305,6 +325,7 @@ fn map_spec(n: usize, text: &str, args: &[&str]) -> std::result::Result<(MapSpec
         offset: Vec2::ZERO,
         line: n,
         statement: text.trim().to_string(),
+        channel: None,
     };
     let mut i = 0;
     // Up to `most` numbers after an option (fewer if a word is not a number).
@@ -347,7 +368,15 @@ fn map_spec(n: usize, text: &str, args: &[&str]) -> std::result::Result<(MapSpec
                 "'{opt}' needs its value(s) and a file name after it"
             ));
         }
-        ignored |= !matches!(opt, "-o" | "-s");
+        if opt == "-imfchan" && scalar {
+            let c = args[i + 1];
+            if !matches!(c, "r" | "g" | "b" | "m" | "l" | "z") {
+                return Err(format!("'-imfchan {c}': expected r, g, b, m, l or z"));
+            }
+            spec.channel = c.chars().next();
+        }
+        let applied = matches!(opt, "-o" | "-s") || (scalar && opt == "-imfchan");
+        ignored |= !applied;
         i += 1 + taken;
     }
     if i >= args.len() {
@@ -409,12 +438,30 @@ mod tests {
     }
 
     #[test]
+    fn keys_in_any_case_and_comments_after_numbers() {
+        let text = "NEWMTL a\nkd 0.5 0.25 0.125 # brown\nKE 1 2 3\nmap_kd t.png\n";
+        let mut r = Repairs::new(false);
+        let mtl = parse("a.mtl", text.as_bytes(), &mut r).unwrap();
+        let m = mtl.materials[0].material("a.mtl", &mut r).unwrap();
+        assert_eq!(m.kd, Vec3::new(0.5, 0.25, 0.125));
+        assert_eq!(m.ke, Vec3::new(1.0, 2.0, 3.0));
+        assert_eq!(
+            mtl.materials[0].maps[Slot::Kd as usize]
+                .as_ref()
+                .unwrap()
+                .file,
+            "t.png"
+        );
+        assert!(r.into_warnings().is_empty());
+    }
+
+    #[test]
     fn maps_that_are_not_rendered_are_said_once() {
-        // Blender's, 3ds Max's and the PBR extension's maps, any case; map_Ka, d 1 and a d
-        // that is no number say nothing; d below 1 says it is not rendered.
+        // Blender's, 3ds Max's and the PBR extension's maps, any case; map_Ka and d 1 say
+        // nothing; d below 1 (or no number) says it is not rendered.
         let text =
             "map_Bump before.png\nnewmtl a\nmap_Bump -bm 1 n.png\nbump b.png\nmap_Ka a.png\n\
-                    d 1.0\nd -halo x\nnewmtl b\nNORM n.png\nmap_Pr r.png\nd 0.25\n";
+                    d 1.0\nd -halo 1\nnewmtl b\nNORM n.png\nmap_Pr r.png\nd 0.25\n";
         let mut r = Repairs::new(false);
         parse("a.mtl", text.as_bytes(), &mut r).unwrap();
         assert_eq!(
@@ -422,8 +469,8 @@ mod tests {
             [
                 "a.mtl: 4 texture maps not rendered (reframe renders map_Kd, map_Ks, map_Ke and \
                  map_d) (first at line 3: 'map_Bump -bm 1 n.png' in 'a')",
-                "a.mtl: line 11: 'd 0.25' in 'b': dissolve (d) below 1 not rendered: the surface \
-                 is opaque (map_d cut-outs are rendered)"
+                "a.mtl: line 11: 'd 0.25' in 'b': dissolve (d) not rendered: the surface is \
+                 opaque (map_d cut-outs are rendered)"
             ]
         );
         let e = parse("a.mtl", text.as_bytes(), &mut Repairs::new(true)).unwrap_err();

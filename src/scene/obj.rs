@@ -16,7 +16,7 @@
 //! past the elements defined above it, a face of more than `MAX_CORNERS` corners, and a
 //! `usemtl` or `mtllib` without a name.
 use super::repairs::{Kind, Repairs};
-use super::text::{latin1_bytes, lines, numbers, quote, rest, Line, MAX_COORD};
+use super::text::{joined, latin1_bytes, lines, numbers, quote, rest, MAX_COORD};
 use anyhow::{anyhow, Result};
 use glam::{Vec2, Vec3};
 
@@ -35,6 +35,10 @@ pub const SHORT_FACE: Kind = Kind {
 const POINTS: Kind = Kind {
     one: "points (p) ignored: reframe renders faces only",
     many: "points statements (p) ignored: reframe renders faces only",
+};
+const FREE_FORM: Kind = Kind {
+    one: "free-form geometry statement ignored (curves and surfaces are not rendered)",
+    many: "free-form geometry statements ignored (curves and surfaces are not rendered)",
 };
 const POLYLINES: Kind = Kind {
     one: "polyline (l) ignored: reframe renders faces only",
@@ -102,7 +106,8 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                         }
                         p = p.map(|c| c / w);
                     }
-                    6 => {
+                    // A colour of red, green and blue, or with alpha (MeshLab, photogrammetry).
+                    6 | 7 => {
                         numbers::<3>(&args[3..])
                             .ok_or_else(|| err("the vertex colour must be three numbers".into()))?;
                         repairs.note(label, n, COLOURS, || format!("'{}'", quote(text)))?;
@@ -154,7 +159,8 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                     out.normals.push(None);
                 }
             }
-            "f" => {
+            // `fo` is the format's older name for a face.
+            "f" | "fo" => {
                 if args.len() > MAX_CORNERS {
                     return Err(err(format!(
                         "a face of {} corners: at most {MAX_CORNERS} (split it into smaller \
@@ -186,6 +192,11 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
             }
             "p" => repairs.note(label, n, POINTS, || format!("'{}'", quote(text)))?,
             "l" => repairs.note(label, n, POLYLINES, || format!("'{}'", quote(text)))?,
+            // Free-form geometry (Rhino, Maya exports): curves and surfaces are not tessellated.
+            "cstype" | "deg" | "bmat" | "step" | "curv" | "curv2" | "surf" | "parm" | "trim"
+            | "hole" | "scrv" | "sp" | "end" | "con" => {
+                repairs.note(label, n, FREE_FORM, || format!("'{}'", quote(text)))?
+            }
             "usemtl" | "mtllib" => {
                 let name = rest(text);
                 if name.is_empty() {
@@ -208,31 +219,6 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
         }
     }
     Ok(out)
-}
-
-/// The lines with continuations joined: a statement that ends in `\` goes on in the next line
-/// (the OBJ format's rule, used by exporters for long faces); the joined line keeps the number
-/// of its first. Comments are left alone, so that a comment ending in `\` (a Windows path)
-/// does not swallow the statement below it.
-fn joined<'a>(mut lines: impl Iterator<Item = Line<'a>>) -> impl Iterator<Item = Line<'a>> {
-    std::iter::from_fn(move || {
-        let mut line = lines.next()?;
-        loop {
-            let t = line.text.trim_end();
-            if !t.ends_with('\\') || t.trim_start().starts_with('#') {
-                return Some(line);
-            }
-            let mut s = t[..t.len() - 1].to_string();
-            let Some(next) = lines.next() else {
-                line.text = s.into();
-                return Some(line);
-            };
-            s.push(' ');
-            s.push_str(&next.text);
-            line.text = s.into();
-            line.latin1 |= next.latin1;
-        }
-    })
 }
 
 /// One face vertex `v`, `v/vt`, `v//vn` or `v/vt/vn`, checked against the elements defined
@@ -331,6 +317,28 @@ mod tests {
                 .to_string();
             assert!(e.contains(want), "{bad}: {e}");
         }
+    }
+
+    #[test]
+    fn exporters_dialects_are_read() {
+        // Classic Mac OS line ends (CR alone), comments after numbers, `fo` faces, colours with
+        // alpha; free-form geometry said once.
+        let obj = "v 0 0 0 # origin\rv 1 0 0\rv 1 1 0 0.2 0.3 0.4 1.0\rv 0 1 0\r\
+                   fo 1 2 3 4 # a quad\rcstype bspline\rdeg 3\rcurv 0 1 1 2 3 4\rend\r";
+        let mut r = Repairs::new(false);
+        let o = parse("a.obj", obj.as_bytes(), &mut r).unwrap();
+        assert_eq!((o.positions.len(), o.faces.len()), (4, 1));
+        assert_eq!((o.faces[0].line, o.faces[0].corners.len()), (5, 4));
+        let w = r.into_warnings();
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(
+            w[0].starts_with("a.obj: line 3: 'v 1 1 0 0.2 0.3 0.4 1.0': vertex colour"),
+            "{w:?}"
+        );
+        assert!(
+            w[1].starts_with("a.obj: 4 free-form geometry statements ignored"),
+            "{w:?}"
+        );
     }
 
     #[test]

@@ -66,6 +66,9 @@ pub fn as_text(bytes: &[u8]) -> Result<&str> {
 
 /// The first control character that is not whitespace: a sign of a binary file.
 fn binary(bytes: &[u8]) -> Result<()> {
+    if bytes.starts_with(b"\xff\xfe") || bytes.starts_with(b"\xfe\xff") {
+        bail!("the file is UTF-16 text (its byte order mark says so): save it as UTF-8 or ASCII");
+    }
     let control = |b: u8| (b < 0x20 && !matches!(b, b'\t' | b'\n' | b'\r' | 0x0c)) || b == 0x7f;
     if let Some(i) = bytes.iter().position(|&b| control(b)) {
         bail!(
@@ -91,12 +94,18 @@ pub struct Line<'a> {
     pub latin1: bool,
 }
 
-/// The lines of an OBJ or MTL file, without a UTF-8 byte order mark or line ends (LF or CRLF),
-/// one at a time (a large OBJ is not copied).
+/// The lines of an OBJ or MTL file, without a UTF-8 byte order mark or line ends (LF or CRLF;
+/// a bare CR, the classic Mac OS's line end, in a file without any LF), one at a time (a large
+/// OBJ is not copied).
 pub fn lines(bytes: &[u8]) -> Result<impl Iterator<Item = Line<'_>>> {
     binary(bytes)?;
     let bytes = bytes.strip_prefix(b"\xef\xbb\xbf").unwrap_or(bytes);
-    Ok(bytes.split(|&b| b == b'\n').enumerate().map(|(i, l)| {
+    let end = if !bytes.contains(&b'\n') && bytes.contains(&b'\r') {
+        b'\r'
+    } else {
+        b'\n'
+    };
+    Ok(bytes.split(move |&b| b == end).enumerate().map(|(i, l)| {
         let l = l.strip_suffix(b"\r").unwrap_or(l);
         let (text, latin1) = match std::str::from_utf8(l) {
             Ok(t) => (Cow::Borrowed(t), false),
@@ -108,6 +117,31 @@ pub fn lines(bytes: &[u8]) -> Result<impl Iterator<Item = Line<'_>>> {
             latin1,
         }
     }))
+}
+
+/// The lines with continuations joined: a statement that ends in `\` goes on in the next line
+/// (the OBJ format's rule, used by exporters for long faces); the joined line keeps the number
+/// of its first. Comments are left alone, so that a comment ending in `\` (a Windows path)
+/// does not swallow the statement below it.
+pub fn joined<'a>(mut lines: impl Iterator<Item = Line<'a>>) -> impl Iterator<Item = Line<'a>> {
+    std::iter::from_fn(move || {
+        let mut line = lines.next()?;
+        loop {
+            let t = line.text.trim_end();
+            if !t.ends_with('\\') || t.trim_start().starts_with('#') {
+                return Some(line);
+            }
+            let mut s = t[..t.len() - 1].to_string();
+            let Some(next) = lines.next() else {
+                line.text = s.into();
+                return Some(line);
+            };
+            s.push(' ');
+            s.push_str(&next.text);
+            line.text = s.into();
+            line.latin1 |= next.latin1;
+        }
+    })
 }
 
 impl Line<'_> {
@@ -130,8 +164,41 @@ impl Line<'_> {
         if self.latin1 {
             repairs.note(label, self.n, NOT_UTF8, || format!("'{}'", quote(text)))?;
         }
-        Ok(Some((key, words.collect())))
+        let mut args: Vec<&str> = words.collect();
+        if numeric(key) {
+            if let Some(i) = args.iter().position(|w| w.starts_with('#')) {
+                args.truncate(i);
+            }
+        }
+        Ok(Some((key, args)))
     }
+}
+
+/// Whether the words of statement `key` are numbers (or `off`, or face corners): a word that
+/// starts with `#` ends them, a comment at the end of the line (`v 1 2 3 # top`). Names and
+/// file names keep their `#` (3ds Max names materials `Material #25`).
+fn numeric(key: &str) -> bool {
+    matches!(
+        key.to_ascii_lowercase().as_str(),
+        "v" | "vt"
+            | "vn"
+            | "vp"
+            | "f"
+            | "fo"
+            | "l"
+            | "p"
+            | "s"
+            | "kd"
+            | "ks"
+            | "ke"
+            | "ka"
+            | "ns"
+            | "ni"
+            | "d"
+            | "tr"
+            | "tf"
+            | "illum"
+    )
 }
 
 /// The bytes of a line read as Latin-1 (for file names, which are bytes on Unix).
