@@ -6,8 +6,9 @@
 //! A map multiplies its colour, as the MTL format defines it (`Kd` times the texture at the
 //! hit); a map whose colour line is missing takes the colour 1 (the texture as it is). Of a
 //! map's options, `-o u [v]` (offset) and `-s u [v]` (scale) of the texture coordinates are
-//! applied (`uv * s + o`); the others (`-blendu`, `-blendv`, `-bm`, `-boost`, `-cc`, `-clamp`,
-//! `-imfchan`, `-mm`, `-t`, `-texres`, `-type`) are read and ignored with one warning. The file
+//! applied (`uv * s + o`), and `map_d`'s `-imfchan` (the mask's channel); the others
+//! (`-blendu`, `-blendv`, `-bm`, `-boost`, `-cc`, `-clamp`, `-imfchan` of a colour map, `-mm`,
+//! `-t`, `-texres`, `-type`) are read and ignored with one warning. The file
 //! name is the rest of the line (names with spaces are common), relative to the MTL's folder.
 //!
 //! Read as production loaders read them: any whitespace between words, lines that are not UTF-8
