@@ -78,7 +78,7 @@ fn unrendered_map(key: &str) -> bool {
     let k = key.to_ascii_lowercase();
     let rendered = matches!(key, "map_Kd" | "map_Ks" | "map_Ke" | "map_d");
     !rendered
-        && k != "map_ka"
+        && !matches!(k.as_str(), "map_ka" | "map_aat")
         && (k.starts_with("map_")
             || matches!(k.as_str(), "bump" | "disp" | "decal" | "refl" | "norm"))
 }
@@ -282,11 +282,16 @@ impl MtlMaterial {
             let (kd0, ks0) = (kd, ks);
             kd = (kd.as_dvec3() * scale).as_vec3();
             ks = (ks.as_dvec3() * scale).as_vec3();
+            // A colour the file does not give is said to be the map's.
+            let given = |v: Option<(Vec3, usize)>, c: Vec3, map: &str| match v {
+                Some(_) => rgb(c),
+                None => format!("{} (map_{map} without {map})", rgb(c)),
+            };
             repairs.note(label, self.line, ENERGY, || {
                 format!(
                     "material '{name}': Kd {} + Ks {} became Kd {} + Ks {}",
-                    rgb(kd0),
-                    rgb(ks0),
+                    given(self.kd, kd0, "Kd"),
+                    given(self.ks, ks0, "Ks"),
                     rgb(kd),
                     rgb(ks)
                 )
