@@ -421,11 +421,7 @@ fn merge_never_writes_over_the_scene_it_denoises_with() {
     ])
     .output()
     .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && err.contains("that is an input of this command"),
-        "{err}"
-    );
+    common::assert_refused(&o, "that is an input of this command");
     assert_eq!(
         std::fs::read(&env).unwrap(),
         before,

@@ -105,14 +105,7 @@ fn outputs_and_locks_never_replace_or_write_through_what_is_not_theirs() {
         a.extend(extra.iter().map(|s| s.to_string()));
         reframe(&a).output().unwrap()
     };
-    let refused = |o: &std::process::Output, want: &str| {
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(1), "{err}");
-        assert!(
-            err.contains(want) && err.trim().lines().count() == 1,
-            "{err}"
-        );
-    };
+    let refused = common::assert_refused;
     let out = d.join("o/f_####.png");
     let out = out.to_str().unwrap();
     // --stats as a FIFO and as a symbolic link to another file.

@@ -206,6 +206,17 @@ pub fn reframe_ok<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> std::process::Output
     o
 }
 
+/// Assert that a finished run of the binary was refused (exit 1) with one line that contains
+/// `want`.
+pub fn assert_refused(o: &std::process::Output, want: &str) {
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains(want) && err.trim().lines().count() == 1,
+        "{err}"
+    );
+}
+
 /// Render `opts` in memory (frames, resolution and all: see `RenderOptions`) with `integ`:
 /// frame -> developed frame, and the run's counters. Fails the test if a contribution or a
 /// pixel came out NaN or infinite.
