@@ -120,7 +120,7 @@ pub struct CompareArgs {
     /// 0: none).
     #[arg(long, default_value_t = 4)]
     pub bias_seeds: u32,
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub seed: u64,
 }
 
@@ -183,7 +183,7 @@ pub struct RenderArgs {
     /// (raw.R/G/B, albedo.R/G/B, normal.X/Y/Z)
     #[arg(long, requires = "denoise")]
     pub denoise_layers: bool,
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub seed: u64,
     /// Worker threads (0: one per core).
     #[arg(long, default_value_t = 0)]
@@ -202,12 +202,18 @@ pub struct RenderArgs {
     #[arg(long)]
     pub checkpoint: Option<PathBuf>,
     /// Seconds between checkpoints (0: after every group of frames, or every frame).
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = 60.0, allow_negative_numbers = true)]
     pub checkpoint_every: f64,
     /// mis-exact: extra native samples where a pixel expects fewer reused samples than others
     /// (borders, disocclusions, cuts), topping each pixel up to F n_f n_r (F = 0.75 if not
     /// given).
-    #[arg(long, num_args = 0..=1, default_missing_value = "0.75", value_name = "F")]
+    #[arg(
+        long,
+        num_args = 0..=1,
+        default_missing_value = "0.75",
+        value_name = "F",
+        allow_negative_numbers = true
+    )]
     pub adaptive: Option<f32>,
     /// Render chunk K of N (1-based) of the groups and write its partial file
     /// `<out folder>/<name>.chunk-K-of-N.partial` for `reframe merge`.
