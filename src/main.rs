@@ -189,6 +189,15 @@ fn run(cli: Cli) -> Result<()> {
                     stats.nonfinite_samples
                 );
             }
+            // The texture cache reads files while rendering: one changed or removed since the
+            // scene loaded answers with nothing (black, and a mask cuts its surface out).
+            let failed = scene.textures.as_ref().map_or(0, |t| t.failures());
+            if failed > 0 {
+                eprintln!(
+                    "warning: {failed} texture lookups failed (a texture or mask file changed or \
+                     was removed during the render): those points were shaded black or cut out"
+                );
+            }
             println!("{}", cli::wrote(&stats.outputs));
             if let Some(p) = &a.stats {
                 println!("stats in {}", p.display());

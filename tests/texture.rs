@@ -518,3 +518,23 @@ fn a_texture_larger_than_the_memory_left_is_one_line() {
     );
     assert!(!dir.path().join("o").exists());
 }
+
+/// A texture cut short after the scene loaded (the cache reads it while rendering) makes its
+/// lookups fail: each is counted (the render warns with the count) and comes back black.
+#[test]
+fn lookups_of_a_texture_damaged_after_loading_are_counted() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("gone.exr");
+    write_texture(
+        &path,
+        1024,
+        |x, _| Vec3::splat(x as f32 / 1024.0 + 0.1),
+        true,
+    );
+    let mut t = Textures::new().unwrap();
+    let id = t.open(&path).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    std::fs::write(&path, &bytes[..bytes.len() / 3]).unwrap();
+    assert_eq!(t.rgb(id, Vec2::new(0.5, 0.5)), Vec3::ZERO);
+    assert!(t.failures() > 0);
+}
