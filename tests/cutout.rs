@@ -346,6 +346,34 @@ fn dissolve_and_masked_lights_are_said_masks_hashed_and_missing_masks_refused() 
     .unwrap();
     let scene = Scene::load(&path, &device).unwrap();
     assert!(scene.texture_maps().iter().all(|m| m.cutout.is_none()));
+    // A map_d that names the material's own colour texture, which has no alpha (an exporter's
+    // habit where it means no mask), cuts nothing out, and says so; the same file with alpha,
+    // or a grey mask, is a mask.
+    let mut img = Image::new(4, 4, &["R", "G", "B"]);
+    img.data.fill(0.2);
+    write_image(
+        &d.path().join("bark.png"),
+        &img,
+        &Metadata::default(),
+        &WriteOptions::default(),
+    )
+    .unwrap();
+    let mtl = "newmtl leaf\nKd 1 1 1\nmap_Kd bark.png\nmap_d bark.png\nnewmtl light\nKe 1 1 1\n";
+    std::fs::write(d.path().join("s.mtl"), mtl).unwrap();
+    let scene = Scene::load(&path, &device).unwrap();
+    assert!(scene.texture_maps().iter().all(|m| m.cutout.is_none()));
+    assert!(
+        scene.warnings.iter().any(|w| w.contains(
+            "line 4: 'map_d bark.png' in 'leaf': map_d names the colour texture (map_Kd), which \
+             has no alpha: no cut-out"
+        )),
+        "{:?}",
+        scene.warnings
+    );
+    let mtl = "newmtl leaf\nKd 1 1 1\nmap_Kd mask.tga\nmap_d mask.tga\nnewmtl light\nKe 1 1 1\n";
+    std::fs::write(d.path().join("s.mtl"), mtl).unwrap();
+    let scene = Scene::load(&path, &device).unwrap();
+    assert!(scene.texture_maps().iter().any(|m| m.cutout.is_some()));
     // The mask's content is part of the scene's identity (checkpoints, chunk merges, cached
     // references): another mask is another scene.
     std::fs::write(d.path().join("s.mtl"), MTL).unwrap();

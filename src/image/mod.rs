@@ -738,8 +738,17 @@ pub fn read_colour(path: &Path, max_pixels: u64) -> Result<(Image, ColourLayout)
 /// The channel of an image (channels `names`, as OIIO names them) that a cut-out mask
 /// (`map_d`) reads: the one its `-imfchan` names (`r`, `g`, `b` by name or else by place, `m`
 /// the alpha, `l` the grey channel or else the first, `z` the first), or by default its alpha
-/// (`A`), else a grey channel (`Y`), else the first.
-pub fn mask_channel(names: &[String], imfchan: Option<char>) -> Result<usize> {
+/// (`A`), else a grey channel (`Y`), else the first; and whether that channel holds a coverage
+/// (`true`: named by `-imfchan`, an alpha or a grey channel, or an image of one or two
+/// channels) rather than the first channel of a colour image without alpha.
+pub fn mask_source(names: &[String], imfchan: Option<char>) -> Result<(usize, bool)> {
+    let find = |c: &str| names.iter().position(|n| n == c);
+    let coverage =
+        imfchan.is_some() || find("A").is_some() || find("Y").is_some() || names.len() < 3;
+    Ok((mask_channel(names, imfchan)?, coverage))
+}
+
+fn mask_channel(names: &[String], imfchan: Option<char>) -> Result<usize> {
     let find = |c: &str| names.iter().position(|n| n == c);
     if names.is_empty() {
         bail!("the image has no channels");
@@ -763,14 +772,19 @@ pub fn mask_channel(names: &[String], imfchan: Option<char>) -> Result<usize> {
     })
 }
 
-/// Reads a cut-out mask: the channel `mask_channel` picks, as the file holds it (coverage is
+/// Reads a cut-out mask: the channel `mask_source` picks, as the file holds it (coverage is
 /// not a colour: an 8-bit file's codes / 255, never decoded from sRGB), as a one-channel image
-/// named `A`, and that channel's index in the file. Refused as `read_colour` refuses.
-pub fn read_mask(path: &Path, max_pixels: u64, imfchan: Option<char>) -> Result<(Image, usize)> {
-    let read = || -> Result<(Image, usize)> {
+/// named `A`, that channel's index in the file, and whether it holds a coverage
+/// (`mask_source`). Refused as `read_colour` refuses.
+pub fn read_mask(
+    path: &Path,
+    max_pixels: u64,
+    imfchan: Option<char>,
+) -> Result<(Image, usize, bool)> {
+    let read = || -> Result<(Image, usize, bool)> {
         let (mut reader, info, pixels) = open_input_image(path, max_pixels)?;
         let nch = info.channels.len();
-        let channel = mask_channel(&info.channels, imfchan)?;
+        let (channel, coverage) = mask_source(&info.channels, imfchan)?;
         let need = pixels * (4 * nch as u64 + 4);
         check_room(&info, need)?;
         let data = read_all(&mut reader, &info)?;
@@ -780,7 +794,7 @@ pub fn read_mask(path: &Path, max_pixels: u64, imfchan: Option<char>) -> Result<
             channels: vec!["A".into()],
             data: data.chunks_exact(nch).map(|px| px[channel]).collect(),
         };
-        Ok((img, channel))
+        Ok((img, channel, coverage))
     };
     read().map_err(|e| anyhow!("cannot read {}: {e}", path.display()))
 }

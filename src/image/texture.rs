@@ -55,6 +55,10 @@ struct Info {
     srgb: bool,
     /// FNV-1a of the decoded texels and the size: the texture's identity in a scene's hash.
     digest: u64,
+    /// The file, and for a mask whether it reads the first channel of a colour image without
+    /// alpha (`image::mask_source`).
+    path: PathBuf,
+    colour_mask: bool,
 }
 
 /// Refuses a texture with a texel that is negative or not finite.
@@ -152,21 +156,23 @@ impl Textures {
 
     /// Open the texture at `path` as a cut-out mask (once: a second time gives the same id):
     /// the channel `imfchan` names, or by default its alpha channel, else its grey one, else its
-    /// first (`image::mask_channel`), as the file holds it (never decoded from sRGB: coverage is
+    /// first (`image::mask_source`), as the file holds it (never decoded from sRGB: coverage is
     /// not a colour). `value` looks it up. Refused as `open` refuses.
     pub fn open_mask(&mut self, path: &Path, imfchan: Option<char>) -> Result<TextureId> {
         let key = (path.to_path_buf(), Some(imfchan));
         if let Some(&id) = self.by_path.get(&key) {
             return Ok(id);
         }
-        let (img, channel) = read_mask(path, MAX_TEXELS, imfchan)?;
+        let (img, channel, coverage) = read_mask(path, MAX_TEXELS, imfchan)?;
         check_texels(path, &img.data)?;
         let id = self
             .set
             .pin_mut()
             .add(path_str(path)?, channel as u32, channel as u32 + 1)
             .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
-        Ok(self.add(key, id, &img, (1, [Some(0), None, None], false)))
+        let id = self.add(key, id, &img, (1, [Some(0), None, None], false));
+        self.info[id.0 as usize].colour_mask = !coverage;
+        Ok(id)
     }
 
     /// Record texture `id` of the texture set, opened as `key` and read as `img` (what its
@@ -188,10 +194,21 @@ impl Textures {
             pick,
             srgb,
             digest: f.0,
+            path: key.0.clone(),
+            colour_mask: false,
         });
         let id = TextureId(id);
         self.by_path.insert(key, id);
         id
+    }
+
+    /// Whether mask `id` reads the first channel of a colour image without alpha (no `-imfchan`,
+    /// no alpha or grey channel) from the file that texture `colour` was opened from: a `map_d`
+    /// that names the material's own `map_Kd` without alpha, which exporters write where they
+    /// mean no mask.
+    pub fn is_colour_mask_of(&self, id: TextureId, colour: TextureId) -> bool {
+        let (m, c) = (&self.info[id.0 as usize], &self.info[colour.0 as usize]);
+        m.colour_mask && m.path == c.path
     }
 
     /// The value of mask `id` (`open_mask`) at texture coordinates `uv`: bilinear between the

@@ -35,6 +35,11 @@ pub struct Maps {
 /// colours) is below this: glTF's default `alphaCutoff`, Blender's alpha clip.
 pub const CUTOFF: f32 = 0.5;
 
+const COLOUR_AS_MASK: Kind = Kind {
+    one: "map_d names the colour texture (map_Kd), which has no alpha: no cut-out",
+    many: "map_d names the colour texture (map_Kd), which has no alpha: no cut-outs",
+};
+
 const EMITTER_CUTOUT: Kind = Kind {
     one: "map_d on an emitting material ignored (lights are opaque)",
     many: "map_d on emitting materials ignored (lights are opaque)",
@@ -113,6 +118,18 @@ impl Maps {
                 None
             }
             spec => open(spec, true)?,
+        };
+        let cutout = match (cutout, &kd, textures.as_ref()) {
+            (Some(c), Some(kd), Some(t)) if t.is_colour_mask_of(c.tex, kd.tex) => {
+                let spec = m.maps[Slot::D as usize]
+                    .as_ref()
+                    .expect("the mask's statement");
+                repairs.note(mtl_label, spec.line, COLOUR_AS_MASK, || {
+                    format!("'{}' in '{}'", quote(&spec.statement), m.name)
+                })?;
+                None
+            }
+            (c, ..) => c,
         };
         Ok(Maps { kd, ks, ke, cutout })
     }
