@@ -1385,12 +1385,26 @@ fn mtl_paths(dir: &Path, rest: &[u8]) -> Vec<(PathBuf, bool)> {
         .collect()
 }
 
+/// The file that an OBJ or MTL in `dir` names as `name`: as written if it is there, else where
+/// `find_named_file` finds it (then `true`: a repair to note), else as written (for the caller
+/// to report missing).
+pub(crate) fn locate_named_file(dir: &Path, name: &str) -> (PathBuf, bool) {
+    let path = dir.join(name);
+    if path.exists() {
+        return (path, false);
+    }
+    match find_named_file(dir, name) {
+        Some(found) => (found, true),
+        None => (path, false),
+    }
+}
+
 /// A file that an OBJ or MTL in `dir` names as `name` but that is not there as written, found
 /// where a path written on another machine leads: with Windows separators read as `/`
 /// (`textures\wood.png`; a drive's `C:\...` is no path here), then by its file name alone in
 /// `dir` (an absolute path of the artist's machine, a folder not shipped along). `None`: not
 /// found either way (the caller reports the path as written).
-pub(crate) fn find_named_file(dir: &Path, name: &str) -> Option<PathBuf> {
+fn find_named_file(dir: &Path, name: &str) -> Option<PathBuf> {
     let slashed = name.replace('\\', "/");
     let drive = slashed.len() >= 2
         && slashed.as_bytes()[1] == b':'
@@ -1489,11 +1503,7 @@ fn load_obj_files(
             // The maps reframe does not render are inputs too: never written over.
             if let Some(dir) = &mtl_dir {
                 for f in mtl.other_files.iter().filter(|f| !f.is_empty()) {
-                    let path = dir.join(f);
-                    let path = match path.exists() {
-                        true => path,
-                        false => find_named_file(dir, f).unwrap_or(path),
-                    };
+                    let (path, _) = locate_named_file(dir, f);
                     if !texture_files.contains(&path) {
                         texture_files.push(path);
                     }

@@ -743,33 +743,29 @@ pub fn read_colour(path: &Path, max_pixels: u64) -> Result<(Image, ColourLayout)
 /// channels) rather than the first channel of a colour image without alpha.
 pub fn mask_source(names: &[String], imfchan: Option<char>) -> Result<(usize, bool)> {
     let find = |c: &str| names.iter().position(|n| n == c);
-    let coverage =
-        imfchan.is_some() || find("A").is_some() || find("Y").is_some() || names.len() < 3;
-    Ok((mask_channel(names, imfchan)?, coverage))
-}
-
-fn mask_channel(names: &[String], imfchan: Option<char>) -> Result<usize> {
-    let find = |c: &str| names.iter().position(|n| n == c);
     if names.is_empty() {
         bail!("the image has no channels");
     }
     let by_place = |i: usize| (i < names.len()).then_some(i);
+    let (alpha, grey) = (find("A"), find("Y"));
     let picked = match imfchan {
-        None => find("A").or_else(|| find("Y")).or(Some(0)),
+        None => alpha.or(grey).or(Some(0)),
         Some('r') => find("R").or_else(|| by_place(0)),
         Some('g') => find("G").or_else(|| by_place(1)),
         Some('b') => find("B").or_else(|| by_place(2)),
-        Some('m') => find("A"),
-        Some('l') => find("Y").or(Some(0)),
+        Some('m') => alpha,
+        Some('l') => grey.or(Some(0)),
         Some(_) => Some(0),
     };
-    picked.ok_or_else(|| {
+    let channel = picked.ok_or_else(|| {
         anyhow!(
             "-imfchan {} names a channel it does not have (its channels: {})",
             imfchan.unwrap_or('?'),
             names.join(", ")
         )
-    })
+    })?;
+    let coverage = imfchan.is_some() || alpha.is_some() || grey.is_some() || names.len() < 3;
+    Ok((channel, coverage))
 }
 
 /// Reads a cut-out mask: the channel `mask_source` picks, as the file holds it (coverage is

@@ -151,7 +151,7 @@ impl Textures {
             Colour::Grey(c) => [Some(c - first); 3],
             Colour::Rgb(c) => c.map(|c| c.map(|c| c - first)),
         };
-        Ok(self.add(key, id, &img, (last - first + 1, pick, srgb)))
+        Ok(self.add(key, id, &img, (last - first + 1, pick, srgb), false))
     }
 
     /// Open the texture at `path` as a cut-out mask (once: a second time gives the same id):
@@ -170,19 +170,19 @@ impl Textures {
             .pin_mut()
             .add(path_str(path)?, channel as u32, channel as u32 + 1)
             .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
-        let id = self.add(key, id, &img, (1, [Some(0), None, None], false));
-        self.info[id.0 as usize].colour_mask = !coverage;
-        Ok(id)
+        Ok(self.add(key, id, &img, (1, [Some(0), None, None], false), !coverage))
     }
 
     /// Record texture `id` of the texture set, opened as `key` and read as `img` (what its
-    /// identity hashes), fetched as `(channels, pick, srgb)` (`Info`).
+    /// identity hashes), fetched as `(channels, pick, srgb)` (`Info`); `colour_mask`: a mask
+    /// that reads a colour image's first channel.
     fn add(
         &mut self,
         key: (PathBuf, Option<Option<char>>),
         id: u32,
         img: &super::Image,
         (fetched, pick, srgb): (usize, [Option<usize>; 3], bool),
+        colour_mask: bool,
     ) -> TextureId {
         let mut f = Fnv::default();
         f.bytes(&[img.width.to_le_bytes(), img.height.to_le_bytes()].concat());
@@ -195,7 +195,7 @@ impl Textures {
             srgb,
             digest: f.0,
             path: key.0.clone(),
-            colour_mask: false,
+            colour_mask,
         });
         let id = TextureId(id);
         self.by_path.insert(key, id);

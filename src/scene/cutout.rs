@@ -8,7 +8,7 @@
 //! function of the point alone, never of the ray, so that every eye of a reuse group, and a
 //! ray traced in a packet or alone, sees one and the same surface: the reuse estimators'
 //! visibility terms stay what their derivations take them to be (docs/objects.md, "Cut-outs").
-use super::maps::Maps;
+use super::maps::{Map, Maps};
 use crate::embree::Cutout;
 use crate::image::Textures;
 use glam::Vec2;
@@ -18,11 +18,10 @@ use std::sync::Arc;
 /// has a mask, its three texture coordinates and the mask.
 pub struct MeshCutout {
     textures: Arc<Textures>,
-    maps: Vec<Maps>,
     /// Per triangle: `1 +` its index in `tris`, or 0 where its material has no mask.
     slot: Vec<u32>,
-    /// The masked triangles' texture coordinates and material.
-    tris: Vec<([Vec2; 3], u32)>,
+    /// The masked triangles' texture coordinates and mask.
+    tris: Vec<([Vec2; 3], Map)>,
 }
 
 impl MeshCutout {
@@ -37,16 +36,16 @@ impl MeshCutout {
         tri_material: &[u32],
     ) -> Option<MeshCutout> {
         let textures = textures?;
-        let masked = |m: u32| maps.get(m as usize).is_some_and(|m| m.cutout.is_some());
-        if !tri_material.iter().any(|&m| masked(m)) {
+        let mask = |m: u32| maps.get(m as usize).and_then(|m| m.cutout);
+        if !tri_material.iter().any(|&m| mask(m).is_some()) {
             return None;
         }
         let mut slot = Vec::with_capacity(triangles.len());
         let mut tris = Vec::new();
         for (t, &m) in triangles.iter().zip(tri_material) {
-            if masked(m) {
+            if let Some(map) = mask(m) {
                 let uv = t.map(|i| uvs.get(i as usize).copied().unwrap_or(Vec2::ZERO));
-                tris.push((uv, m));
+                tris.push((uv, map));
                 slot.push(tris.len() as u32);
             } else {
                 slot.push(0);
@@ -54,7 +53,6 @@ impl MeshCutout {
         }
         Some(MeshCutout {
             textures: textures.clone(),
-            maps: maps.to_vec(),
             slot,
             tris,
         })
@@ -72,8 +70,8 @@ impl Cutout for MeshCutout {
         if s == 0 {
             return true;
         }
-        let ([t0, t1, t2], m) = self.tris[s as usize - 1];
-        let uv = t0 * (1.0 - u - v) + t1 * u + t2 * v;
-        self.maps[m as usize].opaque(&self.textures, uv)
+        let ([t0, t1, t2], mask) = &self.tris[s as usize - 1];
+        let uv = *t0 * (1.0 - u - v) + *t1 * u + *t2 * v;
+        mask.keeps(&self.textures, uv)
     }
 }

@@ -21,6 +21,21 @@ pub struct Map {
     pub offset: Vec2,
 }
 
+impl Map {
+    /// The map's colour at the surface's texture coordinates `uv` (transformed by `-s`, `-o`).
+    #[inline]
+    pub fn rgb(&self, textures: &Textures, uv: Vec2) -> Vec3 {
+        textures.rgb(self.tex, uv * self.scale + self.offset)
+    }
+
+    /// Whether a mask (`map_d`) keeps the surface at texture coordinates `uv`: its value there
+    /// is at least `CUTOFF`.
+    #[inline]
+    pub fn keeps(&self, textures: &Textures, uv: Vec2) -> bool {
+        textures.value(self.tex, uv * self.scale + self.offset) >= CUTOFF
+    }
+}
+
 /// The maps of one material; each multiplies the colour it names, except `cutout` (`map_d`),
 /// the mask that cuts the surface out where it is below `CUTOFF`.
 #[derive(Clone, Copy, Debug, Default)]
@@ -70,14 +85,11 @@ impl Maps {
             let Some(dir) = dir else {
                 return Err(anyhow!("{at}: a shipped scene has no texture files"));
             };
-            let mut path = dir.join(&spec.file);
-            if !path.exists() {
-                if let Some(found) = super::find_named_file(dir, &spec.file) {
-                    repairs.note(mtl_label, spec.line, super::FOUND_ELSEWHERE, || {
-                        format!("'{}': found '{}'", quote(&spec.statement), found.display())
-                    })?;
-                    path = found;
-                }
+            let (path, elsewhere) = super::locate_named_file(dir, &spec.file);
+            if elsewhere {
+                repairs.note(mtl_label, spec.line, super::FOUND_ELSEWHERE, || {
+                    format!("'{}': found '{}'", quote(&spec.statement), path.display())
+                })?;
             }
             // Missing, or there but not a regular file (a folder, a FIFO, a device, a symlink
             // loop): said as such, as for every other input.
@@ -138,26 +150,16 @@ impl Maps {
         self.kd.is_none() && self.ks.is_none() && self.ke.is_none() && self.cutout.is_none()
     }
 
-    /// Whether the mask keeps the surface at texture coordinates `uv` (true where there is none).
-    #[inline]
-    pub fn opaque(&self, textures: &Textures, uv: Vec2) -> bool {
-        match &self.cutout {
-            Some(map) => textures.value(map.tex, uv * map.scale + map.offset) >= CUTOFF,
-            None => true,
-        }
-    }
-
     /// `m` with its textured colours at texture coordinates `uv`. Reflectances stay in
     /// \[0, 1\] (so that `Kd + Ks <= 1` still holds); emission stays below `MAX_KE`.
     #[inline]
     pub fn apply(&self, m: &Material, textures: &Textures, uv: Vec2) -> Material {
-        let at = |map: &Map| textures.rgb(map.tex, uv * map.scale + map.offset);
         let mut m = *m;
         if let Some(map) = &self.kd {
-            m.kd *= at(map).clamp(Vec3::ZERO, Vec3::ONE);
+            m.kd *= map.rgb(textures, uv).clamp(Vec3::ZERO, Vec3::ONE);
         }
         if let Some(map) = &self.ks {
-            m.ks *= at(map).clamp(Vec3::ZERO, Vec3::ONE);
+            m.ks *= map.rgb(textures, uv).clamp(Vec3::ZERO, Vec3::ONE);
         }
         if let Some(map) = &self.ke {
             m.ke = self.emission(m.ke, textures, uv, map);
@@ -175,7 +177,6 @@ impl Maps {
     }
 
     fn emission(&self, ke: Vec3, textures: &Textures, uv: Vec2, map: &Map) -> Vec3 {
-        (ke * textures.rgb(map.tex, uv * map.scale + map.offset))
-            .min(Vec3::splat(super::mtl::MAX_KE))
+        (ke * map.rgb(textures, uv)).min(Vec3::splat(super::mtl::MAX_KE))
     }
 }

@@ -70,17 +70,21 @@ fn canonical(key: &str) -> &str {
         .unwrap_or(key)
 }
 
-/// Whether `key` is a texture map that would change the look but that reframe does not render:
-/// bump, normal and displacement maps, maps of the exponent, reflection and the PBR extension's
-/// values (any case). `map_Ka` is passed over without a word: a path tracer has no ambient term
-/// (exporters write it as a copy of `map_Kd`).
-fn unrendered_map(key: &str) -> bool {
+/// Whether `key` is a map statement that reframe does not render (any case): `Some(true)` where
+/// it would change the look and is said (bump, normal and displacement maps, maps of the
+/// exponent, reflection and the PBR extension's values), `Some(false)` for `map_Ka`, passed over
+/// without a word (a path tracer has no ambient term; exporters write it as a copy of
+/// `map_Kd`); `None` for any other statement (`map_aat` is an option, not a map).
+fn unrendered_map(key: &str) -> Option<bool> {
     let k = key.to_ascii_lowercase();
-    let rendered = matches!(key, "map_Kd" | "map_Ks" | "map_Ke" | "map_d");
-    !rendered
-        && !matches!(k.as_str(), "map_ka" | "map_aat")
-        && (k.starts_with("map_")
-            || matches!(k.as_str(), "bump" | "disp" | "decal" | "refl" | "norm"))
+    if matches!(key, "map_Kd" | "map_Ks" | "map_Ke" | "map_d") || k == "map_aat" {
+        return None;
+    }
+    if k == "map_ka" {
+        return Some(false);
+    }
+    (k.starts_with("map_") || matches!(k.as_str(), "bump" | "disp" | "decal" | "refl" | "norm"))
+        .then_some(true)
 }
 
 const KE: Kind = Kind {
@@ -181,7 +185,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
             m.maps[slot as usize] = Some(spec);
             continue;
         }
-        if unrendered_map(key) || key.eq_ignore_ascii_case("map_Ka") {
+        if let Some(said) = unrendered_map(key) {
             // The file as a map statement names it; where the options do not parse, the rest of
             // the line and its last word, either of which may be the file.
             match map_spec(n, text, &args, false) {
@@ -190,10 +194,9 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
                     .other_files
                     .extend([args.join(" "), args.last().unwrap_or(&"").to_string()]),
             }
-            if let (false, Some(m)) = (key.eq_ignore_ascii_case("map_Ka"), out.materials.last()) {
-                let name = m.name.clone();
+            if let (true, Some(m)) = (said, out.materials.last()) {
                 repairs.note(label, n, UNRENDERED_MAP, || {
-                    format!("'{}' in '{name}'", quote(text))
+                    format!("'{}' in '{}'", quote(text), m.name)
                 })?;
             }
             continue;
@@ -206,9 +209,8 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
                 // Anything but a number of at least 1 (opaque): below 1, negative, not a
                 // number, a decimal comma.
                 if !d.is_some_and(|d| d >= 1.0) {
-                    let name = m.name.clone();
                     repairs.note(label, n, DISSOLVE, || {
-                        format!("'{}' in '{name}'", quote(text))
+                        format!("'{}' in '{}'", quote(text), m.name)
                     })?;
                 }
             }
