@@ -227,6 +227,7 @@ ImageInfo ImageReader::info() const {
         info.channels.push_back(rust::String::lossy(std::string(spec_.channel_name(c))));
     }
     info.format_name = rust::String::lossy(in_->format_name());
+    info.integer = !spec_.format.is_floating_point();
     return info;
 }
 

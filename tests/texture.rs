@@ -71,6 +71,55 @@ fn toml(w: u32, h: u32, position: [f32; 3], fov: f32, extra: &str) -> String {
     )
 }
 
+/// An 8-bit colour file is sRGB-encoded unless it says otherwise, whatever its format: OIIO
+/// names the encoding of PNG and JPEG but not of TGA or BMP, which were read as linear codes
+/// (a mid-grey 1.7-2x too bright against other renderers). The same ramp written as PNG, TGA,
+/// BMP and 8-bit TIFF must read back as the same linear values, as an environment or colour
+/// map (`read_linear_rgb`) and through the texture system, and within the 8-bit step of the
+/// float EXR they were written from.
+#[test]
+fn eight_bit_colour_files_are_srgb_whatever_their_format() {
+    let dir = tempfile::tempdir().unwrap();
+    let ramp = |x: u32, y: u32| Vec3::new(x as f32 / 15.0, y as f32 / 15.0, 0.25);
+    let exr = dir.path().join("ramp.exr");
+    write_texture(&exr, 16, ramp, true);
+    let want = reframe::image::read_linear_rgb(&exr, 1 << 20).unwrap();
+    let mut textures = Textures::new().unwrap();
+    let mut first: Option<(Vec<f32>, Vec<Vec3>)> = None;
+    for ext in ["png", "tga", "bmp", "tif"] {
+        let path = dir.path().join(format!("ramp.{ext}"));
+        write_texture(&path, 16, ramp, false);
+        let img = reframe::image::read_linear_rgb(&path, 1 << 20).unwrap();
+        for (k, (&a, &b)) in img.data.iter().zip(&want.data).enumerate() {
+            // The writer's dither of +-1 code and its rounding: 1.5 codes of the sRGB curve
+            // where it is steepest in linear terms (0.009 per code near 1). Read as linear
+            // codes, a ramp value of 0.5 came back near 0.73.
+            assert!(
+                (a - b).abs() < 0.014,
+                "{ext}: value {k} is {a}, the EXR's {b}"
+            );
+        }
+        let id = textures.open(&path).unwrap();
+        let looked_up: Vec<Vec3> = (0..16)
+            .flat_map(|y| (0..16).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                let uv = Vec2::new((x as f32 + 0.5) / 16.0, 1.0 - (y as f32 + 0.5) / 16.0);
+                textures.rgb(id, uv)
+            })
+            .collect();
+        match &first {
+            None => first = Some((img.data, looked_up)),
+            Some((data, lookups)) => {
+                assert_eq!(&img.data, data, "{ext} read differently from the PNG");
+                assert_eq!(
+                    &looked_up, lookups,
+                    "{ext} looked up differently from the PNG"
+                );
+            }
+        }
+    }
+}
+
 #[test]
 fn textures_are_filtered_in_linear_values() {
     // A black and a white column of texels, as an 8-bit sRGB PNG and as a float EXR. Half way

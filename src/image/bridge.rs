@@ -58,6 +58,8 @@ pub(crate) mod ffi {
         height: u32,
         channels: Vec<String>,
         format_name: String,
+        /// Whether the file stores its values as integers (8- or 16-bit codes), not floats.
+        integer: bool,
     }
 
     unsafe extern "C++" {

@@ -685,11 +685,41 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
     }
 }
 
+/// Whether a colour file's values are sRGB-encoded, from the colour space the file names
+/// (`space`, OIIO's `oiio:ColorSpace`), whether it stores integers, and its format (OIIO's
+/// name):
+/// - a file that names sRGB is sRGB, one that names a linear space (`linear`, `scene_linear`,
+///   `lin_*`, ACES, `GammaCorrected1.0`) is linear;
+/// - a file that names another gamma (`GammaCorrected2.2`: a PNG with a `gAMA` chunk and no
+///   `sRGB` chunk) is decoded as sRGB, the curve that gamma stands for in practice;
+/// - a file that names nothing is sRGB where it stores integers (TGA, BMP, 8- and 16-bit TIFF
+///   and PNG: the encoding of 8- and 16-bit colour files unless they say otherwise, as other
+///   renderers read them) and linear where it stores floats (EXR, HDR, float TIFF) or is an
+///   EXR.
+pub fn srgb_encoded(space: Option<&str>, integer: bool, format: &str) -> bool {
+    let s = space.unwrap_or("").trim().to_ascii_lowercase();
+    if let Some(g) = s.strip_prefix("gammacorrected") {
+        return g.parse::<f64>().map_or(integer, |g| (g - 1.0).abs() > 0.01);
+    }
+    let linear = s.contains("linear")
+        || s.starts_with("lin_")
+        || s.starts_with("aces")
+        || s == "raw"
+        || s == "g10";
+    if linear {
+        false
+    } else if s.contains("srgb") {
+        true
+    } else {
+        integer && !format.eq_ignore_ascii_case("openexr")
+    }
+}
+
 /// Reads a colour input (an environment map, a texture) as linear RGB: refuses images of more
 /// than `max_pixels` pixels before reading their pixels; takes its colour from the channels
-/// `colour_channels` names; decodes sRGB where the file says its pixels are
-/// sRGB (OIIO's `oiio:ColorSpace`, which it sets for 8-bit PNG and JPEG), so that an 8-bit file
-/// gives the same linear values as the HDR it was made from.
+/// `colour_channels` names; decodes sRGB where the file's values are sRGB-encoded
+/// (`srgb_encoded`: 8-bit PNG and JPEG, and any integer file that does not name a linear
+/// space), so that an 8-bit file gives the same linear values as the HDR it was made from.
 pub fn read_linear_rgb(path: &Path, max_pixels: u64) -> Result<Image> {
     read_colour(path, max_pixels).map(|(img, _)| img)
 }
@@ -707,10 +737,12 @@ pub struct ColourLayout {
 pub fn read_colour(path: &Path, max_pixels: u64) -> Result<(Image, ColourLayout)> {
     let read = || -> Result<(Image, ColourLayout)> {
         let (mut reader, info, pixels) = open_input_image(path, max_pixels)?;
-        let srgb = reader.attributes().into_iter().any(|a| {
-            a.name.eq_ignore_ascii_case("oiio:ColorSpace")
-                && a.text.to_ascii_lowercase().contains("srgb")
-        });
+        let space = reader
+            .attributes()
+            .into_iter()
+            .find(|a| a.name.eq_ignore_ascii_case("oiio:ColorSpace"))
+            .map(|a| a.text);
+        let srgb = srgb_encoded(space.as_deref(), info.integer, &info.format_name);
         let nch = info.channels.len();
         let colour = colour_channels(&info.channels)?;
         let pick = colour.indices();
@@ -1079,6 +1111,32 @@ mod tests {
         };
         assert_eq!(find("worldToCamera"), meta.world_to_camera);
         assert_eq!(find("worldToNDC"), meta.world_to_ndc);
+    }
+
+    #[test]
+    fn colour_files_are_srgb_unless_they_say_they_are_linear_or_store_floats() {
+        // What OIIO 2.4 names: 8-bit PNG and JPEG, a PNG with only a gAMA chunk, OpenEXR.
+        assert!(srgb_encoded(Some("sRGB"), true, "png"));
+        assert!(srgb_encoded(Some("GammaCorrected2.2"), true, "png"));
+        assert!(srgb_encoded(Some("GammaCorrected1.8"), true, "png"));
+        assert!(!srgb_encoded(Some("GammaCorrected1.0"), true, "png"));
+        assert!(!srgb_encoded(Some("GammaCorrected1"), true, "tiff"));
+        assert!(!srgb_encoded(Some("Linear"), false, "openexr"));
+        // Spaces of newer OIIO and OCIO configurations.
+        assert!(srgb_encoded(Some("srgb_rec709_scene"), true, "png"));
+        assert!(!srgb_encoded(Some("lin_srgb"), true, "tiff"));
+        assert!(!srgb_encoded(Some("scene_linear"), true, "tiff"));
+        assert!(!srgb_encoded(Some("ACEScg"), false, "openexr"));
+        // Nothing named: integers are sRGB (TGA, BMP, TIFF), floats and EXR linear.
+        for format in ["targa", "bmp", "tiff", "png"] {
+            assert!(srgb_encoded(None, true, format), "{format}");
+            assert!(srgb_encoded(Some(""), true, format), "{format}");
+        }
+        assert!(!srgb_encoded(None, false, "tiff"));
+        assert!(!srgb_encoded(None, false, "hdr"));
+        assert!(!srgb_encoded(None, true, "openexr"));
+        // A sRGB float file (rare, but named) is decoded as it says.
+        assert!(srgb_encoded(Some("sRGB"), false, "tiff"));
     }
 
     #[test]

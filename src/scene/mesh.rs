@@ -129,7 +129,28 @@ fn winds_over_itself(flat: &[f64]) -> bool {
     false
 }
 
-/// The triangles of a polygon, as indices into `p` (its corners in order).
+/// Whether the polygon of 2D corners `flat` (x, y pairs, in order) is strictly convex and
+/// simple: every corner turns the same way, by more than nothing, and the turns add up to one
+/// full turn (a star turns the same way at every corner too, but twice round).
+fn is_convex(flat: &[f64]) -> bool {
+    let n = flat.len() / 2;
+    let pt = |i: usize| (flat[2 * (i % n)], flat[2 * (i % n) + 1]);
+    let (mut sign, mut turned) = (0.0f64, 0.0f64);
+    for i in 0..n {
+        let (a, b, c) = (pt(i), pt(i + 1), pt(i + 2));
+        let (e, f) = ((b.0 - a.0, b.1 - a.1), (c.0 - b.0, c.1 - b.1));
+        let cross = e.0 * f.1 - e.1 * f.0;
+        if cross == 0.0 || (sign != 0.0 && cross.signum() != sign) {
+            return false;
+        }
+        sign = cross.signum();
+        turned += cross.atan2(e.0 * f.0 + e.1 * f.1);
+    }
+    (turned.abs() - std::f64::consts::TAU).abs() < 1e-6
+}
+
+/// The triangles of a polygon, as indices into `p` (its corners in order): a fan from the
+/// first corner where the polygon is convex, ear clipping where not.
 pub fn triangulate(p: &[Vec3]) -> Option<Vec<[usize; 3]>> {
     if p.len() == 3 {
         return Some(vec![[0, 1, 2]]);
@@ -154,6 +175,13 @@ pub fn triangulate(p: &[Vec3]) -> Option<Vec<[usize; 3]>> {
         (0, 1)
     };
     let flat: Vec<f64> = d.iter().flat_map(|q| [q[u], q[v]]).collect();
+    // A convex polygon is a fan from its first corner, as other renderers and OBJ readers split
+    // it: where a quad's two halves are not coplanar, or its vertex normals differ, the
+    // diagonal decides the surface. Ear clipping picks a diagonal by the sign of the
+    // projection, so a quad mirrored or turned over by a placement split the other way.
+    if is_convex(&flat) {
+        return Some((1..p.len() - 1).map(|i| [0, i, i + 1]).collect());
+    }
     // Ear clipping meets a polygon that winds over itself with passes of cubic cost (a
     // 2000-corner face took 37 s): such a polygon has no inside to triangulate anyway, and
     // is split as a fan (the caller's repair) instead.
@@ -336,6 +364,63 @@ mod tests {
         star.insert(10, star[10]);
         let t = triangulate(&star).unwrap();
         assert!((area(&star, &t) - centre_area).abs() < 1e-4 * centre_area);
+    }
+
+    #[test]
+    fn convex_polygons_are_fans_from_their_first_corner_however_they_face() {
+        // A quad whose halves are not coplanar (its last corner lifted), in each of the six
+        // axis-facing orientations and both windings: always the diagonal from corner 0, so
+        // the surface does not depend on which way a placement turned it.
+        let quad = [
+            (0.0, 0.0, 0.0),
+            (1.0, 0.0, 0.0),
+            (1.0, 1.0, 0.0),
+            (0.0, 1.0, 0.3),
+        ];
+        for axes in [[0, 1, 2], [1, 2, 0], [2, 0, 1]] {
+            for flip in [1.0f32, -1.0] {
+                for reverse in [false, true] {
+                    let mut p: Vec<Vec3> = quad
+                        .iter()
+                        .map(|&(x, y, z)| {
+                            let mut v = [0.0f32; 3];
+                            (v[axes[0]], v[axes[1]], v[axes[2]]) = (x, y, flip * z + 0.1);
+                            Vec3::from(v) * Vec3::new(flip, 1.0, 1.0)
+                        })
+                        .collect();
+                    if reverse {
+                        p[1..].reverse();
+                    }
+                    assert_eq!(triangulate(&p).unwrap(), vec![[0, 1, 2], [0, 2, 3]]);
+                }
+            }
+        }
+        // A regular hexagon; and a star of five points, whose corners all turn one way but
+        // which winds round twice, is not convex (ear clipping keeps its area).
+        let hexagon: Vec<Vec3> = (0..6)
+            .map(|k| {
+                let a = k as f32 * std::f32::consts::TAU / 6.0;
+                Vec3::new(a.cos(), a.sin(), 0.0)
+            })
+            .collect();
+        assert_eq!(
+            triangulate(&hexagon).unwrap(),
+            vec![[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]]
+        );
+        let pentagram: Vec<Vec3> = (0..5)
+            .map(|k| {
+                let a = (2 * k) as f32 * std::f32::consts::TAU / 5.0;
+                Vec3::new(a.cos(), a.sin(), 0.0)
+            })
+            .collect();
+        let flat: Vec<f64> = pentagram
+            .iter()
+            .flat_map(|q| [q.x as f64, q.y as f64])
+            .collect();
+        assert!(!is_convex(&flat));
+        // A quad with three corners on a line is not strictly convex: ear clipping.
+        let flat = [0.0, 0.0, 1.0, 0.0, 2.0, 0.0, 1.0, 1.0];
+        assert!(!is_convex(&flat));
     }
 
     #[test]
