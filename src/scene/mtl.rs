@@ -25,7 +25,7 @@
 //! down in that channel, so the Phong model conserves energy), `Ns` above `MAX_NS`, `Ke` above
 //! `MAX_KE`.
 use super::repairs::{Kind, Repairs};
-use super::text::{joined, lines, quote, rest};
+use super::text::{joined, lines, number, quote, rest};
 use crate::bsdf::Material;
 /// Largest Phong exponent: the BSDF's own bound (`bsdf::MAX_NS`).
 pub use crate::bsdf::MAX_NS;
@@ -149,10 +149,8 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
         };
         let key = canonical(key);
         if key == "newmtl" {
+            // An empty name is a name (Blender 2.61 wrote one; `usemtl` with none uses it).
             let name = rest(text);
-            if name.is_empty() {
-                return Err(err("expected 'newmtl name'".into()));
-            }
             if let Some(&first) = out.index.get(name) {
                 return Err(err(format!(
                     "material '{name}' is already defined at line {}",
@@ -204,7 +202,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
         if key == "d" {
             // Dissolve (partial transparency) is not rendered: say so where it would show
             // (`d -halo 0.5` takes the last word).
-            let d = args.last().and_then(|a| a.parse::<f32>().ok());
+            let d = args.last().and_then(|a| number(a));
             if let Some(m) = out.materials.last() {
                 // Anything but a number of at least 1 (opaque): below 1, negative, not a
                 // number, a decimal comma.
@@ -222,7 +220,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
         let Some(m) = out.materials.last_mut() else {
             return Err(err(format!("'{key}' before any newmtl")));
         };
-        let parsed: Option<Vec<f32>> = args.iter().map(|a| a.parse().ok()).collect();
+        let parsed: Option<Vec<f32>> = args.iter().map(|a| number(a)).collect();
         let bad = |v: f32| !v.is_finite() || v < 0.0;
         if key == "Ns" {
             let [x] = parsed
@@ -341,7 +339,7 @@ fn map_spec(
         args[i + 1..]
             .iter()
             .take(most)
-            .map_while(|w| w.parse::<f32>().ok())
+            .map_while(|w| number(w))
             .collect()
     };
     while i < args.len() && args[i].starts_with('-') && args[i].len() > 1 {
@@ -428,7 +426,10 @@ mod tests {
             ("Ns", "expected 'Ns value'"),
             ("Ns -5", "Ns must be finite and non-negative"),
             ("newmtl a", "material 'a' is already defined at line 2"),
-            ("newmtl ", "expected 'newmtl name'"),
+            (
+                "newmtl \nnewmtl",
+                "material '' is already defined at line 8",
+            ),
         ] {
             let e = parse(
                 "a.mtl",

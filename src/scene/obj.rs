@@ -16,7 +16,7 @@
 //! past the elements defined above it, a face of more than `MAX_CORNERS` corners, and a
 //! `usemtl` or `mtllib` without a name.
 use super::repairs::{Kind, Repairs};
-use super::text::{joined, latin1_bytes, lines, numbers, quote, rest, MAX_COORD};
+use super::text::{joined, latin1_bytes, lines, number, numbers, quote, rest, MAX_COORD};
 use anyhow::{anyhow, Result};
 use glam::{Vec2, Vec3};
 
@@ -43,6 +43,11 @@ const FREE_FORM: Kind = Kind {
 const POLYLINES: Kind = Kind {
     one: "polyline (l) ignored: reframe renders faces only",
     many: "polylines (l) ignored: reframe renders faces only",
+};
+const WEIGHTS: Kind = Kind {
+    one: "vertex weight w ignored (it weights rational curves and surfaces, not polygon corners)",
+    many:
+        "vertex weights w ignored (they weight rational curves and surfaces, not polygon corners)",
 };
 const COLOURS: Kind = Kind {
     one: "vertex colour ignored",
@@ -96,15 +101,17 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
         match key {
             "v" => {
                 let shape = "expected 'v x y z', 'v x y z w' or 'v x y z r g b'";
-                let mut p = numbers::<3>(&args).ok_or_else(|| err(shape.into()))?;
+                let p = numbers::<3>(&args).ok_or_else(|| err(shape.into()))?;
                 match args.len() {
                     3 => {}
+                    // The weight of a rational curve or surface's control point (the OBJ
+                    // format's own definition); a polygon's corner is at x, y, z whatever it
+                    // says, as other OBJ readers take it (dividing by it moved every corner).
                     4 => {
-                        let w: f32 = args[3].parse().map_err(|_| err(shape.into()))?;
-                        if w == 0.0 || !w.is_finite() {
-                            return Err(err(format!("w = {w}: x, y, z are divided by w")));
+                        let w = number(args[3]).ok_or_else(|| err(shape.into()))?;
+                        if w != 1.0 {
+                            repairs.note(label, n, WEIGHTS, || format!("'{}'", quote(text)))?;
                         }
-                        p = p.map(|c| c / w);
                     }
                     // A colour of red, green and blue, or with alpha (MeshLab, photogrammetry).
                     6 | 7 => {
@@ -129,7 +136,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
             }
             "vt" => {
                 // `v` and `w` are optional; `w` (3D textures) is not used.
-                let t: Option<Vec<f32>> = args.iter().map(|a| a.parse().ok()).collect();
+                let t: Option<Vec<f32>> = args.iter().map(|a| number(a)).collect();
                 let t = match t {
                     Some(t) if (1..=3).contains(&t.len()) => t,
                     _ => return Err(err("expected 'vt u [v [w]]'".into())),
@@ -199,9 +206,10 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
             }
             "usemtl" | "mtllib" => {
                 let name = rest(text);
-                if name.is_empty() {
-                    let what = if key == "usemtl" { "name" } else { "file" };
-                    return Err(err(format!("expected '{key} {what}'")));
+                // An empty material name is a name: Blender 2.61 wrote `usemtl` and `newmtl`
+                // with none for a material it had not named, and other readers match the two.
+                if name.is_empty() && key == "mtllib" {
+                    return Err(err("expected 'mtllib file'".into()));
                 }
                 if key == "usemtl" {
                     usemtl = Some(out.usemtl.len() as u32);
@@ -276,6 +284,45 @@ mod tests {
     }
 
     #[test]
+    fn microsoft_non_finite_numbers_are_read_as_non_finite() {
+        // Old 3ds Max exports: a normal of `-1.#IND00` is a normal that is not finite (its
+        // triangles flat-shaded, with the usual warning), not a malformed statement.
+        let obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn -1.#IND00 -1.#IND00 -1.#IND00\n\
+                   vn 0 0 1\nf 1//1 2//2 3//2\n";
+        let (o, w) = parse_ok(obj);
+        assert_eq!(o.normals, vec![None, Some(Vec3::Z)]);
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].contains("'vn -1.#IND00 -1.#IND00 -1.#IND00' (normal 1)"),
+            "{w:?}"
+        );
+        assert_eq!(number("1.#INF00"), Some(f32::INFINITY));
+        assert_eq!(number("-1.#INF"), Some(f32::NEG_INFINITY));
+        assert!(number("1.#QNAN0").unwrap().is_nan());
+        assert!(number("-1.#SNAN").unwrap().is_nan());
+        assert!(number("-1.#IND").unwrap().is_nan());
+        assert_eq!(number("1.5"), Some(1.5));
+        for bad in ["#IND", "1.#", "1.#FOO", "x.#INF", "1#2"] {
+            assert_eq!(number(bad), None, "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_vertex_weight_leaves_the_corner_where_it_is() {
+        // tinyobjloader's cube with weights: dividing by w had stretched it into a sliver.
+        let (o, w) = parse_ok("v 0 2 2 0.1\nv 1 0 0 1\nv 0 1 0 1.0\nv 3 4 5 0\nf 1 2 3\n");
+        assert_eq!(o.positions[0], Vec3::new(0.0, 2.0, 2.0));
+        assert_eq!(o.positions[3], Vec3::new(3.0, 4.0, 5.0));
+        // One warning, for the weights other than 1.
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].starts_with("a.obj: 2 vertex weights w ignored"),
+            "{w:?}"
+        );
+        assert!(w[0].ends_with("(first at line 1: 'v 0 2 2 0.1')"), "{w:?}");
+    }
+
+    #[test]
     fn faces_relative_indices_and_refusals() {
         let obj = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n# quad\nf 1 2 3 4\nf -4 -3 -2\n";
         let (o, w) = parse_ok(obj);
@@ -301,10 +348,9 @@ mod tests {
                 "vertex 5 is not finite (a number beyond single precision",
             ),
             ("v 1 2", "expected 'v x y z'"),
-            ("v 1 2 3 0", "w = 0"),
+            ("v 1 2 3 w", "expected 'v x y z'"),
             ("v 1e30 0 0", "too large"),
             ("vt", "expected 'vt u [v [w]]'"),
-            ("usemtl", "expected 'usemtl name'"),
             ("mtllib  ", "expected 'mtllib file'"),
             (
                 &format!("f{}", " 1 2 3".repeat(30_000)),

@@ -217,9 +217,34 @@ pub fn rest(line: &str) -> &str {
 pub fn numbers<const N: usize>(words: &[&str]) -> Option<[f32; N]> {
     let mut v = [0.0; N];
     for (x, w) in v.iter_mut().zip(words.get(..N)?) {
-        *x = w.parse().ok()?;
+        *x = number(w)?;
     }
     Some(v)
+}
+
+/// One number of an OBJ or MTL statement: as Rust reads it, or a non-finite value as
+/// Microsoft's C library writes it (`1.#INF00`, `-1.#IND00`, `1.#QNAN0`, `1.#SNAN0`), which old
+/// 3ds Max and other Windows exporters put in files; the loader then treats it as it treats
+/// `inf` and `nan` (a normal that is not finite flat-shades its triangles, a position is
+/// refused).
+pub fn number(word: &str) -> Option<f32> {
+    if let Ok(x) = word.parse() {
+        return Some(x);
+    }
+    let (mantissa, kind) = word.split_once('#')?;
+    let negative = mantissa.starts_with('-');
+    let digits = mantissa.trim_start_matches(['+', '-']);
+    if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit() || b == b'.') {
+        return None;
+    }
+    let upper = kind.to_ascii_uppercase();
+    let name = upper.trim_end_matches(|c: char| c.is_ascii_digit());
+    match name {
+        "INF" if negative => Some(f32::NEG_INFINITY),
+        "INF" => Some(f32::INFINITY),
+        "IND" | "QNAN" | "SNAN" | "NAN" => Some(f32::NAN),
+        _ => None,
+    }
 }
 
 /// Line `n` (1-based) of `bytes`, quoted for a message: `'f 1 2 9'`.
