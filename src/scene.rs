@@ -1136,8 +1136,10 @@ const ENV_CLAMPED: Kind = Kind {
     many: "environment texels above 1e9 clamped to 1e9",
 };
 
-/// Most texels of an environment image (16384 x 4096): 24 bytes each once loaded.
-pub const MAX_ENV_TEXELS: u64 = 1 << 26;
+/// Most texels of an environment image (16384 x 8192, a common size of downloaded skies): 24
+/// bytes each once loaded; such a sky peaked at 4.9 GB while it loaded (20 s), and the memory
+/// available is checked before it is read.
+pub const MAX_ENV_TEXELS: u64 = 1 << 27;
 
 /// The `[environment]` table, checked, and the image file it read (none for a colour).
 fn load_environment(

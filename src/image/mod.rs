@@ -467,6 +467,26 @@ fn srgb_oetf(v: f64) -> f64 {
     }
 }
 
+/// The linear value of each 8-bit sRGB code (`srgb_eotf(k / 255)`).
+fn srgb8() -> &'static [f32; 256] {
+    static TABLE: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| std::array::from_fn(|k| srgb_eotf(k as f64 / 255.0) as f32))
+}
+
+/// The linear value of an sRGB-encoded value `v` in \[0, 1\] as OIIO gives it: an 8-bit code
+/// over 255 is found in a table (a file of 8192 x 8192 texels spent 4 s in `pow` decoding
+/// every value), any other value is decoded.
+#[inline]
+pub(crate) fn decode_srgb(v: f32) -> f32 {
+    let k = v * 255.0;
+    let r = (k + 0.5) as i32;
+    if (0..256).contains(&r) && (k - r as f32).abs() < 1e-3 {
+        srgb8()[r as usize]
+    } else {
+        srgb_eotf(v as f64) as f32
+    }
+}
+
 /// The inverse of `srgb_oetf`: an sRGB-encoded value in \[0, 1\] back to linear.
 fn srgb_eotf(e: f64) -> f64 {
     if e <= 0.04045 {
@@ -590,9 +610,11 @@ fn open_checked(
     let info = reader.info();
     if info.width as u64 * info.height as u64 > max_pixels {
         bail!(
-            "{}x{} pixels, more than the {max_pixels} reframe reads",
+            "{}x{} pixels, more than the {max_pixels} reframe reads (make a smaller copy, e.g. \
+             'oiiotool {} --resize 50% -o smaller.exr')",
             info.width,
-            info.height
+            info.height,
+            path.display()
         );
     }
     Ok((reader, info))
@@ -750,12 +772,26 @@ pub fn read_colour(path: &Path, max_pixels: u64) -> Result<(Image, ColourLayout)
         // allocation that fails aborts the process).
         let need = pixels * (4 * nch as u64 + 12);
         check_room(&info, need)?;
-        let data = read_all(&mut reader, &info)?;
-        let decode = |v: f32| if srgb { srgb_eotf(v as f64) as f32 } else { v };
-        let mut rgb = Vec::with_capacity(pixels as usize * 3);
-        for px in data.chunks_exact(nch) {
-            rgb.extend(pick.map(|c| c.map_or(0.0, |c| decode(px[c]))));
-        }
+        let mut data = read_all(&mut reader, &info)?;
+        let decode = |v: f32| if srgb { decode_srgb(v) } else { v };
+        // In place where a pixel has three channels or more (pixel i's RGB is written at 3i,
+        // at or before where its channels were read from), so that an 8192 x 8192 file is held
+        // once, not twice; a grey file of one or two channels grows into a new buffer.
+        let rgb = if nch >= 3 {
+            for i in 0..pixels as usize {
+                let px = pick.map(|c| c.map_or(0.0, |c| decode(data[i * nch + c])));
+                data[3 * i..3 * i + 3].copy_from_slice(&px);
+            }
+            data.truncate(pixels as usize * 3);
+            data.shrink_to_fit();
+            data
+        } else {
+            let mut rgb = Vec::with_capacity(pixels as usize * 3);
+            for px in data.chunks_exact(nch) {
+                rgb.extend(pick.map(|c| c.map_or(0.0, |c| decode(px[c]))));
+            }
+            rgb
+        };
         let img = Image {
             width: info.width,
             height: info.height,

@@ -27,7 +27,7 @@
 //! # anyhow::Ok(())
 //! ```
 use super::bridge::ffi;
-use super::{path_str, read_colour, read_mask, srgb_eotf, Colour, ColourLayout};
+use super::{decode_srgb, path_str, read_colour, read_mask, Colour, ColourLayout};
 use crate::util::hash::Fnv;
 use anyhow::{anyhow, bail, Result};
 use glam::{Vec2, Vec3};
@@ -70,25 +70,6 @@ fn check_texels(path: &Path, data: &[f32]) -> Result<()> {
         );
     }
     Ok(())
-}
-
-/// The linear value of each 8-bit sRGB code (`srgb_eotf(k / 255)`).
-fn srgb8() -> &'static [f32; 256] {
-    static TABLE: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
-    TABLE.get_or_init(|| std::array::from_fn(|k| srgb_eotf(k as f64 / 255.0) as f32))
-}
-
-/// The linear value of an sRGB-encoded value `v` in \[0, 1] as OIIO gives it (an 8-bit code
-/// over 255, found in the table; any other value decoded).
-#[inline]
-fn decode_srgb(v: f32) -> f32 {
-    let k = v * 255.0;
-    let r = (k + 0.5) as i32;
-    if (0..256).contains(&r) && (k - r as f32).abs() < 1e-3 {
-        srgb8()[r as usize]
-    } else {
-        srgb_eotf(v as f64) as f32
-    }
 }
 
 /// The textures of a scene and the texture system they are looked up through.
@@ -186,7 +167,7 @@ impl Textures {
     ) -> TextureId {
         let mut f = Fnv::default();
         f.bytes(&[img.width.to_le_bytes(), img.height.to_le_bytes()].concat());
-        f.f32s(img.data.iter().copied());
+        f.f32s_wide(&img.data);
         self.info.push(Info {
             width: img.width,
             height: img.height,
