@@ -4,7 +4,7 @@
 //! a whole tile), with paths ending at many different depths within a batch.
 use reframe::embree::{Device, Hit, Ray};
 use reframe::integrator::wavefront::Wavefront;
-use reframe::integrator::{FirstHit, Integrator, Rays, Tally};
+use reframe::integrator::{FirstHit, Integrator, LightSides, Rays, Tally};
 use reframe::sampling::Sampler;
 use reframe::scene::Scene;
 
@@ -54,59 +54,75 @@ fn wavefront_records_are_the_scalar_walks() {
         let (eye, samples) = camera_samples(&scene, 24, 18, 2);
         assert!(samples.len() > 300, "{name}: {} hits", samples.len());
         let mut integ = Integrator::new(&scene, 12);
-        // The oracle: each path on its own, with its own count of rays.
-        let mut oracle = Vec::new();
-        let mut oracle_counts = Tally::default();
-        let mut depths = std::collections::BTreeSet::new();
-        for (hit, sampler) in &samples {
-            let mut t = Tally::default();
-            let rec = integ.first_hit_at(hit, eye, &mut sampler.clone(), &mut t);
-            depths.insert(t.counts.path);
-            oracle_counts.counts.add(&t.counts);
-            oracle.push(rec);
-        }
-        assert!(
-            depths.len() >= 4,
-            "{name}: paths end at {} depths only",
-            depths.len()
-        );
-        let mut wf = Wavefront::new();
-        for paths in [Rays::Single, Rays::Packet] {
-            integ.paths = paths;
-            for batch in [1, 3, 16, 17, 300] {
-                let mut counts = Tally::default();
-                let mut bitwise = 0;
-                for (chunk, expected) in samples.chunks(batch).zip(oracle.chunks(batch)) {
-                    let hits: Vec<Hit> = chunk.iter().map(|c| c.0).collect();
-                    let samplers: Vec<Sampler> = chunk.iter().map(|c| c.1.clone()).collect();
-                    let recs = integ.first_hits(eye, &hits, &samplers, &mut wf, &mut counts);
-                    assert_eq!(recs.len(), chunk.len());
-                    for (rec, want) in recs.iter().zip(expected) {
-                        if bits(rec) == bits(want) {
-                            bitwise += 1;
-                            continue;
+        // Light samples for the native eye alone, and for a group with an eye far on the other
+        // side of most surfaces (lights behind a surface kept, their shadow rays traced).
+        let group = [eye, -3.0 * eye + glam::Vec3::new(0.5, 7.0, 0.25)];
+        let mut native_shadows = 0;
+        for sides in [LightSides::Native, LightSides::Group(&group)] {
+            // The oracle: each path on its own, with its own count of rays.
+            let mut oracle = Vec::new();
+            let mut oracle_counts = Tally::default();
+            let mut depths = std::collections::BTreeSet::new();
+            for (hit, sampler) in &samples {
+                let mut t = Tally::default();
+                let rec = integ.first_hit_at(hit, eye, &mut sampler.clone(), &mut t, sides);
+                depths.insert(t.counts.path);
+                oracle_counts.counts.add(&t.counts);
+                oracle.push(rec);
+            }
+            assert!(
+                depths.len() >= 4,
+                "{name}: paths end at {} depths only",
+                depths.len()
+            );
+            let mut wf = Wavefront::new();
+            for paths in [Rays::Single, Rays::Packet] {
+                integ.paths = paths;
+                for batch in [1, 3, 16, 17, 300] {
+                    let mut counts = Tally::default();
+                    let mut bitwise = 0;
+                    for (chunk, expected) in samples.chunks(batch).zip(oracle.chunks(batch)) {
+                        let hits: Vec<Hit> = chunk.iter().map(|c| c.0).collect();
+                        let samplers: Vec<Sampler> = chunk.iter().map(|c| c.1.clone()).collect();
+                        let recs =
+                            integ.first_hits(eye, &hits, &samplers, &mut wf, &mut counts, sides);
+                        assert_eq!(recs.len(), chunk.len());
+                        for (rec, want) in recs.iter().zip(expected) {
+                            if bits(rec) == bits(want) {
+                                bitwise += 1;
+                                continue;
+                            }
+                            assert_eq!(
+                                paths,
+                                Rays::Packet,
+                                "{name}: batch {batch}: {rec:?} vs {want:?}"
+                            );
+                            let (a, b) = (rec.radiance(eye), want.radiance(eye));
+                            let close = (a - b).abs().max_element()
+                                <= 1e-3 * b.abs().max_element().max(1.0);
+                            assert!(close, "{name}: batch {batch}: {a} wavefront, {b} scalar");
                         }
-                        assert_eq!(
-                            paths,
-                            Rays::Packet,
-                            "{name}: batch {batch}: {rec:?} vs {want:?}"
-                        );
-                        let (a, b) = (rec.radiance(eye), want.radiance(eye));
-                        let close =
-                            (a - b).abs().max_element() <= 1e-3 * b.abs().max_element().max(1.0);
-                        assert!(close, "{name}: batch {batch}: {a} wavefront, {b} scalar");
                     }
+                    assert_eq!(
+                        counts.counts, oracle_counts.counts,
+                        "{name}: batch {batch}: rays"
+                    );
+                    // Rounding may move a hit now and then; nearly every record must agree bit for bit.
+                    let n = samples.len();
+                    assert!(
+                        bitwise * 100 >= n * 99,
+                        "{name}: {paths:?}, batch {batch}: {bitwise} of {n} records bitwise equal"
+                    );
                 }
-                assert_eq!(
-                    counts.counts, oracle_counts.counts,
-                    "{name}: batch {batch}: rays"
-                );
-                // Rounding may move a hit now and then; nearly every record must agree bit for bit.
-                let n = samples.len();
+            }
+            // The group's far eye keeps light samples the native eye alone drops.
+            if let LightSides::Group(_) = sides {
                 assert!(
-                    bitwise * 100 >= n * 99,
-                    "{name}: {paths:?}, batch {batch}: {bitwise} of {n} records bitwise equal"
+                    oracle_counts.counts.shadow > native_shadows,
+                    "{name}: no light kept behind"
                 );
+            } else {
+                native_shadows = oracle_counts.counts.shadow;
             }
         }
     }

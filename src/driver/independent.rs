@@ -11,7 +11,7 @@ use crate::film::tiles::Tile;
 use crate::film::tiles::{place_tile, tiles};
 use crate::film::{Developed, Sink, View};
 use crate::integrator::wavefront::Wavefront;
-use crate::integrator::{Integrator, RayCounts, Tally};
+use crate::integrator::{Integrator, LightSides, RayCounts, Tally};
 use crate::sampling::Sampler;
 use crate::state::Record;
 use anyhow::Result;
@@ -98,7 +98,14 @@ fn render_tile(
                 }
             }
         }
-        let recs = integrator.first_hits(cam.eye, &hits, &path_samplers, &mut wavefront, t);
+        let recs = integrator.first_hits(
+            cam.eye,
+            &hits,
+            &path_samplers,
+            &mut wavefront,
+            t,
+            LightSides::Native,
+        );
         for (rec, &slot) in recs.iter().zip(&slots) {
             values[slot] = rec.radiance(cam.eye);
         }

@@ -214,6 +214,38 @@ impl FirstHit {
     }
 }
 
+/// Which eyes a first hit's light sample serves, and so whether a light behind the surface (on
+/// the other side from the native eye) is kept.
+#[derive(Clone, Copy, Debug)]
+pub enum LightSides<'e> {
+    /// The native eye's only (the independent tracer, and reuse that shades with the native
+    /// eye's densities): a light behind the surface cannot light what that eye sees, so the
+    /// sample is dropped without a ray.
+    Native,
+    /// Every eye of a reuse group (their positions). Where one of them is on the other side of
+    /// the surface from the native eye (the camera crosses the plane of a card, a leaf, a wall
+    /// of no thickness), a light behind the surface is kept and its shadow ray traced: that
+    /// eye sees what the light lights, and the MIS denominators count every eye's light
+    /// sampling for every direction (docs/estimators.md, "Both sides of a surface"). Dropped,
+    /// such samples darkened both sides of a card by 23%.
+    Group(&'e [Vec3]),
+}
+
+impl LightSides<'_> {
+    /// Whether the light sample in direction `wi` at `p` is kept, `ng` the geometric normal on
+    /// the native eye's side.
+    #[inline]
+    fn keeps(self, p: Vec3, ng: Vec3, wi: Vec3) -> bool {
+        let c = ng.dot(wi);
+        c > 0.0
+            || (c < 0.0
+                && match self {
+                    LightSides::Native => false,
+                    LightSides::Group(eyes) => eyes.iter().any(|&e| ng.dot(e - p) < 0.0),
+                })
+    }
+}
+
 pub struct Integrator<'a> {
     pub scene: &'a Scene,
     pub max_depth: u32,
@@ -403,20 +435,27 @@ impl<'a> Integrator<'a> {
         let ray = Ray::new(eye, dir);
         t.primary(&ray);
         let hit = self.scene.geometry.intersect1(&ray)?;
-        Some(self.first_hit_at(&hit, eye, s, t))
+        Some(self.first_hit_at(&hit, eye, s, t, LightSides::Native))
     }
 
     /// Build the first-hit record for a primary hit already found (e.g. by a packet), as one
     /// scalar walk that traces each ray as soon as it is drawn: the test oracle of the
     /// wavefront (`wavefront::Wavefront`), which takes the same steps over a batch of paths.
-    pub fn first_hit_at(&self, hit: &Hit, eye: Vec3, s: &mut Sampler, t: &mut Tally) -> FirstHit {
+    pub fn first_hit_at(
+        &self,
+        hit: &Hit,
+        eye: Vec3,
+        s: &mut Sampler,
+        t: &mut Tally,
+        sides: LightSides,
+    ) -> FirstHit {
         let geometry = &self.scene.geometry;
         let scene = self.scene;
         let mut rec = FirstHit::default();
         self.fill_first_record(&mut rec, &scene.surface(hit), eye);
         let step = s.step(self.step_dims(1));
         let light = scene.sample_light(rec.sp.p, step.light);
-        let (shadow, next) = self.first_samples(&mut rec, &step, light);
+        let (shadow, next) = self.first_samples(&mut rec, &step, light, sides);
         if let Some(ray) = shadow {
             t.shadow(&ray);
             self.light_blocked(&mut rec, geometry.occluded1(&ray));
@@ -482,6 +521,7 @@ impl<'a> Integrator<'a> {
         rec: &mut FirstHit,
         n: &StepNumbers,
         light: Option<LightSample>,
+        sides: LightSides,
     ) -> (Option<Ray>, Option<Ray>) {
         let (sp, m, wo) = (rec.sp, rec.m, rec.wo);
         if !m.reflects() {
@@ -491,8 +531,9 @@ impl<'a> Integrator<'a> {
         let mut shadow = None;
         if let Some(ls) = light {
             let mut le = ls.le;
-            // A light behind the surface cannot contribute for any eye on this side; no ray.
-            if le != Vec3::ZERO && ng.dot(ls.wi) > 0.0 {
+            // A light behind the surface cannot contribute for any eye on this side: no ray,
+            // unless an eye of the group sees the other side (`LightSides`).
+            if le != Vec3::ZERO && sides.keeps(sp.p, ng, ls.wi) {
                 shadow = Some(ls.shadow_ray(sp.p, sp.ng));
             } else {
                 le = Vec3::ZERO;

@@ -10,7 +10,7 @@
 //! as the test oracle): a path draws its numbers from its own sampler at fixed dimensions, and
 //! its radiance is summed in the same order, so traced one ray at a time the wavefront gives
 //! the scalar walk's records bit for bit; in packets the hits may differ in their last bits.
-use super::{FirstHit, Integrator, Rays, Tally, Walk};
+use super::{FirstHit, Integrator, LightSides, Rays, Tally, Walk};
 use crate::embree::{Hit, Packet16, Ray, TriangleScene};
 use crate::sampling::{Sampler, StepBatch, StepLanes};
 use crate::scene::{LightLanes, Scene, SurfacePoint};
@@ -201,8 +201,9 @@ impl Wavefront {
 
 impl Integrator<'_> {
     /// The first-hit records of a batch of camera samples from `eye`: sample `i` hit `hits[i]`
-    /// and draws its numbers from `samplers[i]`. Record `i` of the result is what
-    /// `first_hit_at(&hits[i], eye, &mut samplers[i], ..)` returns.
+    /// and draws its numbers from `samplers[i]`; `sides` are the eyes its light samples serve.
+    /// Record `i` of the result is what `first_hit_at(&hits[i], eye, &mut samplers[i], ..,
+    /// sides)` returns.
     pub fn first_hits<'w>(
         &self,
         eye: Vec3,
@@ -210,6 +211,7 @@ impl Integrator<'_> {
         samplers: &[Sampler],
         wf: &'w mut Wavefront,
         t: &mut Tally,
+        sides: LightSides,
     ) -> &'w [FirstHit] {
         assert_eq!(hits.len(), samplers.len(), "one sampler per path");
         let geometry = &self.scene.geometry;
@@ -238,7 +240,7 @@ impl Integrator<'_> {
         for (i, (sp, light)) in wf.surfaces[..n].iter().zip(lights).enumerate() {
             let rec = &mut wf.recs[i];
             self.fill_first_record(rec, sp, eye);
-            let (shadow, next) = self.first_samples(rec, &wf.numbers.get(i), *light);
+            let (shadow, next) = self.first_samples(rec, &wf.numbers.get(i), *light, sides);
             if let Some(ray) = shadow {
                 wf.shadows.push(i, &ray);
             }

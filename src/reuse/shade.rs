@@ -21,7 +21,7 @@ use crate::film::local::LocalFilm;
 use crate::film::tiles::{tiles_in, Tile, TILE};
 use crate::film::FrameAccum;
 use crate::integrator::wavefront::Wavefront;
-use crate::integrator::{Integrator, Tally};
+use crate::integrator::{Integrator, LightSides, Tally};
 use crate::sampling::{mix64, Sampler};
 use glam::{Vec2, Vec3};
 
@@ -88,6 +88,7 @@ pub fn shade_block(
         .collect();
     let mut scratch = Scratch {
         pixel_areas: group.iter().map(|t| t.cam.pixel_area()).collect(),
+        group_eyes: group.iter().map(|t| t.cam.eye).collect(),
         ..Scratch::default()
     };
     let mut bad = 0;
@@ -128,6 +129,8 @@ struct Scratch {
     eyes: Vec<EyeTerms>,
     /// `A_pix,k` of each eye of the group.
     pixel_areas: Vec<f32>,
+    /// Each eye of the group's position (`LightSides::Group`).
+    group_eyes: Vec<Vec3>,
     /// The tile's camera samples before their primary rays: (pixel, sample index, sampler, ray
     /// direction), row by row.
     pending: Vec<(u32, u32, Sampler, Vec3)>,
@@ -184,6 +187,7 @@ fn shade_eye(
         lanes,
         eyes,
         pixel_areas,
+        group_eyes,
         pending,
         natives,
         splats,
@@ -231,11 +235,18 @@ fn shade_eye(
             }
         }
     }
+    // The MIS weights count every eye's light sampling for every direction, so a light sample
+    // behind the surface is kept where an eye of the group sees that side; the weights of the
+    // native eye's densities (`havran`) serve that eye alone.
+    let sides = match p.method.weights() {
+        Weights::Paper | Weights::Exact => LightSides::Group(group_eyes),
+        Weights::None | Weights::OwnEye => LightSides::Native,
+    };
     natives.trace(
         integrator,
         cam_m,
         pending,
-        keep_escapes,
+        (keep_escapes, sides),
         hits,
         escapes,
         tally,
@@ -416,7 +427,7 @@ impl Natives {
         integrator: &Integrator,
         cam: &Camera,
         pending: &mut Vec<(u32, u32, Sampler, Vec3)>,
-        keep_escapes: bool,
+        (keep_escapes, sides): (bool, LightSides),
         hits: &mut Vec<NativeHit>,
         escapes: &mut Vec<(u32, u32, Vec3)>,
         tally: &mut Tally,
@@ -450,6 +461,7 @@ impl Natives {
                 &self.samplers,
                 &mut self.wavefront,
                 tally,
+                sides,
             );
             hits.extend(
                 self.found
