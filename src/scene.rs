@@ -1404,24 +1404,62 @@ pub(crate) fn locate_named_file(dir: &Path, name: &str) -> (PathBuf, bool) {
 /// A file that an OBJ or MTL in `dir` names as `name` but that is not there as written, found
 /// where a path written on another machine leads: with Windows separators read as `/`
 /// (`textures\wood.png`; a drive's `C:\...` is no path here), then by its file name alone in
-/// `dir` (an absolute path of the artist's machine, a folder not shipped along). `None`: not
-/// found either way (the caller reports the path as written).
+/// `dir` (an absolute path of the artist's machine, a folder not shipped along); each of the
+/// two also with its letters in another case where exactly one entry of a folder matches that
+/// way (`SpiderTex.jpg` for `spidertex.jpg`: Windows and macOS ignore case, so assets made there
+/// often name their files in another case than they are stored). `None`: not found (the caller
+/// reports the path as written).
 fn find_named_file(dir: &Path, name: &str) -> Option<PathBuf> {
     let slashed = name.replace('\\', "/");
     let drive = slashed.len() >= 2
         && slashed.as_bytes()[1] == b':'
         && slashed.as_bytes()[0].is_ascii_alphabetic();
-    if slashed != name && !drive && !slashed.starts_with('/') {
+    let relative = !drive && !slashed.starts_with('/');
+    if slashed != name && relative {
         let p = dir.join(&slashed);
         if p.is_file() {
             return Some(p);
         }
     }
-    let file = slashed
-        .rsplit('/')
-        .next()
-        .filter(|f| !f.is_empty() && *f != name)?;
-    Some(dir.join(file)).filter(|p| p.is_file())
+    let file = slashed.rsplit('/').next().filter(|f| !f.is_empty());
+    if let Some(p) = file.filter(|f| *f != name).map(|f| dir.join(f)) {
+        if p.is_file() {
+            return Some(p);
+        }
+    }
+    if relative {
+        if let Some(p) = ignoring_case(dir, &slashed) {
+            return Some(p);
+        }
+    }
+    ignoring_case(dir, file?)
+}
+
+/// The file at relative path `rel` under `dir`, each part of it matched in any case where it is
+/// not there as written and exactly one entry of its folder matches it that way.
+fn ignoring_case(dir: &Path, rel: &str) -> Option<PathBuf> {
+    let mut at = dir.to_path_buf();
+    for part in rel.split('/').filter(|p| !p.is_empty() && *p != ".") {
+        let exact = at.join(part);
+        if exact.exists() {
+            at = exact;
+            continue;
+        }
+        let mut found = std::fs::read_dir(&at)
+            .ok()?
+            .filter_map(|e| e.ok())
+            .filter(|e| {
+                e.file_name()
+                    .to_str()
+                    .is_some_and(|n| n.eq_ignore_ascii_case(part))
+            });
+        let one = found.next()?;
+        if found.next().is_some() {
+            return None;
+        }
+        at = one.path();
+    }
+    Some(at).filter(|p| p.is_file())
 }
 
 const NO_TEXCOORDS: Kind = Kind {
