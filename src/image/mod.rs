@@ -712,22 +712,31 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
 /// name):
 /// - a file that names sRGB is sRGB, one that names a linear space (`linear`, `scene_linear`,
 ///   `lin_*`, ACES, `GammaCorrected1.0`) is linear;
-/// - a file that names another gamma (`GammaCorrected2.2`: a PNG with a `gAMA` chunk and no
-///   `sRGB` chunk) is decoded as sRGB, the curve that gamma stands for in practice;
+/// - a file that names another gamma (`GammaCorrected2.2` or `Gamma2.2`: a PNG with a `gAMA`
+///   chunk and no `sRGB` chunk; `g22_rec709`) is decoded as sRGB, the curve that gamma stands
+///   for in practice; data that is no colour (`Non-Color`, `raw`) is not decoded;
 /// - a file that names nothing is sRGB where it stores integers (TGA, BMP, 8- and 16-bit TIFF
 ///   and PNG: the encoding of 8- and 16-bit colour files unless they say otherwise, as other
 ///   renderers read them) and linear where it stores floats (EXR, HDR, float TIFF) or is an
 ///   EXR.
 pub fn srgb_encoded(space: Option<&str>, integer: bool, format: &str) -> bool {
     let s = space.unwrap_or("").trim().to_ascii_lowercase();
-    if let Some(g) = s.strip_prefix("gammacorrected") {
-        return g.parse::<f64>().map_or(integer, |g| (g - 1.0).abs() > 0.01);
+    // A gamma by number: OIIO 2.4's `GammaCorrected2.2`, later versions' `Gamma2.2`.
+    let gamma = s
+        .strip_prefix("gammacorrected")
+        .or_else(|| s.strip_prefix("gamma"));
+    if let Some(g) = gamma.and_then(|g| g.parse::<f64>().ok()) {
+        return (g - 1.0).abs() > 0.01;
     }
+    // Linear spaces, and data that is no colour (OCIO's `Non-Color`, `raw`), which is not
+    // decoded either; `g10_*` names a gamma of 1, `g22_*` and `g18_*` others.
     let linear = s.contains("linear")
         || s.starts_with("lin_")
         || s.starts_with("aces")
+        || s.starts_with("g10")
         || s == "raw"
-        || s == "g10";
+        || s == "data"
+        || s.replace(['-', '_', ' '], "") == "noncolor";
     if linear {
         false
     } else if s.contains("srgb") {
@@ -1159,6 +1168,12 @@ mod tests {
         assert!(!srgb_encoded(Some("GammaCorrected1"), true, "tiff"));
         assert!(!srgb_encoded(Some("Linear"), false, "openexr"));
         // Spaces of newer OIIO and OCIO configurations.
+        assert!(srgb_encoded(Some("Gamma2.2"), true, "png"));
+        assert!(!srgb_encoded(Some("Gamma1.0"), true, "png"));
+        assert!(srgb_encoded(Some("g22_rec709"), true, "tiff"));
+        assert!(!srgb_encoded(Some("g10_rec709"), true, "tiff"));
+        assert!(!srgb_encoded(Some("Non-Color"), true, "png"));
+        assert!(!srgb_encoded(Some("Raw"), true, "png"));
         assert!(srgb_encoded(Some("srgb_rec709_scene"), true, "png"));
         assert!(!srgb_encoded(Some("lin_srgb"), true, "tiff"));
         assert!(!srgb_encoded(Some("scene_linear"), true, "tiff"));
