@@ -1160,24 +1160,30 @@ mod tests {
 
     #[test]
     fn colour_files_are_srgb_unless_they_say_they_are_linear_or_store_floats() {
-        // What OIIO 2.4 names: 8-bit PNG and JPEG, a PNG with only a gAMA chunk, OpenEXR.
-        assert!(srgb_encoded(Some("sRGB"), true, "png"));
-        assert!(srgb_encoded(Some("GammaCorrected2.2"), true, "png"));
-        assert!(srgb_encoded(Some("GammaCorrected1.8"), true, "png"));
-        assert!(!srgb_encoded(Some("GammaCorrected1.0"), true, "png"));
-        assert!(!srgb_encoded(Some("GammaCorrected1"), true, "tiff"));
-        assert!(!srgb_encoded(Some("Linear"), false, "openexr"));
-        // Spaces of newer OIIO and OCIO configurations.
-        assert!(srgb_encoded(Some("Gamma2.2"), true, "png"));
-        assert!(!srgb_encoded(Some("Gamma1.0"), true, "png"));
-        assert!(srgb_encoded(Some("g22_rec709"), true, "tiff"));
-        assert!(!srgb_encoded(Some("g10_rec709"), true, "tiff"));
-        assert!(!srgb_encoded(Some("Non-Color"), true, "png"));
-        assert!(!srgb_encoded(Some("Raw"), true, "png"));
-        assert!(srgb_encoded(Some("srgb_rec709_scene"), true, "png"));
-        assert!(!srgb_encoded(Some("lin_srgb"), true, "tiff"));
-        assert!(!srgb_encoded(Some("scene_linear"), true, "tiff"));
-        assert!(!srgb_encoded(Some("ACEScg"), false, "openexr"));
+        // (colour space named, integer codes, format, sRGB-encoded): what OIIO 2.4 names (8-bit
+        // PNG and JPEG, a PNG with only a gAMA chunk, OpenEXR), then the spaces of newer OIIO
+        // versions and OCIO configurations.
+        let named = [
+            ("sRGB", true, "png", true),
+            ("GammaCorrected2.2", true, "png", true),
+            ("GammaCorrected1.8", true, "png", true),
+            ("GammaCorrected1.0", true, "png", false),
+            ("GammaCorrected1", true, "tiff", false),
+            ("Linear", false, "openexr", false),
+            ("Gamma2.2", true, "png", true),
+            ("Gamma1.0", true, "png", false),
+            ("g22_rec709", true, "tiff", true),
+            ("g10_rec709", true, "tiff", false),
+            ("Non-Color", true, "png", false),
+            ("Raw", true, "png", false),
+            ("srgb_rec709_scene", true, "png", true),
+            ("lin_srgb", true, "tiff", false),
+            ("scene_linear", true, "tiff", false),
+            ("ACEScg", false, "openexr", false),
+        ];
+        for (space, integer, format, want) in named {
+            assert_eq!(srgb_encoded(Some(space), integer, format), want, "{space}");
+        }
         // Nothing named: integers are sRGB (TGA, BMP, TIFF), floats and EXR linear.
         for format in ["targa", "bmp", "tiff", "png"] {
             assert!(srgb_encoded(None, true, format), "{format}");
