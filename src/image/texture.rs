@@ -167,7 +167,7 @@ impl Textures {
     ) -> TextureId {
         let mut f = Fnv::default();
         f.bytes(&[img.width.to_le_bytes(), img.height.to_le_bytes()].concat());
-        f.f32s_wide(&img.data);
+        f.f32s(img.data.iter().copied());
         self.info.push(Info {
             width: img.width,
             height: img.height,

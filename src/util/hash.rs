@@ -18,21 +18,18 @@ impl Fnv {
         }
     }
 
+    /// Floats, two at a time as one 64-bit word per step (the scene's texels and positions,
+    /// hundreds of millions of values, hashed byte by byte took a second or more); an odd last
+    /// value alone.
     pub fn f32s(&mut self, v: impl IntoIterator<Item = f32>) {
-        for x in v {
-            self.bytes(&x.to_bits().to_le_bytes());
-        }
-    }
-
-    /// Many floats, two at a time as one 64-bit word per step (a texture's hundreds of
-    /// millions of values hashed byte by byte took a second); an odd last value alone.
-    pub fn f32s_wide(&mut self, v: &[f32]) {
-        let mut pairs = v.chunks_exact(2);
-        for p in &mut pairs {
-            let w = p[0].to_bits() as u64 | (p[1].to_bits() as u64) << 32;
+        let mut v = v.into_iter();
+        while let Some(a) = v.next() {
+            let w = match v.next() {
+                Some(b) => a.to_bits() as u64 | (b.to_bits() as u64) << 32,
+                None => a.to_bits() as u64,
+            };
             self.0 = (self.0 ^ w).wrapping_mul(0x100_0000_01b3);
         }
-        self.f32s(pairs.remainder().iter().copied());
     }
 
     /// The hash as the 16 hex digits that keys and folder names carry.
