@@ -20,6 +20,12 @@ namespace reframe {
 
 namespace {
 
+// A path as the Rust side holds it: the bytes of the file name, which on Unix need not be
+// UTF-8 (an asset unpacked from a Latin-1 archive), passed to the OS unchanged.
+std::string path_string(rust::Slice<const uint8_t> path) {
+    return std::string(reinterpret_cast<const char*>(path.data()), path.size());
+}
+
 // Messages carry no path of their own: the Rust caller prefixes the path the user asked for, and
 // OIIO's messages already name the file actually opened (e.g. the temporary one).
 //
@@ -173,8 +179,8 @@ rust::String oiio_version() {
                         std::to_string(v % 100));
 }
 
-void check_output_format(rust::Str path) {
-    const std::string p(path);
+void check_output_format(rust::Slice<const uint8_t> path) {
+    const std::string p = path_string(path);
     // create() only looks the writer up by extension; it neither opens nor creates the file.
     auto out = OIIO::ImageOutput::create(p);
     if (!out) {
@@ -182,23 +188,23 @@ void check_output_format(rust::Str path) {
     }
 }
 
-void write_f32(rust::Str path, const ImageDesc& desc, rust::Slice<const float> pixels,
+void write_f32(rust::Slice<const uint8_t> path, const ImageDesc& desc, rust::Slice<const float> pixels,
                rust::Slice<const Attribute> attrs) {
     const OIIO::ImageSpec spec = make_spec(desc, pixels.size(), attrs);
-    write_pixels(std::string(path), spec, OIIO::TypeDesc::FLOAT, pixels.data());
+    write_pixels(path_string(path), spec, OIIO::TypeDesc::FLOAT, pixels.data());
 }
 
-void write_u8(rust::Str path, const ImageDesc& desc, rust::Slice<const uint8_t> pixels,
+void write_u8(rust::Slice<const uint8_t> path, const ImageDesc& desc, rust::Slice<const uint8_t> pixels,
               rust::Slice<const Attribute> attrs) {
     const OIIO::ImageSpec spec = make_spec(desc, pixels.size(), attrs);
-    write_pixels(std::string(path), spec, OIIO::TypeDesc::UINT8, pixels.data());
+    write_pixels(path_string(path), spec, OIIO::TypeDesc::UINT8, pixels.data());
 }
 
 ImageReader::ImageReader(std::unique_ptr<OIIO::ImageInput> in)
     : in_(std::move(in)), spec_(in_->spec()) {}
 
-std::unique_ptr<ImageReader> open_reader(rust::Str path) {
-    const std::string p(path);
+std::unique_ptr<ImageReader> open_reader(rust::Slice<const uint8_t> path) {
+    const std::string p = path_string(path);
     std::unique_ptr<OIIO::ImageInput> in;
     {
         QuietStderr quiet;
@@ -302,8 +308,8 @@ TextureSet::TextureSet() : ts_(OIIO::TextureSystem::create(/*shared=*/false)) {
 
 TextureSet::~TextureSet() { OIIO::TextureSystem::destroy(ts_, /*teardown_imagecache=*/true); }
 
-uint32_t TextureSet::add(rust::Str path, uint32_t chbegin, uint32_t chend) {
-    OIIO::ustring name{std::string(path)};
+uint32_t TextureSet::add(rust::Slice<const uint8_t> path, uint32_t chbegin, uint32_t chend) {
+    OIIO::ustring name{path_string(path)};
     OIIO::TextureSystem::TextureHandle* handle;
     const OIIO::ImageSpec* spec = nullptr;
     {

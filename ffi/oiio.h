@@ -46,7 +46,7 @@ public:
     TextureSet& operator=(const TextureSet&) = delete;
     // Opens `path` through the cache and returns its index. `chbegin..chend`: the channels
     // `texels` fetches (those the caller takes its colour from).
-    uint32_t add(rust::Str path, uint32_t chbegin, uint32_t chend);
+    uint32_t add(rust::Slice<const uint8_t> path, uint32_t chbegin, uint32_t chend);
     // The 2 x 2 texels whose top-left one is column `x`, row `y` (row 0 the image's top; both
     // wrapped into the image, as is the second column and row), finest level, through the
     // cache: `out` holds them row by row, each its channels. False (and `out` filled with 0)
@@ -66,11 +66,11 @@ private:
 std::unique_ptr<TextureSet> new_texture_set();
 
 rust::String oiio_version();
-void check_output_format(rust::Str path);
-void write_f32(rust::Str path, const ImageDesc& desc, rust::Slice<const float> pixels,
+void check_output_format(rust::Slice<const uint8_t> path);
+void write_f32(rust::Slice<const uint8_t> path, const ImageDesc& desc, rust::Slice<const float> pixels,
                rust::Slice<const Attribute> attrs);
-void write_u8(rust::Str path, const ImageDesc& desc, rust::Slice<const uint8_t> pixels,
+void write_u8(rust::Slice<const uint8_t> path, const ImageDesc& desc, rust::Slice<const uint8_t> pixels,
               rust::Slice<const Attribute> attrs);
-std::unique_ptr<ImageReader> open_reader(rust::Str path);
+std::unique_ptr<ImageReader> open_reader(rust::Slice<const uint8_t> path);
 
 }  // namespace reframe

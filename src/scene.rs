@@ -66,6 +66,7 @@ pub use light_lanes::LightLanes;
 pub use maps::{Map, Maps};
 pub use objects::{Instance, Prototype};
 use serde::{de, Deserialize, Deserializer};
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::ops::Range;
 use std::os::unix::ffi::OsStrExt;
@@ -1370,10 +1371,17 @@ fn mtl_paths(dir: &Path, rest: &[u8]) -> Vec<(PathBuf, bool)> {
     if whole.exists() {
         return vec![(whole, false)];
     }
-    if let Some(found) = std::str::from_utf8(rest)
-        .ok()
-        .and_then(|name| find_named_file(dir, name))
-    {
+    // A name that is not UTF-8 (a line read as Latin-1) may be stored in UTF-8, as an archive
+    // unpacked on another system writes it: found either way, as a map's file name is.
+    let name = match std::str::from_utf8(rest) {
+        Ok(name) => Cow::Borrowed(name),
+        Err(_) => Cow::Owned(rest.iter().map(|&b| b as char).collect::<String>()),
+    };
+    let utf8 = dir.join(name.as_ref());
+    if utf8 != whole && utf8.is_file() {
+        return vec![(utf8, true)];
+    }
+    if let Some(found) = find_named_file(dir, &name) {
         return vec![(found, true)];
     }
     if !rest.iter().any(|b| b.is_ascii_whitespace()) {
@@ -1395,10 +1403,20 @@ pub(crate) fn locate_named_file(dir: &Path, name: &str) -> (PathBuf, bool) {
     if path.exists() {
         return (path, false);
     }
-    match find_named_file(dir, name) {
-        Some(found) => (found, true),
-        None => (path, false),
+    if let Some(found) = find_named_file(dir, name) {
+        return (found, true);
     }
+    // A name read from a Latin-1 line is held as text; the file may be stored under the
+    // Latin-1 bytes themselves, as the system that wrote the line named it (`mtllib` names are
+    // tried both ways too).
+    let high = !name.is_ascii();
+    if high && name.chars().all(|c| (c as u32) < 0x100) {
+        let p = dir.join(std::ffi::OsStr::from_bytes(&text::latin1_bytes(name)));
+        if p.is_file() {
+            return (p, true);
+        }
+    }
+    (path, false)
 }
 
 /// A file that an OBJ or MTL in `dir` names as `name` but that is not there as written, found
@@ -1591,8 +1609,14 @@ fn load_obj_files(
         };
         usemtl_material.push(id);
     }
+    // An OBJ of geometry alone (no `mtllib`, no `usemtl`: a scanned model, a simulation's
+    // output) is the grey default by design, not by a loss: no warning. Faces left without a
+    // material in a file that has materials are warned of.
+    let geometry_only = parsed.mtllib.is_empty() && parsed.usemtl.is_empty();
     for f in parsed.faces.iter().filter(|f| f.usemtl.is_none()) {
-        repairs.note(label, f.line, NO_USEMTL, || text::quote_line(bytes, f.line))?;
+        if !geometry_only {
+            repairs.note(label, f.line, NO_USEMTL, || text::quote_line(bytes, f.line))?;
+        }
         need_default = true;
     }
     let mut mesh = mesh::build(label, bytes, &parsed, &usemtl_material, default, repairs)?;
@@ -1733,10 +1757,9 @@ mod tests {
         let normals = |t: usize| mesh.triangles[t].map(|i| mesh.normals[i as usize]);
         assert_eq!(normals(0), [Vec3::Z; 3]);
         assert_eq!(normals(1), [Vec3::ZERO; 3]);
-        assert_eq!(
-            r.into_warnings().len(),
-            2,
-            "the zero normal, the faces without usemtl"
-        );
+        let w = r.into_warnings();
+        // A file of geometry alone gets the grey default without a warning.
+        assert_eq!(w.len(), 1, "the zero normal alone: {w:?}");
+        assert!(w[0].contains("zero"), "{w:?}");
     }
 }

@@ -351,6 +351,51 @@ fn strict_refuses_each_repair_and_the_default_warns_once_per_kind() {
     }
 }
 
+/// An OBJ and MTL written where names were Latin-1 (`mtllib Bodén.mtl`, `map_Kd trä.png` in
+/// that encoding) load whether the files they name are stored under those bytes (as the
+/// system that wrote them named them) or under the UTF-8 of the same names (as an archive
+/// unpacked on another system stores them): the `mtllib` and the map alike, each with one
+/// warning where the name had to be re-read.
+#[test]
+fn latin1_file_names_are_found_stored_either_way() {
+    use std::os::unix::ffi::OsStrExt;
+    let device = Device::new().unwrap();
+    let png =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/cases/cutout-renders/wood.png");
+    for stored_as_latin1 in [true, false] {
+        let t = staged();
+        let d = t.path();
+        let name = |latin1: &[u8], utf8: &str| -> PathBuf {
+            if stored_as_latin1 {
+                d.join(std::ffi::OsStr::from_bytes(latin1))
+            } else {
+                d.join(utf8)
+            }
+        };
+        let mut obj = std::fs::read(d.join("s.obj")).unwrap();
+        obj.splice(
+            0..b"mtllib s.mtl".len(),
+            b"mtllib Bod\xe9n.mtl".iter().copied(),
+        );
+        obj.extend_from_slice(b"vt 0 0\n");
+        std::fs::write(d.join("s.obj"), obj).unwrap();
+        let mut mtl = std::fs::read(d.join("s.mtl")).unwrap();
+        mtl.extend_from_slice(b"newmtl unused\nmap_Kd tr\xe4.png\n");
+        std::fs::write(name(b"Bod\xe9n.mtl", "Bodén.mtl"), mtl).unwrap();
+        std::fs::remove_file(d.join("s.mtl")).unwrap();
+        std::fs::copy(&png, name(b"tr\xe4.png", "trä.png")).unwrap();
+        let s = Scene::load(d.join("s.toml").to_str().unwrap(), &device)
+            .unwrap_or_else(|e| panic!("stored as Latin-1: {stored_as_latin1}: {e:#}"));
+        let found: Vec<&String> = s.warnings.iter().filter(|w| w.contains("found")).collect();
+        // Under the Latin-1 bytes the `mtllib` is found as written and the map is not; in
+        // UTF-8, the other way round.
+        assert_eq!(found.len(), 1, "{:?}", s.warnings);
+        let which = if stored_as_latin1 { "map_Kd" } else { "mtllib" };
+        assert!(found[0].contains(which), "{:?}", s.warnings);
+        assert_eq!(s.materials.len(), 3, "floor, light, unused");
+    }
+}
+
 /// One edit of a file's bytes.
 #[derive(Clone, Debug)]
 enum Edit {

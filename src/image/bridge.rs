@@ -71,26 +71,30 @@ pub(crate) mod ffi {
         fn oiio_version() -> String;
 
         /// Succeeds when OIIO has a writer for the file name's extension.
-        fn check_output_format(path: &str) -> Result<()>;
+        fn check_output_format(path: &[u8]) -> Result<()>;
 
         /// `pixels` is interleaved, row-major, top row first, `channels.len()` per pixel.
         fn write_f32(
-            path: &str,
+            path: &[u8],
             desc: &ImageDesc,
             pixels: &[f32],
             attrs: &[Attribute],
         ) -> Result<()>;
-        fn write_u8(path: &str, desc: &ImageDesc, pixels: &[u8], attrs: &[Attribute])
-            -> Result<()>;
+        fn write_u8(
+            path: &[u8],
+            desc: &ImageDesc,
+            pixels: &[u8],
+            attrs: &[Attribute],
+        ) -> Result<()>;
 
-        fn open_reader(path: &str) -> Result<UniquePtr<ImageReader>>;
+        fn open_reader(path: &[u8]) -> Result<UniquePtr<ImageReader>>;
 
         /// A private `OIIO::TextureSystem` and the textures opened through it.
         type TextureSet;
         fn new_texture_set() -> Result<UniquePtr<TextureSet>>;
         /// Opens `path` through the texture cache; its index. `texels` fetches channels
         /// `chbegin..chend`.
-        fn add(self: Pin<&mut TextureSet>, path: &str, chbegin: u32, chend: u32) -> Result<u32>;
+        fn add(self: Pin<&mut TextureSet>, path: &[u8], chbegin: u32, chend: u32) -> Result<u32>;
         /// The 2 x 2 texels from column `x`, row `y` (0: the top row), each wrapped into the
         /// image, finest level, row by row; `out` holds 4 times the texture's channels.
         fn texels(self: &TextureSet, id: u32, x: i64, y: i64, out: &mut [f32]) -> bool;

@@ -230,8 +230,7 @@ impl OutputPattern {
     /// file can be created in it. The folders it created go again unless the caller keeps them.
     pub fn validate(&self) -> Result<CreatedDirs> {
         let target = self.path(0);
-        let target_str = path_str(&target)?;
-        ffi::check_output_format(target_str)
+        ffi::check_output_format(path_bytes(&target))
             .map_err(|e| anyhow!("cannot write {}: {}", self.original, e.what()))?;
         let dir = parent_dir(&target);
         let created = CreatedDirs::create(&dir)
@@ -277,13 +276,11 @@ fn hash_runs(s: &str) -> Vec<(usize, usize)> {
     runs
 }
 
-fn path_str(path: &Path) -> Result<&str> {
-    path.to_str().ok_or_else(|| {
-        anyhow!(
-            "path {} is not valid UTF-8, which OpenImageIO needs",
-            path.display()
-        )
-    })
+/// A path as OpenImageIO is handed it: the file name's bytes, which on Unix need not be UTF-8
+/// (a texture named in Latin-1 by an old asset).
+pub(crate) fn path_bytes(path: &Path) -> &[u8] {
+    use std::os::unix::ffi::OsStrExt;
+    path.as_os_str().as_bytes()
 }
 
 /// Deletes the temporary file on every way out of `write_image` except success.
@@ -335,7 +332,7 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
         keep: false,
     };
     let _live = crate::util::fs::Temporary::new(&tmp.path);
-    let tmp_str = path_str(&tmp.path)?;
+    let tmp_str = path_bytes(&tmp.path);
     let mut attrs = attributes(meta, kind)?;
     if kind == FileKind::Ldr {
         // Lets PNG record the encoding (sRGB chunk), so viewers need not guess.
@@ -606,7 +603,7 @@ fn open_checked(
     path: &Path,
     max_pixels: u64,
 ) -> Result<(cxx::UniquePtr<ffi::ImageReader>, ffi::ImageInfo)> {
-    let reader = ffi::open_reader(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
+    let reader = ffi::open_reader(path_bytes(path)).map_err(|e| anyhow!("{}", e.what()))?;
     let info = reader.info();
     if info.width as u64 * info.height as u64 > max_pixels {
         bail!(
@@ -878,7 +875,7 @@ pub fn read_mask(
 /// parse back to the same value.
 pub fn read_metadata(path: &Path) -> Result<Vec<(String, String)>> {
     let read = || -> Result<Vec<(String, String)>> {
-        let reader = ffi::open_reader(path_str(path)?).map_err(|e| anyhow!("{}", e.what()))?;
+        let reader = ffi::open_reader(path_bytes(path)).map_err(|e| anyhow!("{}", e.what()))?;
         Ok(reader
             .attributes()
             .into_iter()
@@ -1112,9 +1109,7 @@ mod tests {
         assert_eq!(matrix("worldToNDC"), meta.world_to_ndc);
 
         // The types and names matter to other tools, not just to our reader.
-        let attrs = ffi::open_reader(path.to_str().unwrap())
-            .unwrap()
-            .attributes();
+        let attrs = ffi::open_reader(path_bytes(&path)).unwrap().attributes();
         let kind_of = |name: &str| attrs.iter().find(|a| a.name == name).map(|a| a.kind);
         assert_eq!(kind_of("worldToCamera"), Some(ffi::AttrKind::Matrix));
         assert_eq!(kind_of("worldToNDC"), Some(ffi::AttrKind::Matrix));

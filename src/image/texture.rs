@@ -27,7 +27,7 @@
 //! # anyhow::Ok(())
 //! ```
 use super::bridge::ffi;
-use super::{decode_srgb, path_str, read_colour, read_mask, Colour, ColourLayout};
+use super::{decode_srgb, path_bytes, read_colour, read_mask, Colour, ColourLayout};
 use crate::util::hash::Fnv;
 use anyhow::{anyhow, bail, Result};
 use glam::{Vec2, Vec3};
@@ -126,7 +126,7 @@ impl Textures {
         let id = self
             .set
             .pin_mut()
-            .add(path_str(path)?, first as u32, last as u32 + 1)
+            .add(path_bytes(path), first as u32, last as u32 + 1)
             .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
         let pick = match colour {
             Colour::Grey(c) => [Some(c - first); 3],
@@ -149,7 +149,7 @@ impl Textures {
         let id = self
             .set
             .pin_mut()
-            .add(path_str(path)?, channel as u32, channel as u32 + 1)
+            .add(path_bytes(path), channel as u32, channel as u32 + 1)
             .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
         Ok(self.add(key, id, &img, (1, [Some(0), None, None], false), !coverage))
     }

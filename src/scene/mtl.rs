@@ -50,6 +50,10 @@ const MAP_OPTION: Kind = Kind {
     one: "texture map option ignored (reframe applies -o and -s only)",
     many: "texture map options ignored (reframe applies -o and -s only)",
 };
+const UNKNOWN_MAP_OPTION: Kind = Kind {
+    one: "unknown texture map option ignored, with the numbers or the one word after it",
+    many: "unknown texture map options ignored, with the numbers or the one word after each",
+};
 const DISSOLVE: Kind = Kind {
     one: "dissolve (d) not rendered: the surface is opaque (map_d cut-outs are rendered)",
     many: "materials with dissolve (d) rendered opaque (map_d cut-outs are rendered)",
@@ -177,7 +181,11 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
                 return Err(err(format!("'{key}' before any newmtl")));
             };
             let (spec, ignored) = map_spec(n, text, &args, slot == Slot::D).map_err(err)?;
-            if ignored {
+            if let Some(opt) = ignored.unknown {
+                repairs.note(label, n, UNKNOWN_MAP_OPTION, || {
+                    format!("'{}': '{}'", quote(text), quote(opt))
+                })?;
+            } else if ignored.known {
                 repairs.note(label, n, MAP_OPTION, || format!("'{}'", quote(text)))?;
             }
             m.maps[slot as usize] = Some(spec);
@@ -316,15 +324,28 @@ impl MtlMaterial {
     }
 }
 
-/// The options and file name of a `map_K?` line (`args`: its words after the key), and whether
-/// it has options reframe ignores.
-fn map_spec(
+/// The options of a map statement that reframe does not apply.
+#[derive(Default)]
+struct Ignored<'a> {
+    /// An option of the format reframe does not apply (`-bm`, `-clamp`, ...).
+    known: bool,
+    /// The first option the format does not have (an exporter's own, such as `-colorspace`).
+    unknown: Option<&'a str>,
+}
+
+/// The options and file name of a `map_K?` line (`args`: its words after the key), and which
+/// options reframe ignores.
+///
+/// An option the format does not have is skipped with what follows it, as far as that can be
+/// told without knowing the option: the numbers after it, or else one word where two or more
+/// words follow (a value and the file name), or else nothing (the word after it is the file).
+fn map_spec<'a>(
     n: usize,
     text: &str,
-    args: &[&str],
+    args: &[&'a str],
     scalar: bool,
-) -> std::result::Result<(MapSpec, bool), String> {
-    let mut ignored = false;
+) -> std::result::Result<(MapSpec, Ignored<'a>), String> {
+    let mut ignored = Ignored::default();
     let mut spec = MapSpec {
         file: String::new(),
         scale: Vec2::ONE,
@@ -367,7 +388,17 @@ fn map_spec(
             "-mm" => 2,
             "-blendu" | "-blendv" | "-cc" | "-clamp" | "-bm" | "-boost" | "-texres"
             | "-imfchan" | "-type" => 1,
-            _ => return Err(format!("unknown texture map option '{opt}'")),
+            _ => {
+                ignored.unknown.get_or_insert(opt);
+                let numbers = numbers_after(i, usize::MAX).len();
+                if numbers > 0 {
+                    numbers
+                } else if args.len() - i >= 3 && !args[i + 1].starts_with('-') {
+                    1
+                } else {
+                    0
+                }
+            }
         };
         if i + taken >= args.len() {
             return Err(format!(
@@ -382,7 +413,7 @@ fn map_spec(
             spec.channel = c.chars().next();
         }
         let applied = matches!(opt, "-o" | "-s") || (scalar && opt == "-imfchan");
-        ignored |= !applied;
+        ignored.known |= !applied;
         i += 1 + taken;
     }
     if i >= args.len() {
@@ -554,8 +585,37 @@ mod tests {
             w[0]
         );
         assert!(w[0].contains("texture map option ignored"), "{}", w[0]);
+        // Options the format does not have: skipped with their numbers, or one word where a
+        // file name follows it, or nothing where the next word is the file.
+        for (line, file, skipped) in [
+            ("map_Kd -foo 1 2 a b.png", "a b.png", "-foo"),
+            ("map_Kd -colorspace sRGB a.png", "a.png", "-colorspace"),
+            ("map_Kd -flip a.png", "a.png", "-flip"),
+            ("map_Kd -s 2 -x -y 3 a.png", "a.png", "-x"),
+        ] {
+            let mut r = Repairs::new(false);
+            let m = parse("a.mtl", format!("newmtl a\n{line}\n").as_bytes(), &mut r).unwrap();
+            let spec = m.materials[0].maps[Slot::Kd as usize].as_ref().unwrap();
+            assert_eq!(spec.file, file, "{line}");
+            let w = r.into_warnings();
+            assert_eq!(
+                w,
+                [format!(
+                    "a.mtl: line 2: '{line}': '{skipped}': unknown texture map option ignored, \
+                     with the numbers or the one word after it"
+                )]
+            );
+            let e = parse(
+                "a.mtl",
+                format!("newmtl a\n{line}\n").as_bytes(),
+                &mut Repairs::new(true),
+            );
+            assert!(e
+                .unwrap_err()
+                .to_string()
+                .contains("(refused: strict loading)"));
+        }
         for (bad, want) in [
-            ("map_Kd -foo 1 a.png", "unknown texture map option '-foo'"),
             ("map_Kd -s 2 2", "expected a file name"),
             (
                 "map_Kd -clamp",

@@ -49,6 +49,10 @@ const WEIGHTS: Kind = Kind {
     many:
         "vertex weights w ignored (they weight rational curves and surfaces, not polygon corners)",
 };
+const NONE_DEFINED: Kind = Kind {
+    one: "texture coordinate or normal index where none is defined above: ignored (read as v)",
+    many: "texture coordinate or normal indices where none is defined above: ignored (read as v)",
+};
 const COLOURS: Kind = Kind {
     one: "vertex colour ignored",
     many: "vertex colours ignored",
@@ -176,9 +180,14 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                     )));
                 }
                 let start = out.corners.len();
+                let mut none_defined = false;
                 for r in &args {
-                    let c = corner(r, &count, &out.normals).map_err(&err)?;
+                    let (c, ignored) = corner(r, &count, &out.normals).map_err(&err)?;
+                    none_defined |= ignored;
                     out.corners.push(c);
+                }
+                if none_defined {
+                    repairs.note(label, n, NONE_DEFINED, || format!("'{}'", quote(text)))?;
                 }
                 // A polygon that comes back to the vertex it left (or stays on one) has fewer
                 // sides than it has corners.
@@ -232,7 +241,12 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
 /// One face vertex `v`, `v/vt`, `v//vn` or `v/vt/vn`, checked against the elements defined
 /// above it (`count`: positions, texture coordinates, normals). A normal that is not usable
 /// (`normals[i]` is `None`) is left out, so its triangles are flat-shaded.
-fn corner(r: &str, count: &[usize; 3], normals: &[Option<Vec3>]) -> Result<Corner, String> {
+///
+/// A texture coordinate or normal index where the file has defined none of them above
+/// (OpenSubdiv's and some scanners' `f v/vt/vn` with no `vn` lines) is ignored, as other OBJ
+/// readers ignore it: the second value says so, for a warning. One beyond those defined is
+/// damage, and refused.
+fn corner(r: &str, count: &[usize; 3], normals: &[Option<Vec3>]) -> Result<(Corner, bool), String> {
     let shape = || format!("'{r}': expected v, v/vt, v//vn or v/vt/vn (1-based indices)");
     let parts: Vec<&str> = r.split('/').collect();
     if parts.len() > 3 || parts[0].is_empty() {
@@ -243,12 +257,17 @@ fn corner(r: &str, count: &[usize; 3], normals: &[Option<Vec3>]) -> Result<Corne
         vt: None,
         vn: None,
     };
+    let mut ignored = false;
     for (k, p) in parts.iter().enumerate() {
         if p.is_empty() {
             continue;
         }
         let x: i64 = p.parse().map_err(|_| shape())?;
         let (what, n) = (["vertex", "texture coordinate", "normal"][k], count[k]);
+        if k > 0 && n == 0 && x != 0 {
+            ignored = true;
+            continue;
+        }
         let i = match x {
             0 => return Err(format!("{what} index 0: OBJ indices start at 1")),
             x if x > 0 && (x as u64) <= n as u64 => x as usize - 1,
@@ -270,7 +289,7 @@ fn corner(r: &str, count: &[usize; 3], normals: &[Option<Vec3>]) -> Result<Corne
             _ => c.vn = normals[i].map(|_| i as u32),
         }
     }
-    Ok(c)
+    Ok((c, ignored))
 }
 
 #[cfg(test)]
@@ -323,6 +342,29 @@ mod tests {
     }
 
     #[test]
+    fn indices_of_what_no_line_defines_are_ignored() {
+        // OpenSubdiv writes `f v/vt/vn` with neither `vt` nor `vn` lines.
+        let obj = "v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1/1/1 2/2/2 3/3/3\nvt 0 0\nf 1/1/1 2/1 3\n";
+        let (o, w) = parse_ok(obj);
+        assert_eq!(o.faces.len(), 2);
+        let first = &o.corners[o.faces[0].corners.clone()];
+        assert!(
+            first.iter().all(|c| c.vt.is_none() && c.vn.is_none()),
+            "{first:?}"
+        );
+        assert_eq!(first.iter().map(|c| c.v).collect::<Vec<_>>(), [0, 1, 2]);
+        // Once a `vt` is defined, its index is read; the normal's still is not.
+        let second = &o.corners[o.faces[1].corners.clone()];
+        assert_eq!(second[0].vt, Some(0));
+        assert_eq!(second[0].vn, None);
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].starts_with("a.obj: 2 texture coordinate or normal indices where none"),
+            "{w:?}"
+        );
+    }
+
+    #[test]
     fn faces_relative_indices_and_refusals() {
         let obj = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n# quad\nf 1 2 3 4\nf -4 -3 -2\n";
         let (o, w) = parse_ok(obj);
@@ -338,8 +380,8 @@ mod tests {
             ("f -5 1 2", "index -5 reaches back before the first"),
             ("f 0 1 2", "index 0"),
             (
-                "f 1/1 2 3",
-                "texture coordinate index 1 is out of range: 0 defined",
+                "vt 0 0\nf 1/2 2 3",
+                "texture coordinate index 2 is out of range: 1 defined",
             ),
             ("f 1 2 x", "'x': expected v"),
             ("v 1 nan 0", "vertex 5 is not finite"),
