@@ -22,7 +22,8 @@
 //! `newmtl`, and a material defined twice in one file.
 //!
 //! Repaired with one warning per kind (`Repairs`): `Kd + Ks` above 1 in a channel (both scaled
-//! down in that channel, so the Phong model conserves energy), `Ns` above `MAX_NS`, `Ke` above
+//! down by one factor until no channel is above 1, so the Phong model conserves energy and both
+//! lobes keep their colour), `Ns` above `MAX_NS`, `Ke` above
 //! `MAX_KE`.
 use super::repairs::{Kind, Repairs};
 use super::text::{joined, lines, number, quote, rest};
@@ -285,8 +286,10 @@ impl MtlMaterial {
         // In f64: Kd + Ks of two values near f32::MAX is not finite in f32.
         let sum = kd.as_dvec3() + ks.as_dvec3();
         if sum.max_element() > 1.0 + 1e-6 {
-            // Scale both lobes in the channels above 1, keeping their ratio there.
-            let scale = sum.max(glam::DVec3::ONE).recip();
+            // Scale both lobes by one factor, so that the largest channel's sum is 1: the
+            // colours of both lobes are kept (per channel, a red diffuse under a white Ks 0.5,
+            // as Blender exports it, got a cyan highlight).
+            let scale = glam::DVec3::splat(sum.max_element().recip());
             let (kd0, ks0) = (kd, ks);
             kd = (kd.as_dvec3() * scale).as_vec3();
             ks = (ks.as_dvec3() * scale).as_vec3();
@@ -528,7 +531,13 @@ mod tests {
         let c = mtl.materials[2].material("a.mtl", &mut r).unwrap();
         assert_eq!((c.kd.x, c.ks.x), (0.5, 0.5));
         assert!(((a.kd + a.ks).x - 1.0).abs() < 1e-6 && (a.kd.x / a.ks.x - 1.6).abs() < 1e-5);
-        assert_eq!((a.kd.y, a.ks.y), (0.2, 0.5));
+        // One factor for every channel: the highlight stays white, the diffuse as red.
+        assert!(a.ks.y == a.ks.x && a.ks.z == a.ks.x, "{:?}", a.ks);
+        assert!(
+            (a.kd.y / a.kd.x - 0.25).abs() < 1e-6 && a.kd.z == a.kd.y,
+            "{:?}",
+            a.kd
+        );
         assert_eq!(a.ns, MAX_NS);
         assert_eq!(a.ke, Vec3::new(MAX_KE, 1.0, 1.0));
         assert_eq!(b.kd + b.ks, Vec3::ONE);
