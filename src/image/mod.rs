@@ -605,6 +605,19 @@ fn open_checked(
 ) -> Result<(cxx::UniquePtr<ffi::ImageReader>, ffi::ImageInfo)> {
     let reader = ffi::open_reader(path_bytes(path)).map_err(|e| anyhow!("{}", e.what()))?;
     let info = reader.info();
+    // A LogLuv TIFF (SGI's log-encoded HDR) comes out of this OpenImageIO as 8-bit codes of
+    // another meaning, which would light a scene with the wrong values without a word.
+    let logluv = reader.attributes().iter().any(|a| {
+        (a.name == "compression" && a.text.to_ascii_lowercase().starts_with("sgilog"))
+            || (a.name == "tiff:PhotometricInterpretation" && matches!(a.int_value, 32844 | 32845))
+    });
+    if logluv {
+        bail!(
+            "a LogLuv (SGILog) TIFF, which OpenImageIO {} does not decode as HDR: convert it \
+             to OpenEXR or Radiance HDR first",
+            ffi::oiio_version()
+        );
+    }
     if info.width as u64 * info.height as u64 > max_pixels {
         bail!(
             "{}x{} pixels, more than the {max_pixels} reframe reads (make a smaller copy, e.g. \
