@@ -42,7 +42,8 @@ pub fn fov_fault(fov: f64) -> Option<String> {
             "fov {fov} rounds to 180 degrees in single precision: at most {} (and below 180)",
             f32::from_bits(180f32.to_bits() - 1)
         ))
-    } else if fov < MIN_FOV as f64 {
+    } else if (fov as f32) < MIN_FOV {
+        // Compared as the renderer keeps it: 0.001 in f64 is below the f32 nearest it.
         Some(format!(
             "fov {fov:e} is narrower than {MIN_FOV} degrees, which no lens is (the film area of a \
              pixel would underflow)"
@@ -294,6 +295,16 @@ pub fn quote(line: &str) -> String {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_documented_fov_limits_are_allowed() {
+        for fov in [0.001, 179.99998, 45.0] {
+            assert_eq!(fov_fault(fov), None, "{fov}");
+        }
+        for fov in [0.000999, 1e-30, 179.999995, 180.0, 0.0, -1.0] {
+            assert!(fov_fault(fov).is_some(), "{fov}");
+        }
+    }
+
     use super::*;
 
     #[test]
