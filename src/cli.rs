@@ -135,7 +135,7 @@ pub fn parse_crop(s: &str) -> Result<[u32; 4], String> {
 
 #[derive(clap::Args)]
 pub struct RenderArgs {
-    /// Scene TOML file, or a shipped scene: vase (default), cornell, furnace.
+    /// Scene TOML file, or a shipped scene: vase (default), vase-long, cornell, furnace.
     pub scene: Option<String>,
     #[arg(long, value_enum, default_value_t = Method::Independent)]
     pub method: Method,
@@ -204,9 +204,9 @@ pub struct RenderArgs {
     /// Seconds between checkpoints (0: after every group of frames, or every frame).
     #[arg(long, default_value_t = 60.0, allow_negative_numbers = true)]
     pub checkpoint_every: f64,
-    /// mis-exact: extra native samples where a pixel expects fewer reused samples than others
-    /// (borders, disocclusions, cuts), topping each pixel up to F n_f n_r (F = 0.75 if not
-    /// given).
+    /// mis-exact and mis-cv: extra native samples where a pixel expects fewer reused samples
+    /// than others (borders, disocclusions, cuts), topping each pixel up to F n_f n_r (F in
+    /// (0, 1]; 0.75 if not given).
     #[arg(
         long,
         num_args = 0..=1,

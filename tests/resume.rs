@@ -427,6 +427,44 @@ fn a_report_never_replaces_a_state_file() {
 }
 
 #[test]
+fn sequences_named_apart_after_the_frame_number_keep_their_own_chunks() {
+    // A stereo pair, `e-####-L.exr` and `e-####-R.exr` with other seeds, rendered in chunks
+    // in turn: both once shared one partial file per chunk (the name's stem stopped at the
+    // `#`s), so R's chunk 1 silently replaced L's and L's merge was refused.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let args = |eye: &str, seed: &str, more: &[&str]| -> Vec<String> {
+        let out = format!("{}/e-####-{eye}.exr", d.display());
+        let base = [
+            "render", "cornell", "--spp", "1", "--frames", "0-1", "--res", "16x12", "--seed", seed,
+            "--out", &out,
+        ];
+        base.iter().chain(more).map(|a| a.to_string()).collect()
+    };
+    for k in ["1/2", "2/2"] {
+        run(&args("L", "0", &["--chunk", k]));
+        run(&args("R", "1", &["--chunk", k]));
+    }
+    for (eye, seed) in [("L", "0"), ("R", "1")] {
+        assert!(d.join(format!("e-{eye}.chunk-1-of-2.partial")).is_file());
+        run(&[
+            "merge",
+            "--chunks",
+            "2",
+            "--out",
+            &format!("{}/e-####-{eye}.exr", d.display()),
+        ]);
+        // Each merged sequence is its own render's, bitwise.
+        let whole = d.join(format!("whole-{eye}"));
+        run(&args(eye, seed, &[])
+            .into_iter()
+            .map(|a| a.replace(&d.display().to_string(), &whole.display().to_string()))
+            .collect::<Vec<_>>());
+        common::assert_identical(d, &whole, (0..=1).map(|f| format!("e-{f:04}-{eye}.exr")));
+    }
+}
+
+#[test]
 fn a_checkpoint_folder_named_like_a_frame_is_refused_at_once() {
     // It rendered frame 0 and then failed writing frame 1 ("is a directory"), leaving a
     // checkpoint folder named f_0001.exr.

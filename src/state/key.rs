@@ -159,7 +159,10 @@ impl std::fmt::Display for Chunk {
     }
 }
 
-/// The file name stem of an output pattern: `out/vase_####.exr` gives `out` and `vase`.
+/// The file name stem of an output pattern: `out/vase_####.exr` gives `out` and `vase`. What
+/// follows the frame number, less the extension, is part of it (`shot-####-L.exr` gives
+/// `shot-L`), so that two sequences whose names differ only there (a stereo pair's eyes) have
+/// their own checkpoint, partial files and lock.
 pub fn output_stem(pattern: &str) -> (PathBuf, String) {
     let p = Path::new(pattern);
     let dir = crate::util::fs::parent_dir(p);
@@ -167,8 +170,20 @@ pub fn output_stem(pattern: &str) -> (PathBuf, String) {
         .file_name()
         .map(|n| n.to_string_lossy())
         .unwrap_or_default();
+    let seps = ['_', '.', '-'];
     let stem = match name.find('#') {
-        Some(i) => name[..i].trim_end_matches(['_', '.', '-']).to_string(),
+        Some(i) => {
+            let before = name[..i].trim_end_matches(seps);
+            let after = name[i..].trim_start_matches('#');
+            // The extension is the last `.` and what follows (none: no extension).
+            let after = after.rfind('.').map_or(after, |d| &after[..d]);
+            let after = after.trim_matches(seps);
+            match (before.is_empty(), after.is_empty()) {
+                (_, true) => before.to_string(),
+                (true, false) => after.to_string(),
+                (false, false) => format!("{before}-{after}"),
+            }
+        }
         None => Path::new(&*name)
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -230,6 +245,17 @@ mod tests {
         );
         assert_eq!(output_stem("x.png"), (".".into(), "x".into()));
         assert_eq!(output_stem("a/####.exr"), ("a".into(), "frames".into()));
+        // What follows the frame number tells sequences apart (a stereo pair's eyes).
+        for (pattern, stem) in [
+            ("s/shot-####-L.exr", "shot-L"),
+            ("s/shot-####-R.exr", "shot-R"),
+            ("s/shot.####.left.exr", "shot-left"),
+            ("s/####_beauty.exr", "beauty"),
+            ("s/shot_####.exr", "shot"),
+            ("s/shot_####", "shot"),
+        ] {
+            assert_eq!(output_stem(pattern), ("s".into(), stem.into()), "{pattern}");
+        }
         assert_eq!(
             partial_path("r/f_####.exr", Chunk { k: 2, n: 3 }),
             PathBuf::from("r/f.chunk-2-of-3.partial")
