@@ -7,6 +7,9 @@
 //!   give every frame's camera within float rounding of the keyframe path's;
 //! - `interpolation = "catmull-rom"` passes through every keyframe of `vase-long` exactly and
 //!   leaves the straight lines between them;
+//! - Blender's camera exporter (`scripts/blender/export_camera.py`, run on a stand-in for
+//!   Blender) turns the camera into the Y-up axes of Blender's OBJ exporter, or keeps Blender's
+//!   with `--axes z-up`;
 //! - the scene TOML's misuses (both `camera` and `[[keyframe]]`, neither, `interpolation` with a
 //!   camera file, another extension, a missing file, a FIFO) are refused with one line naming
 //!   the file and line. Malformed camera files themselves are the unit tests' (in
@@ -231,6 +234,103 @@ fn catmull_rom_keyframes_pass_through_every_keyframe() {
 }
 
 /// The one-line error of loading `toml` (text) with a camera file `shot.json` beside it.
+/// A stand-in for Blender's Python module, enough for `scripts/blender/export_camera.py`: one
+/// frame, a camera at `matrix_world` (rows) with a 50 mm lens on a 36 mm sensor, 320 x 240.
+const FAKE_BPY: &str = r#"
+import sys
+M = [[float(x) for x in r.split()] for r in sys.argv.pop().split(";")]
+class Obj: pass
+data = Obj(); data.type = "PERSP"; data.shift_x = data.shift_y = 0.0
+data.sensor_fit = "AUTO"; data.sensor_width = 36.0; data.sensor_height = 24.0; data.lens = 50.0
+cam = Obj(); cam.data = data; cam.matrix_world = M; cam.name = "Camera"
+cam.evaluated_get = lambda depsgraph: cam
+render = Obj(); render.resolution_x = 320; render.resolution_y = 240
+render.pixel_aspect_x = render.pixel_aspect_y = 1.0; render.resolution_percentage = 100
+scene = Obj(); scene.name = "Scene"; scene.camera = cam; scene.render = render
+scene.frame_start = scene.frame_end = scene.frame_step = 1; scene.frame_set = lambda f: None
+context = Obj(); context.scene = scene; context.evaluated_depsgraph_get = lambda: None
+"#;
+
+/// Blender's camera exporter, run on a stand-in for Blender, lines its camera up with the axes
+/// of Blender's OBJ exporter: a camera in front of the origin in Blender (at -5 on Blender's
+/// Y, looking along +Y with +Z up, Blender's front view) becomes, by default, reframe's camera at
+/// +5 on Z looking down -Z with +Y up, where an OBJ exported with Blender's defaults (Up Y,
+/// Forward -Z) puts the scene; `--axes z-up` keeps Blender's axes.
+#[test]
+fn blender_cameras_line_up_with_blenders_obj_export() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::create_dir(d.join("bpy")).unwrap();
+    std::fs::write(d.join("bpy/__init__.py"), FAKE_BPY).unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/blender/export_camera.py");
+    // Rotated 90 degrees about X: Blender's camera looks down its -Z, here along world +Y.
+    let blender = "1 0 0 0;0 0 -1 -5;0 1 0 0;0 0 0 1";
+    let device = Device::new().unwrap();
+    for (axes, eye, view, up) in [
+        (None, [0.0, 0.0, 5.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]),
+        (
+            Some("y-up"),
+            [0.0, 0.0, 5.0],
+            [0.0, 0.0, -1.0],
+            [0.0, 1.0, 0.0],
+        ),
+        (
+            Some("z-up"),
+            [0.0, -5.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0],
+        ),
+    ] {
+        let json = d.join("shot.json");
+        let mut cmd = std::process::Command::new("python3");
+        cmd.arg(&script).arg("--").arg(&json);
+        if let Some(a) = axes {
+            cmd.args(["--axes", a]);
+        }
+        // The stand-in takes the matrix from the last argument (and removes it).
+        let o = cmd
+            .arg(blender)
+            .env("PYTHONPATH", d)
+            .output()
+            .expect("run python3");
+        assert!(
+            o.status.success(),
+            "{axes:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        // `vase`'s geometry with the camera file, for its one frame.
+        let toml = vase_with_camera_file(d, "shot.json", &std::fs::read_to_string(&json).unwrap());
+        std::fs::write(
+            &toml,
+            "obj = \"vase.obj\"\nframes = 1\nresolution = [320, 240]\ncamera = \"shot.json\"\n",
+        )
+        .unwrap();
+        let scene = Scene::load(&toml, &device).unwrap();
+        let pose = scene.cameras.pose(0);
+        let close = |a: glam::Vec3, b: [f32; 3]| (a - glam::Vec3::from(b)).length() < 1e-5;
+        assert!(close(pose.eye, eye), "{axes:?}: eye {}", pose.eye);
+        assert!(
+            close(pose.view.normalize(), view),
+            "{axes:?}: view {}",
+            pose.view
+        );
+        let up_perp =
+            (pose.up - pose.view.normalize() * pose.up.dot(pose.view.normalize())).normalize();
+        assert!(close(up_perp, up), "{axes:?}: up {}", pose.up);
+        // 36 mm across 320 pixels at 50 mm: a vertical fov of 2 atan(13.5 / 50).
+        let fov = 2.0 * (13.5f32 / 50.0).atan().to_degrees();
+        assert!((pose.fov - fov).abs() < 1e-3, "fov {}", pose.fov);
+    }
+    let o = std::process::Command::new("python3")
+        .arg(&script)
+        .args(["--", "x.json", "--axes", "x-up", blender])
+        .env("PYTHONPATH", d)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--axes takes y-up or z-up"));
+}
+
 fn refusal(toml: &str, device: &Device) -> (String, String) {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

@@ -1,6 +1,11 @@
 """Export the scene camera of a .blend file as a reframe camera file (JSON).
 
-    blender scene.blend --background --python scripts/blender/export_camera.py -- out.json
+    blender scene.blend --background --python scripts/blender/export_camera.py -- out.json [--axes y-up|z-up]
+
+Axes: Blender's world is Z-up; its OBJ exporter writes Y-up by default (Forward -Z, Up Y:
+Blender's (x, y, z) becomes (x, z, -y)), and so does reframe's environment map. `--axes y-up`
+(the default) turns the camera the same way, so that it lines up with an OBJ exported with those
+defaults; `--axes z-up` keeps Blender's axes, for an OBJ exported with Up Z, Forward Y.
 
 Writes one entry per frame from the scene's frame_start to frame_end (every frame_step-th),
 renumbered from 0:
@@ -9,7 +14,7 @@ renumbered from 0:
     {"frame": 0, "fov": 39.6, "matrix": [16 numbers]},
     ...]}
 
-"matrix" is the camera's matrix_world, row-major: camera to world, the camera looking down its
+"matrix" is the camera's matrix_world (in the axes above), row-major: camera to world, the camera looking down its
 -Z with +Y up, translation in the last column, the convention reframe reads (a scale on the
 camera object is harmless: reframe uses only rotation and translation). "fov" is the vertical
 field of view in degrees at the scene's render aspect, from the lens, the sensor and its fit
@@ -40,11 +45,36 @@ def vertical_fov(render, cam):
     return math.degrees(2.0 * math.atan(tan_half))
 
 
-def main():
+# Blender's world (Z up) to the Y-up axes of its OBJ exporter's defaults (Forward -Z, Up Y):
+# (x, y, z) -> (x, z, -y), applied to the camera-to-world matrix from the left.
+Y_UP = ((1, 0, 0, 0), (0, 0, 1, 0), (0, -1, 0, 0), (0, 0, 0, 1))
+USAGE = "usage: blender FILE.blend --background --python export_camera.py -- OUT.json [--axes y-up|z-up]"
+
+
+def parse_args():
     argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else []
+    axes = "y-up"
+    if "--axes" in argv:
+        i = argv.index("--axes")
+        if i + 1 >= len(argv) or argv[i + 1] not in ("y-up", "z-up"):
+            sys.exit(f"export_camera: --axes takes y-up or z-up\n{USAGE}")
+        axes = argv[i + 1]
+        del argv[i : i + 2]
     if len(argv) != 1:
-        sys.exit("usage: blender FILE.blend --background --python export_camera.py -- OUT.json")
-    out = argv[0]
+        sys.exit(USAGE)
+    return argv[0], axes
+
+
+def rows(m, axes):
+    """The 4 x 4 camera-to-world matrix `m` as rows, in the output's axes."""
+    m = [[m[r][c] for c in range(4)] for r in range(4)]
+    if axes == "y-up":
+        m = [[sum(Y_UP[r][k] * m[k][c] for k in range(4)) for c in range(4)] for r in range(4)]
+    return m
+
+
+def main():
+    out, axes = parse_args()
     scene = bpy.context.scene
     obj = scene.camera
     if obj is None:
@@ -59,7 +89,7 @@ def main():
             sys.exit(f"export_camera: frame {f}: camera '{obj.name}' is {cam.data.type}, not PERSP")
         if cam.data.shift_x or cam.data.shift_y:
             print(f"export_camera: frame {f}: lens shift ignored (reframe has none)", file=sys.stderr)
-        m = cam.matrix_world
+        m = rows(cam.matrix_world, axes)
         entries.append(
             json.dumps(
                 {
@@ -76,7 +106,11 @@ def main():
         print("export_camera: non-square pixels: reframe's are square", file=sys.stderr)
     pct = render.resolution_percentage / 100.0
     w, h = round(render.resolution_x * pct), round(render.resolution_y * pct)
-    print(f"export_camera: wrote {len(entries)} frames to {out}; in the scene TOML:")
+    print(
+        f"export_camera: wrote {len(entries)} frames to {out} ({axes}: export the OBJ with "
+        + ("Up Y, Forward -Z, Blender's defaults" if axes == "y-up" else "Up Z, Forward Y")
+        + "); in the scene TOML:"
+    )
     # A TOML string, escaped as JSON escapes it (backslashes of a Windows path, quotes and
     # control characters; JSON's escapes are TOML's). The TOML reads the path relative to its
     # own folder: the name alone, for the camera file kept beside the scene.
