@@ -131,8 +131,12 @@ pub struct Ray {
 /// to a few ulps of the coordinates, and 64 ulps of the largest coordinate clears that.
 pub(crate) const SPAWN_EPS: f32 = 64.0 * f32::EPSILON;
 
-fn offset_origin(p: Vec3, ng: Vec3, toward: Vec3) -> Vec3 {
-    let scale = SPAWN_EPS * (1.0 + p.abs().max_element());
+/// `p` moved off its surface (geometric normal `ng`) to the side of `toward`, by
+/// `SPAWN_EPS (floor + max |p|)`. `floor` (`Scene::offset_floor`) keeps the offset above rounding
+/// near the origin: 1, or the scene's size where that is smaller, so that a scene modelled at a
+/// tiny scale keeps contact shadows thinner than `SPAWN_EPS` units.
+fn offset_origin(p: Vec3, ng: Vec3, toward: Vec3, floor: f32) -> Vec3 {
+    let scale = SPAWN_EPS * (floor + p.abs().max_element());
     let n = if ng.dot(toward) >= 0.0 { ng } else { -ng };
     p + n * scale
 }
@@ -149,8 +153,8 @@ impl Ray {
 
     /// A ray leaving surface point `p` (geometric normal `ng`) in direction `dir`, with the
     /// origin pushed off the surface to the side `dir` goes to, so it cannot hit its own triangle.
-    pub fn spawn(p: Vec3, ng: Vec3, dir: Vec3) -> Ray {
-        Ray::new(offset_origin(p, ng, dir), dir)
+    pub fn spawn(p: Vec3, ng: Vec3, dir: Vec3, floor: f32) -> Ray {
+        Ray::new(offset_origin(p, ng, dir, floor), dir)
     }
 
     /// A shadow/visibility ray between two points, each offset off its own surface (pass a zero
@@ -159,10 +163,10 @@ impl Ray {
     /// direction), so `t` runs from 0 at `p0` to 1 at `p1` and `tfar` stops short of `p1`'s
     /// surface. Leaving out the normalisation saves a square root and a division, whose latency
     /// was a tenth of a reuse render's time (one such ray per reuse).
-    pub fn between(p0: Vec3, n0: Vec3, p1: Vec3, n1: Vec3) -> Ray {
+    pub fn between(p0: Vec3, n0: Vec3, p1: Vec3, n1: Vec3, floor: f32) -> Ray {
         let d = p1 - p0;
-        let o0 = offset_origin(p0, n0, d);
-        let o1 = offset_origin(p1, n1, -d);
+        let o0 = offset_origin(p0, n0, d, floor);
+        let o1 = offset_origin(p1, n1, -d, floor);
         Ray {
             org: o0,
             dir: o1 - o0,
@@ -174,8 +178,8 @@ impl Ray {
     /// `between(eye, Vec3::ZERO, p1, n1)`, bit for bit, for a point that is not on a surface
     /// (a pinhole eye; the reuse visibility tests): its origin needs no offset.
     #[inline]
-    pub fn from_eye(eye: Vec3, p1: Vec3, n1: Vec3) -> Ray {
-        let o1 = offset_origin(p1, n1, eye - p1);
+    pub fn from_eye(eye: Vec3, p1: Vec3, n1: Vec3, floor: f32) -> Ray {
+        let o1 = offset_origin(p1, n1, eye - p1, floor);
         Ray::from_eye_dir(eye, o1 - eye)
     }
 
@@ -902,8 +906,12 @@ mod tests {
             let p = Vec3::new(s.next_1d() * 0.5 - 0.25, 0.0, s.next_1d() * 0.5 - 0.25);
             let dir =
                 Vec3::new(s.next_1d() - 0.5, 0.05 + s.next_1d(), s.next_1d() - 0.5).normalize();
-            assert!(scene.intersect1(&Ray::spawn(p, Vec3::Y, dir)).is_none());
-            assert!(scene.intersect1(&Ray::spawn(p, Vec3::Y, -dir)).is_none());
+            assert!(scene
+                .intersect1(&Ray::spawn(p, Vec3::Y, dir, 1.0))
+                .is_none());
+            assert!(scene
+                .intersect1(&Ray::spawn(p, Vec3::Y, -dir, 1.0))
+                .is_none());
         }
     }
 
@@ -923,8 +931,8 @@ mod tests {
         for _ in 0..n {
             let (p0, p1) = (point(&mut s, 3.0), point(&mut s, 3.0));
             let n1 = point(&mut s, 1.0).normalize_or_zero();
-            let seg = Ray::between(p0, Vec3::ZERO, p1, n1);
-            let eye = Ray::from_eye(p0, p1, n1);
+            let seg = Ray::between(p0, Vec3::ZERO, p1, n1, 1.0);
+            let eye = Ray::from_eye(p0, p1, n1, 1.0);
             assert_eq!(
                 (seg.org, seg.dir, seg.tnear, seg.tfar),
                 (eye.org, eye.dir, eye.tnear, eye.tfar)

@@ -327,11 +327,11 @@ impl LightSample {
     /// The shadow ray from surface point `p` (geometric normal `ng`) to the sampled point, or
     /// out to infinity along `wi` for the environment.
     #[inline]
-    pub fn shadow_ray(&self, p: Vec3, ng: Vec3) -> Ray {
+    pub fn shadow_ray(&self, p: Vec3, ng: Vec3, floor: f32) -> Ray {
         if self.dist.is_infinite() {
-            Ray::spawn(p, ng, self.wi)
+            Ray::spawn(p, ng, self.wi, floor)
         } else {
-            Ray::between(p, ng, self.p, self.n)
+            Ray::between(p, ng, self.p, self.n, floor)
         }
     }
 }
@@ -383,6 +383,11 @@ pub struct Scene {
     /// when both emit, 1 or 0 when only one does.
     env_select: f32,
     pub geometry: TriangleScene,
+    /// The least offset of a ray's origin off its surface, in units of `SPAWN_EPS`
+    /// (`embree::offset_origin`): 1, or the size of the scene's geometry (the largest side of
+    /// its bounding box) where that is smaller, so that a scene modelled tiny keeps its contact
+    /// shadows.
+    pub offset_floor: f32,
     /// What loading found odd but not wrong (e.g. faces without a material). The command line
     /// prints them once the command has succeeded, so that a failure stays one line.
     pub warnings: Vec<String>,
@@ -584,6 +589,7 @@ impl Scene {
             (true, true) => 1.0,
             (true, false) => 0.5,
         };
+        let offset_floor = offset_floor(&mesh.positions, &prototypes, &instances);
         Ok(Scene {
             inputs,
             warnings: repairs.into_warnings(),
@@ -609,6 +615,7 @@ impl Scene {
             environment,
             env_select,
             geometry,
+            offset_floor,
         })
     }
 
@@ -1141,6 +1148,41 @@ const ENV_CLAMPED: Kind = Kind {
 /// bytes each once loaded; such a sky peaks at 3.3 GB while it loads (15 s), and the memory
 /// available is checked before it is read.
 pub const MAX_ENV_TEXELS: u64 = 1 << 27;
+
+/// `Scene::offset_floor` of a scene's own triangles' `positions` and its placed `prototypes`:
+/// the largest side of the world bounding box of everything, capped at 1.
+fn offset_floor(positions: &[Vec3], prototypes: &[Prototype], instances: &[Instance]) -> f32 {
+    let mut lo = Vec3::splat(f32::INFINITY);
+    let mut hi = Vec3::splat(f32::NEG_INFINITY);
+    for &p in positions {
+        (lo, hi) = (lo.min(p), hi.max(p));
+    }
+    for i in instances {
+        let proto = &prototypes[i.proto as usize];
+        let (mut plo, mut phi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for &p in &proto.positions {
+            (plo, phi) = (plo.min(p), phi.max(p));
+        }
+        if plo.x > phi.x {
+            continue;
+        }
+        for k in 0..8 {
+            let corner = Vec3::select(
+                glam::BVec3::new(k & 1 != 0, k & 2 != 0, k & 4 != 0),
+                phi,
+                plo,
+            );
+            let w = i.to_world.transform_point3(corner);
+            (lo, hi) = (lo.min(w), hi.max(w));
+        }
+    }
+    let size = (hi - lo).max_element();
+    if size.is_finite() && size > 0.0 {
+        size.min(1.0)
+    } else {
+        1.0
+    }
+}
 
 /// The `[environment]` table, checked, and the image file it read (none for a colour).
 fn load_environment(

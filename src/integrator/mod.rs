@@ -382,7 +382,7 @@ impl<'a> Integrator<'a> {
             PathMis::Balance => fc_le / (ls.pdf + pb),
             PathMis::Power => fc_le * (self.path_mis.weight(ls.pdf, pb) / ls.pdf),
         };
-        (d, Some(ls.shadow_ray(sp.p, sp.ng)))
+        (d, Some(ls.shadow_ray(sp.p, sp.ng, self.scene.offset_floor)))
     }
 
     /// The closest hits of up to 16 primary rays from `eye` along `dirs` (lane `i` of the result
@@ -534,7 +534,7 @@ impl<'a> Integrator<'a> {
             // A light behind the surface cannot contribute for any eye on this side: no ray,
             // unless an eye of the group sees the other side (`LightSides`).
             if le != Vec3::ZERO && sides.keeps(sp.p, ng, ls.wi) {
-                shadow = Some(ls.shadow_ray(sp.p, sp.ng));
+                shadow = Some(ls.shadow_ray(sp.p, sp.ng, self.scene.offset_floor));
             } else {
                 le = Vec3::ZERO;
             }
@@ -553,7 +553,10 @@ impl<'a> Integrator<'a> {
         rec.w = Some(bs.wi);
         rec.pdf_w = bs.pdf;
         rec.f_w = bs.f;
-        (shadow, Some(Ray::spawn(sp.p, sp.ng, bs.wi)))
+        (
+            shadow,
+            Some(Ray::spawn(sp.p, sp.ng, bs.wi, self.scene.offset_floor)),
+        )
     }
 
     /// The answer of the first vertex's shadow ray.
@@ -641,7 +644,10 @@ impl<'a> Integrator<'a> {
         walk.from = sp.p;
         walk.wi = bs.wi;
         walk.pdf_b = bs.pdf;
-        (shadow, Some(Ray::spawn(sp.p, sp.ng, bs.wi)))
+        (
+            shadow,
+            Some(Ray::spawn(sp.p, sp.ng, bs.wi, self.scene.offset_floor)),
+        )
     }
 
     /// The surface the walk's continuation ray hit (`Scene::surface` of its hit), or none: the

@@ -64,7 +64,7 @@ pub fn adaptive_counts(
                             continue;
                         }
                         rays.visibility += 1;
-                        let ray = Ray::from_eye(t.cam.eye, sp.p, sp.ng);
+                        let ray = Ray::from_eye(t.cam.eye, sp.p, sp.ng, scene.offset_floor);
                         if !scene.geometry.occluded1(&ray) {
                             let ja = t.cam.jacobian(sp.p, sp.ng) / t.cam.pixel_area();
                             expected += spp as f32 * ja / own;

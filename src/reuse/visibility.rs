@@ -96,10 +96,10 @@ struct Chunk {
 /// `VIEWS`) and `Ray::from_eye` written out, operation for operation (`tests` checks the bits).
 #[inline(always)]
 fn chunk<const VIEWS: bool>(
-    cam: &Camera,
-    pixel_area: f32,
+    (cam, pixel_area): (&Camera, f32),
     h: &HitLanes,
     at: usize,
+    floor: f32,
     out: &mut Chunk,
 ) {
     let (e, f, r, u) = (cam.eye, cam.forward, cam.right, cam.up);
@@ -135,7 +135,7 @@ fn chunk<const VIEWS: bool>(
             out.j_over_a[l] = cos_x / (cos_t * cos_t * cos_t * d2) / pixel_area;
         }
         // from_eye: the hit's point offset off its surface towards the eye
-        let scale = SPAWN_EPS * (1.0 + px.abs().max(py.abs().max(pz.abs())));
+        let scale = SPAWN_EPS * (floor + px.abs().max(py.abs().max(pz.abs())));
         let (tx, ty, tz) = (e.x - px, e.y - py, e.z - pz);
         let s = if nx * tx + ny * ty + nz * tz >= 0.0 {
             scale
@@ -183,10 +183,11 @@ pub fn landings(
     let mut c = Chunk::default();
     for at in (0..h.len()).step_by(LANES) {
         // Without `views` (`bench`'s visibility costs), the projection and the ray alone.
+        let floor = integrator.scene.offset_floor;
         if views.is_some() {
-            chunk::<true>(cam, pixel_area, h, at, &mut c);
+            chunk::<true>((cam, pixel_area), h, at, floor, &mut c);
         } else {
-            chunk::<false>(cam, pixel_area, h, at, &mut c);
+            chunk::<false>((cam, pixel_area), h, at, floor, &mut c);
         }
         for l in 0..LANES.min(h.len() - at) {
             let hi = at + l;
@@ -270,16 +271,17 @@ mod tests {
         lanes.fill_points(points.iter().copied());
         assert_eq!(lanes.len(), points.len());
         let mut on_film = 0;
-        for cam in &cams {
+        // Both offset floors: a scene of ordinary size, and one modelled tiny.
+        for (cam, floor) in cams.iter().flat_map(|c| [(c, 1.0), (c, 1e-4)]) {
             let area = cam.pixel_area();
             let mut c = Chunk::default();
             for at in (0..points.len()).step_by(LANES) {
-                chunk::<true>(cam, area, &lanes, at, &mut c);
+                chunk::<true>((cam, area), &lanes, at, floor, &mut c);
                 for l in 0..LANES.min(points.len() - at) {
                     let (p, ng) = points[at + l];
                     // The view terms and the ray for every lane (the native eye's terms are
                     // used wherever its hits are, on the film or not).
-                    let ray = Ray::from_eye(cam.eye, p, ng);
+                    let ray = Ray::from_eye(cam.eye, p, ng, floor);
                     let dir = Vec3::new(c.dir[0][l], c.dir[1][l], c.dir[2][l]);
                     let lane_ray = Ray::from_eye_dir(cam.eye, dir);
                     // Debug prints the shortest decimal that reads back as the same float.
