@@ -465,6 +465,57 @@ fn sequences_named_apart_after_the_frame_number_keep_their_own_chunks() {
 }
 
 #[test]
+fn a_chunk_log_planted_as_a_link_or_a_fifo_is_refused_and_nothing_is_written() {
+    // The chunk's log is truncated and written: a symbolic or hard link planted in its place
+    // had the scene's OBJ overwritten with state records (exit 0), a FIFO blocked for ever.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let base = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/base");
+    for f in ["s.toml", "s.obj", "s.mtl"] {
+        std::fs::copy(base.join(f), d.join(f)).unwrap();
+    }
+    let obj = std::fs::read(d.join("s.obj")).unwrap();
+    std::fs::create_dir(d.join("o")).unwrap();
+    let log = d.join("o/f.chunk-1-of-2.partial.log");
+    let out = format!("{}/o/f_####.exr", d.display());
+    let scene = d.join("s.toml").display().to_string();
+    let args = [
+        "render", &scene, "--res", "16x12", "--spp", "1", "--frames", "0-1", "--chunk", "1/2",
+        "--out", &out,
+    ];
+    for (plant, what) in [
+        ("symlink", "is a symbolic link"),
+        ("hard link", "is a file with other names (a hard link)"),
+        ("fifo", "is a named pipe (FIFO)"),
+    ] {
+        match plant {
+            "symlink" => std::os::unix::fs::symlink(d.join("s.obj"), &log).unwrap(),
+            "hard link" => std::fs::hard_link(d.join("s.obj"), &log).unwrap(),
+            _ => {
+                let ok = Command::new("mkfifo").arg(&log).status().unwrap();
+                assert!(ok.success());
+            }
+        }
+        let owned: Vec<String> = args.iter().map(|a| a.to_string()).collect();
+        let o = common::run_reframe(&owned, Duration::from_secs(20));
+        assert_eq!(o.code, Some(1), "{plant}: {}", o.stderr);
+        assert!(o.stderr.contains(what), "{plant}: {}", o.stderr);
+        assert_eq!(std::fs::read(d.join("s.obj")).unwrap(), obj, "{plant}");
+        let left: Vec<_> = std::fs::read_dir(d.join("o"))
+            .unwrap()
+            .flatten()
+            .map(|e| e.path())
+            .collect();
+        assert!(
+            left.len() == 1 && left[0] == log,
+            "{plant}: nothing made but what was planted: {left:?}"
+        );
+        std::fs::remove_file(&log).unwrap();
+    }
+    run(&args);
+}
+
+#[test]
 fn a_checkpoint_folder_named_like_a_frame_is_refused_at_once() {
     // It rendered frame 0 and then failed writing frame 1 ("is a directory"), leaving a
     // checkpoint folder named f_0001.exr.

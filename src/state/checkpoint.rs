@@ -155,6 +155,32 @@ impl Checkpointer {
     ) -> Result<(Checkpointer, Option<Resumed>)> {
         let mut resumed = None;
         let mut made = None;
+        // A chunk's log is truncated and written: refused before anything is made if something
+        // other than a regular file of one name is in its place (a link planted there to the
+        // scene's OBJ had the OBJ overwritten; a FIFO blocked the open).
+        if let Some(c) = template.chunk {
+            let lp = log_path(&partial_path(&template.out, c));
+            if let Ok(m) = std::fs::symlink_metadata(&lp) {
+                use std::os::unix::fs::MetadataExt;
+                let t = m.file_type();
+                let what = if t.is_symlink() {
+                    Some("a symbolic link")
+                } else if !t.is_file() {
+                    Some(crate::util::input::kind(t))
+                } else if m.nlink() != 1 {
+                    Some("a file with other names (a hard link)")
+                } else {
+                    None
+                };
+                if let Some(what) = what {
+                    bail!(
+                        "the chunk log {} is {what}; remove it (reframe makes its own) and run \
+                         again",
+                        lp.display()
+                    );
+                }
+            }
+        }
         if let Some(d) = &dir {
             let state = d.join("state");
             if state.exists() {
@@ -219,15 +245,40 @@ impl Checkpointer {
         let log = match &partial {
             None => None,
             Some(p) => {
-                let mut name = p.file_name().unwrap_or_default().to_os_string();
-                name.push(".log");
-                let lp = p.with_file_name(name);
+                let lp = log_path(p);
+                // As the lock file is opened: never through a symbolic link, never blocking on
+                // a FIFO, and only a regular file of one name, since the log is truncated and
+                // written (a link planted there to the scene's OBJ had the OBJ overwritten).
+                use std::os::unix::fs::{MetadataExt, OpenOptionsExt};
                 let f = OpenOptions::new()
                     .create(true)
                     .truncate(false)
                     .write(true)
+                    .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
                     .open(&lp)
-                    .with_context(|| format!("opening {}", lp.display()))?;
+                    .map_err(|e| {
+                        if e.raw_os_error() == Some(libc::ELOOP) {
+                            anyhow!(
+                                "the chunk log {} is a symbolic link; remove it (reframe makes \
+                                 its own) and run again",
+                                lp.display()
+                            )
+                        } else {
+                            anyhow!("opening {}: {e}", lp.display())
+                        }
+                    })?;
+                let meta = f.metadata()?;
+                if !meta.is_file() || meta.nlink() != 1 {
+                    bail!(
+                        "the chunk log {} is {}; remove it (reframe makes its own) and run again",
+                        lp.display(),
+                        if meta.is_file() {
+                            "a file with other names (a hard link)"
+                        } else {
+                            "not a regular file"
+                        }
+                    );
+                }
                 let (len, recs) = match &resumed {
                     Some(r) => (r.trailer.log_len, r.trailer.log_records.clone()),
                     None => (0, Vec::new()),
@@ -340,4 +391,11 @@ impl Checkpointer {
         }
         Ok(out)
     }
+}
+
+/// The append-only log of a chunk whose partial file is `partial`: `NAME.partial.log`.
+fn log_path(partial: &Path) -> PathBuf {
+    let mut name = partial.file_name().unwrap_or_default().to_os_string();
+    name.push(".log");
+    partial.with_file_name(name)
 }
