@@ -96,8 +96,9 @@ pub struct Line<'a> {
 }
 
 /// The lines of an OBJ or MTL file, without a UTF-8 byte order mark or line ends (LF or CRLF;
-/// a bare CR, the classic Mac OS's line end, in a file without any LF), one at a time (a large
-/// OBJ is not copied).
+/// a bare CR, the classic Mac OS's line end, in a file without any LF; a bare CR within a line
+/// of a file with LF ends a statement too, the parts keeping the line's number), one at a time
+/// (a large OBJ is not copied).
 pub fn lines(bytes: &[u8]) -> Result<impl Iterator<Item = Line<'_>>> {
     binary(bytes)?;
     let bytes = bytes.strip_prefix(b"\xef\xbb\xbf").unwrap_or(bytes);
@@ -106,18 +107,27 @@ pub fn lines(bytes: &[u8]) -> Result<impl Iterator<Item = Line<'_>>> {
     } else {
         b'\n'
     };
-    Ok(bytes.split(move |&b| b == end).enumerate().map(|(i, l)| {
-        let l = l.strip_suffix(b"\r").unwrap_or(l);
-        let (text, latin1) = match std::str::from_utf8(l) {
-            Ok(t) => (Cow::Borrowed(t), false),
-            Err(_) => (Cow::Owned(l.iter().map(|&b| b as char).collect()), true),
-        };
-        Line {
-            n: i + 1,
-            text,
-            latin1,
-        }
-    }))
+    // A bare CR inside a line of a file with LF line ends ends a statement too (an exporter's
+    // header comment ending in CR swallowed the vertex after it): the parts keep the line's
+    // number, as an editor shows the CR within the line.
+    Ok(bytes
+        .split(move |&b| b == end)
+        .enumerate()
+        .flat_map(|(i, l)| {
+            let l = l.strip_suffix(b"\r").unwrap_or(l);
+            l.split(|&b| b == b'\r').map(move |part| (i, part))
+        })
+        .map(|(i, l)| {
+            let (text, latin1) = match std::str::from_utf8(l) {
+                Ok(t) => (Cow::Borrowed(t), false),
+                Err(_) => (Cow::Owned(l.iter().map(|&b| b as char).collect()), true),
+            };
+            Line {
+                n: i + 1,
+                text,
+                latin1,
+            }
+        }))
 }
 
 /// The lines with continuations joined: a statement that ends in `\` goes on in the next line
@@ -345,5 +355,25 @@ mod tests {
         assert_eq!(rest("usemtl\t\tmy  stone "), "my  stone");
         assert_eq!(numbers::<2>(&["1", "2.5", "x"]), Some([1.0, 2.5]));
         assert_eq!(numbers::<2>(&["1"]), None);
+    }
+
+    #[test]
+    fn a_bare_cr_in_an_lf_file_ends_a_statement() {
+        let l: Vec<(usize, String)> =
+            lines(b"mtllib s.mtl\n# exported by X\rv -1 0 -1\nv 1 0 -1\r\n")
+                .unwrap()
+                .map(|l| (l.n, l.text.into_owned()))
+                .collect();
+        let want = [
+            (1, "mtllib s.mtl"),
+            (2, "# exported by X"),
+            (2, "v -1 0 -1"),
+            (3, "v 1 0 -1"),
+            (4, ""),
+        ];
+        assert_eq!(l, want.map(|(n, t)| (n, t.to_string())));
+        // A classic Mac OS file (CR alone) is numbered by its CRs.
+        let mac: Vec<usize> = lines(b"v 1 2 3\rv 4 5 6\r").unwrap().map(|l| l.n).collect();
+        assert_eq!(mac, [1, 2, 3]);
     }
 }
