@@ -185,7 +185,17 @@ pub fn transformed(mesh: &Mesh, m: &DMat4) -> Mesh {
             let [p0, p1, p2] = t.map(|i| positions[i as usize]);
             let c = (p1 - p0).cross(p2 - p0);
             let len = c.length();
-            (c / len, 0.5 * len)
+            if len.is_finite() && len > 0.0 {
+                (c / len, 0.5 * len)
+            } else {
+                // As the OBJ reader measures them (`mesh`): from edges of about 4e9 on the f32
+                // cross product overflows (a placed floor 1e10 wide lost its normal and its
+                // area: black, or its light gone), so such a triangle is measured in f64.
+                let [p0, p1, p2] = [p0, p1, p2].map(|p| p.as_dvec3());
+                let c = (p1 - p0).cross(p2 - p0);
+                let len = c.length();
+                ((c / len).as_vec3(), (0.5 * len) as f32)
+            }
         })
         .unzip();
     Mesh {
@@ -356,6 +366,28 @@ mod tests {
                 rows[4 * r] + 2.0 * rows[4 * r + 1] + 3.0 * rows[4 * r + 2] + rows[4 * r + 3]
             });
             assert!((DVec3::from(by_rows.map(f64::from)) - t).length() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn placed_triangles_of_any_size_keep_their_normal_and_area() {
+        // Edges of 2e10, where the f32 cross product overflows, and of 2: the same shape.
+        for half in [1e10f32, 1.0] {
+            let mut mesh = empty();
+            mesh.positions = vec![
+                Vec3::new(-half, 5.0, -half),
+                Vec3::new(half, 5.0, -half),
+                Vec3::new(half, 5.0, half),
+            ];
+            mesh.triangles = vec![[0, 2, 1]];
+            mesh.tri_material = vec![0];
+            let placed = transformed(&mesh, &DMat4::IDENTITY);
+            assert!((placed.tri_normal[0] - Vec3::Y).length() < 1e-6, "{half}");
+            let area = 2.0 * half as f64 * half as f64;
+            assert!(
+                (placed.tri_area[0] as f64 / area - 1.0).abs() < 1e-6,
+                "{half}"
+            );
         }
     }
 }
