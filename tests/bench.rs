@@ -234,6 +234,47 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
     let again = read_image(&refdir.join("ref_0005.exr")).unwrap();
     let want = read_image_bytes(&made);
     assert_eq!(again.data, want.data, "made again as it was");
+    // A description cut short is a damaged cache too (it had failed every later run); a FIFO
+    // in its place is refused at once, where reading it waited for ever.
+    let info = refdir.join("reference.json");
+    let text = std::fs::read(&info).unwrap();
+    std::fs::write(&info, &text[..text.len() / 2]).unwrap();
+    let o = reference();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.success()
+            && err.contains("not a reference description")
+            && err.contains("rendering it again"),
+        "{err}"
+    );
+    let o = reference();
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("(cached)"),
+        "described again"
+    );
+    std::fs::remove_file(&info).unwrap();
+    let ok = std::process::Command::new("mkfifo")
+        .arg(&info)
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let args: Vec<String> = [
+        "reference",
+        "cornell",
+        "--res",
+        "40x40",
+        "--frames",
+        "4-8",
+        "--reference-spp",
+        "64",
+        "--cache",
+        cache.to_str().unwrap(),
+    ]
+    .map(String::from)
+    .to_vec();
+    let o = common::run_reframe(&args, std::time::Duration::from_secs(20));
+    assert_eq!(o.code, Some(1), "{}", o.stderr);
+    assert!(o.stderr.contains("is a named pipe (FIFO)"), "{}", o.stderr);
 }
 
 /// An image from its file's bytes (through a temporary file).

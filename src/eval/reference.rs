@@ -9,7 +9,7 @@
 //! settings or the code renders it anew. A folder is used only once its `reference.json`
 //! (written last) is there.
 use crate::camera::Camera;
-use crate::driver::options::check_max_depth;
+use crate::driver::options::{check_max_depth, check_spp};
 use crate::driver::{progress_bar, render_frame_independent};
 use crate::image::{read_image, write_image, Image, Metadata, WriteOptions};
 use crate::integrator::{Integrator, RayCounts};
@@ -17,6 +17,7 @@ use crate::scene::Scene;
 use crate::state::key::scene_and_build_hashes;
 use crate::util::fs::{check_writable_dir, write_json};
 use crate::util::hash::Fnv;
+use crate::util::input::{open_input_or_missing, InputError};
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
@@ -120,6 +121,7 @@ pub fn reference(
     pool: &rayon::ThreadPool,
     progress: bool,
 ) -> Result<Reference> {
+    check_spp("--reference-spp", spp)?;
     if spp < PASSES || !spp.is_multiple_of(PASSES) {
         bail!("--reference-spp {spp}: must be a multiple of {PASSES} (the reference is {PASSES} passes, for its variance)");
     }
@@ -132,11 +134,24 @@ pub fn reference(
     ));
     let info_path = dir.join("reference.json");
     let frame_path = |f: u32| dir.join(format!("ref_{f:04}.exr"));
-    if let Ok(text) = std::fs::read_to_string(&info_path) {
-        let info: ReferenceInfo = serde_json::from_str(&text)
-            .with_context(|| format!("{}: not a reference description", info_path.display()))?;
-        match read_cached(&info, &range, (w, h), frame_path) {
-            Ok(frames) => {
+    // Read as any input is (a FIFO or a device planted there is refused, not waited on); a
+    // description cut short or damaged is a damaged cache, made again like a damaged frame.
+    let text = match open_input_or_missing(&info_path, "cached reference description", 1 << 20) {
+        Ok(mut f) => {
+            use std::io::Read;
+            let mut text = String::new();
+            f.read_to_string(&mut text).map(|_| text).ok()
+        }
+        Err(InputError::NotFound(_)) => None,
+        Err(InputError::Refused(why)) => bail!("{why}"),
+    };
+    if let Some(text) = text {
+        let info = serde_json::from_str::<ReferenceInfo>(&text)
+            .with_context(|| format!("{}: not a reference description", info_path.display()));
+        match info.and_then(|info| {
+            read_cached(&info, &range, (w, h), frame_path).map(|frames| (info, frames))
+        }) {
+            Ok((info, frames)) => {
                 return Ok(Reference {
                     first,
                     frames,
