@@ -237,3 +237,25 @@ fn usage_errors_are_one_line_that_says_what_is_missing() {
         );
     }
 }
+
+#[test]
+fn an_output_name_too_long_for_its_temporary_file_is_refused_before_rendering() {
+    // 245 bytes fit a file name, but not the temporary name a frame is written under first:
+    // the first frame failed after its rendering, leaving an empty checkpoint folder.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp
+        .path()
+        .join("o")
+        .join(format!("{}_####.exr", "a".repeat(236)));
+    let args: Vec<String> = ["render", "cornell", "--res", "16x12", "--spp", "1", "--out"]
+        .iter()
+        .map(|a| a.to_string())
+        .chain([out.display().to_string()])
+        .collect();
+    let line = refusal(&run_reframe(&args, Duration::from_secs(60))).unwrap();
+    assert!(
+        line.contains("a frame's file name of 245 bytes is too long"),
+        "{line}"
+    );
+    assert!(!tmp.path().join("o").exists(), "nothing made");
+}

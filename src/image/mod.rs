@@ -232,6 +232,24 @@ impl OutputPattern {
         let target = self.path(0);
         ffi::check_output_format(path_bytes(&target))
             .map_err(|e| anyhow!("cannot write {}: {}", self.original, e.what()))?;
+        // A frame is written as `.NAME.tmp-PID-N.EXT` first (`write_image`), which must fit
+        // the 255 bytes a file name may have on Linux's file systems, or the first frame fails
+        // after its rendering (with an empty checkpoint folder left behind).
+        let name = path_bytes(&target)
+            .rsplit(|&b| b == b'/')
+            .next()
+            .map_or(0, |n| n.len());
+        let ext = target.extension().map_or(0, |e| e.len());
+        let longest = name + ext + 40;
+        if longest > 255 {
+            bail!(
+                "--out {}: a frame's file name of {name} bytes is too long: written first under a \
+                 temporary name about {} bytes longer, it would pass the 255 bytes a file name \
+                 may have",
+                self.original,
+                longest - name
+            );
+        }
         let dir = parent_dir(&target);
         let created = CreatedDirs::create(&dir)
             .map_err(|e| anyhow!("cannot create output folder {}: {e}", dir.display()))?;
