@@ -721,6 +721,16 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
     if rgb.iter().any(Option::is_some) {
         return Ok(Colour::Rgb(rgb));
     }
+    // Printers' inks (a CMYK TIFF as OpenImageIO hands it over: C, M, Y, K, or ink0..), whose
+    // first three read as RGB would turn red into cyan, and whose Y is yellow, not grey.
+    let cmyk = ["C", "M", "Y", "K"].iter().all(|c| find(c).is_some());
+    if cmyk || names.iter().any(|n| n.starts_with("ink")) {
+        bail!(
+            "its channels ({}) are printing inks (CMYK), not light: convert it to RGB first \
+             (in an image editor, or with ImageMagick: 'convert in.tif -colorspace sRGB out.png')",
+            names.join(", ")
+        );
+    }
     if let Some(y) = find("Y") {
         return Ok(Colour::Grey(y));
     }
@@ -948,6 +958,27 @@ pub fn oiio_version() -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn colour_comes_from_light_channels_never_from_inks() {
+        let names = |n: &[&str]| -> Vec<String> { n.iter().map(|c| c.to_string()).collect() };
+        let ok = |n: &[&str]| colour_channels(&names(n)).unwrap();
+        assert_eq!(
+            ok(&["R", "G", "B", "A"]),
+            Colour::Rgb([Some(0), Some(1), Some(2)])
+        );
+        assert_eq!(
+            ok(&["B", "G", "R"]),
+            Colour::Rgb([Some(2), Some(1), Some(0)])
+        );
+        assert_eq!(ok(&["Y", "A"]), Colour::Grey(0));
+        assert_eq!(ok(&["X", "Y", "Z"]), Colour::Grey(1));
+        // A CMYK TIFF as OpenImageIO hands it over: its Y is yellow, its first three no RGB.
+        for inks in [&["C", "M", "Y", "K"][..], &["ink0", "ink1", "ink2", "ink3"]] {
+            let e = colour_channels(&names(inks)).unwrap_err().to_string();
+            assert!(e.contains("printing inks (CMYK)"), "{e}");
+        }
+    }
 
     /// A deterministic spread of values, including negatives and values above 1.
     fn test_image(width: u32, height: u32, channels: &[&str]) -> Image {
