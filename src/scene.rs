@@ -1254,7 +1254,9 @@ fn load_environment(
             // Regular file, size-capped, before OIIO opens it (a FIFO must not block the load).
             crate::util::input::open_input(&path, "environment image", MAX_INPUT_BYTES)
                 .map_err(|e| anyhow!("{at}: {e}"))?;
-            let image = crate::image::read_linear_rgb(&path, MAX_ENV_TEXELS)
+            // While it loads, an environment holds its RGB floats and its texels (12 bytes
+            // each per pixel), then its texels and its sampling tables (12 more): 24 at most.
+            let image = crate::image::read_linear_rgb(&path, MAX_ENV_TEXELS, 24)
                 .map_err(|e| anyhow!("{at}: environment image: {e}"))?;
             let at = format!("{at}: environment image {}", path.display());
             let (width, height) = (image.width, image.height);

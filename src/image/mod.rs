@@ -789,8 +789,13 @@ pub fn srgb_encoded(space: Option<&str>, integer: bool, format: &str) -> bool {
 /// `colour_channels` names; decodes sRGB where the file's values are sRGB-encoded
 /// (`srgb_encoded`: 8-bit PNG and JPEG, and any integer file that does not name a linear
 /// space), so that an 8-bit file gives the same linear values as the HDR it was made from.
-pub fn read_linear_rgb(path: &Path, max_pixels: u64) -> Result<Image> {
-    read_colour(path, max_pixels).map(|(img, _)| img)
+///
+/// `then_per_pixel`: the bytes per pixel the caller goes on to hold beside or after the image
+/// (an environment's texels and sampling tables), counted in the memory check before the file
+/// is read, so that a file that decodes but whose tables would not fit is refused in one line
+/// (an allocation that fails aborts the process).
+pub fn read_linear_rgb(path: &Path, max_pixels: u64, then_per_pixel: u64) -> Result<Image> {
+    read_colour_then(path, max_pixels, then_per_pixel).map(|(img, _)| img)
 }
 
 /// How a colour input's file holds its colour: in which channels (`colour_channels`), and
@@ -804,6 +809,15 @@ pub struct ColourLayout {
 /// `read_linear_rgb`, and how the file held the colour (for a lookup that reads the file's own
 /// texels later, `Textures`).
 pub fn read_colour(path: &Path, max_pixels: u64) -> Result<(Image, ColourLayout)> {
+    read_colour_then(path, max_pixels, 0)
+}
+
+/// `read_colour`, with `read_linear_rgb`'s `then_per_pixel`.
+fn read_colour_then(
+    path: &Path,
+    max_pixels: u64,
+    then_per_pixel: u64,
+) -> Result<(Image, ColourLayout)> {
     let read = || -> Result<(Image, ColourLayout)> {
         let (mut reader, info, pixels) = open_input_image(path, max_pixels)?;
         let space = reader
@@ -817,7 +831,7 @@ pub fn read_colour(path: &Path, max_pixels: u64) -> Result<(Image, ColourLayout)
         let pick = colour.indices();
         // Every channel as f32, then the RGB: refused in one line if that does not fit (an
         // allocation that fails aborts the process).
-        let need = pixels * (4 * nch as u64 + 12);
+        let need = pixels * (4 * nch as u64 + 12).max(then_per_pixel);
         check_room(&info, need)?;
         let mut data = read_all(&mut reader, &info)?;
         let decode = |v: f32| if srgb { decode_srgb(v) } else { v };
@@ -1031,7 +1045,7 @@ mod tests {
         // An 8-bit PNG holds sRGB codes: read back linear, within a code's step.
         let png = dir.path().join("c.png");
         write_image(&png, &img, &Metadata::default(), &WriteOptions::default()).unwrap();
-        let back = read_linear_rgb(&png, 1 << 20).unwrap();
+        let back = read_linear_rgb(&png, 1 << 20, 0).unwrap();
         assert_eq!((back.width, back.height, back.channels.len()), (4, 2, 3));
         for (a, b) in img.data.iter().zip(&back.data) {
             assert!((a - b).abs() < 0.01, "{a} read back as {b}");
@@ -1040,17 +1054,17 @@ mod tests {
         let exr = dir.path().join("c.exr");
         let opts = WriteOptions { exr_float: true };
         write_image(&exr, &img, &Metadata::default(), &opts).unwrap();
-        assert_eq!(read_linear_rgb(&exr, 1 << 20).unwrap().data, img.data);
+        assert_eq!(read_linear_rgb(&exr, 1 << 20, 0).unwrap().data, img.data);
         let mut grey = Image::new(2, 1, &["Y"]);
         grey.data = vec![0.25, 3.0];
         let g = dir.path().join("g.exr");
         write_image(&g, &grey, &Metadata::default(), &opts).unwrap();
         assert_eq!(
-            read_linear_rgb(&g, 1 << 20).unwrap().data,
+            read_linear_rgb(&g, 1 << 20, 0).unwrap().data,
             [0.25, 0.25, 0.25, 3.0, 3.0, 3.0]
         );
         // Too many pixels: refused before reading them.
-        let e = read_linear_rgb(&exr, 7).unwrap_err().to_string();
+        let e = read_linear_rgb(&exr, 7, 0).unwrap_err().to_string();
         assert!(e.contains("4x2 pixels, more than the 7"), "{e}");
     }
 
