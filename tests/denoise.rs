@@ -205,6 +205,22 @@ fn png_output_gets_the_denoised_frame_and_a_missing_library_is_one_line() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("not a regular file"), "{err}");
+    // A library cut short (a copy interrupted) is mapped as if whole, and touching a page past
+    // its end killed the process with SIGBUS, saying nothing: now one line. Any ELF file cut
+    // short shows it (this test's own executable).
+    let cut = d.path().join("cut/libOpenImageDenoise.so.2");
+    std::fs::create_dir(d.path().join("cut")).unwrap();
+    let exe = std::fs::read(std::env::current_exe().unwrap()).unwrap();
+    std::fs::write(&cut, &exe[..10_000]).unwrap();
+    let o = run(
+        &["--denoise", "--out", out.to_str().unwrap()],
+        Some(cut.to_str().unwrap()),
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("cut short: its headers reach byte"), "{err}");
+    assert!(!d.path().join("missing").exists());
 }
 
 #[test]

@@ -101,6 +101,63 @@ fn candidates() -> Vec<PathBuf> {
     c
 }
 
+/// `lib` and the files beside it that OIDN loads with it (its core and device libraries, and
+/// TBB), where they are there.
+fn libraries_beside(lib: &std::path::Path) -> Vec<PathBuf> {
+    let mut out = vec![lib.to_path_buf()];
+    let dir = lib.parent().unwrap_or(std::path::Path::new("."));
+    if let Ok(entries) = std::fs::read_dir(dir) {
+        for e in entries.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let ours = name.starts_with("libOpenImageDenoise") || name.starts_with("libtbb");
+            if ours && name.contains(".so") && e.path() != lib {
+                out.push(e.path());
+            }
+        }
+    }
+    out
+}
+
+/// Whether the 64-bit little-endian ELF file at `path` holds everything its headers say it
+/// has: its program headers, the bytes its segments map from the file, and its section
+/// headers. `Err`: what is wrong, naming the file.
+fn elf_whole(path: &std::path::Path) -> std::result::Result<(), String> {
+    use std::os::unix::fs::FileExt;
+    let bad = |why: &str| format!("{}: {why}", path.display());
+    let f = std::fs::File::open(path).map_err(|e| bad(&e.to_string()))?;
+    let size = f.metadata().map_err(|e| bad(&e.to_string()))?.len();
+    let mut h = [0u8; 64];
+    f.read_exact_at(&mut h, 0)
+        .map_err(|_| bad("cut short: not even an ELF header (a copy interrupted?)"))?;
+    if &h[..4] != b"\x7fELF" || h[4] != 2 || h[5] != 1 {
+        return Err(bad("not a 64-bit little-endian ELF shared library"));
+    }
+    let u16_at = |b: &[u8], o: usize| u16::from_le_bytes([b[o], b[o + 1]]) as u64;
+    let u64_at = |b: &[u8], o: usize| u64::from_le_bytes(b[o..o + 8].try_into().unwrap());
+    let (phoff, phentsize, phnum) = (u64_at(&h, 0x20), u16_at(&h, 0x36), u16_at(&h, 0x38));
+    let (shoff, shentsize, shnum) = (u64_at(&h, 0x28), u16_at(&h, 0x3a), u16_at(&h, 0x3c));
+    let mut end = phoff.saturating_add(phentsize * phnum);
+    if shoff > 0 {
+        end = end.max(shoff.saturating_add(shentsize * shnum));
+    }
+    if phentsize >= 40 && phoff.saturating_add(phentsize * phnum) <= size {
+        let mut ph = vec![0u8; (phentsize * phnum) as usize];
+        f.read_exact_at(&mut ph, phoff)
+            .map_err(|e| bad(&e.to_string()))?;
+        for e in ph.chunks_exact(phentsize as usize) {
+            // p_offset at 8, p_filesz at 32.
+            end = end.max(u64_at(e, 8).saturating_add(u64_at(e, 32)));
+        }
+    }
+    if end > size {
+        return Err(bad(&format!(
+            "cut short: its headers reach byte {end}, the file has {size} (a copy or an \
+             unpacking interrupted? run ./setup.sh again)"
+        )));
+    }
+    Ok(())
+}
+
 impl Denoiser {
     /// Open the library and make a CPU device with `threads` threads (0: OIDN's choice).
     pub fn load(threads: usize) -> Result<Denoiser> {
@@ -120,6 +177,18 @@ impl Denoiser {
                         tried.push(e.to_string());
                         continue;
                     }
+                }
+            }
+            // A shared library cut short (a copy or an unpacking interrupted) is mapped as if
+            // whole, and the first page past its end kills the process with SIGBUS, without a
+            // word: the library and the ones beside it that it loads are checked first.
+            if path.components().count() > 1 {
+                if let Err(why) = libraries_beside(&path)
+                    .iter()
+                    .try_for_each(|l| elf_whole(l))
+                {
+                    tried.push(why);
+                    continue;
                 }
             }
             // SAFETY: loading OIDN runs its initialisers, which only register its devices.
