@@ -108,7 +108,16 @@ fn killed_render_resumes_to_identical_frames() {
     // resume that writes elsewhere (another --out with the same checkpoint).
     let f0 = killed.join("f_0004.exr");
     let kept = std::fs::read(&f0).unwrap();
-    for damage in [None, Some(&b"garbage"[..])] {
+    // Deleted, garbage, cut in half (its header whole: reading the header alone passed), and
+    // another frame of the same render in its place (frame 5's file).
+    let half = kept[..kept.len() / 2].to_vec();
+    let other = std::fs::read(killed.join("f_0005.exr")).unwrap();
+    for damage in [
+        None,
+        Some(&b"garbage"[..]),
+        Some(&half[..]),
+        Some(&other[..]),
+    ] {
         match damage {
             None => std::fs::remove_file(&f0).unwrap(),
             Some(b) => std::fs::write(&f0, b).unwrap(),

@@ -106,10 +106,31 @@ fn check_resumed_outputs(
     let done = t.next_unit.saturating_sub(*plan.units.start()) as usize;
     for f in plan.frames.clone().take(done) {
         let p = out.path(f);
-        if let Err(e) = crate::image::read_metadata(&p) {
+        // Every pixel read (a file cut short or damaged in its compressed data fails here,
+        // where reading its header alone passed), and the frame and seed its metadata names
+        // checked where the format keeps them (another file in its place, another run's frame).
+        let why = match crate::image::read_image(&p) {
+            Err(e) => Some(format!("it cannot be read ({e:#})")),
+            Ok(_) => {
+                let md = crate::image::read_metadata(&p).unwrap_or_default();
+                let get = |k: &str| md.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone());
+                let want = [("frame", f.to_string()), ("seed", opts.seed.to_string())];
+                want.iter()
+                    .find_map(|(k, v)| match get(&format!("reframe:{k}")) {
+                        Some(got) if got != *v => Some(format!(
+                            "it is not this render's (its {k} is {got}, not {v})"
+                        )),
+                        None if out.is_exr() => Some(format!(
+                            "it is not a frame of this render (it has no reframe:{k})"
+                        )),
+                        _ => None,
+                    })
+            }
+        };
+        if let Some(why) = why {
             bail!(
-                "--resume: frame {f} was finished before the stop, but {} cannot be read ({e:#}); \
-                 delete the checkpoint folder to render every frame again",
+                "--resume: frame {f} was finished before the stop, but {}: {why}; delete the \
+                 checkpoint folder to render every frame again",
                 p.display()
             );
         }
