@@ -196,20 +196,21 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
     // Second time: the reference comes from the cache, and `reframe reference` finds it too.
     run(args(&["--methods", "independent"]));
     assert_eq!(json(&out.join("compare.json"))["reference"]["cached"], true);
-    let reference = || {
-        reframe(&[
-            "reference",
-            "cornell",
-            "--res",
-            "40x40",
-            "--frames",
-            "4-8",
-            "--reference-spp",
-            "64",
-            "--cache",
-            cache.to_str().unwrap(),
-        ])
-    };
+    let ref_args: Vec<String> = [
+        "reference",
+        "cornell",
+        "--res",
+        "40x40",
+        "--frames",
+        "4-8",
+        "--reference-spp",
+        "64",
+        "--cache",
+        cache.to_str().unwrap(),
+    ]
+    .map(String::from)
+    .to_vec();
+    let reference = || reframe(&ref_args);
     let o = reference();
     assert!(String::from_utf8_lossy(&o.stdout).contains("(cached)"));
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 1);
@@ -258,21 +259,7 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
         .status()
         .unwrap();
     assert!(ok.success());
-    let args: Vec<String> = [
-        "reference",
-        "cornell",
-        "--res",
-        "40x40",
-        "--frames",
-        "4-8",
-        "--reference-spp",
-        "64",
-        "--cache",
-        cache.to_str().unwrap(),
-    ]
-    .map(String::from)
-    .to_vec();
-    let o = common::run_reframe(&args, std::time::Duration::from_secs(20));
+    let o = common::run_reframe(&ref_args, std::time::Duration::from_secs(20));
     assert_eq!(o.code, Some(1), "{}", o.stderr);
     assert!(o.stderr.contains("is a named pipe (FIFO)"), "{}", o.stderr);
 }

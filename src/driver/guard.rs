@@ -1,12 +1,12 @@
 //! What keeps a command from damaging what it should not touch: one command per output (an
 //! exclusive advisory lock, `flock` through `std::fs::File::try_lock`, released by the kernel
 //! when its holder dies, so no stale lock survives a SIGKILL), and inputs that are never outputs.
-use crate::util::fs::{parent_dir, Temporary};
-use anyhow::{anyhow, bail, Context, Result};
+use crate::util::fs::{open_own_file, parent_dir, Temporary};
+use anyhow::{anyhow, bail, Result};
 use std::collections::HashMap;
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::{Read, Seek, Write};
-use std::os::unix::fs::{MetadataExt, OpenOptionsExt};
+use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 
 /// An exclusive lock on a lock file, held until dropped; the file (which holds the holder's pid)
@@ -26,38 +26,7 @@ impl OutputLock {
             // Never through a symbolic link, never blocking on a FIFO, and only a regular file
             // of one name: a lock file planted as a link to another file (or a hard link of
             // one) would have that file's content replaced by a pid.
-            let mut f = OpenOptions::new()
-                .read(true)
-                .write(true)
-                .create(true)
-                .truncate(false)
-                .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
-                .open(path)
-                .map_err(|e| {
-                    if e.raw_os_error() == Some(libc::ELOOP) {
-                        anyhow!(
-                            "the lock file {} is a symbolic link; remove it (reframe makes its \
-                             own) and run again",
-                            path.display()
-                        )
-                    } else {
-                        anyhow!("creating the lock file {}: {e}", path.display())
-                    }
-                })?;
-            let meta = f
-                .metadata()
-                .with_context(|| format!("the lock file {}", path.display()))?;
-            if !meta.is_file() || meta.nlink() != 1 {
-                bail!(
-                    "the lock file {} is {}; remove it (reframe makes its own) and run again",
-                    path.display(),
-                    if meta.is_file() {
-                        "a file with other names (a hard link)"
-                    } else {
-                        "not a regular file"
-                    }
-                );
-            }
+            let mut f = open_own_file(path, "the lock file")?;
             if f.try_lock().is_err() {
                 // The holder's pid and what it writes (the first line and the rest): outputs of
                 // one stem share a lock (`v_####.png` and `v_####.exr`), so it may be another

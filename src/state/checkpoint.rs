@@ -17,10 +17,10 @@ use super::{
 };
 use crate::film::{FrameAccum, FrameReuse, Norm};
 use crate::integrator::RayCounts;
-use crate::util::fs::{check_writable_dir, remove_stale_tmp, Temporary};
+use crate::util::fs::{check_writable_dir, open_own_file, remove_stale_tmp, Temporary};
 use anyhow::{anyhow, bail, Context, Result};
 use serde::{Deserialize, Serialize};
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -246,39 +246,9 @@ impl Checkpointer {
             None => None,
             Some(p) => {
                 let lp = log_path(p);
-                // As the lock file is opened: never through a symbolic link, never blocking on
-                // a FIFO, and only a regular file of one name, since the log is truncated and
-                // written (a link planted there to the scene's OBJ had the OBJ overwritten).
-                use std::os::unix::fs::{MetadataExt, OpenOptionsExt};
-                let f = OpenOptions::new()
-                    .create(true)
-                    .truncate(false)
-                    .write(true)
-                    .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
-                    .open(&lp)
-                    .map_err(|e| {
-                        if e.raw_os_error() == Some(libc::ELOOP) {
-                            anyhow!(
-                                "the chunk log {} is a symbolic link; remove it (reframe makes \
-                                 its own) and run again",
-                                lp.display()
-                            )
-                        } else {
-                            anyhow!("opening {}: {e}", lp.display())
-                        }
-                    })?;
-                let meta = f.metadata()?;
-                if !meta.is_file() || meta.nlink() != 1 {
-                    bail!(
-                        "the chunk log {} is {}; remove it (reframe makes its own) and run again",
-                        lp.display(),
-                        if meta.is_file() {
-                            "a file with other names (a hard link)"
-                        } else {
-                            "not a regular file"
-                        }
-                    );
-                }
+                // As the lock file is opened (a link planted there to the scene's OBJ had the
+                // OBJ overwritten; a FIFO blocked the open).
+                let f = open_own_file(&lp, "the chunk log")?;
                 let (len, recs) = match &resumed {
                     Some(r) => (r.trailer.log_len, r.trailer.log_records.clone()),
                     None => (0, Vec::new()),

@@ -222,3 +222,43 @@ pub fn check_file_target(flag: &str, p: &Path) -> Result<()> {
     }
     check_writable_dir(&dir).with_context(|| format!("{flag} {}", p.display()))
 }
+
+/// Opens (creating it if need be) a file that reframe owns and rewrites in place, `what` naming
+/// it in messages ("the lock file", "the chunk log"): never through a symbolic link, never
+/// blocking on a FIFO, and only a regular file of one name, since a link planted there (or a
+/// hard link of another file) would have its target's content replaced.
+pub fn open_own_file(path: &Path, what: &str) -> Result<std::fs::File> {
+    use std::os::unix::fs::{MetadataExt, OpenOptionsExt};
+    let f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
+        .open(path)
+        .map_err(|e| {
+            if e.raw_os_error() == Some(libc::ELOOP) {
+                anyhow!(
+                    "{what} {} is a symbolic link; remove it (reframe makes its own) and run again",
+                    path.display()
+                )
+            } else {
+                anyhow!("opening {what} {}: {e}", path.display())
+            }
+        })?;
+    let meta = f
+        .metadata()
+        .with_context(|| format!("{what} {}", path.display()))?;
+    if !meta.is_file() || meta.nlink() != 1 {
+        anyhow::bail!(
+            "{what} {} is {}; remove it (reframe makes its own) and run again",
+            path.display(),
+            if meta.is_file() {
+                "a file with other names (a hard link)"
+            } else {
+                "not a regular file"
+            }
+        );
+    }
+    Ok(f)
+}
