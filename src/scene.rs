@@ -525,8 +525,9 @@ impl Scene {
                 };
                 load_objects(&label, toml_text, dir, list, &mut textures, &mut repairs)?
             }
-            (Some(_), Some(_)) => {
-                bail!("{label}: give either obj or [[object]] tables, not both")
+            (Some(obj), Some(_)) => {
+                let line = line_at(toml_text.as_bytes(), obj.span().start);
+                bail!("{label}: line {line}: give either obj or [[object]] tables, not both")
             }
             (None, _) => bail!("{label}: no obj and no [[object]]: the scene has no geometry"),
         };

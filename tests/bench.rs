@@ -290,6 +290,10 @@ fn compare_rejects_bad_settings_before_rendering() {
             vec!["--methods", "independent+oidn", "--bias-seeds", "1"],
             "at least 2 seeds",
         ),
+        (
+            vec!["--methods", "mis-cv,independent,mis-cv"],
+            "--methods: mis-cv is given twice",
+        ),
     ] {
         let mut a = vec!["compare", "cornell", "--res", "40x40", "--out"];
         a.push(out.to_str().unwrap());

@@ -298,6 +298,11 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     if let Some(&n) = opts.windows.iter().find(|&&n| n % 2 == 0) {
         bail!("--windows {n}: a group is n_f = 2n+1 frames, so windows must be odd");
     }
+    let twice = (opts.methods.iter().enumerate())
+        .find_map(|(i, c)| opts.methods[..i].contains(c).then_some(c));
+    if let Some(c) = twice {
+        bail!("--methods: {} is given twice", c.name());
+    }
     if opts.methods.iter().any(|c| !c.method.reuses()) && opts.budgets.is_empty() {
         bail!("--budgets: the independent tracer needs at least one budget");
     }
