@@ -235,10 +235,7 @@ impl OutputPattern {
         // A frame is written as `.NAME.tmp-PID-N.EXT` first (`write_image`), which must fit
         // the 255 bytes a file name may have on Linux's file systems, or the first frame fails
         // after its rendering (with an empty checkpoint folder left behind).
-        let name = path_bytes(&target)
-            .rsplit(|&b| b == b'/')
-            .next()
-            .map_or(0, |n| n.len());
+        let name = target.file_name().map_or(0, |n| n.len());
         let ext = target.extension().map_or(0, |e| e.len());
         let longest = name + ext + 40;
         if longest > 255 {
@@ -795,7 +792,7 @@ pub fn srgb_encoded(space: Option<&str>, integer: bool, format: &str) -> bool {
 /// is read, so that a file that decodes but whose tables would not fit is refused in one line
 /// (an allocation that fails aborts the process).
 pub fn read_linear_rgb(path: &Path, max_pixels: u64, then_per_pixel: u64) -> Result<Image> {
-    read_colour_then(path, max_pixels, then_per_pixel).map(|(img, _)| img)
+    read_colour(path, max_pixels, then_per_pixel).map(|(img, _)| img)
 }
 
 /// How a colour input's file holds its colour: in which channels (`colour_channels`), and
@@ -808,12 +805,7 @@ pub struct ColourLayout {
 
 /// `read_linear_rgb`, and how the file held the colour (for a lookup that reads the file's own
 /// texels later, `Textures`).
-pub fn read_colour(path: &Path, max_pixels: u64) -> Result<(Image, ColourLayout)> {
-    read_colour_then(path, max_pixels, 0)
-}
-
-/// `read_colour`, with `read_linear_rgb`'s `then_per_pixel`.
-fn read_colour_then(
+pub fn read_colour(
     path: &Path,
     max_pixels: u64,
     then_per_pixel: u64,

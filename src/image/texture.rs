@@ -112,7 +112,7 @@ impl Textures {
             return Ok(id);
         }
         // Decoded whole once, for the checks; the cache reads it again on demand.
-        let (img, ColourLayout { colour, srgb }) = read_colour(path, MAX_TEXELS)?;
+        let (img, ColourLayout { colour, srgb }) = read_colour(path, MAX_TEXELS, 0)?;
         check_texels(path, &img.data)?;
         let used = colour.indices().into_iter().flatten();
         let (first, last) = (used.clone().min().unwrap_or(0), used.max().unwrap_or(0));

@@ -209,6 +209,28 @@ pub fn triangulate(p: &[Vec3]) -> Option<Vec<[usize; 3]>> {
 
 /// The mesh of `obj`: `usemtl_material[k]` is the material of the faces after the k-th
 /// `usemtl`, `default_material` that of faces before any. `bytes` is the OBJ text, for quoting.
+/// A triangle's unit normal (counter-clockwise), the length of its edges' cross product (twice
+/// its area), and whether it is degenerate (zero area against its longest edge). Corners may be
+/// up to the 1e18 the scene allows (and further once placed), where the f32 cross product's
+/// length overflows (from edges of about 4e9 on: a floor 1e10 wide would be "zero area"): such
+/// a triangle is measured in f64, whose normal and area fit f32. The OBJ reader and placed
+/// objects (`objects::transformed`) measure triangles with it.
+pub fn measure(a: Vec3, b: Vec3, c: Vec3) -> (Vec3, f32, bool) {
+    let cr = (b - a).cross(c - a);
+    let len = cr.length();
+    let scale = (b - a).length_squared().max((c - a).length_squared());
+    if len.is_finite() && scale.is_finite() {
+        (cr / len, len, len <= 1e-7 * scale)
+    } else {
+        let [a, b, c] = [a, b, c].map(|p| p.as_dvec3());
+        let cr = (b - a).cross(c - a);
+        let len = cr.length();
+        let scale = (b - a).length_squared().max((c - a).length_squared());
+        let ok = len.is_finite() && len > 1e-7 * scale;
+        ((cr / len).as_vec3(), len as f32, !ok)
+    }
+}
+
 pub fn build(
     label: &str,
     bytes: &[u8],
@@ -280,22 +302,7 @@ pub fn build(
         for t in tris {
             let tri = t.map(|k| ids[k]);
             let [a, b, c] = t.map(|k| pts[k]);
-            let cr = (b - a).cross(c - a);
-            let len = cr.length();
-            let scale = (b - a).length_squared().max((c - a).length_squared());
-            // Corners may be up to the 1e18 the scene allows, where the f32 cross product's
-            // length overflows (from edges of about 4e9 on: a floor 1e10 wide would be "zero
-            // area"): such a triangle is measured in f64, whose normal and area fit f32.
-            let (n, len, degenerate) = if len.is_finite() && scale.is_finite() {
-                (cr / len, len, len <= 1e-7 * scale)
-            } else {
-                let [a, b, c] = [a, b, c].map(|p| p.as_dvec3());
-                let cr = (b - a).cross(c - a);
-                let len = cr.length();
-                let scale = (b - a).length_squared().max((c - a).length_squared());
-                let ok = len.is_finite() && len > 1e-7 * scale;
-                ((cr / len).as_vec3(), len as f32, !ok)
-            };
+            let (n, len, degenerate) = measure(a, b, c);
             if degenerate {
                 skipped += 1;
                 if first_skipped == 0 {

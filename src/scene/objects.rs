@@ -183,19 +183,10 @@ pub fn transformed(mesh: &Mesh, m: &DMat4) -> Mesh {
         .iter()
         .map(|t| {
             let [p0, p1, p2] = t.map(|i| positions[i as usize]);
-            let c = (p1 - p0).cross(p2 - p0);
-            let len = c.length();
-            if len.is_finite() && len > 0.0 {
-                (c / len, 0.5 * len)
-            } else {
-                // As the OBJ reader measures them (`mesh`): from edges of about 4e9 on the f32
-                // cross product overflows (a placed floor 1e10 wide lost its normal and its
-                // area: black, or its light gone), so such a triangle is measured in f64.
-                let [p0, p1, p2] = [p0, p1, p2].map(|p| p.as_dvec3());
-                let c = (p1 - p0).cross(p2 - p0);
-                let len = c.length();
-                ((c / len).as_vec3(), (0.5 * len) as f32)
-            }
+            // As the OBJ reader measures them, in f64 where f32 overflows (a placed floor 1e10
+            // wide had lost its normal and its area: black, or its light gone).
+            let (n, len, _) = super::mesh::measure(p0, p1, p2);
+            (n, 0.5 * len)
         })
         .unzip();
     Mesh {
