@@ -206,3 +206,76 @@ fn a_refusal_names_what_the_holder_writes() {
         "{err}"
     );
 }
+
+/// Two renders whose frame files share a name are refused whatever their patterns
+/// (`f_####.exr` and `f_0###.exr` both write `f_0030.exr`, a single frame named `f_0007.exr`
+/// is frame 7 of both), and so are two renders given one `--checkpoint` folder; renders whose
+/// names never meet run side by side, and a killed holder's lock stops nobody.
+#[test]
+fn renders_whose_frame_files_meet_are_refused_whatever_their_patterns() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let args = |out: &str, frames: &str, extra: &[&str]| -> Vec<String> {
+        let spp = if extra.first() == Some(&"--spp") {
+            &[][..]
+        } else {
+            &["--spp", "1"]
+        };
+        ["render", "vase", "--res", "48x36", "--frames", frames]
+            .iter()
+            .chain(spp)
+            .chain(extra)
+            .map(|s| s.to_string())
+            .chain(["--out".to_string(), d.join(out).display().to_string()])
+            .collect()
+    };
+    let long = ["--spp", "4096", "--checkpoint"];
+    let mut ck = long.to_vec();
+    let ck_dir = d.join("ck").display().to_string();
+    ck.push(&ck_dir);
+    let mut first = reframe(&args("f_####.exr", "0-40", &ck)).spawn().unwrap();
+    // Its lock names its frames once written.
+    let lock = d.join(".f.lock");
+    let start = Instant::now();
+    while !std::fs::read_to_string(&lock).is_ok_and(|t| t.contains("frames 0-40")) {
+        assert!(
+            first.try_wait().unwrap().is_none(),
+            "the first render stopped"
+        );
+        assert!(start.elapsed() < Duration::from_secs(60), "no lock file");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let refusal = |a: Vec<String>| {
+        let o = reframe(&a).output().unwrap();
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let pid = format!("pid {}", first.id());
+    let (code, err) = refusal(args("f_0###.exr", "30-31", &[]));
+    assert!(
+        code == Some(1) && err.contains(&pid) && err.contains("f_0030.exr"),
+        "{err}"
+    );
+    let (code, err) = refusal(args("f_0007.exr", "7-7", &[]));
+    assert!(
+        code == Some(1) && err.contains(&pid) && err.contains("frame 7"),
+        "{err}"
+    );
+    let (code, err) = refusal(args("g_####.exr", "0-1", &["--checkpoint", &ck_dir]));
+    assert!(
+        code == Some(1) && err.contains(&pid) && err.contains("checkpoint folder"),
+        "{err}"
+    );
+    // Names that never meet: f_1000.exr and up, and another stem.
+    reframe_ok(&args("f_1###.exr", "0-1", &[]));
+    reframe_ok(&args("g_####.exr", "0-1", &[]));
+    let still_running = first.try_wait().unwrap().is_none();
+    first.kill().unwrap();
+    first.wait().unwrap();
+    assert!(still_running, "the first render finished before the test");
+    assert!(lock.exists(), "a killed holder leaves its lock file");
+    reframe_ok(&args("f_0###.exr", "30-31", &[]));
+    assert!(d.join("f_0030.exr").exists() && d.join("f_1001.exr").exists());
+}

@@ -1,11 +1,13 @@
 //! What keeps a command from damaging what it should not touch: one command per output (an
 //! exclusive advisory lock, `flock` through `std::fs::File::try_lock`, released by the kernel
 //! when its holder dies, so no stale lock survives a SIGKILL), and inputs that are never outputs.
+use crate::image::OutputPattern;
 use crate::util::fs::{open_own_file, parent_dir, Temporary};
 use anyhow::{anyhow, bail, Result};
 use std::collections::HashMap;
 use std::fs::File;
 use std::io::{Read, Seek, Write};
+use std::ops::RangeInclusive;
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 
@@ -20,14 +22,38 @@ pub struct OutputLock {
 
 impl OutputLock {
     /// Take the lock `path` for `what` (an output, in messages), or refuse at once, naming the
-    /// process that holds it.
-    pub fn acquire(path: &Path, what: &str) -> Result<OutputLock> {
+    /// process that holds it. With `frames` (a render's or a merge's, `what` being their
+    /// pattern), also refuse while another render holding a lock in the same folder writes a
+    /// frame file of the same name under another pattern (`v_####.exr` and `v_0###.exr` both
+    /// write `v_0012.exr`, and their locks differ).
+    pub fn acquire(path: &Path, what: &str, frames: Option<Frames>) -> Result<OutputLock> {
+        let lock = Self::acquire_file(path, what, frames.as_ref().map(|f| &f.frames))?;
+        if let Some(ours) = frames {
+            // On a refusal the lock goes again (its drop).
+            check_other_patterns(path, &ours)?;
+        }
+        Ok(lock)
+    }
+
+    fn acquire_file(
+        path: &Path,
+        what: &str,
+        frames: Option<&RangeInclusive<u32>>,
+    ) -> Result<OutputLock> {
         loop {
             // Never through a symbolic link, never blocking on a FIFO, and only a regular file
             // of one name: a lock file planted as a link to another file (or a hard link of
             // one) would have that file's content replaced by a pid.
             let mut f = open_own_file(path, "the lock file")?;
-            if f.try_lock().is_err() {
+            // Another process checking whether this lock is live holds it for a moment
+            // (`check_other_patterns`): a few tries before refusing.
+            let held = (0..5).all(|i| {
+                if i > 0 {
+                    std::thread::sleep(std::time::Duration::from_millis(20));
+                }
+                f.try_lock().is_err()
+            });
+            if held {
                 // The holder's pid and what it writes (the first line and the rest): outputs of
                 // one stem share a lock (`v_####.png` and `v_####.exr`), so it may be another
                 // pattern than this command's. Read at most a line's worth of it.
@@ -58,7 +84,12 @@ impl OutputLock {
             }
             f.set_len(0)?;
             f.rewind()?;
-            write!(f, "{}\n{what}\n", std::process::id())?;
+            // In one write, so that a reader sees all of it or none. The frames line is last.
+            let mut text = format!("{}\n{what}\n", std::process::id());
+            if let Some(r) = frames {
+                text += &format!("{FRAMES}{}-{}\n", r.start(), r.end());
+            }
+            f.write_all(text.as_bytes())?;
             return Ok(OutputLock {
                 path: path.to_path_buf(),
                 file: Some(f),
@@ -66,6 +97,123 @@ impl OutputLock {
             });
         }
     }
+}
+
+/// The lock of a folder a command writes into (`--checkpoint`): a hidden file beside it,
+/// `.NAME.lock`, so that the folder itself is made only when its first file is.
+pub fn folder_lock_path(dir: &Path) -> PathBuf {
+    match (dir.file_name(), resolved(dir)) {
+        (Some(n), _) => parent_dir(dir).join(format!(".{}.lock", n.to_string_lossy())),
+        // `.`, `..`, `/`: beside the folder it resolves to, or in it.
+        (None, Some(r)) => match (r.parent(), r.file_name()) {
+            (Some(p), Some(n)) => p.join(format!(".{}.lock", n.to_string_lossy())),
+            _ => r.join(".checkpoint.lock"),
+        },
+        (None, None) => dir.join(".checkpoint.lock"),
+    }
+}
+
+/// The frames a lock's holder writes: `frames` of `pattern`.
+pub struct Frames<'a> {
+    pub pattern: &'a OutputPattern,
+    pub frames: RangeInclusive<u32>,
+}
+
+/// How a lock file names its holder's frames, on its last line.
+const FRAMES: &str = "frames ";
+
+/// Refuse if another live lock in the folder of the lock `ours_lock` is held by a render whose
+/// frame files include one of `ours`'. Lock files without a frames line (a chunk's, `compare`'s),
+/// unreadable ones and ones nobody holds (their holder was killed) are passed over.
+fn check_other_patterns(ours_lock: &Path, ours: &Frames) -> Result<()> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let Ok(entries) = std::fs::read_dir(parent_dir(ours_lock)) else {
+        return Ok(());
+    };
+    let own_name = ours_lock.file_name();
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let n = name.to_string_lossy();
+        if !(n.starts_with('.') && n.ends_with(".lock"))
+            || Some(name.as_os_str()) == own_name
+            || !e.file_type().is_ok_and(|t| t.is_file())
+        {
+            continue;
+        }
+        let Ok(mut f) = std::fs::OpenOptions::new()
+            .read(true)
+            .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
+            .open(e.path())
+        else {
+            continue;
+        };
+        let mut text = String::new();
+        if (&mut f).take(1 << 16).read_to_string(&mut text).is_err() {
+            continue;
+        }
+        let Some((pid, what, theirs)) = parse_holder(&text) else {
+            continue;
+        };
+        let Ok(pattern) = OutputPattern::parse(what) else {
+            continue;
+        };
+        let Some((mine, its)) = shared_frame(ours, &pattern, &theirs) else {
+            continue;
+        };
+        // Live only while its holder holds it; a moment's lock here to find out.
+        if f.try_lock().is_ok() {
+            let _ = f.unlock();
+            continue;
+        }
+        let file = ours.pattern.path(mine);
+        bail!(
+            "another reframe (pid {pid}) is writing frames {}-{} of {what} (its lock is {}), and \
+             its frame {its} is {}, frame {mine} of this command's {}: wait for it to finish, or \
+             write to other names",
+            theirs.start(),
+            theirs.end(),
+            e.path().display(),
+            file.file_name()
+                .map_or(file.as_os_str(), |n| n)
+                .to_string_lossy(),
+            ours.pattern
+        );
+    }
+    Ok(())
+}
+
+/// A lock file's holder: its pid, what it writes and its frames (`None` without a frames line).
+fn parse_holder(text: &str) -> Option<(&str, &str, RangeInclusive<u32>)> {
+    let (head, last) = text.strip_suffix('\n')?.rsplit_once('\n')?;
+    let (a, b) = last.strip_prefix(FRAMES)?.split_once('-')?;
+    let (pid, what) = head.split_once('\n')?;
+    Some((pid, what, a.parse().ok()?..=b.parse().ok()?))
+}
+
+/// A frame of `ours` whose file has the name of frame `its` of `theirs`, within `their_frames`:
+/// `(ours, its)`, or `None`. The names compared are file names; the folder is the same (the
+/// locks are beside their frames).
+fn shared_frame(
+    ours: &Frames,
+    theirs: &OutputPattern,
+    their_frames: &RangeInclusive<u32>,
+) -> Option<(u32, u32)> {
+    let name = |p: &OutputPattern, f: u32| {
+        p.path(f)
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+    };
+    let literal = (!theirs.has_frame_field())
+        .then(|| name(theirs, *their_frames.start()))
+        .flatten();
+    ours.frames.clone().find_map(|f| {
+        let n = name(ours.pattern, f)?;
+        let its = match &literal {
+            Some(l) => (*l == n).then_some(*their_frames.start())?,
+            None => theirs.frame_named(&n)?,
+        };
+        their_frames.contains(&its).then_some((f, its))
+    })
 }
 
 impl Drop for OutputLock {

@@ -186,7 +186,11 @@ pub fn merge(
         .map(|f| ("--out", out.path(f)))
         .chain([("the lock of --out", lock.clone())]);
     super::guard::check_outputs(outputs, &inputs)?;
-    let _lock = super::guard::OutputLock::acquire(&lock, pattern)?;
+    let frames = super::guard::Frames {
+        pattern: &out,
+        frames: range.clone(),
+    };
+    let _lock = super::guard::OutputLock::acquire(&lock, pattern, Some(frames))?;
     super::remove_stale_frames(&out, range.clone());
     // Where each frame's shares are: frame -> (file, offset).
     let mut shares: BTreeMap<u32, Vec<(usize, u64)>> = BTreeMap::new();

@@ -281,11 +281,30 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
             .map(|d| ("--checkpoint", d.join("state"))),
     );
     outputs.push(("the lock of --out", lock.clone()));
+    outputs.extend(
+        opts.checkpoint
+            .iter()
+            .map(|d| ("the lock of --checkpoint", guard::folder_lock_path(d))),
+    );
     if let Some(d) = &opts.checkpoint {
         guard::check_folder_apart("--checkpoint", d, &outputs)?;
     }
     guard::check_outputs(outputs, &scene.inputs)?;
-    let _lock = guard::OutputLock::acquire(&lock, &opts.out)?;
+    let frames = opts.chunk.is_none().then(|| guard::Frames {
+        pattern: &out,
+        frames: plan.frames.clone(),
+    });
+    let _lock = guard::OutputLock::acquire(&lock, &opts.out, frames)?;
+    // One render per checkpoint folder too: two renders of other outputs given one
+    // `--checkpoint` wrote over each other's state.
+    let _checkpoint_lock = match &opts.checkpoint {
+        Some(d) => Some(guard::OutputLock::acquire(
+            &guard::folder_lock_path(d),
+            &format!("the checkpoint folder {}", d.display()),
+            None,
+        )?),
+        None => None,
+    };
     let (ckpt, resumed) = if opts.checkpoint.is_some() || opts.chunk.is_some() {
         let key = run_key(scene, opts, &plan)?;
         let template = Trailer::new(

@@ -372,7 +372,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             .map(|n| ("--out", opts.out.join(n))),
         &scene.inputs,
     )?;
-    let _lock = OutputLock::acquire(&lock, &opts.out.display().to_string())?;
+    let _lock = OutputLock::acquire(&lock, &opts.out.display().to_string(), None)?;
     created.keep();
     let pool = thread_pool(opts.threads)?;
     let threads = pool.current_num_threads();

@@ -225,6 +225,28 @@ impl OutputPattern {
         PathBuf::from(format!("{}{frame:0width$}{}", self.prefix, self.suffix))
     }
 
+    /// The frame whose file is named `name` (a file name, without its folder) under this
+    /// pattern: the inverse of `path` on file names. `None` for a name it never writes, and
+    /// for a pattern without a '#' run (every frame has its one name).
+    pub fn frame_named(&self, name: &str) -> Option<u32> {
+        if self.digits == 0 {
+            return None;
+        }
+        let own = self
+            .prefix
+            .rfind(['/', std::path::MAIN_SEPARATOR])
+            .map_or(&self.prefix[..], |i| &self.prefix[i + 1..]);
+        let number = name.strip_prefix(own)?.strip_suffix(&self.suffix[..])?;
+        if number.len() < self.digits || !number.bytes().all(|b| b.is_ascii_digit()) {
+            return None;
+        }
+        // Wider than the run only without padding: "####" writes 12345, never 012345.
+        if number.len() > self.digits && number.starts_with('0') {
+            return None;
+        }
+        number.parse().ok()
+    }
+
     /// Checks everything that could make a write fail later, so that it fails before any
     /// rendering: OIIO can write the format, the folder exists (it is created if need be) and a
     /// file can be created in it. The folders it created go again unless the caller keeps them.
@@ -1503,6 +1525,37 @@ mod tests {
         assert_eq!(
             OutputPattern::parse("####.exr").unwrap().path(1),
             PathBuf::from("0001.exr")
+        );
+    }
+
+    /// `frame_named` inverts `path` on file names, and names no frame for names the pattern
+    /// never writes: padded wider than the run, another stem or extension, too few digits.
+    #[test]
+    fn a_file_name_gives_its_frame() {
+        let p = OutputPattern::parse("out/v_####-L.exr").unwrap();
+        for f in [0, 7, 9999, 10000, 123456, u32::MAX] {
+            let name = p.path(f).file_name().unwrap().to_str().unwrap().to_string();
+            assert_eq!(p.frame_named(&name), Some(f), "{name}");
+        }
+        for name in [
+            "v_012-L.exr",
+            "v_012345-L.exr",
+            "v_0012-R.exr",
+            "v_0012-L.png",
+            "w_0012-L.exr",
+            "out/v_0012-L.exr",
+            "v_+012-L.exr",
+            "v_99999999999-L.exr",
+        ] {
+            assert_eq!(p.frame_named(name), None, "{name}");
+        }
+        let p = OutputPattern::parse("####.exr").unwrap();
+        assert_eq!(p.frame_named("0012.exr"), Some(12));
+        assert_eq!(
+            OutputPattern::parse("v_0012.exr")
+                .unwrap()
+                .frame_named("v_0012.exr"),
+            None
         );
     }
 
