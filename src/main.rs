@@ -19,9 +19,8 @@ use reframe::driver::{self, RenderOptions};
 use reframe::embree::Device;
 use reframe::eval::{compare, reference};
 use reframe::scene::{LoadOptions, Scene};
-use reframe::state::key::{default_checkpoint_dir, partial_path, Chunk};
+use reframe::state::key::{chunk_partials, default_checkpoint_dir, partial_path, Chunk};
 use reframe::util::fs::{check_file_target, exit_removing_temporaries, exit_with, write_json};
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
@@ -209,18 +208,16 @@ fn run(cli: Cli) -> Result<()> {
             let partials = match a.chunks {
                 Some(0) => bail!("--chunks 0: at least one chunk is needed"),
                 Some(n) => {
-                    // Those that exist: merge names a missing chunk itself.
-                    let all: Vec<PathBuf> = (1..=n)
-                        .map(|k| {
-                            let out = a.out.as_deref().unwrap();
-                            partial_path(out, Chunk { k, n })
-                        })
-                        .collect();
-                    let there: Vec<PathBuf> = all.iter().filter(|p| p.exists()).cloned().collect();
+                    // Those that exist, found in the folder (merge names a missing chunk
+                    // itself): asking for each of n names made n paths first, and --chunks
+                    // 4294967295 asked for 100 GB.
+                    let out = a.out.as_deref().unwrap();
+                    let first = partial_path(out, Chunk { k: 1, n });
+                    let there = chunk_partials(out, n);
                     if there.is_empty() {
                         bail!(
                             "--chunks {n}: none of the partial files is there (expected {} ..)",
-                            all[0].display()
+                            first.display()
                         );
                     }
                     there

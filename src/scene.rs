@@ -67,7 +67,7 @@ pub use maps::{Map, Maps};
 pub use objects::{Instance, Prototype};
 use serde::{de, Deserialize, Deserializer};
 use std::borrow::Cow;
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::ops::Range;
 use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
@@ -1560,9 +1560,12 @@ fn load_obj_files(
     let mut materials = Vec::new();
     let mut maps = Vec::new();
     let mut texture_files = Vec::new();
+    // Sets beside the lists: an OBJ naming tens of thousands of MTL files (or an MTL as many
+    // unrendered maps) took a time in the square of their count with a search of the list.
+    let mut texture_seen: HashSet<PathBuf> = HashSet::new();
     let mut names = Vec::new();
     let mut by_name: HashMap<String, u32> = HashMap::new();
-    let mut read: Vec<PathBuf> = Vec::new();
+    let mut read: HashSet<PathBuf> = HashSet::new();
     for (line, rest) in &parsed.mtllib {
         let shown = String::from_utf8_lossy(rest);
         let at = format!("{label}: line {line}: mtllib '{}'", quote(&shown));
@@ -1570,7 +1573,7 @@ fn load_obj_files(
             // A shipped scene has one MTL, whatever its OBJ calls it: read it once.
             MtlSource::Builtin(_) if !read.is_empty() => Vec::new(),
             MtlSource::Builtin(text) => {
-                read.push(PathBuf::from(shown.as_ref()));
+                read.insert(PathBuf::from(shown.as_ref()));
                 vec![(
                     format!("{shown} (built in)"),
                     None,
@@ -1586,10 +1589,9 @@ fn load_obj_files(
                         })?;
                     }
                     // The same file named twice is read once.
-                    if read.contains(&path) {
+                    if !read.insert(path.clone()) {
                         continue;
                     }
-                    read.push(path.clone());
                     match read_input_or_missing(&path, "MTL", MAX_INPUT_BYTES) {
                         Ok(b) => {
                             let dir = path.parent().map(Path::to_path_buf);
@@ -1612,7 +1614,7 @@ fn load_obj_files(
             if let Some(dir) = &mtl_dir {
                 for f in mtl.other_files.iter().filter(|f| !f.is_empty()) {
                     let (path, _) = locate_named_file(dir, f);
-                    if !texture_files.contains(&path) {
+                    if texture_seen.insert(path.clone()) {
                         texture_files.push(path);
                     }
                 }

@@ -259,3 +259,20 @@ fn an_output_name_too_long_for_its_temporary_file_is_refused_before_rendering() 
     );
     assert!(!tmp.path().join("o").exists(), "nothing made");
 }
+
+/// `merge --chunks N` finds its partials by listing the folder: N named none of the cost (the
+/// largest N made 4294967295 paths first and aborted asking for 100 GB).
+#[test]
+fn merge_with_a_huge_chunk_count_is_refused_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f_####.exr").display().to_string();
+    let args: Vec<String> = ["merge", "--chunks", "4294967295", "--out", &out]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let line = refusal(&run_reframe(&args, Duration::from_secs(60))).unwrap();
+    assert!(
+        line.contains("none of the partial files is there"),
+        "{line}"
+    );
+}

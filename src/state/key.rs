@@ -214,9 +214,60 @@ pub fn partial_path(pattern: &str, c: Chunk) -> PathBuf {
     dir.join(format!("{stem}.chunk-{}-of-{}.partial", c.k, c.n))
 }
 
+/// The partial files of chunks `1..=n` of `pattern` that are in its folder, in chunk order:
+/// found by listing the folder, so that the cost follows what is there, not `n`.
+pub fn chunk_partials(pattern: &str, n: u32) -> Vec<PathBuf> {
+    let (dir, stem) = output_stem(pattern);
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        return Vec::new();
+    };
+    let (head, tail) = (format!("{stem}.chunk-"), format!("-of-{n}.partial"));
+    let mut found: Vec<(u32, PathBuf)> = entries
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name();
+            let k: u32 = name
+                .to_str()?
+                .strip_prefix(&head)?
+                .strip_suffix(&tail)?
+                .parse()
+                .ok()?;
+            let p = partial_path(pattern, Chunk { k, n });
+            ((1..=n).contains(&k) && p.file_name() == Some(name.as_os_str())).then_some((k, p))
+        })
+        .collect();
+    found.sort();
+    found.into_iter().map(|(_, p)| p).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The partials of the chunks asked for, in chunk order; names of other counts, of chunks
+    /// out of range, or written with leading zeros are not theirs.
+    #[test]
+    fn chunk_partials_are_found_in_the_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let pattern = dir.path().join("f_####.exr").display().to_string();
+        for name in [
+            "f.chunk-3-of-3.partial",
+            "f.chunk-1-of-3.partial",
+            "f.chunk-01-of-3.partial",
+            "f.chunk-4-of-3.partial",
+            "f.chunk-0-of-3.partial",
+            "f.chunk-2-of-4.partial",
+            "g.chunk-2-of-3.partial",
+        ] {
+            std::fs::write(dir.path().join(name), b"").unwrap();
+        }
+        let found = chunk_partials(&pattern, 3);
+        let want: Vec<PathBuf> = [1, 3]
+            .map(|k| partial_path(&pattern, Chunk { k, n: 3 }))
+            .to_vec();
+        assert_eq!(found, want);
+        assert!(chunk_partials(&pattern, u32::MAX).is_empty());
+    }
 
     #[test]
     fn chunks_split_units_contiguously_and_evenly() {
