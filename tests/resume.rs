@@ -112,11 +112,40 @@ fn killed_render_resumes_to_identical_frames() {
     // another frame of the same render in its place (frame 5's file).
     let half = kept[..kept.len() / 2].to_vec();
     let other = std::fs::read(killed.join("f_0005.exr")).unwrap();
+    // Frame 4 of another render with the same seed: of another scene, with another method, at
+    // another size (each named by its metadata or its size; they were kept, exit 0).
+    let foreign = |scene: &str, method: &str, res: &str| -> Vec<u8> {
+        let out = format!("{}/foreign/{scene}-{method}-{res}.exr", d.display());
+        run(&[
+            "render",
+            scene,
+            "--method",
+            method,
+            "--spp",
+            "2",
+            "--frames",
+            "4-4",
+            "--res",
+            res,
+            "--exr-float",
+            "--out",
+            &out,
+        ]);
+        std::fs::read(&out).unwrap()
+    };
+    let foreign = [
+        foreign("cornell", "mis-exact", "160x120"),
+        foreign("vase", "independent", "160x120"),
+        foreign("vase", "mis-exact", "80x60"),
+    ];
     for damage in [
         None,
         Some(&b"garbage"[..]),
         Some(&half[..]),
         Some(&other[..]),
+        Some(&foreign[0][..]),
+        Some(&foreign[1][..]),
+        Some(&foreign[2][..]),
     ] {
         match damage {
             None => std::fs::remove_file(&f0).unwrap(),

@@ -86,6 +86,7 @@ fn check_resumed_outputs(
     opts: &RenderOptions,
     plan: &Plan,
     out: &OutputPattern,
+    meta: &FrameMeta,
 ) -> Result<()> {
     // The same pattern, written alike or not (`o/f_####.exr`, `./o/f_####.exr`, absolute).
     let same = |a: &str, b: &str| {
@@ -107,14 +108,26 @@ fn check_resumed_outputs(
     for f in plan.frames.clone().take(done) {
         let p = out.path(f);
         // Every pixel read (a file cut short or damaged in its compressed data fails here,
-        // where reading its header alone passed), and the frame and seed its metadata names
-        // checked where the format keeps them (another file in its place, another run's frame).
+        // where reading its header alone passed), its size this render's, and what its
+        // metadata names (frame, seed, scene, method, samples, window) this render's where the
+        // format keeps them: another file in its place, or another run's frame, is refused.
         let why = match crate::image::read_image(&p) {
             Err(e) => Some(format!("it cannot be read ({e:#})")),
+            Ok(img) if (img.width, img.height) != (plan.width, plan.height) => Some(format!(
+                "it is {}x{} pixels, not this render's {}x{}",
+                img.width, img.height, plan.width, plan.height
+            )),
             Ok(_) => {
                 let md = crate::image::read_metadata(&p).unwrap_or_default();
                 let get = |k: &str| md.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone());
-                let want = [("frame", f.to_string()), ("seed", opts.seed.to_string())];
+                let want = [
+                    ("frame", f.to_string()),
+                    ("seed", meta.seed.to_string()),
+                    ("scene", meta.scene.clone()),
+                    ("method", meta.method.clone()),
+                    ("spp", meta.spp.to_string()),
+                    ("window", meta.window.to_string()),
+                ];
                 want.iter()
                     .find_map(|(k, v)| match get(&format!("reframe:{k}")) {
                         Some(got) if got != *v => Some(format!(
@@ -330,9 +343,17 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     if opts.chunk.is_none() {
         remove_stale_frames(&out, plan.frames.clone());
     }
+    let meta = FrameMeta {
+        scene: scene.name.clone(),
+        method: opts.method.name().into(),
+        spp: opts.spp,
+        window: opts.window,
+        seed: opts.seed,
+        exr_float: opts.exr_float,
+    };
     let (counters, next, active) = match resumed {
         Some(r) => {
-            check_resumed_outputs(&r.trailer, opts, &plan, &out)?;
+            check_resumed_outputs(&r.trailer, opts, &plan, &out, &meta)?;
             (r.trailer.progress, r.trailer.next_unit, r.active)
         }
         None => (Counters::default(), *plan.units.start(), vec![]),
@@ -344,17 +365,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     let mut integrator = Integrator::new(scene, opts.max_depth);
     integrator.primary = opts.primary;
     integrator.paths = opts.paths;
-    let mut sink = FileSink::new(
-        FrameMeta {
-            scene: scene.name.clone(),
-            method: opts.method.name().into(),
-            spp: opts.spp,
-            window: opts.window,
-            seed: opts.seed,
-            exr_float: opts.exr_float,
-        },
-        out,
-    );
+    let mut sink = FileSink::new(meta, out);
     let mut denoise_seconds = 0.0;
     let completed = match denoiser {
         Some((denoiser, layers)) => {
