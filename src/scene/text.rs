@@ -133,13 +133,14 @@ pub fn lines(bytes: &[u8]) -> Result<impl Iterator<Item = Line<'_>>> {
 /// The lines with continuations joined: a statement that ends in `\` goes on in the next line
 /// (the OBJ format's rule, used by exporters for long faces); the joined line keeps the number
 /// of its first. Comments are left alone, so that a comment ending in `\` (a Windows path)
-/// does not swallow the statement below it.
+/// does not swallow the statement below it: a line that is a comment, and a statement of
+/// numbers whose comment at its end (`v 1 0 2 # from C:\scans\`) holds the `\`.
 pub fn joined<'a>(mut lines: impl Iterator<Item = Line<'a>>) -> impl Iterator<Item = Line<'a>> {
     std::iter::from_fn(move || {
         let mut line = lines.next()?;
         loop {
             let t = line.text.trim_end();
-            if !t.ends_with('\\') || t.trim_start().starts_with('#') {
+            if !t.ends_with('\\') || t.trim_start().starts_with('#') || ends_in_comment(t) {
                 return Some(line);
             }
             let mut s = t[..t.len() - 1].to_string();
@@ -153,6 +154,12 @@ pub fn joined<'a>(mut lines: impl Iterator<Item = Line<'a>>) -> impl Iterator<It
             line.latin1 |= next.latin1;
         }
     })
+}
+
+/// Whether the statement `t` is one of numbers with a comment at its end (a word from `#` on).
+fn ends_in_comment(t: &str) -> bool {
+    let mut words = t.split_whitespace();
+    words.next().is_some_and(numeric) && words.any(|w| w.starts_with('#'))
 }
 
 impl Line<'_> {
