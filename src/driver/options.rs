@@ -195,6 +195,9 @@ impl RenderOptions {
         check_frames(scene, &range)?;
         let (w, h) = self.resolution.unwrap_or((scene.width, scene.height));
         check_resolution((w, h))?;
+        if self.denoise.is_some() {
+            crate::image::oidn::check_size("--denoise", (w, h))?;
+        }
         check_spp("--spp", self.spp)?;
         let n = range.end() - range.start() + 1;
         if self.window.is_multiple_of(2) {

@@ -286,6 +286,9 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     let (first, last) = (*range.start(), *range.end());
     let (w, h) = opts.res.unwrap_or((scene.width, scene.height));
     check_resolution((w, h))?;
+    if let Some(c) = opts.methods.iter().find(|c| c.denoise) {
+        crate::image::oidn::check_size(&format!("--methods {}", c.name()), (w, h))?;
+    }
     check_max_depth(opts.max_depth)?;
     let n_frames = last - first + 1;
     for &b in &opts.budgets {

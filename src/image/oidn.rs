@@ -158,6 +158,21 @@ fn elf_whole(path: &std::path::Path) -> std::result::Result<(), String> {
     Ok(())
 }
 
+/// The largest side of an image Open Image Denoise filters: 65537 pixels and more fail when the
+/// filter is set up ("image size is too large"), which was after the first frame's rendering.
+pub const MAX_SIDE: u32 = 65536;
+
+/// Refuse, before anything is rendered, a frame of `w` x `h` that the denoiser cannot filter.
+pub fn check_size(flag: &str, (w, h): (u32, u32)) -> anyhow::Result<()> {
+    if w > MAX_SIDE || h > MAX_SIDE {
+        anyhow::bail!(
+            "{flag}: Open Image Denoise filters images of at most {MAX_SIDE} pixels a side, and \
+             the frames are {w}x{h}: render smaller frames, or leave the denoiser out"
+        );
+    }
+    Ok(())
+}
+
 impl Denoiser {
     /// Open the library and make a CPU device with `threads` threads (0: OIDN's choice).
     pub fn load(threads: usize) -> Result<Denoiser> {
