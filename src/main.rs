@@ -21,6 +21,7 @@ use reframe::eval::{compare, reference};
 use reframe::scene::{LoadOptions, Scene};
 use reframe::state::key::{chunk_partials, default_checkpoint_dir, partial_path, Chunk};
 use reframe::util::fs::{check_file_target, exit_removing_temporaries, exit_with, write_json};
+use reframe::util::text::printable;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
@@ -41,7 +42,7 @@ fn main() {
                 l if l.is_empty() => "invalid arguments".to_string(),
                 l => l,
             };
-            eprintln!("{line} (see --help)");
+            eprintln!("{} (see --help)", printable(&line));
             std::process::exit(2);
         }
     };
@@ -50,15 +51,14 @@ fn main() {
             exit_with(130); // the signal handler's exit, and its line
         }
         if let Some(i) = e.downcast_ref::<driver::Interrupted>() {
-            eprintln!("{i}");
+            eprintln!("{}", printable(&i.to_string()));
             if i.checkpoint.is_some() {
                 eprintln!("resume with: {}", resume_command());
             }
             exit_with(130);
         }
         // One line: the chain of contexts, outermost first.
-        let msg = format!("{e:#}").replace('\n', " ");
-        eprintln!("error: {msg}");
+        eprintln!("error: {}", printable(&format!("{e:#}")));
         exit_with(1);
     }
     exit_with(0);
@@ -72,7 +72,7 @@ fn load(name: &str, device: &Device, strict: bool) -> Result<Scene> {
 /// The scene's load warnings, once a command has succeeded (a failure stays one line).
 fn print_warnings(scene: &Scene) {
     for w in &scene.warnings {
-        eprintln!("warning: {w}");
+        eprintln!("warning: {}", printable(w));
     }
 }
 
@@ -172,7 +172,7 @@ fn run(cli: Cli) -> Result<()> {
             print_warnings(&scene);
             if let Ok(out) = reframe::image::OutputPattern::parse(&opts.out) {
                 for w in opts.flag_warnings(&out) {
-                    eprintln!("warning: {w}");
+                    eprintln!("warning: {}", printable(&w));
                 }
             }
             eprintln!("{}", cli::render_summary(&stats));
@@ -197,9 +197,9 @@ fn run(cli: Cli) -> Result<()> {
                      was removed during the render): those points were shaded black or cut out"
                 );
             }
-            println!("{}", cli::wrote(&stats.outputs));
+            println!("{}", printable(&cli::wrote(&stats.outputs)));
             if let Some(p) = &a.stats {
-                println!("stats in {}", p.display());
+                println!("stats in {}", printable(&p.display().to_string()));
             }
             Ok(())
         }
@@ -250,7 +250,7 @@ fn run(cli: Cli) -> Result<()> {
                 eprintln!("warning: {} pixels are NaN or infinite", r.nonfinite_pixels);
             }
             let frames: Vec<String> = r.frames.iter().map(|p| p.display().to_string()).collect();
-            println!("{}", cli::wrote(&frames));
+            println!("{}", printable(&cli::wrote(&frames)));
             Ok(())
         }
         Command::Bench(a) => {
@@ -278,7 +278,7 @@ fn run(cli: Cli) -> Result<()> {
             println!("{}", report.table());
             if let Some(p) = &a.json {
                 write_json(p, &report)?;
-                println!("figures in {}", p.display());
+                println!("figures in {}", printable(&p.display().to_string()));
             }
             Ok(())
         }
@@ -344,7 +344,7 @@ fn run(cli: Cli) -> Result<()> {
             let report = compare::compare(&scene, &opts)?;
             print_warnings(&scene);
             println!("{}", compare::summary(&report));
-            println!("results in {}", opts.out.display());
+            println!("results in {}", printable(&opts.out.display().to_string()));
             Ok(())
         }
     }

@@ -149,7 +149,9 @@ struct SceneFile {
     camera: Option<Spanned<String>>,
     /// How the keyframes are interpolated (linear if not given).
     interpolation: Option<Spanned<Interpolation>>,
-    environment: Option<Spanned<EnvironmentFile>>,
+    /// Not `Spanned`: the toml crate cannot give the span of a table written with dotted keys
+    /// (`environment.radiance = [1, 1, 1]`), and refused it (`EnvironmentFile::line`).
+    environment: Option<EnvironmentFile>,
 }
 
 /// `[environment]`: a lat-long image or one colour, scaled and turned about +Y.
@@ -160,6 +162,38 @@ struct EnvironmentFile {
     radiance: Option<Spanned<Exactly<f32, 3>>>,
     intensity: Option<Spanned<f32>>,
     rotation: Option<Spanned<f64>>,
+}
+
+impl EnvironmentFile {
+    /// The line of the table in `text`, for messages: its header's (`[environment]`), else its
+    /// first key's (dotted keys, an inline table), else the line that names it
+    /// (`environment = {}`).
+    fn line(&self, text: &str) -> usize {
+        let header = text.lines().position(|l| {
+            let l = l.split('#').next().unwrap_or("").replace([' ', '\t'], "");
+            l == "[environment]"
+        });
+        if let Some(i) = header {
+            return i + 1;
+        }
+        let spans = [
+            self.image.as_ref().map(Spanned::span),
+            self.radiance.as_ref().map(Spanned::span),
+            self.intensity.as_ref().map(Spanned::span),
+            self.rotation.as_ref().map(Spanned::span),
+        ];
+        match spans.into_iter().flatten().map(|s| s.start).min() {
+            Some(at) => line_at(text.as_bytes(), at),
+            None => text
+                .lines()
+                .position(|l| {
+                    let l = l.trim_start().trim_start_matches('[').trim_start();
+                    l.strip_prefix("environment")
+                        .is_some_and(|r| r.trim_start().starts_with([']', '=', '.']))
+                })
+                .map_or(1, |i| i + 1),
+        }
+    }
 }
 
 /// An array of exactly `N` values: serde's `[T; N]` takes the first `N` of a longer TOML array
@@ -1189,14 +1223,14 @@ fn offset_floor(positions: &[Vec3], prototypes: &[Prototype], instances: &[Insta
 fn load_environment(
     label: &str,
     text: &str,
-    e: &Spanned<EnvironmentFile>,
+    f: &EnvironmentFile,
     dir: Option<&Path>,
     repairs: &mut Repairs,
 ) -> Result<(Environment, Option<PathBuf>)> {
     let line = |span: Range<usize>| line_at(text.as_bytes(), span.start);
     let at =
         |span: Range<usize>, key: &str| format!("{label}: line {}: environment {key}", line(span));
-    let f = e.get_ref();
+    let table_line = f.line(text);
     let intensity = match &f.intensity {
         Some(i) => {
             let v = *i.get_ref();
@@ -1231,7 +1265,7 @@ fn load_environment(
         (None, None) => bail!(
             "{label}: line {}: [environment] needs an image (a lat-long file) or a radiance \
              (one colour)",
-            line(e.span())
+            table_line
         ),
         (None, Some(r)) => {
             let c = r.get_ref().0;
@@ -1263,7 +1297,6 @@ fn load_environment(
             let (width, height) = (image.width, image.height);
             let data = image.data;
             let mut texels = Vec::with_capacity(data.len() / 3);
-            let table_line = line(e.span());
             for (i, c) in data.chunks_exact(3).enumerate() {
                 let t = Vec3::new(c[0], c[1], c[2]);
                 if !t.is_finite() || t.min_element() < 0.0 {

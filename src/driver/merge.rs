@@ -145,7 +145,7 @@ pub fn merge(
             eprintln!(
                 "warning: --scene {}: the chunks were rendered without --denoise, so the merge \
                  does not use the scene",
-                d.scene.name
+                crate::util::text::printable(&d.scene.name)
             );
             None
         }

@@ -394,7 +394,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     eprintln!(
         "reference: {} spp, {} ({})",
         reference.spp,
-        reference.dir.display(),
+        crate::util::text::printable(&reference.dir.display().to_string()),
         if reference.cached {
             "cached".to_string()
         } else {

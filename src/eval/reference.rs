@@ -163,8 +163,11 @@ pub fn reference(
             }
             // A cache is a copy of what can be made again: made again, said once.
             Err(e) => eprintln!(
-                "warning: the cached reference in {} is damaged ({e:#}); rendering it again",
-                dir.display()
+                "warning: {}",
+                crate::util::text::printable(&format!(
+                    "the cached reference in {} is damaged ({e:#}); rendering it again",
+                    dir.display()
+                ))
             ),
         }
     }

@@ -224,7 +224,7 @@ impl Checkpointer {
             } else if resume {
                 eprintln!(
                     "note: no checkpoint in {}: starting from the beginning",
-                    d.display()
+                    crate::util::text::printable(&d.display().to_string())
                 );
             }
             if d.exists() && !d.is_dir() {
