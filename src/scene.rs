@@ -1665,7 +1665,7 @@ fn load_obj_files(
                 maps.push(Maps::open(
                     &mtl_label,
                     mtl_dir.as_deref(),
-                    (m, material.is_emissive()),
+                    (m, material.ke),
                     textures,
                     &mut texture_files,
                     repairs,

@@ -55,6 +55,9 @@ struct Info {
     srgb: bool,
     /// FNV-1a of the decoded texels and the size: the texture's identity in a scene's hash.
     digest: u64,
+    /// The largest linear value of each colour channel (red, green, blue), for the emission
+    /// cap's check (`Maps::open`).
+    max: [f32; 3],
     /// The file, and for a mask whether it reads the first channel of a colour image without
     /// alpha (`image::mask_source`).
     path: PathBuf,
@@ -175,12 +178,20 @@ impl Textures {
             pick,
             srgb,
             digest: f.0,
+            max: img.data.chunks_exact(3).fold([0.0f32; 3], |m, c| {
+                [m[0].max(c[0]), m[1].max(c[1]), m[2].max(c[2])]
+            }),
             path: key.0.clone(),
             colour_mask,
         });
         let id = TextureId(id);
         self.by_path.insert(key, id);
         id
+    }
+
+    /// The largest value of each colour channel of texture `id` (red, green, blue).
+    pub fn max_rgb(&self, id: TextureId) -> [f32; 3] {
+        self.info[id.0 as usize].max
     }
 
     /// Whether mask `id` reads the first channel of a colour image without alpha (no `-imfchan`,

@@ -2,7 +2,7 @@
 //! material they make at a point of a surface, and its cut-out mask (`map_d`, which
 //! `scene::cutout` hands to Embree). The textures themselves are looked up through
 //! `image::Textures` (OpenImageIO's texture system).
-use super::mtl::{MapSpec, MtlMaterial, Slot};
+use super::mtl::{MapSpec, MtlMaterial, Slot, MAX_KE};
 use super::repairs::{Kind, Repairs};
 use super::text::quote;
 use crate::bsdf::Material;
@@ -55,6 +55,11 @@ const COLOUR_AS_MASK: Kind = Kind {
     many: "map_d names the colour texture (map_Kd), which has no alpha: no cut-outs",
 };
 
+const KE_MAP_CAPPED: Kind = Kind {
+    one: "emission map capped at 1e9 (radiance sums would overflow above it)",
+    many: "emission maps capped at 1e9 (radiance sums would overflow above it)",
+};
+
 const EMITTER_CUTOUT: Kind = Kind {
     one: "map_d on an emitting material ignored (lights are opaque)",
     many: "map_d on emitting materials ignored (lights are opaque)",
@@ -63,12 +68,13 @@ const EMITTER_CUTOUT: Kind = Kind {
 impl Maps {
     /// Open the textures `m`'s MTL (`mtl_label`, in folder `dir`) names, refusing a texture
     /// that cannot be used with one line naming the MTL file and line. `opened` gets each
-    /// texture's path. A light's mask (`emits`) is left out, with a note in `repairs`: light
-    /// sampling picks points on the whole triangle.
+    /// texture's path. A light's mask (the material emits `ke`) is left out, with a note in
+    /// `repairs`: light sampling picks points on the whole triangle. An emission map whose
+    /// texels times `ke` pass `MAX_KE` is capped there as it is looked up, with a note.
     pub fn open(
         mtl_label: &str,
         dir: Option<&Path>,
-        (m, emits): (&MtlMaterial, bool),
+        (m, ke_colour): (&MtlMaterial, Vec3),
         textures: &mut Option<Textures>,
         opened: &mut Vec<PathBuf>,
         repairs: &mut Repairs,
@@ -121,6 +127,7 @@ impl Maps {
         };
         let kd = open(&m.maps[Slot::Kd as usize], false)?;
         let ks = open(&m.maps[Slot::Ks as usize], false)?;
+        let emits = ke_colour.max_element() > 0.0;
         let ke = open(&m.maps[Slot::Ke as usize], false)?;
         let cutout = match &m.maps[Slot::D as usize] {
             Some(spec) if emits => {
@@ -143,6 +150,21 @@ impl Maps {
             }
             (c, ..) => c,
         };
+        if let (Some(map), Some(t), Some(spec)) =
+            (&ke, textures.as_ref(), &m.maps[Slot::Ke as usize])
+        {
+            let brightest = ke_colour * Vec3::from(t.max_rgb(map.tex));
+            if brightest.max_element() > MAX_KE {
+                repairs.note(mtl_label, spec.line, KE_MAP_CAPPED, || {
+                    format!(
+                        "'{}' in '{}': Ke times the texture reaches {:e}",
+                        quote(&spec.statement),
+                        m.name,
+                        brightest.max_element()
+                    )
+                })?;
+            }
+        }
         Ok(Maps { kd, ks, ke, cutout })
     }
 
@@ -177,6 +199,6 @@ impl Maps {
     }
 
     fn emission(&self, ke: Vec3, textures: &Textures, uv: Vec2, map: &Map) -> Vec3 {
-        (ke * map.rgb(textures, uv)).min(Vec3::splat(super::mtl::MAX_KE))
+        (ke * map.rgb(textures, uv)).min(Vec3::splat(MAX_KE))
     }
 }
