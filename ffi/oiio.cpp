@@ -13,6 +13,7 @@
 #include <mutex>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "reframe/src/image/bridge.rs.h"
 
@@ -185,6 +186,52 @@ void check_output_format(rust::Slice<const uint8_t> path) {
     auto out = OIIO::ImageOutput::create(p);
     if (!out) {
         throw_global_error("no image writer");
+    }
+}
+
+void probe_output(rust::Slice<const uint8_t> path, rust::Slice<const uint8_t> probe,
+                  const ImageDesc& desc) {
+    const std::string p = path_string(path);
+    auto out = OIIO::ImageOutput::create(p);
+    if (!out) {
+        throw_global_error("no image writer");
+    }
+    // OpenImageIO's pseudo-formats: `null` writes nothing (and fails a frame's write), `term`
+    // draws on the terminal.
+    const std::string format = out->format_name();
+    if (format == "null" || format == "term") {
+        throw std::runtime_error("'" + format + "' is not an image file format");
+    }
+    // The formats frames are written in hold any RGB frame reframe renders: not probed (a
+    // PNG closed without its pixels has libpng print to stderr).
+    for (const char* whole : {"openexr", "png", "jpeg", "tiff", "hdr", "targa", "bmp"}) {
+        if (format == whole) {
+            return;
+        }
+    }
+    // Another writer's own checks of a frame's size and channels are made as it opens a file;
+    // a black frame is written row by row so that it closes as a whole file.
+    OIIO::ImageSpec spec(int(desc.width), int(desc.height), int(desc.channels.size()),
+                         to_typedesc(desc.store_as));
+    const std::string q = path_string(probe);
+    bool opened = out->open(q, spec);
+    std::string msg = opened ? std::string() : out->geterror();
+    if (opened) {
+        const std::vector<float> row(size_t(desc.width) * desc.channels.size(), 0.0f);
+        for (int y = 0; y < int(desc.height) && opened; ++y) {
+            opened = out->write_scanline(y, 0, OIIO::TypeDesc::FLOAT, row.data());
+        }
+        if (!opened) {
+            msg = out->geterror();
+        }
+        out->close();
+    }
+    std::remove(q.c_str());
+    if (!opened) {
+        throw std::runtime_error("this format cannot hold the frames (" +
+                                 std::to_string(desc.width) + "x" + std::to_string(desc.height) +
+                                 ", " + std::to_string(desc.channels.size()) + " channels): " +
+                                 (msg.empty() ? std::string("unknown OpenImageIO error") : msg));
     }
 }
 

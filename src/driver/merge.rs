@@ -171,7 +171,7 @@ pub fn merge(
     };
     let range = key.first_frame..=key.last_frame;
     let pattern = out.unwrap_or(&t0.out);
-    let (out, created) = check_output(pattern, &range)?;
+    let (out, created) = check_output(pattern, &range, (key.width, key.height))?;
     let lock = super::lock_path(pattern, None);
     // The partials, and with --scene every file of the scene (its textures too): none may be
     // written over.

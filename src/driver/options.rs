@@ -358,7 +358,7 @@ impl RenderOptions {
     /// must not fail at its end.
     /// The folders it created go again unless the caller keeps them.
     pub fn check_files(&self, plan: &Plan) -> Result<(OutputPattern, CreatedDirs)> {
-        let (out, created) = check_output(&self.out, &plan.frames)?;
+        let (out, created) = check_output(&self.out, &plan.frames, (plan.width, plan.height))?;
         if let Some(p) = &self.stats {
             check_file_target("--stats", p)?;
         }
@@ -407,6 +407,7 @@ impl RenderOptions {
 pub fn check_output(
     pattern: &str,
     frames: &RangeInclusive<u32>,
+    (width, height): (u32, u32),
 ) -> Result<(OutputPattern, CreatedDirs)> {
     let out = OutputPattern::parse(pattern)?;
     if frames.start() != frames.end() && !out.has_frame_field() {
@@ -415,5 +416,6 @@ pub fn check_output(
         );
     }
     let created = out.validate()?;
+    out.probe(width, height)?;
     Ok((out, created))
 }

@@ -73,6 +73,12 @@ pub(crate) mod ffi {
         /// Succeeds when OIIO has a writer for the file name's extension.
         fn check_output_format(path: &[u8]) -> Result<()>;
 
+        /// Opens a writer for `path`'s format on the file `probe` with a frame's size and
+        /// channels, then closes and removes it: fails where the writer refuses the frames
+        /// (an icon over 256 pixels, a one-channel format), or for a pseudo-format (`null`,
+        /// `term`).
+        fn probe_output(path: &[u8], probe: &[u8], desc: &ImageDesc) -> Result<()>;
+
         /// `pixels` is interleaved, row-major, top row first, `channels.len()` per pixel.
         fn write_f32(
             path: &[u8],

@@ -276,6 +276,42 @@ impl OutputPattern {
         Ok(created)
     }
 
+    /// Refuse, before rendering, frames of `width` x `height` that this format's writer would
+    /// refuse at the first frame's write (`probe_output`): opened on a temporary file in the
+    /// output folder (which `validate` has made), then removed. EXR holds any frame and is
+    /// not probed.
+    pub fn probe(&self, width: u32, height: u32) -> Result<()> {
+        let target = self.path(0);
+        let kind = FileKind::of(&target)?;
+        if kind == FileKind::Exr {
+            return Ok(());
+        }
+        let name = target
+            .file_name()
+            .map_or("frame".into(), |n| n.to_string_lossy());
+        let ext = target
+            .extension()
+            .map_or("".into(), |e| e.to_string_lossy());
+        let probe = parent_dir(&target).join(format!(
+            ".{name}.probe-{}-{}.{ext}",
+            std::process::id(),
+            unique()
+        ));
+        let _live = crate::util::fs::Temporary::new(&probe);
+        let store_as = match kind {
+            FileKind::Ldr => ffi::PixelType::U8,
+            _ => ffi::PixelType::Float,
+        };
+        let desc = ffi::ImageDesc {
+            width,
+            height,
+            channels: vec!["R".into(), "G".into(), "B".into()],
+            store_as,
+        };
+        ffi::probe_output(path_bytes(&target), path_bytes(&probe), &desc)
+            .map_err(|e| anyhow!("cannot write {}: {}", self.original, e.what()))
+    }
+
     /// Whether frames are written as EXR (every channel, half or float).
     pub fn is_exr(&self) -> bool {
         matches!(FileKind::of(&self.path(0)), Ok(FileKind::Exr))
