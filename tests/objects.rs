@@ -366,3 +366,70 @@ fn the_shipped_production_scene_renders_with_every_method() {
         assert!(sky > 100, "{method:?}: {sky} sky pixels");
     }
 }
+
+/// An emitting OBJ is copied for each placement: placements whose copies would not fit in the
+/// memory left are refused in one line naming the `[[object]]`, before the copies are made
+/// (under a 1.5 GB address-space limit, 400 copies of a 20000-triangle lamp, about 2 GB,
+/// aborted or failed in Embree's build after seconds of copying).
+#[test]
+fn emitting_placements_beyond_the_memory_left_are_one_line() {
+    let d = tempfile::tempdir().unwrap();
+    let n = 100;
+    let mut lamp = String::from("mtllib s.mtl\nusemtl light\n");
+    for j in 0..=n {
+        for i in 0..=n {
+            writeln!(lamp, "v {} 0 {}", i as f32 / n as f32, j as f32 / n as f32).unwrap();
+        }
+    }
+    for j in 0..n {
+        for i in 0..n {
+            let a = j * (n + 1) + i + 1;
+            writeln!(
+                lamp,
+                "f {a} {} {}\nf {a} {} {}",
+                a + n + 1,
+                a + n + 2,
+                a + n + 2,
+                a + 1
+            )
+            .unwrap();
+        }
+    }
+    let placements = |k: usize| -> String {
+        (0..k)
+            .map(|i| format!("[[object]]\nobj = \"lamp.obj\"\ntranslate = [{i}, 2, 0]\n"))
+            .collect()
+    };
+    let run = |k: usize| {
+        let path = write(
+            d.path(),
+            &[
+                ("lamp.obj", &lamp),
+                ("s.mtl", "newmtl light\nKe 5 5 5\n"),
+                ("s.toml", &toml(&placements(k))),
+            ],
+        );
+        let cmd = format!(
+            "ulimit -v 1500000 && exec '{}' render '{path}' --spp 1 --threads 1 --res 8x6 --out '{}'",
+            env!("CARGO_BIN_EXE_reframe"),
+            d.path().join("o/f_####.exr").display()
+        );
+        std::process::Command::new("sh")
+            .args(["-c", &cmd])
+            .output()
+            .unwrap()
+    };
+    // As tests/texture.rs: only where reframe starts under the limit at all.
+    if !run(2).status.success() {
+        eprintln!("skipped: reframe does not start under a 1.5 GB address-space limit here");
+        return;
+    }
+    let o = run(400);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("object 'lamp.obj': placed 400 times, its 20000 triangles (it emits)")
+            && err.trim().lines().count() == 1,
+        "{err}"
+    );
+}
