@@ -66,10 +66,11 @@ impl Pose {
     /// invertible and not mirrored.
     pub fn from_camera_to_world(m: &[f64; 16], fov: f32) -> Pose {
         let col = |c: usize| DVec3::new(m[c], m[4 + c], m[8 + c]);
+        let dir = |c: usize| direction(col(c)).unwrap_or(DVec3::ZERO);
         Pose {
             eye: col(3).as_vec3(),
-            view: (-col(2).normalize()).as_vec3(),
-            up: col(1).normalize().as_vec3(),
+            view: (-dir(2)).as_vec3(),
+            up: dir(1).as_vec3(),
             fov,
         }
     }
@@ -86,6 +87,19 @@ impl Pose {
             None
         }
     }
+}
+
+/// `v` made unit length, `None` for a zero vector: divided by its largest element first, so
+/// that a column of a matrix scaled by 1e-200 (whose squared length underflows to 0) keeps its
+/// direction.
+pub fn direction(v: DVec3) -> Option<DVec3> {
+    let l2 = v.length_squared();
+    if l2.is_finite() && l2 >= f64::MIN_POSITIVE {
+        // As `normalize` has always made it (the same bits).
+        return Some(v.normalize());
+    }
+    let big = v.abs().max_element();
+    (big > 0.0 && big.is_finite()).then(|| (v / big).normalize())
 }
 
 #[derive(Clone, Debug)]

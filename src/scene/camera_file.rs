@@ -208,9 +208,14 @@ fn check_matrix(m: &[f64; 16]) -> Result<(), String> {
     let col = |c: usize| glam::DVec3::new(m[c], m[4 + c], m[8 + c]);
     let (x, y, z) = (col(0), col(1), col(2));
     let det = x.dot(y.cross(z));
-    let lengths = x.length() * y.length() * z.length();
     // Scale drops out: the volume of the unit columns measures how far from parallel they are.
-    let volume = if lengths > 0.0 { det / lengths } else { 0.0 };
+    // Each column is made unit on its own (divided by its largest element first), so that a
+    // rotation scaled by 1e-110, whose determinant and length product underflow, is a rotation.
+    let unit = crate::camera::direction;
+    let volume = match (unit(x), unit(y), unit(z)) {
+        (Some(x), Some(y), Some(z)) => x.dot(y.cross(z)),
+        _ => 0.0,
+    };
     if volume.abs() <= MIN_UNIT_VOLUME {
         return Err(format!(
             "matrix is singular or nearly so (determinant of its 3x3 part {det:e}): its axes are \
@@ -242,7 +247,10 @@ const SHEARED: Kind = Kind {
 /// pairs' departures from 90 degrees (scale does not count; `check_matrix` has refused zero
 /// and parallel axes).
 fn shear_degrees(m: &[f64; 16]) -> f64 {
-    let col = |c: usize| glam::DVec3::new(m[c], m[4 + c], m[8 + c]).normalize();
+    let col = |c: usize| {
+        crate::camera::direction(glam::DVec3::new(m[c], m[4 + c], m[8 + c]))
+            .unwrap_or(glam::DVec3::ZERO)
+    };
     let (x, y, z) = (col(0), col(1), col(2));
     [(x, y), (y, z), (z, x)]
         .into_iter()
@@ -656,17 +664,23 @@ mod tests {
             assert!(e.starts_with("c.json: line 2 (entry 1): frame 0: "), "{e}");
             assert!(e.contains(want), "{matrix}:\n  want {want}\n  got  {e}");
         }
-        // A scaled matrix is fine: only its rotation is used.
-        let scaled = "[3, 0, 0, 0, 0, 3, 0, 0, 0, 0, 3, 0, 0, 0, 0, 1]";
-        let p = parse(
-            "c.json",
-            m(scaled).as_bytes(),
-            Format::Json,
-            1,
-            &mut Repairs::new(false),
-        )
-        .unwrap();
-        assert_eq!((p[0].view, p[0].up), (-Vec3::Z, Vec3::Y));
+        // A scaled matrix is fine: only its rotation is used, also where the scale is so
+        // small that the determinant underflows (1e-330 from 1e-110: it was "singular").
+        for scaled in [
+            "[3, 0, 0, 0, 0, 3, 0, 0, 0, 0, 3, 0, 0, 0, 0, 1]",
+            "[1e-110, 0, 0, 0, 0, 1e-110, 0, 0, 0, 0, 1e-110, 0, 0, 0, 0, 1]",
+            "[1e-200, 0, 0, 0, 0, 1e-250, 0, 0, 0, 0, 1e-300, 0, 0, 0, 0, 1]",
+        ] {
+            let p = parse(
+                "c.json",
+                m(scaled).as_bytes(),
+                Format::Json,
+                1,
+                &mut Repairs::new(false),
+            )
+            .unwrap_or_else(|e| panic!("{scaled}: {e:#}"));
+            assert_eq!((p[0].view, p[0].up), (-Vec3::Z, Vec3::Y), "{scaled}");
+        }
     }
 
     #[test]
