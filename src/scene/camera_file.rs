@@ -423,8 +423,15 @@ const LOOK_AT_HEADER: [&str; 11] = [
 ];
 
 fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
-    let mut rows = text
-        .lines()
+    // Lines end in LF or CRLF, or in a bare CR throughout (a classic Mac spreadsheet's export,
+    // which was read as one line: its header).
+    let bare_cr = !text.contains('\n') && text.contains('\r');
+    let lines: Box<dyn Iterator<Item = &str>> = if bare_cr {
+        Box::new(text.split('\r'))
+    } else {
+        Box::new(text.lines())
+    };
+    let mut rows = lines
         .enumerate()
         .map(|(i, l)| (i + 1, l.trim_end_matches('\r')))
         .filter(|(_, l)| !l.trim().is_empty());
@@ -548,17 +555,22 @@ mod tests {
         );
         assert_eq!(poses[1].view, -Vec3::Z);
         assert_eq!(poses[1].fov, 30.0);
-        let csv =
-            "frame,fov,px,py,pz,lx,ly,lz,ux,uy,uz\r\n0, 40, 0.5,1.5,4, 0.5,1.5,3, 0,1,0\r\n\n";
-        let p = parse(
-            "c.csv",
-            csv.as_bytes(),
-            Format::Csv,
-            1,
-            &mut Repairs::new(false),
-        )
-        .unwrap();
-        assert_eq!((p[0].eye, p[0].view, p[0].up), (eye, -Vec3::Z, Vec3::Y));
+        // CRLF, and bare CR throughout (a classic Mac spreadsheet's export: it was read as one
+        // line, its header, and refused).
+        for csv in [
+            "frame,fov,px,py,pz,lx,ly,lz,ux,uy,uz\r\n0, 40, 0.5,1.5,4, 0.5,1.5,3, 0,1,0\r\n\n",
+            "frame,fov,px,py,pz,lx,ly,lz,ux,uy,uz\r0, 40, 0.5,1.5,4, 0.5,1.5,3, 0,1,0\r\r",
+        ] {
+            let p = parse(
+                "c.csv",
+                csv.as_bytes(),
+                Format::Csv,
+                1,
+                &mut Repairs::new(false),
+            )
+            .unwrap_or_else(|e| panic!("{csv:?}: {e:#}"));
+            assert_eq!((p[0].eye, p[0].view, p[0].up), (eye, -Vec3::Z, Vec3::Y));
+        }
         let m: Vec<String> = ["frame", "fov"]
             .iter()
             .map(|s| s.to_string())
