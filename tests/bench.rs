@@ -294,6 +294,12 @@ fn compare_rejects_bad_settings_before_rendering() {
             vec!["--methods", "mis-cv,independent,mis-cv"],
             "--methods: mis-cv is given twice",
         ),
+        (vec!["--budgets", "1,2,1"], "--budgets: 1 is given twice"),
+        (
+            vec!["--reuse-budgets", "2,2"],
+            "--reuse-budgets: 2 is given twice",
+        ),
+        (vec!["--windows", "3,5,3"], "--windows: 3 is given twice"),
     ] {
         let mut a = vec!["compare", "cornell", "--res", "40x40", "--out"];
         a.push(out.to_str().unwrap());

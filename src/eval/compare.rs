@@ -306,6 +306,17 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     if let Some(c) = twice {
         bail!("--methods: {} is given twice", c.name());
     }
+    // A number given twice would run its renders twice and put two points at one place.
+    for (flag, list) in [
+        ("--budgets", &opts.budgets),
+        ("--reuse-budgets", &opts.reuse_budgets),
+        ("--windows", &opts.windows),
+    ] {
+        let twice = (list.iter().enumerate()).find_map(|(i, b)| list[..i].contains(b).then_some(b));
+        if let Some(b) = twice {
+            bail!("{flag}: {b} is given twice");
+        }
+    }
     if opts.methods.iter().any(|c| !c.method.reuses()) && opts.budgets.is_empty() {
         bail!("--budgets: the independent tracer needs at least one budget");
     }
