@@ -146,15 +146,23 @@ pub fn tmp_name(p: &Path) -> PathBuf {
 }
 
 /// Remove the temporary files a killed process left in `dir` (`NAME.tmp-PID...` or
-/// `.NAME.tmp-PID...`) whose `NAME` passes `ours`.
+/// `.NAME.tmp-PID...`) whose `NAME` passes `ours`; never one whose `PID` is a process that
+/// runs (another render writing that file now, on this machine).
 pub fn remove_stale_tmp(dir: &Path, ours: impl Fn(&str) -> bool) {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return;
     };
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        if let Some((base, _)) = name.split_once(".tmp-") {
-            if ours(base.strip_prefix('.').unwrap_or(base)) {
+        if let Some((base, rest)) = name.split_once(".tmp-") {
+            let pid: Option<i32> = rest
+                .split(|c: char| !c.is_ascii_digit())
+                .next()
+                .and_then(|p| p.parse().ok());
+            let running = pid.is_some_and(|p| {
+                p != std::process::id() as i32 && Path::new(&format!("/proc/{p}")).exists()
+            });
+            if ours(base.strip_prefix('.').unwrap_or(base)) && !running {
                 let _ = std::fs::remove_file(e.path());
             }
         }
@@ -261,4 +269,28 @@ pub fn open_own_file(path: &Path, what: &str) -> Result<std::fs::File> {
         );
     }
     Ok(f)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::remove_stale_tmp;
+
+    /// A temporary file of a process that runs (pid 1 runs wherever this does) is another
+    /// process's write in progress: kept. One of a process that is gone, or this process's, goes.
+    #[test]
+    fn stale_temporary_files_go_but_not_those_of_running_processes() {
+        let d = tempfile::tempdir().unwrap();
+        let names = [
+            ".f_0001.exr.tmp-1-3.exr".to_string(),
+            ".f_0002.exr.tmp-4194303-3.exr".to_string(),
+            format!(".f_0003.exr.tmp-{}-3.exr", std::process::id()),
+            ".g_0001.exr.tmp-4194303-3.exr".to_string(),
+        ];
+        for n in &names {
+            std::fs::write(d.path().join(n), b"").unwrap();
+        }
+        remove_stale_tmp(d.path(), |n| n.starts_with("f_"));
+        let left: Vec<bool> = names.iter().map(|n| d.path().join(n).exists()).collect();
+        assert_eq!(left, [true, false, false, true]);
+    }
 }
