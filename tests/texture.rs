@@ -587,3 +587,51 @@ fn lookups_of_a_texture_damaged_after_loading_are_counted() {
     assert_eq!(t.rgb(id, Vec2::new(0.5, 0.5)), Vec3::ZERO);
     assert!(t.failures() > 0);
 }
+
+/// A float texture above 1 under `map_Kd`: the reflectance is `Kd` times the texel, clamped to
+/// [0, 1] after the product (texel 1.6 under Kd 0.5 is 0.8, as other renderers take it; the
+/// texel was clamped first, which made it 0.5), and where `Kd + Ks` then passes 1 in a channel
+/// both are scaled by one factor, as the MTL's constants are.
+#[test]
+fn a_textured_reflectance_is_clamped_after_the_product() {
+    let tmp = tempfile::tempdir().unwrap();
+    write_texture(
+        &tmp.path().join("t.exr"),
+        4,
+        |_, _| Vec3::new(1.6, 0.3, 1.2),
+        true,
+    );
+    let device = Device::new().unwrap();
+    let lamp = "v -1 -1 3\nv 1 -1 3\nv 0 1 3\nusemtl lamp\nf 5 7 6\n";
+    for (kd, ks, want_kd, want_ks) in [
+        (0.5, 0.2, Vec3::new(0.8, 0.15, 0.6), Vec3::splat(0.2)),
+        (
+            0.7,
+            0.2,
+            Vec3::new(1.0, 0.21, 0.84) / 1.2,
+            Vec3::splat(0.2 / 1.2),
+        ),
+    ] {
+        let mtl = format!(
+            "newmtl q\nKd {kd} {kd} {kd}\nKs {ks} {ks} {ks}\nNs 20\nmap_Kd t.exr\n\
+             newmtl lamp\nKd 0 0 0\nKe 1 1 1\n"
+        );
+        let scene = write_scene(
+            tmp.path(),
+            &format!("{QUAD}{lamp}"),
+            &mtl,
+            &toml(8, 6, [0.0, 0.0, 2.0], 60.0, ""),
+        );
+        let s = Scene::load(&scene, &device).unwrap();
+        let ray = reframe::embree::Ray::new(Vec3::new(0.1, 0.2, 2.0), -Vec3::Z);
+        let sp = s.surface(&s.geometry.intersect1(&ray).unwrap());
+        let m = s.material(&sp);
+        assert!(
+            (m.kd - want_kd).abs().max_element() < 1e-5
+                && (m.ks - want_ks).abs().max_element() < 1e-5,
+            "Kd {kd} Ks {ks}: got Kd {} Ks {}, want {want_kd} {want_ks}",
+            m.kd,
+            m.ks
+        );
+    }
+}

@@ -172,16 +172,27 @@ impl Maps {
         self.kd.is_none() && self.ks.is_none() && self.ke.is_none() && self.cutout.is_none()
     }
 
-    /// `m` with its textured colours at texture coordinates `uv`. Reflectances stay in
-    /// \[0, 1\] (so that `Kd + Ks <= 1` still holds); emission stays below `MAX_KE`.
+    /// `m` with its textured colours at texture coordinates `uv`: each reflectance is the
+    /// constant times the texture, clamped to \[0, 1\] after the product (a float texel of 1.6
+    /// under `Kd 0.5` is 0.8, as other renderers take it; clamping the texel first made it
+    /// 0.5), and where `Kd + Ks` then passes 1 in a channel both are scaled by one factor, as
+    /// the MTL's constants are at load (`MtlMaterial::material`). Emission stays below `MAX_KE`.
     #[inline]
     pub fn apply(&self, m: &Material, textures: &Textures, uv: Vec2) -> Material {
         let mut m = *m;
+        let reflect = |c: Vec3, map: &Map| (c * map.rgb(textures, uv)).clamp(Vec3::ZERO, Vec3::ONE);
         if let Some(map) = &self.kd {
-            m.kd *= map.rgb(textures, uv).clamp(Vec3::ZERO, Vec3::ONE);
+            m.kd = reflect(m.kd, map);
         }
         if let Some(map) = &self.ks {
-            m.ks *= map.rgb(textures, uv).clamp(Vec3::ZERO, Vec3::ONE);
+            m.ks = reflect(m.ks, map);
+        }
+        if self.kd.is_some() || self.ks.is_some() {
+            let sum = (m.kd + m.ks).max_element();
+            if sum > 1.0 {
+                m.kd /= sum;
+                m.ks /= sum;
+            }
         }
         if let Some(map) = &self.ke {
             m.ke = self.emission(m.ke, textures, uv, map);
