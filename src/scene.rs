@@ -1297,8 +1297,17 @@ fn load_environment(
                 .map_err(|e| anyhow!("{at}: {e}"))?;
             // While it loads, an environment holds its RGB floats and its texels (12 bytes
             // each per pixel), then its texels and its sampling tables (12 more): 24 at most.
-            let image = crate::image::read_linear_rgb(&path, MAX_ENV_TEXELS, 24)
+            let (image, layout) = crate::image::read_colour(&path, MAX_ENV_TEXELS, 24)
                 .map_err(|e| anyhow!("{at}: environment image: {e}"))?;
+            if layout.parts > 1 {
+                repairs.note(label, table_line, maps::MULTI_PART, || {
+                    format!(
+                        "environment image '{}': the file holds {} images",
+                        quote(img.get_ref()),
+                        layout.parts
+                    )
+                })?;
+            }
             let at = format!("{at}: environment image {}", path.display());
             let (width, height) = (image.width, image.height);
             let data = image.data;

@@ -859,6 +859,9 @@ pub fn read_linear_rgb(path: &Path, max_pixels: u64, then_per_pixel: u64) -> Res
 pub struct ColourLayout {
     pub colour: Colour,
     pub srgb: bool,
+    /// The images the file holds (a multi-part EXR's parts, OIIO's subimages); the first is
+    /// the one read.
+    pub parts: u32,
 }
 
 /// `read_linear_rgb`, and how the file held the colour (for a lookup that reads the file's own
@@ -876,6 +879,11 @@ pub fn read_colour(
             .find(|a| a.name.eq_ignore_ascii_case("oiio:ColorSpace"))
             .map(|a| a.text);
         let srgb = srgb_encoded(space.as_deref(), info.integer, &info.format_name);
+        let parts = reader
+            .attributes()
+            .into_iter()
+            .find(|a| a.name == "oiio:subimages")
+            .map_or(1, |a| a.int_value.max(1) as u32);
         let nch = info.channels.len();
         let colour = colour_channels(&info.channels)?;
         let pick = colour.indices();
@@ -909,7 +917,14 @@ pub fn read_colour(
             channels: vec!["R".into(), "G".into(), "B".into()],
             data: rgb,
         };
-        Ok((img, ColourLayout { colour, srgb }))
+        Ok((
+            img,
+            ColourLayout {
+                colour,
+                srgb,
+                parts,
+            },
+        ))
     };
     read().map_err(|e| anyhow!("cannot read {}: {e}", path.display()))
 }

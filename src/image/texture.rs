@@ -58,6 +58,8 @@ struct Info {
     /// The largest linear value of each colour channel (red, green, blue), for the emission
     /// cap's check (`Maps::open`).
     max: [f32; 3],
+    /// The images its file holds (`ColourLayout::parts`); 1 for a mask.
+    parts: u32,
     /// The file, and for a mask whether it reads the first channel of a colour image without
     /// alpha (`image::mask_source`).
     path: PathBuf,
@@ -115,7 +117,14 @@ impl Textures {
             return Ok(id);
         }
         // Decoded whole once, for the checks; the cache reads it again on demand.
-        let (img, ColourLayout { colour, srgb }) = read_colour(path, MAX_TEXELS, 0)?;
+        let (
+            img,
+            ColourLayout {
+                colour,
+                srgb,
+                parts,
+            },
+        ) = read_colour(path, MAX_TEXELS, 0)?;
         check_texels(path, &img.data)?;
         let used = colour.indices().into_iter().flatten();
         let (first, last) = (used.clone().min().unwrap_or(0), used.max().unwrap_or(0));
@@ -135,7 +144,9 @@ impl Textures {
             Colour::Grey(c) => [Some(c - first); 3],
             Colour::Rgb(c) => c.map(|c| c.map(|c| c - first)),
         };
-        Ok(self.add(key, id, &img, (last - first + 1, pick, srgb), false))
+        let tid = self.add(key, id, &img, (last - first + 1, pick, srgb), false);
+        self.info[tid.0 as usize].parts = parts;
+        Ok(tid)
     }
 
     /// Open the texture at `path` as a cut-out mask (once: a second time gives the same id):
@@ -178,6 +189,7 @@ impl Textures {
             pick,
             srgb,
             digest: f.0,
+            parts: 1,
             max: img.data.chunks_exact(3).fold([0.0f32; 3], |m, c| {
                 [m[0].max(c[0]), m[1].max(c[1]), m[2].max(c[2])]
             }),
@@ -187,6 +199,12 @@ impl Textures {
         let id = TextureId(id);
         self.by_path.insert(key, id);
         id
+    }
+
+    /// The images the file of texture `id` holds: more than 1 for a multi-part EXR, of which
+    /// the first part is read.
+    pub fn parts(&self, id: TextureId) -> u32 {
+        self.info[id.0 as usize].parts
     }
 
     /// The largest value of each colour channel of texture `id` (red, green, blue).

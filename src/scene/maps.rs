@@ -55,6 +55,12 @@ const COLOUR_AS_MASK: Kind = Kind {
     many: "map_d names the colour texture (map_Kd), which has no alpha: no cut-outs",
 };
 
+/// An image file of several images (a multi-part EXR's parts): the first is read.
+pub const MULTI_PART: Kind = Kind {
+    one: "only the first of the file's images (a multi-part EXR's parts) is read",
+    many: "only the first of each file's images (a multi-part EXR's parts) is read",
+};
+
 const KE_MAP_CAPPED: Kind = Kind {
     one: "emission map capped at 1e9 (radiance sums would overflow above it)",
     many: "emission maps capped at 1e9 (radiance sums would overflow above it)",
@@ -150,6 +156,22 @@ impl Maps {
             }
             (c, ..) => c,
         };
+        // A multi-part file (an EXR of several layers as parts): its first part is read.
+        for (map, slot) in [(&kd, Slot::Kd), (&ks, Slot::Ks), (&ke, Slot::Ke)] {
+            if let (Some(map), Some(t), Some(spec)) =
+                (map, textures.as_ref(), &m.maps[slot as usize])
+            {
+                let parts = t.parts(map.tex);
+                if parts > 1 {
+                    repairs.note(mtl_label, spec.line, MULTI_PART, || {
+                        format!(
+                            "'{}': the file holds {parts} images",
+                            quote(&spec.statement)
+                        )
+                    })?;
+                }
+            }
+        }
         if let (Some(map), Some(t), Some(spec)) =
             (&ke, textures.as_ref(), &m.maps[Slot::Ke as usize])
         {
