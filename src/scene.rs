@@ -1193,17 +1193,17 @@ pub const MAX_ENV_TEXELS: u64 = 1 << 27;
 /// `Scene::offset_floor` of a scene's own triangles' `positions` and its placed `prototypes`:
 /// the largest side of the world bounding box of everything, capped at 1.
 fn offset_floor(positions: &[Vec3], prototypes: &[Prototype], instances: &[Instance]) -> f32 {
-    let mut lo = Vec3::splat(f32::INFINITY);
-    let mut hi = Vec3::splat(f32::NEG_INFINITY);
-    for &p in positions {
-        (lo, hi) = (lo.min(p), hi.max(p));
-    }
+    // The corners of the box around `points` (inverted where there are none).
+    let bounds = |points: &[Vec3]| {
+        points.iter().fold(
+            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+            |(lo, hi), &p| (lo.min(p), hi.max(p)),
+        )
+    };
+    let (mut lo, mut hi) = bounds(positions);
     for i in instances {
         let proto = &prototypes[i.proto as usize];
-        let (mut plo, mut phi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        for &p in &proto.positions {
-            (plo, phi) = (plo.min(p), phi.max(p));
-        }
+        let (plo, phi) = bounds(&proto.positions);
         if plo.x > phi.x {
             continue;
         }

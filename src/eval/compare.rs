@@ -279,6 +279,11 @@ pub fn default_frames(scene: &Scene) -> RangeInclusive<u32> {
     first..=first + n - 1
 }
 
+/// The first element of `list` that an earlier one equals.
+fn first_repeat<T: PartialEq>(list: &[T]) -> Option<&T> {
+    (list.iter().enumerate()).find_map(|(i, x)| list[..i].contains(x).then_some(x))
+}
+
 /// Run the comparison and write `compare.json`, `compare.csv` and the charts into `opts.out`.
 pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     let range = opts.frames.clone().unwrap_or_else(|| default_frames(scene));
@@ -301,19 +306,16 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     if let Some(&n) = opts.windows.iter().find(|&&n| n % 2 == 0) {
         bail!("--windows {n}: a group is n_f = 2n+1 frames, so windows must be odd");
     }
-    let twice = (opts.methods.iter().enumerate())
-        .find_map(|(i, c)| opts.methods[..i].contains(c).then_some(c));
-    if let Some(c) = twice {
+    // One given twice would run its renders twice and put two points at one place.
+    if let Some(c) = first_repeat(&opts.methods) {
         bail!("--methods: {} is given twice", c.name());
     }
-    // A number given twice would run its renders twice and put two points at one place.
     for (flag, list) in [
         ("--budgets", &opts.budgets),
         ("--reuse-budgets", &opts.reuse_budgets),
         ("--windows", &opts.windows),
     ] {
-        let twice = (list.iter().enumerate()).find_map(|(i, b)| list[..i].contains(b).then_some(b));
-        if let Some(b) = twice {
+        if let Some(b) = first_repeat(list) {
             bail!("{flag}: {b} is given twice");
         }
     }

@@ -873,15 +873,14 @@ pub fn read_colour(
 ) -> Result<(Image, ColourLayout)> {
     let read = || -> Result<(Image, ColourLayout)> {
         let (mut reader, info, pixels) = open_input_image(path, max_pixels)?;
-        let space = reader
-            .attributes()
-            .into_iter()
+        let attrs = reader.attributes();
+        let space = attrs
+            .iter()
             .find(|a| a.name.eq_ignore_ascii_case("oiio:ColorSpace"))
-            .map(|a| a.text);
-        let srgb = srgb_encoded(space.as_deref(), info.integer, &info.format_name);
-        let parts = reader
-            .attributes()
-            .into_iter()
+            .map(|a| a.text.as_str());
+        let srgb = srgb_encoded(space, info.integer, &info.format_name);
+        let parts = attrs
+            .iter()
             .find(|a| a.name == "oiio:subimages")
             .map_or(1, |a| a.int_value.max(1) as u32);
         let nch = info.channels.len();

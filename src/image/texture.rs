@@ -144,9 +144,7 @@ impl Textures {
             Colour::Grey(c) => [Some(c - first); 3],
             Colour::Rgb(c) => c.map(|c| c.map(|c| c - first)),
         };
-        let tid = self.add(key, id, &img, (last - first + 1, pick, srgb), false);
-        self.info[tid.0 as usize].parts = parts;
-        Ok(tid)
+        Ok(self.add(key, id, &img, (last - first + 1, pick, srgb, parts), false))
     }
 
     /// Open the texture at `path` as a cut-out mask (once: a second time gives the same id):
@@ -165,7 +163,13 @@ impl Textures {
             .pin_mut()
             .add(path_bytes(path), channel as u32, channel as u32 + 1)
             .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
-        Ok(self.add(key, id, &img, (1, [Some(0), None, None], false), !coverage))
+        Ok(self.add(
+            key,
+            id,
+            &img,
+            (1, [Some(0), None, None], false, 1),
+            !coverage,
+        ))
     }
 
     /// Record texture `id` of the texture set, opened as `key` and read as `img` (what its
@@ -176,7 +180,7 @@ impl Textures {
         key: (PathBuf, Option<Option<char>>),
         id: u32,
         img: &super::Image,
-        (fetched, pick, srgb): (usize, [Option<usize>; 3], bool),
+        (fetched, pick, srgb, parts): (usize, [Option<usize>; 3], bool, u32),
         colour_mask: bool,
     ) -> TextureId {
         let mut f = Fnv::default();
@@ -189,7 +193,7 @@ impl Textures {
             pick,
             srgb,
             digest: f.0,
-            parts: 1,
+            parts,
             max: img.data.chunks_exact(3).fold([0.0f32; 3], |m, c| {
                 [m[0].max(c[0]), m[1].max(c[1]), m[2].max(c[2])]
             }),

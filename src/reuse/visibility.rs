@@ -181,9 +181,9 @@ pub fn landings(
         packet.clear();
     };
     let mut c = Chunk::default();
+    let floor = integrator.scene.offset_floor;
     for at in (0..h.len()).step_by(LANES) {
         // Without `views` (`bench`'s visibility costs), the projection and the ray alone.
-        let floor = integrator.scene.offset_floor;
         if views.is_some() {
             chunk::<true>((cam, pixel_area), h, at, floor, &mut c);
         } else {
