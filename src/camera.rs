@@ -104,7 +104,11 @@ pub fn direction(v: DVec3) -> Option<DVec3> {
 
 #[derive(Clone, Debug)]
 pub struct Camera {
+    /// The eye, where the render has it: `world_eye`, less the scene's `origin`
+    /// (`Scene::camera`).
     pub eye: Vec3,
+    /// The eye in the scene file's coordinates, where the frames' camera matrices put it.
+    pub world_eye: Vec3,
     /// Unit forward (z_m), right and up axes.
     pub forward: Vec3,
     pub right: Vec3,
@@ -126,6 +130,7 @@ impl Camera {
         let up = right.cross(forward);
         Camera {
             eye: p.eye,
+            world_eye: p.eye,
             forward,
             right,
             up,
@@ -219,9 +224,10 @@ impl Camera {
     }
 
     /// World to camera space, camera space as OpenEXR's standard `worldToCamera` defines it
-    /// (x right, y up, z the viewing direction), as a column-vector matrix.
+    /// (x right, y up, z the viewing direction), as a column-vector matrix. World is the scene
+    /// file's space (`world_eye`), what the frames' metadata records.
     pub fn world_to_camera(&self) -> Mat4 {
-        let e = self.eye;
+        let e = self.world_eye;
         Mat4::from_cols(
             Vec4::new(self.right.x, self.up.x, self.forward.x, 0.0),
             Vec4::new(self.right.y, self.up.y, self.forward.y, 0.0),
