@@ -1208,6 +1208,16 @@ const ENV_CLAMPED: Kind = Kind {
     many: "environment texels above 1e9 clamped to 1e9",
 };
 
+/// An environment image that is not twice as wide as it is high: read as a lat-long map all
+/// the same, but a mirror ball, an angular map or a cube cross (square or 4:3 images) lights
+/// the scene wrongly that way.
+const ENV_NOT_LATLONG: Kind = Kind {
+    one: "not twice as wide as high: read as a lat-long (equirectangular) map all the same (a \
+          mirror-ball, angular or cube-cross image lights the scene wrongly)",
+    many: "environment images not twice as wide as high: read as lat-long (equirectangular) \
+           maps all the same",
+};
+
 /// Most texels of an environment image (16384 x 8192, a common size of downloaded skies): 24
 /// bytes each once loaded; such a sky peaks at 3.3 GB while it loads (15 s), and the memory
 /// available is checked before it is read.
@@ -1365,6 +1375,16 @@ fn load_environment(
             }
             let at = format!("{at}: environment image {}", path.display());
             let (width, height) = (image.width, image.height);
+            // 2:1 within a pixel or 1% (4000 x 2001 is a lat-long map rounded).
+            let off = (width as f64 - 2.0 * height as f64).abs();
+            if off > 2.0 && off > 0.02 * width as f64 {
+                repairs.note(label, table_line, ENV_NOT_LATLONG, || {
+                    format!(
+                        "environment image '{}' is {width} x {height}",
+                        quote(img.get_ref())
+                    )
+                })?;
+            }
             let data = image.data;
             let mut texels = Vec::with_capacity(data.len() / 3);
             for (i, c) in data.chunks_exact(3).enumerate() {
