@@ -542,7 +542,7 @@ impl Scene {
                         MtlSource::Builtin(BUILTIN[*i].3),
                     ),
                 };
-                let (mesh, mtls) =
+                let (mesh, mtls, anchor) =
                     load_obj_files(&obj_label, &obj_bytes, &files, &mut textures, &mut repairs)?;
                 let objs = match &source {
                     Source::Files { toml } => {
@@ -556,6 +556,8 @@ impl Scene {
                     prototypes: Vec::new(),
                     instances: Vec::new(),
                     inputs: objs.into_iter().chain(mtls).collect(),
+                    // Its positions are given from its anchor: that is the scene's origin.
+                    origin: (anchor != DVec3::ZERO).then_some(anchor),
                 }
             }
             (None, Some(list)) if !list.is_empty() => {
@@ -576,19 +578,24 @@ impl Scene {
             prototypes,
             mut instances,
             inputs: object_inputs,
+            origin,
         } = loaded;
         // A scene far from the origin is moved near it (rays leave surfaces by an offset that
         // grows with the coordinates); its cameras follow in `Scene::camera`.
+        let origin = origin.unwrap_or_else(|| {
+            let (lo, hi) = world_bounds(&mesh.positions, &prototypes, &instances);
+            let origin = render_origin(lo.as_dvec3(), hi.as_dvec3());
+            if origin != DVec3::ZERO {
+                for p in &mut mesh.positions {
+                    *p = (p.as_dvec3() - origin).as_vec3();
+                }
+                for i in &mut instances {
+                    i.move_by(-origin);
+                }
+            }
+            origin
+        });
         let (lo, hi) = world_bounds(&mesh.positions, &prototypes, &instances);
-        let origin = render_origin(lo, hi);
-        if origin != DVec3::ZERO {
-            for p in &mut mesh.positions {
-                *p = (p.as_dvec3() - origin).as_vec3();
-            }
-            for i in &mut instances {
-                i.move_by(-origin);
-            }
-        }
         let inputs = match &source {
             Source::Files { toml } => [toml.clone()]
                 .into_iter()
@@ -1267,28 +1274,30 @@ fn offset_floor(lo: Vec3, hi: Vec3) -> f32 {
     }
 }
 
-/// `Scene::origin` of a scene's bounding box: its centre (rounded to f32) where the box lies
-/// farther from the origin than `FAR_FROM_ORIGIN` times its largest side, else zero.
+/// `Scene::origin` of a scene's bounding box: its centre where the box lies farther from the
+/// origin than `FAR_FROM_ORIGIN` times its largest side, else zero.
 ///
 /// A ray leaves a surface `SPAWN_EPS (floor + max |p|)` off it (`embree::offset_origin`), so a
 /// room of a few units modelled 10^4 units away (a building at its map position) started its
 /// rays a tenth of a unit off its surfaces and lit its contact shadows (0.6% brighter overall
 /// at 10^4, 1-2% in the shadows). Centred, its coordinates and offsets are those of the same
-/// room at the origin, and its geometry keeps the precision its f32 vertices had. A scene whose
-/// box reaches near the origin keeps its coordinates (and its frames bit for bit).
-fn render_origin(lo: Vec3, hi: Vec3) -> DVec3 {
+/// room at the origin. Its geometry keeps the precision its f32 vertices had; an `[[object]]`'s
+/// placement moves it in f64 before its positions are rounded to f32 (a 2-unit room placed at
+/// 3x10^5 lost 6% of its light to vertices rounded to 1/32 unit). A scene whose box reaches
+/// near the origin keeps its coordinates (and its frames bit for bit).
+fn render_origin(lo: DVec3, hi: DVec3) -> DVec3 {
     let size = (hi - lo).max_element();
     let far = lo.abs().max(hi.abs()).max_element();
-    if !(size.is_finite() && far.is_finite() && far > FAR_FROM_ORIGIN * size.max(f32::MIN_POSITIVE))
-    {
+    let tiny = f32::MIN_POSITIVE as f64;
+    if !(size.is_finite() && far.is_finite() && far > FAR_FROM_ORIGIN * size.max(tiny)) {
         return DVec3::ZERO;
     }
-    ((lo.as_dvec3() + hi.as_dvec3()) * 0.5).as_vec3().as_dvec3()
+    (lo + hi) * 0.5
 }
 
 /// How many of its own sizes a scene's bounding box may lie from the origin before the render
 /// centres it (`render_origin`): its offsets then shrink by at least about this factor.
-const FAR_FROM_ORIGIN: f32 = 4.0;
+const FAR_FROM_ORIGIN: f64 = 4.0;
 
 /// The `[environment]` table, checked, and the image file it read (none for a colour).
 fn load_environment(
@@ -1428,6 +1437,9 @@ struct Objects {
     prototypes: Vec<Prototype>,
     instances: Vec<Instance>,
     inputs: Vec<PathBuf>,
+    /// `Scene::origin`, where the placements have already moved the geometry by it (in f64,
+    /// before their positions were rounded to f32); `None` where it is still to be found.
+    origin: Option<DVec3>,
 }
 
 /// The `[[object]]` tables of scene file `label` (text `text`, in folder `dir`): each OBJ read
@@ -1462,15 +1474,13 @@ fn load_objects(
             }
         }
     }
-    let mut own = objects::empty();
-    let mut prototypes = Vec::new();
-    let mut instances = Vec::new();
+    let mut meshes = Vec::with_capacity(groups.len());
     let mut inputs = Vec::new();
-    for (path, at, placements) in &groups {
+    for (path, at, _) in &groups {
         let bytes = read_input(path, "OBJ", MAX_INPUT_BYTES).map_err(|e| anyhow!("{at}: {e}"))?;
         let obj_label = path.display().to_string();
         let mtl_dir = path.parent().unwrap_or(dir).to_path_buf();
-        let (mesh, read) = load_obj_files(
+        let (mesh, read, anchor) = load_obj_files(
             &obj_label,
             &bytes,
             &MtlSource::Dir(mtl_dir),
@@ -1483,6 +1493,50 @@ fn load_objects(
                 inputs.push(p);
             }
         }
+        meshes.push((mesh, anchor));
+    }
+    // The world box of every placement, in f64, and `Scene::origin` of it: the placements
+    // move the geometry there before its positions are rounded to f32.
+    let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    for ((_, _, placements), (mesh, anchor)) in groups.iter().zip(&meshes) {
+        let (plo, phi) = mesh
+            .positions
+            .iter()
+            .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
+                (lo.min(p.as_dvec3()), hi.max(p.as_dvec3()))
+            });
+        if plo.x > phi.x {
+            continue;
+        }
+        for m in placements {
+            for k in 0..8 {
+                let corner = DVec3::select(
+                    glam::BVec3::new(k & 1 != 0, k & 2 != 0, k & 4 != 0),
+                    phi,
+                    plo,
+                );
+                let w = m.transform_point3(corner + *anchor);
+                (lo, hi) = (lo.min(w), hi.max(w));
+            }
+        }
+    }
+    let origin = render_origin(lo, hi);
+    let to_origin = glam::DMat4::from_translation(-origin);
+    let mut own = objects::empty();
+    let mut prototypes = Vec::new();
+    let mut instances = Vec::new();
+    for ((_, at, placements), (mesh, anchor)) in groups.iter().zip(meshes) {
+        // From the OBJ's anchor to the file's space, placed, then to the render's origin (no
+        // product where both are zero: the matrices as given, to the bit).
+        let from_anchor = glam::DMat4::from_translation(anchor);
+        let placements: Vec<glam::DMat4> = placements
+            .iter()
+            .map(|m| match (anchor == DVec3::ZERO, origin == DVec3::ZERO) {
+                (true, true) => *m,
+                (true, false) => to_origin * *m,
+                (false, _) => to_origin * *m * from_anchor,
+            })
+            .collect();
         let emits = mesh
             .tri_material
             .iter()
@@ -1506,7 +1560,7 @@ fn load_objects(
                     a as f64 / 1e9
                 );
             }
-            for m in placements {
+            for m in &placements {
                 objects::append(&mut own, objects::transformed(&mesh, m));
             }
         } else {
@@ -1522,6 +1576,7 @@ fn load_objects(
         prototypes,
         instances,
         inputs,
+        origin: Some(origin),
     })
 }
 
@@ -1690,18 +1745,19 @@ pub(crate) const FOUND_ELSEWHERE: Kind = Kind {
 /// Load the OBJ and the MTL files it names into a checked mesh, noting repairs.
 #[cfg(test)]
 fn load_obj(label: &str, bytes: &[u8], files: &MtlSource, repairs: &mut Repairs) -> Result<Mesh> {
-    load_obj_files(label, bytes, files, &mut None, repairs).map(|(mesh, _)| mesh)
+    load_obj_files(label, bytes, files, &mut None, repairs).map(|(mesh, _, _)| mesh)
 }
 
-/// `load_obj`, and the MTL and texture files it read from the file system; the textures the
-/// materials' maps name are opened into `textures` (made when the first is).
+/// `load_obj`, and the MTL and texture files it read from the file system, and the point its
+/// positions are given from (`obj::Obj::anchor`); the textures the materials' maps name are
+/// opened into `textures` (made when the first is).
 fn load_obj_files(
     label: &str,
     bytes: &[u8],
     files: &MtlSource,
     textures: &mut Option<Textures>,
     repairs: &mut Repairs,
-) -> Result<(Mesh, Vec<PathBuf>)> {
+) -> Result<(Mesh, Vec<PathBuf>, DVec3)> {
     let parsed = obj::parse(label, bytes, repairs)?;
     let mut materials = Vec::new();
     let mut maps = Vec::new();
@@ -1848,7 +1904,7 @@ fn load_obj_files(
         MtlSource::Dir(_) => read.into_iter().chain(texture_files).collect(),
         MtlSource::Builtin(_) => Vec::new(),
     };
-    Ok((mesh, read))
+    Ok((mesh, read, parsed.anchor))
 }
 
 #[cfg(test)]

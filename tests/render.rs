@@ -44,23 +44,31 @@ fn furnace_is_one() {
 
 /// A floor, a box resting on it, a box hovering 1% of its size above it (a thin contact
 /// shadow) and a light, lit by a grey sky too: scaled by `scale` and moved by `shift` (after
-/// scaling), rendered at 48x36 with 64 samples and one seed.
+/// scaling), rendered at 48x36 with 64 samples and one seed. `Shift::Placed` moves it with an
+/// `[[object]]`'s `translate`, `Shift::Written` writes the moved vertices into the OBJ.
 fn contact_scene(
     device: &Device,
     d: &std::path::Path,
     scale: f64,
     shift: [f64; 3],
+    how: Shift,
 ) -> Vec<glam::Vec3> {
     // Quads as (corner, edge, edge), counter-clockwise seen from the side they face.
     let floor = ([-1.5, 0.0, 1.5], [3.0, 0.0, 0.0], [0.0, 0.0, -3.0]);
     let light = ([-0.3, 1.8, -0.3], [0.6, 0.0, 0.0], [0.0, 0.0, 0.6]);
     let boxes = [([-0.9, 0.0, -0.6], 0.5), ([0.2, 0.005, -0.4], 0.5)];
     let at = |a: [f64; 3]| -> [f64; 3] { std::array::from_fn(|i| a[i] * scale + shift[i]) };
+    let vertex_at = |a: [f64; 3]| -> [f64; 3] {
+        match how {
+            Shift::Written => at(a),
+            Shift::Placed => a.map(|c| c * scale),
+        }
+    };
     let mut obj = String::from("mtllib s.mtl\n");
     let mut n = 0;
     let mut quad = |obj: &mut String, mat: &str, (c, a, b): ([f64; 3], [f64; 3], [f64; 3])| {
         let p = |u: f64, v: f64| -> String {
-            let q = at(std::array::from_fn(|i| c[i] + u * a[i] + v * b[i]));
+            let q = vertex_at(std::array::from_fn(|i| c[i] + u * a[i] + v * b[i]));
             format!("v {:e} {:e} {:e}\n", q[0], q[1], q[2])
         };
         *obj += &format!(
@@ -110,12 +118,23 @@ fn contact_scene(
         let a = at(a);
         format!("[{:e}, {:e}, {:e}]", a[0], a[1], a[2])
     };
+    // A top-level key before the tables, or a table of its own after them.
+    let (top, objects) = match how {
+        Shift::Written => ("obj = \"s.obj\"\n".to_string(), String::new()),
+        Shift::Placed => (
+            String::new(),
+            format!(
+                "[[object]]\nobj = \"s.obj\"\ntranslate = [{:e}, {:e}, {:e}]\n",
+                shift[0], shift[1], shift[2]
+            ),
+        ),
+    };
     std::fs::write(
         d.join("s.toml"),
         format!(
-            "obj = \"s.obj\"\nframes = 1\nresolution = [48, 36]\n[environment]\n\
+            "{top}frames = 1\nresolution = [48, 36]\n[environment]\n\
              radiance = [0.3, 0.3, 0.3]\n[[keyframe]]\nframe = 0\nposition = {}\n\
-             look_at = {}\nup = [0, 1, 0]\nfov = 50\n",
+             look_at = {}\nup = [0, 1, 0]\nfov = 50\n{objects}",
             v([0.0, 1.6, 2.6]),
             v([0.0, 0.2, -0.3])
         ),
@@ -127,6 +146,15 @@ fn contact_scene(
     let pool = thread_pool(0).unwrap();
     pool.install(|| render_frame_independent(&integ, &cam, 0, 64, 1, false, &|_| {}))
         .pixels
+}
+
+/// How `contact_scene` is moved from the origin.
+#[derive(Clone, Copy, Debug)]
+enum Shift {
+    /// Its vertices written where they are.
+    Written,
+    /// Its OBJ at the origin, placed by an `[[object]]`'s `translate`.
+    Placed,
 }
 
 /// The largest departure of a 4x4 grid of regions (12x9 pixels each) of a 48x36 `img` from
@@ -163,9 +191,9 @@ fn worst_region(img: &[glam::Vec3], base: &[glam::Vec3]) -> (f64, usize, usize) 
 fn a_scene_renders_the_same_at_any_scale() {
     let device = Device::new().unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let base = contact_scene(&device, dir.path(), 1.0, [0.0; 3]);
+    let base = contact_scene(&device, dir.path(), 1.0, [0.0; 3], Shift::Written);
     for scale in [1e-5, 1e-3, 1e3] {
-        let img = contact_scene(&device, dir.path(), scale, [0.0; 3]);
+        let img = contact_scene(&device, dir.path(), scale, [0.0; 3], Shift::Written);
         let (off, rx, ry) = worst_region(&img, &base);
         assert!(
             off.abs() < 0.005,
@@ -184,7 +212,7 @@ fn a_scene_renders_the_same_at_any_scale() {
 fn a_scene_renders_the_same_far_from_the_origin() {
     let device = Device::new().unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let base = contact_scene(&device, dir.path(), 1.0, [0.0; 3]);
+    let base = contact_scene(&device, dir.path(), 1.0, [0.0; 3], Shift::Written);
     let load = || Scene::load(dir.path().join("s.toml").to_str().unwrap(), &device).unwrap();
     // Where the camera at the origin sees the floor's centre.
     let at_origin = load()
@@ -192,12 +220,18 @@ fn a_scene_renders_the_same_far_from_the_origin() {
         .world_to_ndc()
         .project_point3(glam::Vec3::ZERO);
     // The matrices are f32 (OpenEXR's): 3e5 units away they round the eye to 0.03 units.
-    for (shift, tol) in [([1e4, 0.0, -2e4], 1e-3), ([-3e5, 1e5, 7e4], 0.02)] {
-        let img = contact_scene(&device, dir.path(), 1.0, shift);
+    let cases = [
+        ([1e4, 0.0, -2e4], Shift::Written, 1e-3),
+        ([-3e5, 1e5, 7e4], Shift::Written, 0.02),
+        ([-3e5, 1e5, 7e4], Shift::Placed, 0.02),
+        ([5.1e6, 0.0, 3.3e5], Shift::Placed, 0.2),
+    ];
+    for (shift, how, tol) in cases {
+        let img = contact_scene(&device, dir.path(), 1.0, shift, how);
         let (off, rx, ry) = worst_region(&img, &base);
         assert!(
             off.abs() < 0.005,
-            "moved by {shift:?}: region ({rx}, {ry}) {off:+} off the scene at the origin"
+            "moved by {shift:?} ({how:?}): region ({rx}, {ry}) {off:+} off the scene at the origin"
         );
         let cam = load().camera(0, 48, 36);
         // The floor's centre, in the file's coordinates, is where the camera at the origin

@@ -18,7 +18,7 @@
 use super::repairs::{Kind, Repairs};
 use super::text::{joined, latin1_bytes, lines, number, numbers, quote, rest, MAX_COORD};
 use anyhow::{anyhow, Result};
-use glam::{Vec2, Vec3};
+use glam::{DVec3, Vec2, Vec3};
 
 /// Most corners of one face: ear clipping takes about 1 s for 50,000 corners and grows faster
 /// than linearly (9 s at 200,000), so a single hostile face could stall loading for minutes.
@@ -88,6 +88,11 @@ pub struct Obj {
     pub mtllib: Vec<(usize, Vec<u8>)>,
     /// Each `usemtl`: its line and the material's name.
     pub usemtl: Vec<(usize, String)>,
+    /// The point `positions` are given from: zero, or where the file's vertices lie far from
+    /// the origin (`scene::render_origin` of their box), the box's centre, subtracted from each
+    /// vertex in f64 before it is rounded to f32 (a vertex at 3x10^5 keeps its fraction; f32
+    /// there rounds to 1/32 unit).
+    pub anchor: DVec3,
 }
 
 /// Read an OBJ file; `label` names it in errors ("label: line N: 'statement': why") and repairs.
@@ -96,6 +101,9 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
     // Elements defined so far: positions, texture coordinates, normals.
     let mut count = [0usize; 3];
     let mut usemtl = None;
+    // Each vertex in f64: read from the file where a coordinate is large enough for f32 to
+    // round it by more than 10^-4 (`ROUNDS_FROM`), else the f32 value.
+    let mut exact: Vec<DVec3> = Vec::new();
     for line in joined(lines(bytes).map_err(|e| anyhow!("{label}: {e}"))?) {
         let (n, text) = (line.n, line.text.as_ref());
         let err = |msg: String| anyhow!("{label}: line {n}: '{}': {msg}", quote(text));
@@ -137,6 +145,12 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                     )));
                 }
                 out.positions.push(Vec3::from(p));
+                exact.push(if p.iter().any(|c| c.abs() >= ROUNDS_FROM) {
+                    let e = numbers64::<3>(&args).unwrap_or(p.map(f64::from));
+                    DVec3::from(e)
+                } else {
+                    Vec3::from(p).as_dvec3()
+                });
             }
             "vt" => {
                 // `v` and `w` are optional; `w` (3D textures) is not used.
@@ -235,7 +249,31 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
             _ => {}
         }
     }
+    let (lo, hi) = exact
+        .iter()
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(*p), hi.max(*p))
+        });
+    out.anchor = super::render_origin(lo, hi);
+    if out.anchor != DVec3::ZERO {
+        for (p, e) in out.positions.iter_mut().zip(&exact) {
+            *p = (*e - out.anchor).as_vec3();
+        }
+    }
     Ok(out)
+}
+
+/// The magnitude from which f32 rounds a coordinate by more than 10^-4 (its step is 1.2x10^-4
+/// from 1024): an OBJ's vertices there are read in f64 too, for `Obj::anchor`.
+const ROUNDS_FROM: f32 = 1024.0;
+
+/// `numbers` in f64.
+fn numbers64<const N: usize>(words: &[&str]) -> Option<[f64; N]> {
+    let mut v = [0.0; N];
+    for (x, w) in v.iter_mut().zip(words.get(..N)?) {
+        *x = w.parse().ok()?;
+    }
+    Some(v)
 }
 
 /// One face vertex `v`, `v/vt`, `v//vn` or `v/vt/vn`, checked against the elements defined
