@@ -9,9 +9,11 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <cctype>
 #include <cstdio>
 #include <mutex>
 #include <stdexcept>
+#include <OpenImageIO/filesystem.h>
 #include <string>
 #include <vector>
 
@@ -149,12 +151,21 @@ OIIO::ImageSpec make_spec(const ImageDesc& desc, size_t n_values,
     return spec;
 }
 
-void write_pixels(const std::string& path, const OIIO::ImageSpec& spec, OIIO::TypeDesc in_type,
-                  const void* pixels) {
+// Encodes the frame in memory where the format's writer takes an IOProxy (nearly all do) and
+// returns the file's bytes, for the caller to write, check and sync: OIIO 2.4's writers ignore
+// a failed write to disk (a full disk gave empty EXR, PNG and HDR frames with close() reporting
+// success, and libjpeg ended the process). Otherwise writes `path` itself and returns nothing.
+rust::Vec<uint8_t> write_pixels(const std::string& path, const OIIO::ImageSpec& spec,
+                                OIIO::TypeDesc in_type, const void* pixels) {
+    OIIO::Filesystem::IOVecOutput memory;
     auto out = OIIO::ImageOutput::create(path);
     if (!out) {
         throw_global_error("no image writer");
     }
+    // OIIO 2.4's TIFF writer, given an IOProxy, leaves out the ImageLength tag (an unreadable
+    // file); libtiff reports a failed write to disk itself.
+    const bool in_memory = out->supports("ioproxy") && std::string(out->format_name()) != "tiff" &&
+                           out->set_ioproxy(&memory);
     if (!out->open(path, spec)) {
         throw_output_error(*out, "cannot open for writing");
     }
@@ -166,10 +177,22 @@ void write_pixels(const std::string& path, const OIIO::ImageSpec& spec, OIIO::Ty
         throw std::runtime_error("cannot write pixels: " +
                                  (msg.empty() ? std::string("unknown OpenImageIO error") : msg));
     }
-    // Writers flush and compress on close, so a full disk typically shows up only here.
+    // Writers flush and compress on close, so a full disk shows up here if anywhere.
     if (!out->close()) {
         throw_output_error(*out, "cannot finish writing");
     }
+    rust::Vec<uint8_t> bytes;
+    if (in_memory) {
+        const std::vector<unsigned char>& buf = memory.buffer();
+        if (buf.empty()) {
+            throw std::runtime_error("the image writer produced no bytes");
+        }
+        bytes.reserve(buf.size());
+        for (unsigned char b : buf) {
+            bytes.push_back(b);
+        }
+    }
+    return bytes;
 }
 
 }  // namespace
@@ -226,25 +249,53 @@ void probe_output(rust::Slice<const uint8_t> path, rust::Slice<const uint8_t> pr
         }
         out->close();
     }
+    // What was written must read back: this OpenImageIO's JPEG 2000 writer wrote empty .j2k
+    // files and .jp2 files its own reader refuses.
+    std::string unreadable;
+    if (opened) {
+        QuietStderr quiet;
+        auto in = OIIO::ImageInput::open(q);
+        std::vector<float> back(size_t(desc.width) * desc.height * desc.channels.size());
+        if (!in) {
+            unreadable = OIIO::geterror();
+        } else if (in->spec().width != int(desc.width) || in->spec().height != int(desc.height) ||
+                   !in->read_image(0, 0, 0, int(desc.channels.size()), OIIO::TypeDesc::FLOAT,
+                                   back.data())) {
+            unreadable = in->geterror();
+            if (unreadable.empty()) {
+                unreadable = "it reads back at another size";
+            }
+        }
+    }
     std::remove(q.c_str());
     if (!opened) {
         throw std::runtime_error("this format cannot hold the frames (" +
                                  std::to_string(desc.width) + "x" + std::to_string(desc.height) +
                                  ", " + std::to_string(desc.channels.size()) + " channels): " +
-                                 (msg.empty() ? std::string("unknown OpenImageIO error") : msg));
+                                 (msg.empty() ? std::string("the writer gives no reason; choose "
+                                                            "another format")
+                                              : msg));
+    }
+    while (!unreadable.empty() && std::isspace(static_cast<unsigned char>(unreadable.back()))) {
+        unreadable.pop_back();
+    }
+    if (!unreadable.empty()) {
+        throw std::runtime_error("this OpenImageIO writes " + format +
+                                 " files that it cannot read back (" + unreadable +
+                                 "): choose another format");
     }
 }
 
-void write_f32(rust::Slice<const uint8_t> path, const ImageDesc& desc, rust::Slice<const float> pixels,
-               rust::Slice<const Attribute> attrs) {
+rust::Vec<uint8_t> write_f32(rust::Slice<const uint8_t> path, const ImageDesc& desc,
+                             rust::Slice<const float> pixels, rust::Slice<const Attribute> attrs) {
     const OIIO::ImageSpec spec = make_spec(desc, pixels.size(), attrs);
-    write_pixels(path_string(path), spec, OIIO::TypeDesc::FLOAT, pixels.data());
+    return write_pixels(path_string(path), spec, OIIO::TypeDesc::FLOAT, pixels.data());
 }
 
-void write_u8(rust::Slice<const uint8_t> path, const ImageDesc& desc, rust::Slice<const uint8_t> pixels,
-              rust::Slice<const Attribute> attrs) {
+rust::Vec<uint8_t> write_u8(rust::Slice<const uint8_t> path, const ImageDesc& desc,
+                            rust::Slice<const uint8_t> pixels, rust::Slice<const Attribute> attrs) {
     const OIIO::ImageSpec spec = make_spec(desc, pixels.size(), attrs);
-    write_pixels(path_string(path), spec, OIIO::TypeDesc::UINT8, pixels.data());
+    return write_pixels(path_string(path), spec, OIIO::TypeDesc::UINT8, pixels.data());
 }
 
 ImageReader::ImageReader(std::unique_ptr<OIIO::ImageInput> in)

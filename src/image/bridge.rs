@@ -79,19 +79,22 @@ pub(crate) mod ffi {
         /// `term`).
         fn probe_output(path: &[u8], probe: &[u8], desc: &ImageDesc) -> Result<()>;
 
-        /// `pixels` is interleaved, row-major, top row first, `channels.len()` per pixel.
+        /// `pixels` is interleaved, row-major, top row first, `channels.len()` per pixel. The
+        /// file's bytes, encoded in memory, for the caller to write to `path` (whose name picks
+        /// the format); empty where the format's writer cannot encode in memory and has
+        /// written `path` itself.
         fn write_f32(
             path: &[u8],
             desc: &ImageDesc,
             pixels: &[f32],
             attrs: &[Attribute],
-        ) -> Result<()>;
+        ) -> Result<Vec<u8>>;
         fn write_u8(
             path: &[u8],
             desc: &ImageDesc,
             pixels: &[u8],
             attrs: &[Attribute],
-        ) -> Result<()>;
+        ) -> Result<Vec<u8>>;
 
         fn open_reader(path: &[u8]) -> Result<UniquePtr<ImageReader>>;
 

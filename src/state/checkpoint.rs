@@ -17,7 +17,7 @@ use super::{
 };
 use crate::film::{FrameAccum, FrameReuse, Norm};
 use crate::integrator::RayCounts;
-use crate::util::fs::{check_writable_dir, open_own_file, remove_stale_tmp, Temporary};
+use crate::util::fs::{check_writable_dir, open_own_file, remove_stale_tmp, MadeFolder};
 use anyhow::{anyhow, bail, Context, Result};
 use serde::{Deserialize, Serialize};
 use std::fs::File;
@@ -88,7 +88,7 @@ pub struct Checkpointer {
     pub spent: Duration,
     pub written: u32,
     /// The checkpoint folder, registered while this process may leave it empty (it created it).
-    _made: Option<Temporary>,
+    _made: Option<MadeFolder>,
 }
 
 /// Read back every record of a chunk's log that a checkpoint counts (`recs`: frame and offset,
@@ -235,7 +235,7 @@ impl Checkpointer {
             }
             if !d.exists() {
                 // A stop before the first checkpoint leaves no empty folder behind.
-                made = Some(Temporary::new(d));
+                made = Some(MadeFolder::new(d));
             }
             std::fs::create_dir_all(d)
                 .with_context(|| format!("creating the checkpoint folder {}", d.display()))?;

@@ -36,6 +36,30 @@ impl Drop for Temporary {
     }
 }
 
+/// A folder this process created: registered as a `Temporary` (a stop by signal removes it while
+/// it is empty) and removed when dropped if it is still empty, so that an error before anything
+/// was written in it (a full disk) leaves no empty folder behind either.
+pub struct MadeFolder {
+    path: PathBuf,
+    _live: Temporary,
+}
+
+impl MadeFolder {
+    pub fn new(path: &Path) -> MadeFolder {
+        MadeFolder {
+            path: path.to_path_buf(),
+            _live: Temporary::new(path),
+        }
+    }
+}
+
+impl Drop for MadeFolder {
+    fn drop(&mut self) {
+        // Fails, and keeps the folder, when anything is in it.
+        let _ = std::fs::remove_dir(&self.path);
+    }
+}
+
 static STOPPING: AtomicBool = AtomicBool::new(false);
 
 /// Whether a stop by signal has begun: an error another thread meets now (a temporary file
@@ -199,9 +223,13 @@ pub fn write_atomic(p: &Path, bytes: &[u8]) -> Result<()> {
     check_replaceable(p)?;
     let tmp = tmp_name(p);
     let _live = Temporary::new(&tmp);
-    if let Err(e) = std::fs::write(&tmp, bytes) {
+    // Synced before the rename: a failed write or flush (a full disk, a quota) is an error here,
+    // not a short file in place.
+    let written = std::fs::File::create(&tmp)
+        .and_then(|mut f| std::io::Write::write_all(&mut f, bytes).and_then(|()| f.sync_all()));
+    if let Err(e) = written {
         let _ = std::fs::remove_file(&tmp);
-        return Err(e).with_context(|| format!("writing {}", tmp.display()));
+        return Err(e).with_context(|| format!("writing {}", p.display()));
     }
     std::fs::rename(&tmp, p).with_context(|| {
         let _ = std::fs::remove_file(&tmp);
@@ -219,6 +247,20 @@ pub fn write_json<T: Serialize>(p: &Path, v: &T) -> Result<()> {
 pub fn check_file_target(flag: &str, p: &Path) -> Result<()> {
     if p.is_dir() {
         anyhow::bail!("{flag} {}: that is a folder, not a file", p.display());
+    }
+    // `q/` names a folder whether or not there is one (the path's last component drops the
+    // slash, and the rename at the end failed after the whole run).
+    use std::os::unix::ffi::OsStrExt;
+    let bytes = p.as_os_str().as_bytes();
+    if bytes.ends_with(b"/")
+        || bytes.ends_with(b"/.")
+        || bytes.ends_with(b"/..")
+        || p.file_name().is_none()
+    {
+        anyhow::bail!(
+            "{flag} {}: that names a folder, not a file: give a file name",
+            p.display()
+        );
     }
     let dir = parent_dir(p);
     if !dir.is_dir() {
