@@ -19,6 +19,9 @@
 //! util/                  hashes, atomic files, memory figures
 //! sys                    the process's exit without destructors (the one libc call)
 //! ```
+// First: its macros (`outln!`, `errln!`) are used by the modules after it.
+#[macro_use]
+pub mod util;
 pub mod bsdf;
 pub mod camera;
 pub mod driver;
@@ -32,4 +35,3 @@ pub mod sampling;
 pub mod scene;
 pub mod state;
 pub mod sys;
-pub mod util;

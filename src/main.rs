@@ -22,6 +22,7 @@ use reframe::scene::{LoadOptions, Scene};
 use reframe::state::key::{chunk_partials, default_checkpoint_dir, partial_path, Chunk};
 use reframe::util::fs::{check_file_target, exit_removing_temporaries, exit_with, write_json};
 use reframe::util::text::printable;
+use reframe::{errln, outln};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
@@ -42,7 +43,7 @@ fn main() {
                 l if l.is_empty() => "invalid arguments".to_string(),
                 l => l,
             };
-            eprintln!("{} (see --help)", printable(&line));
+            errln!("{} (see --help)", printable(&line));
             std::process::exit(2);
         }
     };
@@ -51,14 +52,14 @@ fn main() {
             exit_with(130); // the signal handler's exit, and its line
         }
         if let Some(i) = e.downcast_ref::<driver::Interrupted>() {
-            eprintln!("{}", printable(&i.to_string()));
+            errln!("{}", printable(&i.to_string()));
             if i.checkpoint.is_some() {
-                eprintln!("resume with: {}", resume_command());
+                errln!("resume with: {}", resume_command());
             }
             exit_with(130);
         }
         // One line: the chain of contexts, outermost first.
-        eprintln!("error: {}", printable(&format!("{e:#}")));
+        errln!("error: {}", printable(&format!("{e:#}")));
         exit_with(1);
     }
     exit_with(0);
@@ -72,7 +73,7 @@ fn load(name: &str, device: &Device, strict: bool) -> Result<Scene> {
 /// The scene's load warnings, once a command has succeeded (a failure stays one line).
 fn print_warnings(scene: &Scene) {
     for w in &scene.warnings {
-        eprintln!("warning: {}", printable(w));
+        errln!("warning: {}", printable(w));
     }
 }
 
@@ -108,16 +109,16 @@ fn install_signal_handler() -> Result<Arc<AtomicBool>> {
     ctrlc::set_handler(move || {
         let again = f.swap(true, Ordering::SeqCst);
         if !again && driver::run::stops_gracefully() {
-            eprintln!(
+            errln!(
                 "\ninterrupt: finishing the current group of frames and writing a checkpoint \
                  (interrupt again to stop at once)"
             );
             return;
         }
         if again {
-            eprintln!("\nstopping now; a checkpoint already written is kept");
+            errln!("\nstopping now; a checkpoint already written is kept");
         } else {
-            eprintln!("\ninterrupted: stopped at once; nothing is left half-written");
+            errln!("\ninterrupted: stopped at once; nothing is left half-written");
         }
         exit_removing_temporaries(130);
     })
@@ -172,18 +173,18 @@ fn run(cli: Cli) -> Result<()> {
             print_warnings(&scene);
             if let Ok(out) = reframe::image::OutputPattern::parse(&opts.out) {
                 for w in opts.flag_warnings(&out) {
-                    eprintln!("warning: {}", printable(&w));
+                    errln!("warning: {}", printable(&w));
                 }
             }
-            eprintln!("{}", cli::render_summary(&stats));
+            errln!("{}", cli::render_summary(&stats));
             if stats.nonfinite_pixels > 0 {
-                eprintln!(
+                errln!(
                     "warning: {} pixels are NaN or infinite",
                     stats.nonfinite_pixels
                 );
             }
             if stats.nonfinite_samples > 0 {
-                eprintln!(
+                errln!(
                     "warning: {} samples came out NaN or infinite and were left out",
                     stats.nonfinite_samples
                 );
@@ -192,14 +193,14 @@ fn run(cli: Cli) -> Result<()> {
             // scene loaded answers with nothing (black, and a mask cuts its surface out).
             let failed = scene.textures.as_ref().map_or(0, |t| t.failures());
             if failed > 0 {
-                eprintln!(
+                errln!(
                     "warning: {failed} texture lookups failed (a texture or mask file changed or \
                      was removed during the render): those points were shaded black or cut out"
                 );
             }
-            println!("{}", printable(&cli::wrote(&stats.outputs)));
+            outln!("{}", printable(&cli::wrote(&stats.outputs)));
             if let Some(p) = &a.stats {
-                println!("stats in {}", printable(&p.display().to_string()));
+                outln!("stats in {}", printable(&p.display().to_string()));
             }
             Ok(())
         }
@@ -238,7 +239,7 @@ fn run(cli: Cli) -> Result<()> {
                 threads: a.threads,
             });
             let r = driver::merge::merge(&partials, a.out.as_deref(), denoising.as_ref())?;
-            eprintln!(
+            errln!(
                 "merged {} partial file(s) ({:.1} MB) into {} frame(s) ({:.1} MB) in {:.2} s",
                 partials.len(),
                 r.partial_bytes as f64 / 1e6,
@@ -247,10 +248,10 @@ fn run(cli: Cli) -> Result<()> {
                 r.seconds
             );
             if r.nonfinite_pixels > 0 {
-                eprintln!("warning: {} pixels are NaN or infinite", r.nonfinite_pixels);
+                errln!("warning: {} pixels are NaN or infinite", r.nonfinite_pixels);
             }
             let frames: Vec<String> = r.frames.iter().map(|p| p.display().to_string()).collect();
-            println!("{}", printable(&cli::wrote(&frames)));
+            outln!("{}", printable(&cli::wrote(&frames)));
             Ok(())
         }
         Command::Bench(a) => {
@@ -275,10 +276,10 @@ fn run(cli: Cli) -> Result<()> {
             };
             let report = reframe::eval::bench::run(&scene, &opts)?;
             print_warnings(&scene);
-            println!("{}", report.table());
+            outln!("{}", report.table());
             if let Some(p) = &a.json {
                 write_json(p, &report)?;
-                println!("figures in {}", printable(&p.display().to_string()));
+                outln!("figures in {}", printable(&p.display().to_string()));
             }
             Ok(())
         }
@@ -309,7 +310,7 @@ fn run(cli: Cli) -> Result<()> {
             } else {
                 format!("rendered in {:.1} s", r.seconds)
             };
-            println!(
+            outln!(
                 "reference of '{}' ({}x{}, {} spp) in {} ({how})",
                 scene.name,
                 res.0,
@@ -343,8 +344,8 @@ fn run(cli: Cli) -> Result<()> {
             };
             let report = compare::compare(&scene, &opts)?;
             print_warnings(&scene);
-            println!("{}", compare::summary(&report));
-            println!("results in {}", printable(&opts.out.display().to_string()));
+            outln!("{}", compare::summary(&report));
+            outln!("results in {}", printable(&opts.out.display().to_string()));
             Ok(())
         }
     }

@@ -617,3 +617,32 @@ fn a_frame_that_cannot_be_written_is_an_error_and_leaves_nothing() {
         assert!(left.is_empty(), "{ext}: left {left:?}");
     }
 }
+
+/// A render whose standard output and error are closed by their reader (piped into `head -1`,
+/// a log shipper that exited) finishes its work and exits 0: printing its lines panicked
+/// ("failed printing to stdout: Broken pipe", exit 101) once the frames were written.
+#[test]
+fn a_closed_output_pipe_does_not_stop_a_render() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
+        .args([
+            "render", "vase", "--res", "32x24", "--spp", "2", "--frames", "0-3",
+        ])
+        .arg("--out")
+        .arg(dir.path().join("f_####.png"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The reading ends, closed before the first line.
+    drop(child.stdout.take());
+    drop(child.stderr.take());
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(0));
+    for f in 0..4 {
+        assert!(
+            dir.path().join(format!("f_{f:04}.png")).is_file(),
+            "frame {f}"
+        );
+    }
+}

@@ -142,7 +142,7 @@ pub fn merge(
     // (A scene given for chunks rendered without --denoise is not needed, and not used: said.)
     let denoise = match (layers, denoising) {
         (None, Some(d)) => {
-            eprintln!(
+            errln!(
                 "warning: --scene {}: the chunks were rendered without --denoise, so the merge \
                  does not use the scene",
                 crate::util::text::printable(&d.scene.name)

@@ -404,7 +404,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         &pool,
         opts.progress,
     )?;
-    eprintln!(
+    errln!(
         "reference: {} spp, {} ({})",
         reference.spp,
         crate::util::text::printable(&reference.dir.display().to_string()),
@@ -459,7 +459,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         }
     }
     for s in &skipped {
-        eprintln!("compare: skipped {s}");
+        errln!("compare: skipped {s}");
     }
     if plan.is_empty() {
         bail!("nothing to compare: no method with a budget and a window that fits the frames");
@@ -527,7 +527,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             format!("{flicker:.5}")
         };
         pb.suspend(|| {
-            eprintln!(
+            errln!(
                 "{:>16} window {window:>2} spp {spp:>3}: {seconds:>7.2} s  rmse {rmse:.5}  relMSE {relmse:.5}  flicker {shown}",
                 method.name()
             )
@@ -936,7 +936,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             opts.seed,
             opts.bias_seeds,
         )?;
-        eprintln!(
+        errln!(
             "{:>16} bias over {} seeds ({:.1} s): bias {:.5} of relMSE {:.5}",
             c.name(),
             opts.bias_seeds,

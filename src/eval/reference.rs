@@ -162,7 +162,7 @@ pub fn reference(
                 })
             }
             // A cache is a copy of what can be made again: made again, said once.
-            Err(e) => eprintln!(
+            Err(e) => errln!(
                 "warning: {}",
                 crate::util::text::printable(&format!(
                     "the cached reference in {} is damaged ({e:#}); rendering it again",

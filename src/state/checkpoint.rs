@@ -222,7 +222,7 @@ impl Checkpointer {
                 }
                 resumed = Some(Resumed { trailer: t, active });
             } else if resume {
-                eprintln!(
+                errln!(
                     "note: no checkpoint in {}: starting from the beginning",
                     crate::util::text::printable(&d.display().to_string())
                 );

@@ -7,3 +7,23 @@ pub mod hash;
 pub mod input;
 pub mod mem;
 pub mod text;
+
+/// `println!` that does not panic when standard output is closed (piped into `head`, a log
+/// shipper that exited): the line is dropped and the work goes on. `println!` panicked with
+/// exit 101 after a render had written its frames.
+#[macro_export]
+macro_rules! outln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+
+/// `eprintln!` that does not panic when standard error is closed (see `outln!`).
+#[macro_export]
+macro_rules! errln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
