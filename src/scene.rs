@@ -1731,6 +1731,15 @@ fn ignoring_case(dir: &Path, rel: &str) -> Option<PathBuf> {
     Some(at).filter(|p| p.is_file())
 }
 
+/// A face of a material with texture maps, in an OBJ that has texture coordinates, with corners
+/// that have none: read at (0, 0) there.
+const FACE_NO_TEXCOORDS: Kind = Kind {
+    one: "a face with texture maps has corners without texture coordinates: its maps are read \
+          at (0, 0) there",
+    many: "faces with texture maps have corners without texture coordinates: their maps are \
+           read at (0, 0) there",
+};
+
 const NO_TEXCOORDS: Kind = Kind {
     one: "the OBJ has no texture coordinates (vt): its maps are read at (0, 0) everywhere",
     many: "the OBJ has no texture coordinates (vt): its maps are read at (0, 0) everywhere",
@@ -1893,6 +1902,29 @@ fn load_obj_files(
                 let name = &names[*t as usize];
                 repairs.note(label, 1, NO_TEXCOORDS, || {
                     format!("material '{name}' has texture maps")
+                })?;
+            }
+        } else {
+            // An OBJ with texture coordinates whose mapped faces lack them, all or some corners
+            // (one object of an export without a UV map, beside others with one).
+            for f in &parsed.faces {
+                let m = f.usemtl.map_or(default, |u| usemtl_material[u as usize]);
+                let corners = &parsed.corners[f.corners.clone()];
+                if maps[m as usize].is_empty() || corners.iter().all(|c| c.vt.is_some()) {
+                    continue;
+                }
+                let none = corners.iter().all(|c| c.vt.is_none());
+                repairs.note(label, f.line, FACE_NO_TEXCOORDS, || {
+                    format!(
+                        "{} (material '{}' has texture maps; {})",
+                        text::quote_line(bytes, f.line),
+                        names[m as usize],
+                        if none {
+                            "no corner has a vt"
+                        } else {
+                            "some corners have no vt"
+                        }
+                    )
                 })?;
             }
         }
