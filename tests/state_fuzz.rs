@@ -233,3 +233,84 @@ fn damaged_checkpoints_are_never_resumed() {
     reframe_ok(&a);
     assert!(!state.exists());
 }
+
+/// A record's header changed and its checksum recomputed (a forgery, or damage by a tool that
+/// rewrites checksums) is refused where it contradicts the render: a sums record's unit (what
+/// one step of its sums is worth) set to 100 or NaN, and a record's frame number changed. The
+/// merge took the unit as written: a frame 100 times too bright, or all NaN, exit 0.
+#[test]
+fn partials_with_forged_record_headers_are_never_merged() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("r").join("f_####.exr").display().to_string();
+    for k in 1..=2 {
+        reframe_ok(&strings(&[
+            "render",
+            "vase",
+            "--frames",
+            "10-15",
+            "--res",
+            "24x18",
+            "--spp",
+            "1",
+            "--method",
+            "mis-cv",
+            "--window",
+            "3",
+            "--out",
+            &out,
+            "--chunk",
+            &format!("{k}/2"),
+        ]));
+    }
+    let partials: Vec<PathBuf> = (1..=2)
+        .map(|k| d.join("r").join(format!("f.chunk-{k}-of-2.partial")))
+        .collect();
+    // (byte offset in the record, new bytes): the unit, then the frame number.
+    let forgeries: [(usize, [u8; 4]); 3] = [
+        (24, 100f32.to_le_bytes()),
+        (24, f32::NAN.to_le_bytes()),
+        (4, 13u32.to_le_bytes()),
+    ];
+    for (i, (at, bytes)) in forgeries.iter().enumerate() {
+        let case = d.join(format!("forged{i}"));
+        std::fs::create_dir_all(&case).unwrap();
+        let mut b = std::fs::read(&partials[0]).unwrap();
+        // The trailer's start (its JSON, CRC, length and magic end the file), and the records
+        // before it, each beginning with "RFAC" and ending in the CRC-32 of its bytes.
+        let n = b.len();
+        let json = u64::from_le_bytes(b[n - 16..n - 8].try_into().unwrap()) as usize;
+        let trailer = n - 16 - 4 - json;
+        let starts: Vec<usize> = (0..trailer - 4)
+            .filter(|&p| &b[p..p + 4] == b"RFAC")
+            .collect();
+        let (start, end) = (starts[0], *starts.get(1).unwrap_or(&trailer));
+        assert_eq!(
+            crc32fast::hash(&b[start..end - 4]).to_le_bytes(),
+            b[end - 4..end],
+            "the first record's span"
+        );
+        b[start + at..start + at + 4].copy_from_slice(bytes);
+        let crc = crc32fast::hash(&b[start..end - 4]);
+        b[end - 4..end].copy_from_slice(&crc.to_le_bytes());
+        let forged = case.join("f.chunk-1-of-2.partial");
+        std::fs::write(&forged, &b).unwrap();
+        let out = case.join("o").join("f_####.exr").display().to_string();
+        let o = run_reframe(
+            &strings(&[
+                "merge",
+                "--out",
+                &out,
+                &forged.display().to_string(),
+                &partials[1].display().to_string(),
+            ]),
+            Duration::from_secs(20),
+        );
+        let why = refusal(&o).unwrap_or_else(|e| panic!("forgery {i}: {e}"));
+        assert!(why.contains("f.chunk-1-of-2.partial"), "forgery {i}: {why}");
+        assert!(
+            frames_in(&case.join("o")).is_empty(),
+            "forgery {i}: frames written"
+        );
+    }
+}

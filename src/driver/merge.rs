@@ -25,7 +25,7 @@ use crate::image::oidn::Denoiser;
 use crate::integrator::Integrator;
 use crate::reuse::Method;
 use crate::scene::Scene;
-use crate::state::key::{partial_path, run_units, Chunk};
+use crate::state::key::{partial_path, run_units, Chunk, RunKey};
 use crate::state::{Kind, Record, StateFile};
 use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
@@ -223,9 +223,11 @@ pub fn merge(
     let sample_folds = method.sample_folds(key.spp, key.window, key.adaptive != 0.0);
     // A frame from its shares: read (each record checked), added, its groups counted.
     let mut combine = |frame: u32, list: &[(usize, u64)]| -> Result<Developed> {
-        let mut shares = list.iter().map(|&(i, off)| {
+        let mut shares = list.iter().map(|&(i, off)| -> Result<(Record, String)> {
             let label = label(&files[i]);
-            files[i].record(off, norm).map(|r| (r, label))
+            let r = files[i].record(off, norm)?;
+            check_record(&r, frame, key, method).with_context(|| label.clone())?;
+            Ok((r, label))
         });
         let (first, _) = shares.next().expect("a frame has at least one share")?;
         Ok(match first {
@@ -288,6 +290,43 @@ pub fn merge(
         frame_bytes,
         nonfinite_pixels,
     })
+}
+
+/// A record must be the frame the trailer says, of the render's size, and of the kind and
+/// layout its method and settings give (as `--resume` checks a checkpoint's): a header changed
+/// and its checksum recomputed (a sums record's unit set to 100 made its frame 100 times too
+/// bright; to NaN, all NaN) is refused.
+fn check_record(r: &Record, frame: u32, key: &RunKey, method: Method) -> Result<()> {
+    let view = match r {
+        Record::Pixels(d) => d.view,
+        Record::Sums(a) => a.view,
+    };
+    let why = if view.frame != frame {
+        format!("the record is of frame {}", view.frame)
+    } else if (view.width, view.height) != (key.width, key.height) {
+        format!(
+            "the record is {}x{}, the render {}x{}",
+            view.width, view.height, key.width, key.height
+        )
+    } else {
+        match r {
+            Record::Pixels(_) if method.reuses() => {
+                format!("finished pixels, where {} keeps sums", key.method)
+            }
+            Record::Sums(_) if !method.reuses() => {
+                format!("sums, where {} keeps finished pixels", key.method)
+            }
+            Record::Sums(a) if a.layout != method.layout(key.spp, key.window, key.aov) => {
+                format!(
+                    "its sums' layout (unit {}, {:?}, landed counts {}, loss counts {}) is not \
+                     the render's",
+                    a.layout.unit, a.layout.norm, a.layout.landed, a.layout.loss
+                )
+            }
+            _ => return Ok(()),
+        }
+    };
+    bail!("frame {frame}: {why}: the file is damaged; render its chunk again; no frame was written")
 }
 
 /// Add another chunk's share of a frame.
