@@ -9,6 +9,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cctype>
 #include <cstdio>
 #include <mutex>
@@ -323,10 +324,24 @@ std::unique_ptr<ImageReader> open_reader(rust::Slice<const uint8_t> path) {
     return std::make_unique<ImageReader>(std::move(in));
 }
 
+namespace {
+
+// Whether the file's data window (the pixels it stores) differs from its display window (the
+// image it means: an EXR cropped to its non-empty pixels, an overscan render, a Nuke bbox). The
+// image is its display window, zero where nothing is stored, as other renderers read it.
+bool windowed(const OIIO::ImageSpec& s) {
+    return s.full_width > 0 && s.full_height > 0 &&
+           (s.x != s.full_x || s.y != s.full_y || s.width != s.full_width ||
+            s.height != s.full_height);
+}
+
+}  // namespace
+
 ImageInfo ImageReader::info() const {
     ImageInfo info;
-    info.width = uint32_t(spec_.width);
-    info.height = uint32_t(spec_.height);
+    const bool w = windowed(spec_);
+    info.width = uint32_t(w ? spec_.full_width : spec_.width);
+    info.height = uint32_t(w ? spec_.full_height : spec_.height);
     for (int c = 0; c < spec_.nchannels; ++c) {
         info.channels.push_back(rust::String::lossy(std::string(spec_.channel_name(c))));
     }
@@ -371,14 +386,38 @@ rust::Vec<Attribute> ImageReader::attributes() const {
 }
 
 void ImageReader::read_f32(rust::Slice<float> out) {
-    const size_t n = size_t(spec_.width) * size_t(spec_.height) * size_t(spec_.nchannels);
+    const size_t nch = size_t(spec_.nchannels);
+    const bool w = windowed(spec_);
+    const size_t n = size_t(w ? spec_.full_width : spec_.width) *
+                     size_t(w ? spec_.full_height : spec_.height) * nch;
     if (out.size() != n) {
         throw std::runtime_error("output buffer size does not match the image");
     }
+    // The stored pixels: straight into `out`, or aside to be placed in the display window.
+    std::vector<float> data(w ? size_t(spec_.width) * size_t(spec_.height) * nch : 0);
     bool ok;
     {
         QuietStderr quiet;
-        ok = in_->read_image(0, 0, 0, spec_.nchannels, OIIO::TypeDesc::FLOAT, out.data());
+        ok = in_->read_image(0, 0, 0, spec_.nchannels, OIIO::TypeDesc::FLOAT,
+                             w ? data.data() : out.data());
+    }
+    if (w) {
+        std::fill(out.begin(), out.end(), 0.0f);
+        for (int y = 0; y < spec_.height; ++y) {
+            const int dy = spec_.y + y - spec_.full_y;
+            if (dy < 0 || dy >= spec_.full_height) {
+                continue;
+            }
+            for (int x = 0; x < spec_.width; ++x) {
+                const int dx = spec_.x + x - spec_.full_x;
+                if (dx < 0 || dx >= spec_.full_width) {
+                    continue;
+                }
+                const float* from = data.data() + (size_t(y) * spec_.width + x) * nch;
+                std::copy(from, from + nch,
+                          out.data() + (size_t(dy) * spec_.full_width + dx) * nch);
+            }
+        }
     }
     // A reader may fill what it could not read (a TIFF strip cut off reads as zeros, a JPEG cut
     // short as grey: "Premature end of JPEG file") and still report success, leaving only its
@@ -424,8 +463,14 @@ uint32_t TextureSet::add(rust::Slice<const uint8_t> path, uint32_t chbegin, uint
     if (spec->width <= 0 || spec->height <= 0 || int(chend) > spec->nchannels || chbegin >= chend) {
         throw std::runtime_error("the texture system sees other pixels or channels than the file");
     }
-    textures_.push_back(Texture{handle, spec->x, spec->y, spec->width, spec->height, int(chbegin),
-                                int(chend)});
+    // Over its display window (see `windowed`): texels outside the data window read as zero.
+    if (windowed(*spec)) {
+        textures_.push_back(Texture{handle, spec->full_x, spec->full_y, spec->full_width,
+                                    spec->full_height, int(chbegin), int(chend)});
+    } else {
+        textures_.push_back(Texture{handle, spec->x, spec->y, spec->width, spec->height,
+                                    int(chbegin), int(chend)});
+    }
     return static_cast<uint32_t>(textures_.size() - 1);
 }
 

@@ -635,3 +635,38 @@ fn a_textured_reflectance_is_clamped_after_the_product() {
         );
     }
 }
+
+/// An EXR whose data window is part of its display window (a file cropped to its non-empty
+/// pixels by Nuke or oiiotool, an overscan render) is the image of its display window, zero
+/// where nothing is stored: read whole (environments) and looked up as a texture alike.
+/// `tests/images/cropped.exr` is 8x8 with (1, 0.5, 0.25) stored in x 2..6, y 4..8 only; it was
+/// stretched over the whole image, lit sky where the file meant black.
+#[test]
+fn a_cropped_exr_is_its_display_window() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/images/cropped.exr");
+    let want = |x: u32, y: u32| {
+        if (2..6).contains(&x) && (4..8).contains(&y) {
+            Vec3::new(1.0, 0.5, 0.25)
+        } else {
+            Vec3::ZERO
+        }
+    };
+    let img = reframe::image::read_linear_rgb(&path, 1 << 20, 0).unwrap();
+    assert_eq!((img.width, img.height), (8, 8));
+    let mut t = Textures::new().unwrap();
+    let id = t.open(&path).unwrap();
+    for y in 0..8 {
+        for x in 0..8 {
+            let i = ((y * 8 + x) * 3) as usize;
+            let read = Vec3::new(img.data[i], img.data[i + 1], img.data[i + 2]);
+            assert_eq!(read, want(x, y), "read, pixel ({x}, {y})");
+            // At a texel's centre the bilinear lookup is the texel (v runs up the image).
+            let uv = Vec2::new((x as f32 + 0.5) / 8.0, 1.0 - (y as f32 + 0.5) / 8.0);
+            let looked = t.rgb(id, uv);
+            assert!(
+                (looked - want(x, y)).abs().max_element() < 1e-6,
+                "looked up, texel ({x}, {y}): {looked}"
+            );
+        }
+    }
+}
