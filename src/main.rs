@@ -172,7 +172,8 @@ fn run(cli: Cli) -> Result<()> {
             let stats = driver::render(&scene, &opts)?;
             print_warnings(&scene);
             if let Ok(out) = reframe::image::OutputPattern::parse(&opts.out) {
-                for w in opts.flag_warnings(&out) {
+                let size = opts.resolution.unwrap_or((scene.width, scene.height));
+                for w in opts.flag_warnings(&out, size) {
                     errln!("warning: {}", printable(&w));
                 }
             }

@@ -366,10 +366,21 @@ impl RenderOptions {
     }
 }
 
+/// Frames smaller than this on a side are denoised with a warning (`flag_warnings`).
+const MIN_DENOISE_SIDE: u32 = 32;
+
 impl RenderOptions {
-    /// Flags given that change nothing for this render, in words (the command line warns).
-    pub fn flag_warnings(&self, out: &OutputPattern) -> Vec<String> {
+    /// Flags given that change nothing for this render, or not what they should, in words (the
+    /// command line warns); `(width, height)`: the frames'.
+    pub fn flag_warnings(&self, out: &OutputPattern, (width, height): (u32, u32)) -> Vec<String> {
         let mut w = Vec::new();
+        if self.denoise.is_some() && width.min(height) < MIN_DENOISE_SIDE {
+            w.push(format!(
+                "--denoise on {width}x{height} frames: the denoiser needs more of an image to \
+                 work from than {MIN_DENOISE_SIDE} pixels a side (8x8 frames of 'cornell' came \
+                 out 30% darker than their radiance, 16x12 5%, 64x48 2%)"
+            ));
+        }
         if self.aov && !self.method.reuses() {
             w.push("--aov: the independent tracer has no reuse channels; ignored".into());
         } else if self.aov && !out.is_exr() {
