@@ -299,6 +299,40 @@ fn json_message(e: &serde_json::Error) -> String {
     }
 }
 
+/// A matrix's numbers, row-major: as given, or its four rows of four (`[[...], ...]`, as numpy's
+/// `tolist()` writes a 4x4 matrix) one after the other.
+fn matrix_rows<'a>(m: &[Num<'a>]) -> Result<Vec<Num<'a>>, String> {
+    if !m.iter().any(|n| n.0.trim_start().starts_with('[')) {
+        return Ok(m.iter().map(|n| Num(n.0)).collect());
+    }
+    let rows: Option<Vec<Vec<Num<'a>>>> = m
+        .iter()
+        .map(|n| serde_json::from_str::<Vec<Num<'a>>>(n.0).ok())
+        .collect();
+    match rows {
+        Some(rows) if rows.len() == 4 && rows.iter().all(|r| r.len() == 4) => {
+            Ok(rows.into_iter().flatten().collect())
+        }
+        _ => Err(format!(
+            "matrix is given as {} rows{}: give 16 numbers, row-major, or 4 rows of 4",
+            m.len(),
+            rows_shape(m)
+        )),
+    }
+}
+
+/// " of 4, 3, ..." numbers for a matrix given as rows, for a message.
+fn rows_shape(m: &[Num]) -> String {
+    let sizes: Vec<String> = m
+        .iter()
+        .map(|n| {
+            serde_json::from_str::<Vec<&RawValue>>(n.0)
+                .map_or("1".to_string(), |r| r.len().to_string())
+        })
+        .collect();
+    format!(" of {} numbers", sizes.join(", "))
+}
+
 /// `N` numbers of `key`, parsed as `T` from their text.
 fn numbers<T: std::str::FromStr + Default + Copy, const N: usize>(
     key: &str,
@@ -378,13 +412,16 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
             )
         })?;
         let form = (|| match (&e.matrix, &e.position, &e.look_at, &e.up) {
-            (Some(m), None, None, None) => Ok(Form::Matrix(
-                numbers("matrix", m)?,
-                translation(
-                    |i| m[i].0,
-                    |i| format!("matrix element m{}{}", i / 4, i % 4),
-                )?,
-            )),
+            (Some(m), None, None, None) => {
+                let m = matrix_rows(m)?;
+                Ok(Form::Matrix(
+                    numbers("matrix", &m)?,
+                    translation(
+                        |i| m[i].0,
+                        |i| format!("matrix element m{}{}", i / 4, i % 4),
+                    )?,
+                ))
+            }
             (None, Some(p), Some(l), Some(u)) => Ok(Form::LookAt {
                 position: numbers("position", p)?,
                 look_at: numbers("look_at", l)?,
@@ -626,6 +663,41 @@ mod tests {
         ] {
             let e = refused("c.json", &f(frames), n);
             assert!(e.starts_with(want), "{frames:?}:\n  want {want}\n  got  {e}");
+        }
+    }
+
+    #[test]
+    fn a_matrix_given_as_four_rows_is_read_row_major() {
+        // A camera at (1, 2, 3) turned 90 degrees about +Y, flat and as numpy's tolist() rows.
+        let flat = "[0, 0, 1, 1, 0, 1, 0, 2, -1, 0, 0, 3, 0, 0, 0, 1]";
+        let rows = "[[0, 0, 1, 1], [0, 1, 0, 2], [-1, 0, 0, 3], [0, 0, 0, 1]]";
+        let read = |m: &str| {
+            let text = json(&[entry(0, m)]);
+            parse(
+                "c.json",
+                text.as_bytes(),
+                Format::Json,
+                1,
+                &mut Repairs::new(false),
+            )
+            .unwrap()
+        };
+        assert_eq!(read(rows), read(flat));
+        assert_eq!(read(rows)[0].eye, glam::Vec3::new(1.0, 2.0, 3.0));
+        let m = |s: &str| json(&[entry(0, s)]);
+        for (matrix, want) in [
+            (
+                "[[1, 0, 0], [0, 1, 0], [0, 0, 1]]",
+                "frame 0: matrix is given as 3 rows of 3, 3, 3 numbers: give 16 numbers, \
+                 row-major, or 4 rows of 4",
+            ),
+            (
+                "[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], 1]",
+                "frame 0: matrix is given as 4 rows of 4, 4, 4, 1 numbers",
+            ),
+        ] {
+            let e = refused("c.json", &m(matrix), 1);
+            assert!(e.contains(want), "{matrix}:\n  want {want}\n  got  {e}");
         }
     }
 
