@@ -1,4 +1,4 @@
-//! The process's own FFI: the one C library call Rust's standard library does not offer.
+//! The process's own FFI: the C library calls Rust's standard library does not offer.
 //!
 //! `std::process::exit` runs the C library's exit handlers, among them the C++ static
 //! destructors of Embree, OpenImageIO and Open Image Denoise. A stop by signal exits while
@@ -13,4 +13,31 @@ pub fn exit_now(code: i32) -> ! {
     let _ = std::io::stdout().flush();
     // SAFETY: `_exit` takes any status and never returns; it touches no Rust state.
     unsafe { libc::_exit(code) }
+}
+
+/// Standard error as the process started with it: a copy of descriptor 2 (`keep_stderr`), made
+/// before any reader quiets descriptor 2 (`QuietStderr` in `ffi/oiio.cpp` points it at
+/// /dev/null while a codec may print), or -1.
+static STDERR: std::sync::OnceLock<i32> = std::sync::OnceLock::new();
+
+/// Keep a copy of standard error for `write_stderr`; call first thing.
+pub fn keep_stderr() {
+    // SAFETY: `fcntl` duplicates a descriptor (or fails with -1); nothing else is touched.
+    STDERR.get_or_init(|| unsafe { libc::fcntl(2, libc::F_DUPFD_CLOEXEC, 3) });
+}
+
+/// Write `bytes` to standard error as the process started with it: reframe's own lines, so that
+/// one written while a reader has quieted descriptor 2 (an interrupt's, from the signal thread,
+/// while textures load) is not lost. Without `keep_stderr`, to descriptor 2.
+pub fn write_stderr(bytes: &[u8]) -> std::io::Result<()> {
+    use std::os::fd::FromRawFd;
+    match STDERR.get() {
+        Some(&fd) if fd >= 0 => {
+            // SAFETY: `fd` is our own copy, open for the life of the process; the `File` is
+            // never dropped, so it is never closed.
+            let f = std::mem::ManuallyDrop::new(unsafe { std::fs::File::from_raw_fd(fd) });
+            (&*f).write_all(bytes)
+        }
+        _ => std::io::stderr().write_all(bytes),
+    }
 }

@@ -101,6 +101,39 @@ fn every_command_stops_at_once_outside_a_render_loop() {
         second,
         "INT",
     );
+    // render, while it loads a texture: an 8192 x 8192 grey PNG that decodes for seconds,
+    // with standard error quieted (a codec's own complaints go to /dev/null meanwhile). The
+    // interrupt's line went there too: status 130 and not a word.
+    let tex = d.join("texture");
+    std::fs::create_dir_all(&tex).unwrap();
+    let big = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/images/big-grey.png");
+    std::fs::write(
+        tex.join("s.mtl"),
+        format!(
+            "newmtl floor\nKd 1 1 1\nmap_Kd {}\nnewmtl light\nKd 0 0 0\nKe 5 5 5\n",
+            big.display()
+        ),
+    )
+    .unwrap();
+    std::fs::write(
+        tex.join("s.obj"),
+        "mtllib s.mtl\nv -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nv -0.2 1.9 -0.2\n\
+         v 0.2 1.9 -0.2\nv 0.2 1.9 0.2\nv -0.2 1.9 0.2\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n\
+         usemtl floor\nf 1/1 4/4 3/3 2/2\nusemtl light\nf 5 6 7 8\n",
+    )
+    .unwrap();
+    std::fs::write(
+        tex.join("s.toml"),
+        "obj = \"s.obj\"\nframes = 1\nresolution = [16, 12]\n[[keyframe]]\nframe = 0\n\
+         position = [0, 1, 3]\nlook_at = [0, 0, 0]\nup = [0, 1, 0]\nfov = 45\n",
+    )
+    .unwrap();
+    stops_at_once(
+        &tex,
+        &["render", "s.toml", "--out", "o/f_####.exr"],
+        Duration::from_millis(700),
+        "INT",
+    );
     // bench, while it measures.
     stops_at_once(
         &d.join("bench"),

@@ -19,11 +19,13 @@ macro_rules! outln {
     }};
 }
 
-/// `eprintln!` that does not panic when standard error is closed (see `outln!`).
+/// `eprintln!` that does not panic when standard error is closed (see `outln!`), written to
+/// standard error as the process started with it (`sys::write_stderr`).
 #[macro_export]
 macro_rules! errln {
     ($($arg:tt)*) => {{
-        use std::io::Write as _;
-        let _ = writeln!(std::io::stderr(), $($arg)*);
+        let mut line = format!($($arg)*);
+        line.push('\n');
+        let _ = $crate::sys::write_stderr(line.as_bytes());
     }};
 }
