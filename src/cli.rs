@@ -212,7 +212,8 @@ pub struct RenderArgs {
         num_args = 0..=1,
         default_missing_value = "0.75",
         value_name = "F",
-        allow_negative_numbers = true
+        allow_negative_numbers = true,
+        value_parser = parse_share
     )]
     pub adaptive: Option<f32>,
     /// Render chunk K of N (1-based) of the groups and write its partial file
@@ -223,6 +224,25 @@ pub struct RenderArgs {
     /// normals, unknown materials, clamped values, ...), naming the file and line.
     #[arg(long)]
     pub strict: bool,
+}
+
+/// A share in (0, 1], read in f64 so that a refusal names the value as typed (`1e-300` became
+/// the f32 0 and was refused as `--adaptive 0`).
+pub fn parse_share(s: &str) -> Result<f32, String> {
+    let x: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}' is not a number"))?;
+    if !(x > 0.0 && x <= 1.0) {
+        return Err("the target share of n_f n_r must be in (0, 1]".to_string());
+    }
+    if x < f32::MIN_POSITIVE as f64 {
+        return Err(format!(
+            "too small a share to hold (at least {:e})",
+            f32::MIN_POSITIVE
+        ));
+    }
+    Ok(x as f32)
 }
 
 pub fn parse_chunk(s: &str) -> Result<Chunk, String> {
