@@ -108,7 +108,27 @@ impl Maps {
             match open_input_or_missing(&path, "texture", u64::MAX) {
                 Ok(_) => {}
                 Err(InputError::NotFound(_)) => {
-                    return Err(anyhow!("{at}: no file '{}'", path.display()))
+                    // A tiled texture's name pattern (Mari, Blender, Substance, RenderMan):
+                    // several images over UV tiles, which a lookup in [0, 1) cannot address.
+                    let name = &spec.file;
+                    let tiled = [
+                        "<UDIM>",
+                        "<UVTILE>",
+                        "<udim>",
+                        "<uvtile>",
+                        "%(UDIM)d",
+                        "_u<U>_v<V>",
+                    ]
+                    .iter()
+                    .any(|t| name.contains(t));
+                    if tiled {
+                        return Err(anyhow!(
+                            "{at}: a texture over UV tiles (UDIM: one image per tile, named by a \
+                             pattern) is not supported: bake the tiles into one image, or give each \
+                             tile's object its own material"
+                        ));
+                    }
+                    return Err(anyhow!("{at}: no file '{}'", path.display()));
                 }
                 Err(e) => return Err(anyhow!("{at}: {e}")),
             }
