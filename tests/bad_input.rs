@@ -276,3 +276,38 @@ fn merge_with_a_huge_chunk_count_is_refused_at_once() {
         "{line}"
     );
 }
+
+/// `--cache` naming a file (or a path through one) is said as such: the message was the cache
+/// description's "cannot read: Not a directory", naming neither the flag nor the file.
+#[test]
+fn a_reference_cache_that_is_a_file_is_refused_naming_the_flag() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("cache");
+    std::fs::write(&file, b"x").unwrap();
+    for cache in [file.clone(), file.join("sub")] {
+        let args: Vec<String> = [
+            "reference",
+            "vase",
+            "--res",
+            "16x12",
+            "--frames",
+            "0-0",
+            "--reference-spp",
+            "8",
+            "--cache",
+        ]
+        .iter()
+        .map(|a| a.to_string())
+        .chain([cache.display().to_string()])
+        .collect();
+        let line = refusal(&run_reframe(&args, Duration::from_secs(60))).unwrap();
+        assert_eq!(
+            line,
+            format!(
+                "error: --cache {}: {} is a file, not a folder (the cache is a folder of references)",
+                cache.display(),
+                file.display()
+            )
+        );
+    }
+}

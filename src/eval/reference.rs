@@ -126,6 +126,17 @@ pub fn reference(
         bail!("--reference-spp {spp}: must be a multiple of {PASSES} (the reference is {PASSES} passes, for its variance)");
     }
     check_max_depth(max_depth)?;
+    // The cache is a folder (made if missing); anything else at its path, or on the way to it,
+    // is said as such before the reference is rendered.
+    if let Some(p) = cache.ancestors().find(|p| p.exists()) {
+        if !p.is_dir() {
+            bail!(
+                "--cache {}: {} is a file, not a folder (the cache is a folder of references)",
+                cache.display(),
+                p.display()
+            );
+        }
+    }
     let key = reference_key(scene, &range, (w, h), spp, max_depth)?;
     let (first, last) = (*range.start(), *range.end());
     let dir = cache.join(format!(
