@@ -236,8 +236,10 @@ impl<'de, T: Deserialize<'de>, const N: usize> Deserialize<'de> for Exactly<T, N
 #[serde(deny_unknown_fields)]
 struct KeyframeFile {
     frame: Spanned<u32>,
-    position: Spanned<Exactly<f32, 3>>,
-    look_at: Spanned<Exactly<f32, 3>>,
+    /// Read in double precision for a scene moved to its origin (`check_camera`); checked and
+    /// used as f32 otherwise.
+    position: Spanned<Exactly<f64, 3>>,
+    look_at: Spanned<Exactly<f64, 3>>,
     up: Spanned<Exactly<f32, 3>>,
     /// Read in double precision so that a refusal names the value given (`text::fov_fault`).
     fov: Spanned<f64>,
@@ -493,7 +495,12 @@ impl Scene {
             Source::Builtin(_) => None,
         };
         let camera_path = |name: &str| dir.as_ref().map(|d| d.join(name));
-        let read_camera = |name: &Spanned<String>, frames: u32| -> Result<Vec<Pose>> {
+        // The poses of a camera file, its eyes given from `origin` (`Scene::origin`).
+        let read_camera = |name: &Spanned<String>,
+                           frames: u32,
+                           origin: DVec3,
+                           repairs: &mut Repairs|
+         -> Result<Vec<Pose>> {
             let at = format!(
                 "{label}: line {}: camera '{}'",
                 line_at(toml_text.as_bytes(), name.span().start),
@@ -508,9 +515,15 @@ impl Scene {
             let bytes = read_input(&path, "camera file", MAX_INPUT_BYTES)
                 .map_err(|e| anyhow!("{at}: {e}"))?;
             let label = path.display().to_string();
-            camera_file::parse(&label, &bytes, format, frames, &mut repairs)
+            camera_file::parse_from(&label, &bytes, format, frames, repairs, origin)
         };
-        let (width, height, cameras) = check_camera(&label, toml_text, &file, read_camera)?;
+        let (width, height, mut cameras) = check_camera(
+            &label,
+            toml_text,
+            &file,
+            |n, frames| read_camera(n, frames, DVec3::ZERO, &mut repairs),
+            DVec3::ZERO,
+        )?;
         let (environment, env_input) = match &file.environment {
             None => (None, None),
             Some(e) => {
@@ -595,6 +608,19 @@ impl Scene {
             }
             origin
         });
+        if origin != DVec3::ZERO {
+            // The cameras again, given from the origin in f64 (checked once already: the same
+            // answer, and no warning twice).
+            let mut again = Repairs::new(false);
+            cameras = check_camera(
+                &label,
+                toml_text,
+                &file,
+                |n, frames| read_camera(n, frames, origin, &mut again),
+                origin,
+            )?
+            .2;
+        }
         let (lo, hi) = world_bounds(&mesh.positions, &prototypes, &instances);
         let inputs = match &source {
             Source::Files { toml } => [toml.clone()]
@@ -679,12 +705,12 @@ impl Scene {
         })
     }
 
-    /// The camera of frame `frame`, at `width` x `height`, its eye where the render has it
-    /// (`origin` subtracted; its matrices keep the scene file's coordinates).
+    /// The camera of frame `frame`, at `width` x `height`: its eye where the render has it
+    /// (`cameras` are given from `origin`), its matrices in the scene file's coordinates.
     pub fn camera(&self, frame: u32, width: u32, height: u32) -> Camera {
         let mut cam = Camera::from_pose(&self.cameras.pose(frame), width, height);
         if self.origin != DVec3::ZERO {
-            cam.eye = (cam.world_eye.as_dvec3() - self.origin).as_vec3();
+            cam.world_eye = (cam.eye.as_dvec3() + self.origin).as_vec3();
         }
         cam
     }
@@ -1062,6 +1088,7 @@ fn check_camera(
     text: &str,
     f: &SceneFile,
     read_camera: impl FnOnce(&Spanned<String>, u32) -> Result<Vec<Pose>>,
+    origin: DVec3,
 ) -> Result<(u32, u32, Cameras)> {
     let lines = Lines::new(text.as_bytes());
     let line = |span: Range<usize>| lines.at(span.start);
@@ -1131,20 +1158,20 @@ fn check_camera(
                 frames - 1
             );
         }
-        for (key, v) in [
-            ("position", &k.position),
-            ("look_at", &k.look_at),
-            ("up", &k.up),
+        let as_f32 = |v: &Spanned<Exactly<f64, 3>>| v.get_ref().0.map(|c| c as f32);
+        for (key, c, span) in [
+            ("position", as_f32(&k.position), k.position.span()),
+            ("look_at", as_f32(&k.look_at), k.look_at.span()),
+            ("up", k.up.get_ref().0, k.up.span()),
         ] {
-            let c = &v.get_ref().0;
             if !c.iter().all(|c| c.is_finite()) {
                 let why = text::beyond_f32(c.iter().copied());
-                bail!("{}: {key} {c:?} is not finite{why}", at(v.span()));
+                bail!("{}: {key} {c:?} is not finite{why}", at(span));
             }
             if c.iter().any(|c| c.abs() > MAX_COORD) {
                 bail!(
                     "{}: {key} {c:?} is too large (at most {MAX_COORD:e})",
-                    at(v.span())
+                    at(span)
                 );
             }
         }
@@ -1152,10 +1179,19 @@ fn check_camera(
             bail!("{}: {why}", at(k.fov.span()));
         }
         let fov = *k.fov.get_ref() as f32;
+        // Given from `origin` in f64 (a camera 5x10^6 units out keeps its fraction of a unit).
+        let from_origin = |v: &Spanned<Exactly<f64, 3>>| {
+            let p = DVec3::from(v.get_ref().0);
+            if origin == DVec3::ZERO {
+                p.as_vec3()
+            } else {
+                (p - origin).as_vec3()
+            }
+        };
         keys.push(Keyframe {
             frame,
-            position: Vec3::from(k.position.get_ref().0),
-            look_at: Vec3::from(k.look_at.get_ref().0),
+            position: from_origin(&k.position),
+            look_at: from_origin(&k.look_at),
             up: Vec3::from(k.up.get_ref().0),
             fov,
         });

@@ -19,6 +19,7 @@ use super::repairs::{Kind, Repairs};
 use super::text::{fov_fault, line_at, quote, Lines, MAX_COORD};
 use crate::camera::Pose;
 use anyhow::{anyhow, bail, Result};
+use glam::DVec3;
 use serde::Deserialize;
 use serde_json::value::RawValue;
 
@@ -51,6 +52,8 @@ enum Form {
         position: [f32; 3],
         look_at: [f32; 3],
         up: [f32; 3],
+        /// Position and look-at read in f64 too, for a scene moved to its origin.
+        exact: [[f64; 3]; 2],
     },
 }
 
@@ -67,12 +70,28 @@ struct Entry {
 }
 
 /// The poses of frames `0..frames` from the camera file `label` (its bytes, in `format`).
+#[cfg(test)]
 pub fn parse(
     label: &str,
     bytes: &[u8],
     format: Format,
     frames: u32,
     repairs: &mut Repairs,
+) -> Result<Vec<Pose>> {
+    parse_from(label, bytes, format, frames, repairs, DVec3::ZERO)
+}
+
+/// The poses of frames `0..frames` from the camera file `label` (its bytes, in `format`), with
+/// every eye given from `origin` (`Scene::origin`): subtracted in f64 from the
+/// file's numbers before they are rounded to f32, so that a camera far from the origin keeps
+/// its place to the file's precision (f32 rounds to half a unit at 5x10^6).
+pub fn parse_from(
+    label: &str,
+    bytes: &[u8],
+    format: Format,
+    frames: u32,
+    repairs: &mut Repairs,
+    origin: DVec3,
 ) -> Result<Vec<Pose>> {
     let text = super::text::as_text(bytes).map_err(|e| anyhow!("{label}: {e}"))?;
     // A byte order mark, as spreadsheets write it, is not part of the first line.
@@ -111,7 +130,7 @@ pub fn parse(
                 frames - 1
             );
         }
-        poses.push(pose(e).map_err(|why| anyhow!("{at}: {why}"))?);
+        poses.push(pose(e, origin).map_err(|why| anyhow!("{at}: {why}"))?);
         if let Form::Matrix(m, _) = &e.form {
             let shear = shear_degrees(m);
             if shear > MAX_SHEAR_DEGREES {
@@ -137,8 +156,8 @@ pub fn parse(
     Ok(poses)
 }
 
-/// The checked pose of an entry, or why it is refused.
-fn pose(e: &Entry) -> Result<Pose, String> {
+/// The checked pose of an entry (its eye given from `origin`), or why it is refused.
+fn pose(e: &Entry, origin: DVec3) -> Result<Pose, String> {
     if let Some(why) = fov_fault(e.fov) {
         return Err(why);
     }
@@ -148,6 +167,7 @@ fn pose(e: &Entry) -> Result<Pose, String> {
             position,
             look_at,
             up,
+            exact,
         } => {
             for (key, c) in [("position", position), ("look_at", look_at), ("up", up)] {
                 if !c.iter().all(|c| c.is_finite()) {
@@ -159,17 +179,28 @@ fn pose(e: &Entry) -> Result<Pose, String> {
                 }
             }
             let (position, look_at) = (glam::Vec3::from(*position), glam::Vec3::from(*look_at));
+            let (eye, view) = if origin == DVec3::ZERO {
+                (position, look_at - position)
+            } else {
+                let [p, l] = exact.map(DVec3::from);
+                ((p - origin).as_vec3(), (l - p).as_vec3())
+            };
             Pose {
-                eye: position,
-                view: look_at - position,
+                eye,
+                view,
                 up: glam::Vec3::from(*up),
                 fov,
             }
         }
         Form::Matrix(m, eye) => {
             check_matrix(m)?;
+            let eye = if origin == DVec3::ZERO {
+                glam::Vec3::from(*eye)
+            } else {
+                (DVec3::new(m[3], m[7], m[11]) - origin).as_vec3()
+            };
             Pose {
-                eye: glam::Vec3::from(*eye),
+                eye,
                 ..Pose::from_camera_to_world(m, fov)
             }
         }
@@ -426,6 +457,7 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
                 position: numbers("position", p)?,
                 look_at: numbers("look_at", l)?,
                 up: numbers("up", u)?,
+                exact: [numbers("position", p)?, numbers("look_at", l)?],
             }),
             (Some(_), ..) => Err("both matrix and position/look_at/up: give one".to_string()),
             _ => Err("needs matrix, or position, look_at and up".to_string()),
@@ -515,10 +547,15 @@ fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
             for (i, x) in v.iter_mut().flatten().enumerate() {
                 *x = number(LOOK_AT_HEADER[i + 2], fields[i + 2]).map_err(fail)?;
             }
+            let mut exact = [[0.0f64; 3]; 2];
+            for (i, x) in exact.iter_mut().flatten().enumerate() {
+                *x = number(LOOK_AT_HEADER[i + 2], fields[i + 2]).map_err(fail)?;
+            }
             Form::LookAt {
                 position: v[0],
                 look_at: v[1],
                 up: v[2],
+                exact,
             }
         };
         entries.push(Entry {
@@ -663,6 +700,37 @@ mod tests {
         ] {
             let e = refused("c.json", &f(frames), n);
             assert!(e.starts_with(want), "{frames:?}:\n  want {want}\n  got  {e}");
+        }
+    }
+
+    #[test]
+    fn eyes_far_out_are_given_from_the_origin_in_f64() {
+        // 5x10^6 units out f32 rounds to half a unit: the fraction survives only if the origin
+        // is subtracted before the rounding, in both forms.
+        let origin = DVec3::new(5.1e6, 0.0, -3.3e5);
+        let matrix = "[1, 0, 0, 5100000.3, 0, 1, 0, 1.25, 0, 0, 1, -329999.3, 0, 0, 0, 1]";
+        let look_at = "  {\"frame\": 0, \"fov\": 40.0, \"position\": [5100000.3, 1.25, \
+                       -329999.3], \"look_at\": [5100000.3, 1.25, -330009.3], \"up\": [0, 1, 0]}";
+        for text in [json(&[entry(0, matrix)]), json(&[look_at.to_string()])] {
+            let p = parse_from(
+                "c.json",
+                text.as_bytes(),
+                Format::Json,
+                1,
+                &mut Repairs::new(false),
+                origin,
+            )
+            .unwrap();
+            let want = glam::Vec3::new(0.3, 1.25, 0.7);
+            assert!(
+                (p[0].eye - want).abs().max_element() < 1e-6,
+                "{text}: {}",
+                p[0].eye
+            );
+            assert!(
+                p[0].view.normalize().abs_diff_eq(-glam::Vec3::Z, 1e-6),
+                "{text}"
+            );
         }
     }
 
