@@ -156,9 +156,11 @@ OIIO::ImageSpec make_spec(const ImageDesc& desc, size_t n_values,
 // returns the file's bytes, for the caller to write, check and sync: OIIO 2.4's writers ignore
 // a failed write to disk (a full disk gave empty EXR, PNG and HDR frames with close() reporting
 // success, and libjpeg ended the process). Otherwise writes `path` itself and returns nothing.
-rust::Vec<uint8_t> write_pixels(const std::string& path, const OIIO::ImageSpec& spec,
-                                OIIO::TypeDesc in_type, const void* pixels) {
-    OIIO::Filesystem::IOVecOutput memory;
+std::unique_ptr<std::vector<uint8_t>> write_pixels(const std::string& path,
+                                                   const OIIO::ImageSpec& spec,
+                                                   OIIO::TypeDesc in_type, const void* pixels) {
+    auto bytes = std::make_unique<std::vector<uint8_t>>();
+    OIIO::Filesystem::IOVecOutput memory(*bytes);
     auto out = OIIO::ImageOutput::create(path);
     if (!out) {
         throw_global_error("no image writer");
@@ -182,16 +184,11 @@ rust::Vec<uint8_t> write_pixels(const std::string& path, const OIIO::ImageSpec& 
     if (!out->close()) {
         throw_output_error(*out, "cannot finish writing");
     }
-    rust::Vec<uint8_t> bytes;
-    if (in_memory) {
-        const std::vector<unsigned char>& buf = memory.buffer();
-        if (buf.empty()) {
-            throw std::runtime_error("the image writer produced no bytes");
-        }
-        bytes.reserve(buf.size());
-        for (unsigned char b : buf) {
-            bytes.push_back(b);
-        }
+    if (in_memory && bytes->empty()) {
+        throw std::runtime_error("the image writer produced no bytes");
+    }
+    if (!in_memory) {
+        bytes->clear();
     }
     return bytes;
 }
@@ -287,14 +284,18 @@ void probe_output(rust::Slice<const uint8_t> path, rust::Slice<const uint8_t> pr
     }
 }
 
-rust::Vec<uint8_t> write_f32(rust::Slice<const uint8_t> path, const ImageDesc& desc,
-                             rust::Slice<const float> pixels, rust::Slice<const Attribute> attrs) {
+std::unique_ptr<std::vector<uint8_t>> write_f32(rust::Slice<const uint8_t> path,
+                                                const ImageDesc& desc,
+                                                rust::Slice<const float> pixels,
+                                                rust::Slice<const Attribute> attrs) {
     const OIIO::ImageSpec spec = make_spec(desc, pixels.size(), attrs);
     return write_pixels(path_string(path), spec, OIIO::TypeDesc::FLOAT, pixels.data());
 }
 
-rust::Vec<uint8_t> write_u8(rust::Slice<const uint8_t> path, const ImageDesc& desc,
-                            rust::Slice<const uint8_t> pixels, rust::Slice<const Attribute> attrs) {
+std::unique_ptr<std::vector<uint8_t>> write_u8(rust::Slice<const uint8_t> path,
+                                               const ImageDesc& desc,
+                                               rust::Slice<const uint8_t> pixels,
+                                               rust::Slice<const Attribute> attrs) {
     const OIIO::ImageSpec spec = make_spec(desc, pixels.size(), attrs);
     return write_pixels(path_string(path), spec, OIIO::TypeDesc::UINT8, pixels.data());
 }

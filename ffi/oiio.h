@@ -69,10 +69,14 @@ rust::String oiio_version();
 void check_output_format(rust::Slice<const uint8_t> path);
 void probe_output(rust::Slice<const uint8_t> path, rust::Slice<const uint8_t> probe,
                   const ImageDesc& desc);
-rust::Vec<uint8_t> write_f32(rust::Slice<const uint8_t> path, const ImageDesc& desc,
-                             rust::Slice<const float> pixels, rust::Slice<const Attribute> attrs);
-rust::Vec<uint8_t> write_u8(rust::Slice<const uint8_t> path, const ImageDesc& desc,
-                            rust::Slice<const uint8_t> pixels, rust::Slice<const Attribute> attrs);
+std::unique_ptr<std::vector<uint8_t>> write_f32(rust::Slice<const uint8_t> path,
+                                                const ImageDesc& desc,
+                                                rust::Slice<const float> pixels,
+                                                rust::Slice<const Attribute> attrs);
+std::unique_ptr<std::vector<uint8_t>> write_u8(rust::Slice<const uint8_t> path,
+                                               const ImageDesc& desc,
+                                               rust::Slice<const uint8_t> pixels,
+                                               rust::Slice<const Attribute> attrs);
 std::unique_ptr<ImageReader> open_reader(rust::Slice<const uint8_t> path);
 
 }  // namespace reframe

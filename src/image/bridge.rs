@@ -88,13 +88,13 @@ pub(crate) mod ffi {
             desc: &ImageDesc,
             pixels: &[f32],
             attrs: &[Attribute],
-        ) -> Result<Vec<u8>>;
+        ) -> Result<UniquePtr<CxxVector<u8>>>;
         fn write_u8(
             path: &[u8],
             desc: &ImageDesc,
             pixels: &[u8],
             attrs: &[Attribute],
-        ) -> Result<Vec<u8>>;
+        ) -> Result<UniquePtr<CxxVector<u8>>>;
 
         fn open_reader(path: &[u8]) -> Result<UniquePtr<ImageReader>>;
 

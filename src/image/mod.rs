@@ -452,6 +452,7 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
     .map_err(|e| anyhow!("{}", e.what()))?;
     // The bytes are written here, where a failed write (a full disk, a quota) is an error, and
     // synced before the rename, so that a frame in place is whole.
+    let encoded = encoded.as_slice();
     let file = if encoded.is_empty() {
         fs::File::open(&tmp.path).and_then(|f| match f.metadata()?.len() {
             0 => Err(std::io::Error::other("the image writer left an empty file")),
@@ -462,7 +463,7 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
             .write(true)
             .create_new(true)
             .open(&tmp.path)
-            .and_then(|mut f| f.write_all(&encoded).map(|()| f))
+            .and_then(|mut f| f.write_all(encoded).map(|()| f))
     };
     file.and_then(|f| f.sync_all())
         .map_err(|e| anyhow!("{e}"))?;
