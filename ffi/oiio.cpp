@@ -180,15 +180,34 @@ std::unique_ptr<std::vector<uint8_t>> write_pixels(const std::string& path,
         throw std::runtime_error("cannot write pixels: " +
                                  (msg.empty() ? std::string("unknown OpenImageIO error") : msg));
     }
-    // Writers flush and compress on close, so a full disk shows up here if anywhere.
-    if (!out->close()) {
+    // Writers flush and compress on close; some report a failure only as an error left set
+    // (TIFF's "failed TIFFWriteDirectory()" with close() true).
+    if (!out->close() || out->has_error()) {
         throw_output_error(*out, "cannot finish writing");
     }
     if (in_memory && bytes->empty()) {
         throw std::runtime_error("the image writer produced no bytes");
     }
     if (!in_memory) {
+        // Written to disk by the writer, which may not notice a failed write at all (SGI and
+        // FITS left 512-byte files under a full disk and reported success): read back whole.
         bytes->clear();
+        QuietStderr quiet;
+        auto in = OIIO::ImageInput::open(path);
+        std::vector<float> back;
+        bool ok = in != nullptr && in->spec().width == spec.width &&
+                  in->spec().height == spec.height;
+        if (ok) {
+            back.resize(size_t(spec.width) * spec.height * in->spec().nchannels);
+            ok = in->read_image(0, 0, 0, in->spec().nchannels, OIIO::TypeDesc::FLOAT,
+                                back.data()) &&
+                 !in->has_error();
+        }
+        if (!ok) {
+            std::string msg = in ? in->geterror() : OIIO::geterror();
+            throw std::runtime_error("the written file does not read back whole" +
+                                     (msg.empty() ? std::string() : ": " + msg));
+        }
     }
     return bytes;
 }
@@ -237,6 +256,7 @@ void probe_output(rust::Slice<const uint8_t> path, rust::Slice<const uint8_t> pr
     const std::string q = path_string(probe);
     bool opened = out->open(q, spec);
     std::string msg = opened ? std::string() : out->geterror();
+    std::string writer_said;
     if (opened) {
         const std::vector<float> row(size_t(desc.width) * desc.channels.size(), 0.0f);
         for (int y = 0; y < int(desc.height) && opened; ++y) {
@@ -245,7 +265,10 @@ void probe_output(rust::Slice<const uint8_t> path, rust::Slice<const uint8_t> pr
         if (!opened) {
             msg = out->geterror();
         }
-        out->close();
+        // The writer's own complaint, if any, says why a file will not read back.
+        if (!out->close() || out->has_error()) {
+            writer_said = out->geterror();
+        }
     }
     // What was written must read back: this OpenImageIO's JPEG 2000 writer wrote empty .j2k
     // files and .jp2 files its own reader refuses.
@@ -253,16 +276,24 @@ void probe_output(rust::Slice<const uint8_t> path, rust::Slice<const uint8_t> pr
     if (opened) {
         QuietStderr quiet;
         auto in = OIIO::ImageInput::open(q);
-        std::vector<float> back(size_t(desc.width) * desc.height * desc.channels.size());
+        // The last row: a file cut short fails there, and a frame's whole would be gigabytes.
+        std::vector<float> row;
+        if (in) {
+            row.resize(size_t(std::max(in->spec().width, 1)) *
+                       size_t(std::max(in->spec().nchannels, 1)));
+        }
         if (!in) {
             unreadable = OIIO::geterror();
         } else if (in->spec().width != int(desc.width) || in->spec().height != int(desc.height) ||
-                   !in->read_image(0, 0, 0, int(desc.channels.size()), OIIO::TypeDesc::FLOAT,
-                                   back.data())) {
+                   !in->read_scanline(int(desc.height) - 1 + in->spec().y, 0,
+                                      OIIO::TypeDesc::FLOAT, row.data())) {
             unreadable = in->geterror();
             if (unreadable.empty()) {
                 unreadable = "it reads back at another size";
             }
+        }
+        if (!unreadable.empty() && !writer_said.empty()) {
+            unreadable = writer_said + "; reading it back: " + unreadable;
         }
     }
     std::remove(q.c_str());
@@ -278,9 +309,10 @@ void probe_output(rust::Slice<const uint8_t> path, rust::Slice<const uint8_t> pr
         unreadable.pop_back();
     }
     if (!unreadable.empty()) {
-        throw std::runtime_error("this OpenImageIO writes " + format +
-                                 " files that it cannot read back (" + unreadable +
-                                 "): choose another format");
+        throw std::runtime_error("a test frame written as " + format +
+                                 " does not read back (" + unreadable +
+                                 "): the disk may be full, or this OpenImageIO cannot read its "
+                                 "own " + format + " files at this size; choose another format");
     }
 }
 
