@@ -378,6 +378,8 @@ ImageInfo ImageReader::info() const {
     for (int c = 0; c < spec_.nchannels; ++c) {
         info.channels.push_back(rust::String::lossy(std::string(spec_.channel_name(c))));
     }
+    info.stored_width = uint32_t(spec_.width);
+    info.stored_height = uint32_t(spec_.height);
     info.format_name = rust::String::lossy(in_->format_name());
     info.integer = !spec_.format.is_floating_point();
     return info;
@@ -426,27 +428,29 @@ void ImageReader::read_f32(rust::Slice<float> out) {
     if (out.size() != n) {
         throw std::runtime_error("output buffer size does not match the image");
     }
-    // The stored pixels: straight into `out`, or aside to be placed in the display window.
-    std::vector<float> data(w ? size_t(spec_.width) * size_t(spec_.height) * nch : 0);
-    bool ok;
-    {
+    bool ok = true;
+    if (!w) {
         QuietStderr quiet;
-        ok = in_->read_image(0, 0, 0, spec_.nchannels, OIIO::TypeDesc::FLOAT,
-                             w ? data.data() : out.data());
-    }
-    if (w) {
+        ok = in_->read_image(0, 0, 0, spec_.nchannels, OIIO::TypeDesc::FLOAT, out.data());
+    } else {
+        // The stored rows that fall inside the display window, one at a time, each placed
+        // where it belongs (rows and columns outside it are not kept: an overscan frame's
+        // margin, or a hostile file's huge data window, costs one row of memory).
         std::fill(out.begin(), out.end(), 0.0f);
-        for (int y = 0; y < spec_.height; ++y) {
+        std::vector<float> row(size_t(spec_.width) * nch);
+        QuietStderr quiet;
+        for (int y = 0; y < spec_.height && ok; ++y) {
             const int dy = spec_.y + y - spec_.full_y;
             if (dy < 0 || dy >= spec_.full_height) {
                 continue;
             }
-            for (int x = 0; x < spec_.width; ++x) {
+            ok = in_->read_scanline(spec_.y + y, 0, OIIO::TypeDesc::FLOAT, row.data());
+            for (int x = 0; x < spec_.width && ok; ++x) {
                 const int dx = spec_.x + x - spec_.full_x;
                 if (dx < 0 || dx >= spec_.full_width) {
                     continue;
                 }
-                const float* from = data.data() + (size_t(y) * spec_.width + x) * nch;
+                const float* from = row.data() + size_t(x) * nch;
                 std::copy(from, from + nch,
                           out.data() + (size_t(dy) * spec_.full_width + dx) * nch);
             }

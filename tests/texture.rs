@@ -636,6 +636,32 @@ fn a_textured_reflectance_is_clamped_after_the_product() {
     }
 }
 
+/// An EXR whose data window is larger than its display window (an overscan render: 12x12 stored
+/// from (-2, -2) around an 8x8 image) is its display window, the margin dropped.
+#[test]
+fn an_overscan_exr_is_its_display_window() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/images/overscan.exr");
+    let img = reframe::image::read_linear_rgb(&path, 1 << 20, 0).unwrap();
+    assert_eq!((img.width, img.height), (8, 8));
+    for p in img.data.chunks(3) {
+        assert_eq!(p, [0.25, 0.5, 1.0]);
+    }
+    let mut t = Textures::new().unwrap();
+    let id = t.open(&path).unwrap();
+    for uv in [
+        Vec2::new(0.01, 0.01),
+        Vec2::new(0.5, 0.5),
+        Vec2::new(0.99, 0.99),
+    ] {
+        assert!(
+            (t.rgb(id, uv) - Vec3::new(0.25, 0.5, 1.0))
+                .abs()
+                .max_element()
+                < 1e-6
+        );
+    }
+}
+
 /// An EXR whose data window is part of its display window (a file cropped to its non-empty
 /// pixels by Nuke or oiiotool, an overscan render) is the image of its display window, zero
 /// where nothing is stored: read whole (environments) and looked up as a texture alike.

@@ -54,8 +54,13 @@ pub(crate) mod ffi {
 
     #[derive(Debug, Clone)]
     struct ImageInfo {
+        /// The image: its display window (where the file has one that differs from its data
+        /// window), else the pixels it stores.
         width: u32,
         height: u32,
+        /// The pixels the file stores (its data window).
+        stored_width: u32,
+        stored_height: u32,
         channels: Vec<String>,
         format_name: String,
         /// Whether the file stores its values as integers (8- or 16-bit codes), not floats.

@@ -709,6 +709,17 @@ fn open_checked(
             ffi::oiio_version()
         );
     }
+    let stored = (info.stored_width, info.stored_height);
+    if stored != (info.width, info.height) && stored.0 as u64 * stored.1 as u64 > max_pixels {
+        bail!(
+            "it stores {}x{} pixels (its data window; the image is {}x{}), more than the \
+             {max_pixels} reframe reads",
+            info.stored_width,
+            info.stored_height,
+            info.width,
+            info.height
+        );
+    }
     if info.width as u64 * info.height as u64 > max_pixels {
         bail!(
             "{}x{} pixels, more than the {max_pixels} reframe reads (make a smaller copy, e.g. \

@@ -110,17 +110,10 @@ impl Maps {
                 Err(InputError::NotFound(_)) => {
                     // A tiled texture's name pattern (Mari, Blender, Substance, RenderMan):
                     // several images over UV tiles, which a lookup in [0, 1) cannot address.
-                    let name = &spec.file;
-                    let tiled = [
-                        "<UDIM>",
-                        "<UVTILE>",
-                        "<udim>",
-                        "<uvtile>",
-                        "%(UDIM)d",
-                        "_u<U>_v<V>",
-                    ]
-                    .iter()
-                    .any(|t| name.contains(t));
+                    let name = spec.file.to_ascii_uppercase();
+                    let tiled = ["<UDIM>", "<UVTILE>", "%(UDIM)D", "_U<U>_V<V>"]
+                        .iter()
+                        .any(|t| name.contains(t));
                     if tiled {
                         return Err(anyhow!(
                             "{at}: a texture over UV tiles (UDIM: one image per tile, named by a \

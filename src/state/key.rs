@@ -51,6 +51,13 @@ pub fn hash_scene(f: &mut Fnv, scene: &Scene) {
     if let Some(t) = &scene.textures {
         f.bytes(format!("textures{:?}{:?}", scene.texture_maps(), t.digests()).as_bytes());
     }
+    // The positions and cameras above are given from it: a far scene moved by a whole number
+    // of units would otherwise hash the same (its frames' camera matrices differ). Nothing for a
+    // scene at the origin.
+    if scene.origin != glam::DVec3::ZERO {
+        f.bytes(b"origin");
+        f.bytes(&scene.origin.to_array().map(f64::to_le_bytes).concat());
+    }
 }
 
 /// The hex hashes of `scene` and of this build, as a run key and a reference key carry them.
