@@ -101,9 +101,10 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
     // Elements defined so far: positions, texture coordinates, normals.
     let mut count = [0usize; 3];
     let mut usemtl = None;
-    // Each vertex in f64: read from the file where a coordinate is large enough for f32 to
-    // round it by more than 10^-4 (`ROUNDS_FROM`), else the f32 value.
-    let mut exact: Vec<DVec3> = Vec::new();
+    // The vertices' box in f64, and the vertices f32 rounds by more than 10^-4 (a coordinate
+    // from `ROUNDS_FROM`) read in f64 too, by index: for `Obj::anchor`.
+    let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    let mut exact: Vec<(u32, DVec3)> = Vec::new();
     for line in joined(lines(bytes).map_err(|e| anyhow!("{label}: {e}"))?) {
         let (n, text) = (line.n, line.text.as_ref());
         let err = |msg: String| anyhow!("{label}: line {n}: '{}': {msg}", quote(text));
@@ -144,13 +145,15 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                         count[0]
                     )));
                 }
-                out.positions.push(Vec3::from(p));
-                exact.push(if p.iter().any(|c| c.abs() >= ROUNDS_FROM) {
-                    let e = numbers64::<3>(&args).unwrap_or(p.map(f64::from));
-                    DVec3::from(e)
+                let e = if p.iter().any(|c| c.abs() >= ROUNDS_FROM) {
+                    let e = DVec3::from(numbers64::<3>(&args).unwrap_or(p.map(f64::from)));
+                    exact.push((out.positions.len() as u32, e));
+                    e
                 } else {
                     Vec3::from(p).as_dvec3()
-                });
+                };
+                (lo, hi) = (lo.min(e), hi.max(e));
+                out.positions.push(Vec3::from(p));
             }
             "vt" => {
                 // `v` and `w` are optional; `w` (3D textures) is not used.
@@ -249,15 +252,13 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
             _ => {}
         }
     }
-    let (lo, hi) = exact
-        .iter()
-        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
-            (lo.min(*p), hi.max(*p))
-        });
     out.anchor = super::render_origin(lo, hi);
     if out.anchor != DVec3::ZERO {
-        for (p, e) in out.positions.iter_mut().zip(&exact) {
-            *p = (*e - out.anchor).as_vec3();
+        for p in out.positions.iter_mut() {
+            *p = (p.as_dvec3() - out.anchor).as_vec3();
+        }
+        for (i, e) in exact {
+            out.positions[i as usize] = (e - out.anchor).as_vec3();
         }
     }
     Ok(out)
