@@ -359,11 +359,13 @@ std::unique_ptr<ImageReader> open_reader(rust::Slice<const uint8_t> path) {
 
 namespace {
 
-// Whether the file's data window (the pixels it stores) differs from its display window (the
-// image it means: an EXR cropped to its non-empty pixels, an overscan render, a Nuke bbox). The
-// image is its display window, zero where nothing is stored, as other renderers read it.
-bool windowed(const OIIO::ImageSpec& s) {
-    return s.full_width > 0 && s.full_height > 0 &&
+// Whether an OpenEXR file's data window (the pixels it stores) differs from its display window
+// (the image it means: an EXR cropped to its non-empty pixels, an overscan render, a Nuke bbox).
+// The image is then its display window, zero where nothing is stored, as other renderers read
+// it. Only OpenEXR: another format's offset (a PNG's oFFs chunk, which ImageMagick writes after
+// a crop) is not a window other readers honour, and its pixels are the image.
+bool windowed(const OIIO::ImageSpec& s, const std::string& format) {
+    return format == "openexr" && s.full_width > 0 && s.full_height > 0 &&
            (s.x != s.full_x || s.y != s.full_y || s.width != s.full_width ||
             s.height != s.full_height);
 }
@@ -372,7 +374,7 @@ bool windowed(const OIIO::ImageSpec& s) {
 
 ImageInfo ImageReader::info() const {
     ImageInfo info;
-    const bool w = windowed(spec_);
+    const bool w = windowed(spec_, in_->format_name());
     info.width = uint32_t(w ? spec_.full_width : spec_.width);
     info.height = uint32_t(w ? spec_.full_height : spec_.height);
     for (int c = 0; c < spec_.nchannels; ++c) {
@@ -422,7 +424,7 @@ rust::Vec<Attribute> ImageReader::attributes() const {
 
 void ImageReader::read_f32(rust::Slice<float> out) {
     const size_t nch = size_t(spec_.nchannels);
-    const bool w = windowed(spec_);
+    const bool w = windowed(spec_, in_->format_name());
     const size_t n = size_t(w ? spec_.full_width : spec_.width) *
                      size_t(w ? spec_.full_height : spec_.height) * nch;
     if (out.size() != n) {
@@ -501,7 +503,15 @@ uint32_t TextureSet::add(rust::Slice<const uint8_t> path, uint32_t chbegin, uint
         throw std::runtime_error("the texture system sees other pixels or channels than the file");
     }
     // Over its display window (see `windowed`): texels outside the data window read as zero.
-    if (windowed(*spec)) {
+    std::string format;
+    {
+        OIIO::ustring name;
+        if (ts_->get_texture_info(handle, nullptr, 0, OIIO::ustring("fileformat"),
+                                  OIIO::TypeDesc::STRING, &name)) {
+            format = name.string();
+        }
+    }
+    if (windowed(*spec, format)) {
         textures_.push_back(Texture{handle, spec->full_x, spec->full_y, spec->full_width,
                                     spec->full_height, int(chbegin), int(chend)});
     } else {

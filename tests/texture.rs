@@ -636,6 +636,24 @@ fn a_textured_reflectance_is_clamped_after_the_product() {
     }
 }
 
+/// A PNG with an image offset (an `oFFs` chunk, which ImageMagick writes after a crop) is its
+/// pixels, as other readers take it: the display-window rule is OpenEXR's alone (the offset
+/// shifted the image and zeroed the rest: a sky's mean 0.527 fell to 0.027).
+#[test]
+fn a_png_offset_is_not_a_window() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/images");
+    let (offset, plain) = (dir.join("offset.png"), dir.join("offset-none.png"));
+    let read = |p: &std::path::Path| reframe::image::read_linear_rgb(p, 1 << 20, 0).unwrap();
+    let (a, b) = (read(&offset), read(&plain));
+    assert_eq!((a.width, a.height, &a.data), (b.width, b.height, &b.data));
+    let mut t = Textures::new().unwrap();
+    let (ia, ib) = (t.open(&offset).unwrap(), t.open(&plain).unwrap());
+    for k in 0..64 {
+        let uv = Vec2::new((k % 8) as f32 / 8.0 + 0.03, (k / 8) as f32 / 8.0 + 0.05);
+        assert_eq!(t.rgb(ia, uv), t.rgb(ib, uv), "at {uv}");
+    }
+}
+
 /// An EXR whose data window is larger than its display window (an overscan render: 12x12 stored
 /// from (-2, -2) around an 8x8 image) is its display window, the margin dropped.
 #[test]
