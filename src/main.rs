@@ -63,6 +63,10 @@ fn main() {
         errln!("error: {}", printable(&format!("{e:#}")));
         exit_with(1);
     }
+    if let Some(e) = reframe::util::stdout_error() {
+        errln!("error: writing standard output: {}", printable(&e));
+        exit_with(1);
+    }
     exit_with(0);
 }
 

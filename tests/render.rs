@@ -658,3 +658,32 @@ fn a_closed_output_pipe_does_not_stop_a_render() {
         );
     }
 }
+
+/// Standard output that cannot be written for another reason than a closed pipe (a full disk
+/// under `> file`; here /dev/full) is an error at the end, exit 1: what was printed is lost
+/// (the closed-pipe rule had made every failure silent, exit 0 with an empty file).
+#[test]
+fn a_full_standard_output_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let full = std::fs::OpenOptions::new()
+        .write(true)
+        .open("/dev/full")
+        .unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
+        .args([
+            "render", "vase", "--res", "16x12", "--spp", "1", "--frames", "0-0",
+        ])
+        .arg("--out")
+        .arg(dir.path().join("f_####.png"))
+        .stdout(full)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.lines()
+            .last()
+            .is_some_and(|l| l.starts_with("error: writing standard output: No space left")),
+        "{err}"
+    );
+}

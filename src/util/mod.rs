@@ -10,13 +10,39 @@ pub mod text;
 
 /// `println!` that does not panic when standard output is closed (piped into `head`, a log
 /// shipper that exited): the line is dropped and the work goes on. `println!` panicked with
-/// exit 101 after a render had written its frames.
+/// exit 101 after a render had written its frames. Any other failure (a full disk under
+/// `> file`) is kept for `stdout_error`.
 #[macro_export]
 macro_rules! outln {
     ($($arg:tt)*) => {{
-        use std::io::Write as _;
-        let _ = writeln!(std::io::stdout(), $($arg)*);
+        let mut line = format!($($arg)*);
+        line.push('\n');
+        $crate::util::write_stdout(line.as_bytes());
     }};
+}
+
+/// The first failure to write standard output other than a closed pipe (see `outln!`).
+static STDOUT_ERROR: std::sync::Mutex<Option<String>> = std::sync::Mutex::new(None);
+
+/// `bytes` to standard output, flushed; a closed pipe is ignored, another failure kept.
+pub fn write_stdout(bytes: &[u8]) {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    if let Err(e) = out.write_all(bytes).and_then(|()| out.flush()) {
+        if e.kind() != std::io::ErrorKind::BrokenPipe {
+            let mut first = STDOUT_ERROR.lock().unwrap_or_else(|p| p.into_inner());
+            first.get_or_insert(e.to_string());
+        }
+    }
+}
+
+/// Why standard output could not be written, if it could not (not a closed pipe): the command
+/// line then exits non-zero, since what it printed (a `bench` table sent to a file) is lost.
+pub fn stdout_error() -> Option<String> {
+    STDOUT_ERROR
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .clone()
 }
 
 /// `eprintln!` that does not panic when standard error is closed (see `outln!`), written to
