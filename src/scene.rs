@@ -517,13 +517,16 @@ impl Scene {
             let label = path.display().to_string();
             camera_file::parse_from(&label, &bytes, format, frames, repairs, origin)
         };
-        let (width, height, mut cameras) = check_camera(
+        // Kept, not yet returned: a scene far out is checked again from its origin, where f32
+        // can tell its cameras' points apart (a look-at 10 units from its position 10^9 units
+        // out is the same f32 point, refused as 'coincides').
+        let first_cameras = check_camera(
             &label,
             toml_text,
             &file,
             |n, frames| read_camera(n, frames, DVec3::ZERO, &mut repairs),
             DVec3::ZERO,
-        )?;
+        );
         let (environment, env_input) = match &file.environment {
             None => (None, None),
             Some(e) => {
@@ -608,19 +611,25 @@ impl Scene {
             }
             origin
         });
-        if origin != DVec3::ZERO {
-            // The cameras again, given from the origin in f64 (checked once already: the same
-            // answer, and no warning twice).
+        let (width, height, cameras) = if origin == DVec3::ZERO {
+            first_cameras?
+        } else {
+            // The cameras again, given from the origin in f64 (no warning twice where the first
+            // reading noted them).
             let mut again = Repairs::new(false);
-            cameras = check_camera(
+            let notes = if first_cameras.is_ok() {
+                &mut again
+            } else {
+                &mut repairs
+            };
+            check_camera(
                 &label,
                 toml_text,
                 &file,
-                |n, frames| read_camera(n, frames, origin, &mut again),
+                |n, frames| read_camera(n, frames, origin, notes),
                 origin,
             )?
-            .2;
-        }
+        };
         let (lo, hi) = world_bounds(&mesh.positions, &prototypes, &instances);
         let inputs = match &source {
             Source::Files { toml } => [toml.clone()]
