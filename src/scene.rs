@@ -684,9 +684,17 @@ impl Scene {
             (true, false) => 0.5,
         };
         let offset_floor = offset_floor(lo, hi);
+        let mut warnings = repairs.into_warnings();
+        warnings.extend(spread_warning(
+            &obj_label,
+            lo,
+            hi,
+            offset_floor,
+            &mesh.tri_area,
+        ));
         Ok(Scene {
             inputs,
-            warnings: repairs.into_warnings(),
+            warnings,
             name,
             frames: *file.frames.get_ref(),
             width,
@@ -1307,6 +1315,30 @@ fn world_bounds(
         }
     }
     (lo, hi)
+}
+
+/// A warning where rays leave surfaces farther off them than a twentieth of the size of the
+/// scene's median triangle (`sqrt` of its area): a scene that spans far more than its details
+/// (a room 3x10^5 units from a marker at the origin, which keeps it from being moved there)
+/// lets light through its gaps and thins its shadows; such a room rendered black.
+fn spread_warning(label: &str, lo: Vec3, hi: Vec3, floor: f32, areas: &[f32]) -> Option<String> {
+    let far = lo.abs().max(hi.abs()).max_element();
+    if areas.is_empty() || !far.is_finite() {
+        return None;
+    }
+    let offset = crate::embree::SPAWN_EPS * (floor + far);
+    let mut sizes: Vec<f32> = areas.iter().map(|a| a.sqrt()).collect();
+    let mid = sizes.len() / 2;
+    let median = *sizes.select_nth_unstable_by(mid, f32::total_cmp).1;
+    (offset > 0.05 * median).then(|| {
+        format!(
+            "{label}: the scene spans {:e} units and lies up to {far:e} from the origin: rays \
+             leave surfaces {offset:.2e} units off them, more than a twentieth of its median \
+             triangle ({median:.2e} units a side), so light may pass through its gaps and \
+             shadows thin (model its parts nearer to one another, or render them apart)",
+            (hi - lo).max_element()
+        )
+    })
 }
 
 /// `Scene::offset_floor` of a scene's bounding box: its largest side, capped at 1.

@@ -692,3 +692,26 @@ fn a_full_standard_output_is_an_error() {
         "{err}"
     );
 }
+
+/// A scene that spans far more than its details, so that it is not moved to the origin (a room
+/// 3x10^5 units out and a marker at the origin), is warned of: its rays leave surfaces 2.3
+/// units off them and its light reaches nothing (the room rendered black, without a word).
+#[test]
+fn a_scene_spread_far_beyond_its_details_is_warned_of() {
+    let device = Device::new().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    contact_scene(&device, d, 1.0, [3e5, 0.0, 0.0], Shift::Placed);
+    let load = || Scene::load(d.join("s.toml").to_str().unwrap(), &device).unwrap();
+    let spread = |s: &Scene| s.warnings.iter().any(|w| w.contains("rays leave surfaces"));
+    assert!(
+        !spread(&load()),
+        "moved to the origin, the room alone is fine"
+    );
+    let mut toml = std::fs::read_to_string(d.join("s.toml")).unwrap();
+    toml += "[[object]]\nobj = \"s.obj\"\nscale = 0.01\n";
+    std::fs::write(d.join("s.toml"), toml).unwrap();
+    let s = load();
+    assert_eq!(s.origin, glam::DVec3::ZERO);
+    assert!(spread(&s), "{:?}", s.warnings);
+}

@@ -101,9 +101,8 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
     // Elements defined so far: positions, texture coordinates, normals.
     let mut count = [0usize; 3];
     let mut usemtl = None;
-    // The vertices' box in f64, and the vertices f32 rounds by more than 10^-4 (a coordinate
-    // from `ROUNDS_FROM`) read in f64 too, by index: for `Obj::anchor`.
-    let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    // The vertices f32 rounds by more than 10^-4 (a coordinate from `ROUNDS_FROM`), read in f64
+    // too, by index: for `Obj::anchor`.
     let mut exact: Vec<(u32, DVec3)> = Vec::new();
     for line in joined(lines(bytes).map_err(|e| anyhow!("{label}: {e}"))?) {
         let (n, text) = (line.n, line.text.as_ref());
@@ -145,14 +144,10 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                         count[0]
                     )));
                 }
-                let e = if p.iter().any(|c| c.abs() >= ROUNDS_FROM) {
+                if p.iter().any(|c| c.abs() >= ROUNDS_FROM) {
                     let e = DVec3::from(numbers64::<3>(&args).unwrap_or(p.map(f64::from)));
                     exact.push((out.positions.len() as u32, e));
-                    e
-                } else {
-                    Vec3::from(p).as_dvec3()
-                };
-                (lo, hi) = (lo.min(e), hi.max(e));
+                }
                 out.positions.push(Vec3::from(p));
             }
             "vt" => {
@@ -250,6 +245,23 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                 }
             }
             _ => {}
+        }
+    }
+    // The box of the vertices the faces use, in f64: an unused vertex (a stray `v 0 0 0` left
+    // by an exporter) must not keep a far scene from being moved (it lost 6.5% of its light).
+    let mut used = vec![false; out.positions.len()];
+    for c in &out.corners {
+        used[c.v as usize] = true;
+    }
+    let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    let mut far = exact.iter().peekable();
+    for (i, p) in out.positions.iter().enumerate() {
+        let e = match far.next_if(|(j, _)| *j as usize == i) {
+            Some((_, e)) => *e,
+            None => p.as_dvec3(),
+        };
+        if used[i] {
+            (lo, hi) = (lo.min(e), hi.max(e));
         }
     }
     out.anchor = super::render_origin(lo, hi);
