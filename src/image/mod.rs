@@ -720,6 +720,17 @@ fn open_checked(
             info.height
         );
     }
+    if info.width as u64 * info.height as u64 > max_pixels && stored != (info.width, info.height) {
+        bail!(
+            "its image (the display window) is {}x{} pixels, more than the {max_pixels} reframe \
+             reads, though the file stores {}x{} (its data window): give it a display window \
+             the size of its data",
+            info.width,
+            info.height,
+            stored.0,
+            stored.1
+        );
+    }
     if info.width as u64 * info.height as u64 > max_pixels {
         bail!(
             "{}x{} pixels, more than the {max_pixels} reframe reads (make a smaller copy, e.g. \
