@@ -236,8 +236,10 @@ fn damaged_checkpoints_are_never_resumed() {
 
 /// A record's header changed and its checksum recomputed (a forgery, or damage by a tool that
 /// rewrites checksums) is refused where it contradicts the render: a sums record's unit (what
-/// one step of its sums is worth) set to 100 or NaN, and a record's frame number changed. The
-/// merge took the unit as written: a frame 100 times too bright, or all NaN, exit 0.
+/// one step of its sums is worth) set to 100 or NaN, its frame number changed, its groups moved
+/// from one fold to the other, its seconds NaN or negative, a camera matrix NaN. The merge took
+/// them as written: a frame 100 times too bright, all NaN, or other pixels, and NaN metadata,
+/// exit 0.
 #[test]
 fn partials_with_forged_record_headers_are_never_merged() {
     let dir = tempfile::tempdir().unwrap();
@@ -266,11 +268,16 @@ fn partials_with_forged_record_headers_are_never_merged() {
     let partials: Vec<PathBuf> = (1..=2)
         .map(|k| d.join("r").join(format!("f.chunk-{k}-of-2.partial")))
         .collect();
-    // (byte offset in the record, new bytes): the unit, then the frame number.
-    let forgeries: [(usize, [u8; 4]); 3] = [
-        (24, 100f32.to_le_bytes()),
-        (24, f32::NAN.to_le_bytes()),
-        (4, 13u32.to_le_bytes()),
+    // (byte offset in the record, new bytes): the unit, the frame number, the count of groups
+    // of odd first frames (the control variate's second fold), the seconds, a camera matrix.
+    let forgeries: [(usize, Vec<u8>); 7] = [
+        (24, 100f32.to_le_bytes().to_vec()),
+        (24, f32::NAN.to_le_bytes().to_vec()),
+        (4, 13u32.to_le_bytes().to_vec()),
+        (28, 1u32.to_le_bytes().to_vec()),
+        (56, f64::NAN.to_le_bytes().to_vec()),
+        (56, (-5f64).to_le_bytes().to_vec()),
+        (64, f32::NAN.to_le_bytes().to_vec()),
     ];
     for (i, (at, bytes)) in forgeries.iter().enumerate() {
         let case = d.join(format!("forged{i}"));
@@ -290,7 +297,7 @@ fn partials_with_forged_record_headers_are_never_merged() {
             b[end - 4..end],
             "the first record's span"
         );
-        b[start + at..start + at + 4].copy_from_slice(bytes);
+        b[start + at..start + at + bytes.len()].copy_from_slice(bytes);
         let crc = crc32fast::hash(&b[start..end - 4]);
         b[end - 4..end].copy_from_slice(&crc.to_le_bytes());
         let forged = case.join("f.chunk-1-of-2.partial");
@@ -307,7 +314,11 @@ fn partials_with_forged_record_headers_are_never_merged() {
             Duration::from_secs(20),
         );
         let why = refusal(&o).unwrap_or_else(|e| panic!("forgery {i}: {e}"));
-        assert!(why.contains("f.chunk-1-of-2.partial"), "forgery {i}: {why}");
+        // Named, or (a count only the merged frame can be checked by) said to be damaged.
+        assert!(
+            why.contains("f.chunk-1-of-2.partial") || why.contains("a file is damaged"),
+            "forgery {i}: {why}"
+        );
         assert!(
             frames_in(&case.join("o")).is_empty(),
             "forgery {i}: frames written"

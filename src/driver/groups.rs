@@ -84,10 +84,13 @@ pub fn run_groups(
     }
     for a in &active {
         let f = a.frame();
-        let groups = (run.next - 1).min(f) + 1 - (f + 1).saturating_sub(n_f).max(u0);
+        let lo = (f + 1).saturating_sub(n_f).max(u0);
+        let groups = (run.next - 1).min(f) + 1 - lo;
+        // Groups `lo..lo + groups`, by the parity of their first frames.
+        let odd = (lo + groups) / 2 - lo / 2;
         if a.layout != layout
             || (a.view.width, a.view.height) != (w, h)
-            || a.group_count() != groups
+            || a.groups != [groups - odd, odd]
         {
             bail!(
                 "frame {f}: the checkpoint's accumulator does not fit these settings (it is \

@@ -347,6 +347,21 @@ fn check_groups(acc: &FrameAccum, first: u32, last: u32, n_f: u32, method: Metho
     }
     let f = acc.frame();
     let expected = expected_groups(f, first, last, n_f);
+    // By the parity of their first frames too (the control variate's two folds): a count moved
+    // from one to the other changed the frame's pixels.
+    let lo = (f + 1).saturating_sub(n_f).max(first);
+    let odd = (lo + expected) / 2 - lo / 2;
+    let parity = [expected - odd, odd];
+    if acc.group_count() == expected && acc.groups != parity {
+        bail!(
+            "frame {f}: the partial files hold {} groups of even and {} of odd first frames, \
+             where the render has {} and {}: a file is damaged; no frame was written",
+            acc.groups[0],
+            acc.groups[1],
+            parity[0],
+            parity[1]
+        );
+    }
     if acc.group_count() != expected {
         bail!(
             "frame {f}: the partial files hold {} of its {expected} groups; no frame was \

@@ -212,6 +212,14 @@ impl Header {
         if p == 0 || p > 1 << 28 {
             return Err(bad("implausible frame size"));
         }
+        // Written into the frame's metadata as they are: a header forged with its checksum
+        // (seconds NaN, -5 or 1e300; a matrix of NaN) would have carried into the EXR.
+        if !(seconds.is_finite() && (0.0..1e12).contains(&seconds)) {
+            return Err(bad("implausible seconds of rendering"));
+        }
+        if !mats.iter().all(|m| m.is_finite()) {
+            return Err(bad("a camera matrix that is not finite"));
+        }
         Ok(Header {
             view: View {
                 frame,
