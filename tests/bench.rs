@@ -69,6 +69,8 @@ fn bench_writes_the_cost_model_figures() {
             ["--windows", "99999"],
             "--windows 99999: a group of 99999 frames does not fit",
         ),
+        // A window given twice was measured twice, one run's figures lost under its key.
+        (["--windows", "3,3"], "--windows 3: given twice"),
     ] {
         let mut a = vec!["bench", "cornell", "--res", "16x16"];
         a.extend(args);

@@ -715,3 +715,31 @@ fn a_scene_spread_far_beyond_its_details_is_warned_of() {
     assert_eq!(s.origin, glam::DVec3::ZERO);
     assert!(spread(&s), "{:?}", s.warnings);
 }
+
+/// Values past half float's largest (65504) in a default, half-float EXR are clamped with a
+/// warning naming the frame (a floor under a light of 1e7 came out at 65504 without a word);
+/// `--exr-float` keeps them, and says nothing.
+#[test]
+fn a_half_float_clamp_is_warned_of() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let base = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/base");
+    for f in ["s.obj", "s.toml"] {
+        std::fs::copy(base.join(f), d.join(f)).unwrap();
+    }
+    std::fs::write(
+        d.join("s.mtl"),
+        "newmtl floor\nKd 0.5 0.5 0.5\nnewmtl light\nKd 0 0 0\nKe 1e7 1e7 1e7\n",
+    )
+    .unwrap();
+    for (extra, warned) in [(None, true), (Some("--exr-float"), false)] {
+        let mut args = vec!["render".to_string(), d.join("s.toml").display().to_string()];
+        args.extend(["--spp", "1", "--frames", "0-0", "--out"].map(String::from));
+        args.push(d.join("o/f_####.exr").display().to_string());
+        args.extend(extra.map(String::from));
+        let o = common::reframe_ok(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        let said = err.contains("values above 65504, half float's largest, are clamped to it");
+        assert_eq!(said, warned, "{extra:?}: {err}");
+    }
+}

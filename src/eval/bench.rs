@@ -371,6 +371,9 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     if let Some(&n) = opts.windows.iter().find(|&&n| n < 3 || n % 2 == 0) {
         bail!("window {n}: a reuse group is an odd number of frames, at least 3");
     }
+    if let Some(n) = super::first_repeat(&opts.windows) {
+        bail!("--windows {n}: given twice (each window is measured once; the JSON keys its figures by n_f)");
+    }
     if let Some(&n) = opts.windows.iter().find(|&&n| n > scene.frames) {
         bail!(
             "--windows {n}: a group of {n} frames does not fit the scene's {} frames",

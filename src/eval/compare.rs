@@ -279,11 +279,6 @@ pub fn default_frames(scene: &Scene) -> RangeInclusive<u32> {
     first..=first + n - 1
 }
 
-/// The first element of `list` that an earlier one equals.
-fn first_repeat<T: PartialEq>(list: &[T]) -> Option<&T> {
-    (list.iter().enumerate()).find_map(|(i, x)| list[..i].contains(x).then_some(x))
-}
-
 /// Run the comparison and write `compare.json`, `compare.csv` and the charts into `opts.out`.
 pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     let range = opts.frames.clone().unwrap_or_else(|| default_frames(scene));
@@ -307,7 +302,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         bail!("--windows {n}: a group is n_f = 2n+1 frames, so windows must be odd");
     }
     // One given twice would run its renders twice and put two points at one place.
-    if let Some(c) = first_repeat(&opts.methods) {
+    if let Some(c) = super::first_repeat(&opts.methods) {
         bail!("--methods: {} is given twice", c.name());
     }
     for (flag, list) in [
@@ -315,7 +310,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         ("--reuse-budgets", &opts.reuse_budgets),
         ("--windows", &opts.windows),
     ] {
-        if let Some(b) = first_repeat(list) {
+        if let Some(b) = super::first_repeat(list) {
             bail!("{flag}: {b} is given twice");
         }
     }

@@ -7,3 +7,9 @@ pub mod chart;
 pub mod compare;
 pub mod errors;
 pub mod reference;
+
+/// The first element of `list` that an earlier one equals (a value given twice in a list flag:
+/// its runs were made twice, and one's results lost).
+pub(crate) fn first_repeat<T: PartialEq>(list: &[T]) -> Option<&T> {
+    (list.iter().enumerate()).find_map(|(i, x)| list[..i].contains(x).then_some(x))
+}

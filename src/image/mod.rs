@@ -125,6 +125,9 @@ const BUILTIN_KEYS: [&str; 5] = ["method", "spp", "window", "seed", "render_seco
 /// Largest finite half; larger values would become infinity in a half EXR.
 const HALF_MAX: f32 = 65504.0;
 
+/// Whether the clamp to `HALF_MAX` has been said (once a process).
+static HALF_CLAMP_SAID: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
 /// How a file extension is written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum FileKind {
@@ -427,6 +430,14 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
                 store_as,
             };
             let needs_clamp = !opts.exr_float && img.data.iter().any(|v| v.abs() > HALF_MAX);
+            if needs_clamp && !HALF_CLAMP_SAID.swap(true, std::sync::atomic::Ordering::Relaxed) {
+                // Once a process: a light seen directly at 1e5 came out at 65504, 35% dark.
+                errln!(
+                    "warning: {}: values above 65504, half float's largest, are clamped to it \
+                     (--exr-float keeps them)",
+                    crate::util::text::printable(&path.display().to_string())
+                );
+            }
             if needs_clamp {
                 let clamped: Vec<f32> = img
                     .data

@@ -112,6 +112,16 @@ pub fn parse_from(
             let later = || entries[i + 1..].iter().find(|l| l.frame == want);
             let why = if e.frame < want {
                 format!("given twice (also at {})", entries[e.frame as usize].at)
+            } else if e.frame >= frames && i == 0 {
+                // An animation package's frame numbers (Blender starts at 1, many studios at
+                // 1001): the file's first frame is the scene's frame 0.
+                format!(
+                    "past the last frame ({}): a camera file numbers the scene's frames from 0 \
+                     (renumber the file's frames {}, {}, ... as 0, 1, ...)",
+                    frames - 1,
+                    e.frame,
+                    e.frame + 1
+                )
             } else if e.frame >= frames {
                 format!("past the last frame ({})", frames - 1)
             } else if let Some(l) = later() {
