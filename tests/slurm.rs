@@ -197,3 +197,36 @@ fn slurm_array_and_merge_match_one_process() {
         );
     }
 }
+
+/// The array task's script takes `--resume` among the render flags (a retry script passes it
+/// always; the task appended its own and clap refused it as given twice: every task failed),
+/// and `submit.sh` refuses `--checkpoint` (one folder for every chunk: chunks running side by
+/// side refused each other's lock), before anything is submitted.
+#[test]
+fn the_scripts_take_resume_and_refuse_a_shared_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f_####.exr").display().to_string();
+    let o = Command::new("bash")
+        .arg(format!("{ROOT}/scripts/slurm/chunk.sbatch"))
+        .args([
+            "vase", "--res", "16x12", "--spp", "1", "--frames", "0-3", "--out", &out,
+        ])
+        .arg("--resume")
+        .env("REFRAME", env!("CARGO_BIN_EXE_reframe"))
+        .env("SLURM_ARRAY_TASK_ID", "1")
+        .env("REFRAME_CHUNKS", "2")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(dir.path().join("f.chunk-1-of-2.partial").is_file());
+    let o = Command::new("bash")
+        .arg(format!("{ROOT}/scripts/slurm/submit.sh"))
+        .args(["-n", "2", "--", "vase", "--out", &out, "--checkpoint", "ck"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("--checkpoint: each chunk keeps its own"),
+        "{err}"
+    );
+}

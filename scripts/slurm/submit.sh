@@ -48,6 +48,8 @@ for ((i = 0; i < ${#args[@]}; i++)); do
     --out=*) out=${args[i]#--out=} ;;
     --denoise) denoise=1 ;;
     --chunk|--chunk=*) die "--chunk is set per array task; leave it out" ;;
+    # One folder for every chunk: chunks running side by side refused each other's lock.
+    --checkpoint|--checkpoint=*) die "--checkpoint: each chunk keeps its own checkpoint beside its partial file; leave it out" ;;
   esac
 done
 [ -n "$out" ] || die "--out PATTERN is required: a folder every node can reach"
