@@ -82,14 +82,20 @@ impl OutputLock {
             if !same {
                 continue;
             }
-            f.set_len(0)?;
-            f.rewind()?;
             // In one write, so that a reader sees all of it or none. The frames line is last.
             let mut text = format!("{}\n{what}\n", std::process::id());
             if let Some(r) = frames {
                 text += &format!("{FRAMES}{}-{}\n", r.start(), r.end());
             }
-            f.write_all(text.as_bytes())?;
+            let written = f
+                .set_len(0)
+                .and_then(|()| f.rewind())
+                .and_then(|()| f.write_all(text.as_bytes()));
+            if let Err(e) = written {
+                // A full disk: named, and the lock file this process made not left behind.
+                let _ = std::fs::remove_file(path);
+                bail!("writing the lock file {}: {e}", path.display());
+            }
             return Ok(OutputLock {
                 path: path.to_path_buf(),
                 file: Some(f),
