@@ -256,6 +256,9 @@ fn run(cli: Cli) -> Result<()> {
             if r.nonfinite_pixels > 0 {
                 errln!("warning: {} pixels are NaN or infinite", r.nonfinite_pixels);
             }
+            for w in &r.warnings {
+                errln!("warning: {}", printable(w));
+            }
             let frames: Vec<String> = r.frames.iter().map(|p| p.display().to_string()).collect();
             outln!("{}", printable(&cli::wrote(&frames)));
             Ok(())

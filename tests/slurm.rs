@@ -230,3 +230,49 @@ fn the_scripts_take_resume_and_refuse_a_shared_checkpoint() {
         "{err}"
     );
 }
+
+/// Merging chunks rendered with `--aov` into frames that hold RGB only says that the reuse
+/// channels were not written, as `render` says it (the merge dropped them in silence).
+#[test]
+fn a_merge_into_rgb_frames_says_it_drops_the_aov_channels() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f_####.exr").display().to_string();
+    for k in 1..=2 {
+        reframe_ok(&[
+            "render",
+            "vase",
+            "--method",
+            "mis-cv",
+            "--window",
+            "3",
+            "--aov",
+            "--res",
+            "16x12",
+            "--spp",
+            "1",
+            "--frames",
+            "0-5",
+            "--out",
+            &out,
+            "--chunk",
+            &format!("{k}/2"),
+        ]);
+    }
+    let partials: Vec<String> = (1..=2)
+        .map(|k| {
+            dir.path()
+                .join(format!("f.chunk-{k}-of-2.partial"))
+                .display()
+                .to_string()
+        })
+        .collect();
+    let png = dir.path().join("p/g_####.png").display().to_string();
+    let o = reframe_ok(&["merge", &partials[0], &partials[1], "--out", &png]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains(&format!(
+            "warning: --aov: the chunks kept the reuse channels, but {png} holds RGB only"
+        )),
+        "{err}"
+    );
+}

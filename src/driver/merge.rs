@@ -40,6 +40,9 @@ pub struct MergeReport {
     pub frame_bytes: u64,
     /// Pixels written with a NaN or infinite channel.
     pub nonfinite_pixels: u64,
+    /// What the chunks' settings asked for that these frames do not hold, in words (as
+    /// `RenderOptions::flag_warnings` says it for a render).
+    pub warnings: Vec<String>,
 }
 
 /// What a merge of chunks rendered with `--denoise` needs: the scene, for the guides.
@@ -172,6 +175,19 @@ pub fn merge(
     let range = key.first_frame..=key.last_frame;
     let pattern = out.unwrap_or(&t0.out);
     let (out, created) = check_output(pattern, &range, (key.width, key.height))?;
+    let mut warnings = Vec::new();
+    if key.aov && method.reuses() && !out.is_exr() {
+        warnings.push(format!(
+            "--aov: the chunks kept the reuse channels, but {pattern} holds RGB only; they were \
+             not written (use .exr)"
+        ));
+    }
+    if key.denoise == "rgb+layers" && !out.is_exr() {
+        warnings.push(format!(
+            "--denoise-layers: {pattern} holds RGB only; the raw and guide layers were not \
+             written (use .exr)"
+        ));
+    }
     let lock = super::lock_path(pattern, None);
     // The partials, and with --scene every file of the scene (its textures too): none may be
     // written over.
@@ -284,6 +300,7 @@ pub fn merge(
         .map(|p| std::fs::metadata(p).map_or(0, |m| m.len()))
         .sum();
     Ok(MergeReport {
+        warnings,
         frames: sink.written,
         seconds: start.elapsed().as_secs_f64(),
         partial_bytes,
