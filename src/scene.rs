@@ -1628,13 +1628,13 @@ fn load_objects(
             if let Some(a) = crate::util::mem::available_bytes().filter(|&a| need > a) {
                 bail!(
                     "{at}: placed {} times, its {} triangles{} make {tris} triangles of the scene's \
-                     own, about {:.1} GB, but {:.1} GB of memory is available (an OBJ that emits \
+                     own, about {}, but {} of memory is available (an OBJ that emits \
                      is copied for each placement, not instanced: place fewer, or a lighter light)",
                     placements.len(),
                     mesh.triangles.len(),
                     if emits { " (it emits)" } else { "" },
-                    need as f64 / 1e9,
-                    a as f64 / 1e9
+                    crate::util::mem::size(need),
+                    crate::util::mem::size(a)
                 );
             }
             for m in &placements {

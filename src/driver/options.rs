@@ -334,7 +334,7 @@ impl RenderOptions {
         match available {
             Some(a) if need > a => bail!(
                 "--res {w}x{h} with --method {} --window {}{}: the frames in flight need \
-                 about {:.1} GB, but {:.1} GB of memory is available; lower --res{}",
+                 about {}, but {} of memory is available; lower --res{}",
                 self.method.name(),
                 self.window,
                 if self.denoise.is_some() {
@@ -342,8 +342,8 @@ impl RenderOptions {
                 } else {
                     ""
                 },
-                need as f64 / 1e9,
-                a as f64 / 1e9,
+                crate::util::mem::size(need),
+                crate::util::mem::size(a),
                 if self.method.reuses() {
                     " or --window or --spp, or use fewer --threads"
                 } else {

@@ -759,13 +759,13 @@ fn open_checked(
 fn check_room(info: &ffi::ImageInfo, need: u64) -> Result<()> {
     if let Some(a) = crate::util::mem::available_bytes().filter(|&a| need > a) {
         bail!(
-            "reading its {}x{} pixels of {} channels needs about {:.1} GB, but {:.1} GB of \
-             memory is available",
+            "reading its {}x{} pixels of {} channels needs about {}, but {} of memory \
+             is available",
             info.width,
             info.height,
             info.channels.len(),
-            need as f64 / 1e9,
-            a as f64 / 1e9
+            crate::util::mem::size(need),
+            crate::util::mem::size(a)
         );
     }
     Ok(())

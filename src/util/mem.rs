@@ -65,6 +65,19 @@ pub fn available_bytes() -> Option<u64> {
         .min()
 }
 
+/// `bytes` for a message: "1.6 GB" from a tenth of a gigabyte, else "37 MB" or "512 KB" (a
+/// small need and a small limit both read "0.0 GB", which said nothing).
+pub fn size(bytes: u64) -> String {
+    let b = bytes as f64;
+    if b >= 1e8 {
+        format!("{:.1} GB", b / 1e9)
+    } else if b >= 1e6 {
+        format!("{:.0} MB", b / 1e6)
+    } else {
+        format!("{:.0} KB", (b / 1e3).ceil())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
@@ -73,5 +86,14 @@ mod tests {
         // and less than 64 TB.
         let a = super::available_bytes().expect("MemAvailable");
         assert!(a > 64 << 20 && a < 64 << 40, "{a}");
+    }
+
+    #[test]
+    fn sizes_read_in_the_unit_that_shows_them() {
+        assert_eq!(super::size(1_600_000_000), "1.6 GB");
+        assert_eq!(super::size(100_000_000), "0.1 GB");
+        assert_eq!(super::size(37_400_000), "37 MB");
+        assert_eq!(super::size(512_000), "512 KB");
+        assert_eq!(super::size(1), "1 KB");
     }
 }
