@@ -573,7 +573,7 @@ impl Scene {
                     instances: Vec::new(),
                     inputs: objs.into_iter().chain(mtls).collect(),
                     // Its positions are given from its anchor: that is the scene's origin.
-                    origin: (anchor != DVec3::ZERO).then_some(anchor),
+                    origin: anchor,
                 }
             }
             (None, Some(list)) if !list.is_empty() => {
@@ -588,29 +588,16 @@ impl Scene {
             }
             (None, _) => bail!("{label}: no obj and no [[object]]: the scene has no geometry"),
         };
+        // A scene far from the origin was moved near it as it loaded (rays leave surfaces by an
+        // offset that grows with the coordinates); its cameras follow.
         let Objects {
             label: obj_label,
-            mut mesh,
+            mesh,
             prototypes,
-            mut instances,
+            instances,
             inputs: object_inputs,
             origin,
         } = loaded;
-        // A scene far from the origin is moved near it (rays leave surfaces by an offset that
-        // grows with the coordinates); its cameras follow in `Scene::camera`.
-        let origin = origin.unwrap_or_else(|| {
-            let (lo, hi) = world_bounds(&mesh.positions, &prototypes, &instances);
-            let origin = render_origin(lo.as_dvec3(), hi.as_dvec3());
-            if origin != DVec3::ZERO {
-                for p in &mut mesh.positions {
-                    *p = (p.as_dvec3() - origin).as_vec3();
-                }
-                for i in &mut instances {
-                    i.move_by(-origin);
-                }
-            }
-            origin
-        });
         let (width, height, cameras) = if origin == DVec3::ZERO {
             first_cameras?
         } else {
@@ -1304,17 +1291,18 @@ fn world_bounds(
         if plo.x > phi.x {
             continue;
         }
-        for k in 0..8 {
-            let corner = Vec3::select(
-                glam::BVec3::new(k & 1 != 0, k & 2 != 0, k & 4 != 0),
-                phi,
-                plo,
-            );
-            let w = i.to_world.transform_point3(corner);
+        for corner in box_corners(plo.as_dvec3(), phi.as_dvec3()) {
+            // f32 corners, exactly: placed as Embree places them.
+            let w = i.to_world.transform_point3(corner.as_vec3());
             (lo, hi) = (lo.min(w), hi.max(w));
         }
     }
     (lo, hi)
+}
+
+/// The eight corners of the box from `lo` to `hi`.
+fn box_corners(lo: DVec3, hi: DVec3) -> impl Iterator<Item = DVec3> {
+    (0..8).map(move |k| DVec3::select(glam::BVec3::new(k & 1 != 0, k & 2 != 0, k & 4 != 0), hi, lo))
 }
 
 /// A warning where rays leave surfaces farther off them than a twentieth of the size of the
@@ -1514,9 +1502,9 @@ struct Objects {
     prototypes: Vec<Prototype>,
     instances: Vec<Instance>,
     inputs: Vec<PathBuf>,
-    /// `Scene::origin`, where the placements have already moved the geometry by it (in f64,
-    /// before their positions were rounded to f32); `None` where it is still to be found.
-    origin: Option<DVec3>,
+    /// `Scene::origin`: the geometry is given from it, moved in f64 before its positions were
+    /// rounded to f32 (by the OBJ's anchor, or by the placements).
+    origin: DVec3,
 }
 
 /// The `[[object]]` tables of scene file `label` (text `text`, in folder `dir`): each OBJ read
@@ -1586,12 +1574,7 @@ fn load_objects(
             continue;
         }
         for m in placements {
-            for k in 0..8 {
-                let corner = DVec3::select(
-                    glam::BVec3::new(k & 1 != 0, k & 2 != 0, k & 4 != 0),
-                    phi,
-                    plo,
-                );
+            for corner in box_corners(plo, phi) {
                 let w = m.transform_point3(corner + *anchor);
                 (lo, hi) = (lo.min(w), hi.max(w));
             }
@@ -1653,7 +1636,7 @@ fn load_objects(
         prototypes,
         instances,
         inputs,
-        origin: Some(origin),
+        origin,
     })
 }
 

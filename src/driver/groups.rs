@@ -84,13 +84,9 @@ pub fn run_groups(
     }
     for a in &active {
         let f = a.frame();
-        let lo = (f + 1).saturating_sub(n_f).max(u0);
-        let groups = (run.next - 1).min(f) + 1 - lo;
-        // Groups `lo..lo + groups`, by the parity of their first frames.
-        let odd = (lo + groups) / 2 - lo / 2;
         if a.layout != layout
             || (a.view.width, a.view.height) != (w, h)
-            || a.groups != [groups - odd, odd]
+            || a.groups != groups_holding(f, u0, run.next - 1, n_f)
         {
             bail!(
                 "frame {f}: the checkpoint's accumulator does not fit these settings (it is \
@@ -202,6 +198,16 @@ pub fn run_groups(
     }
     pb.finish_and_clear();
     Ok(true)
+}
+
+/// The groups of `n_f` frames, `first..=last_group` by their first frames, that hold frame `f`,
+/// by the parity of their first frames (`FrameAccum::groups`, the control variate's folds): what
+/// a finished frame of a merge, or a frame in flight in a checkpoint, must have counted.
+pub(super) fn groups_holding(f: u32, first: u32, last_group: u32, n_f: u32) -> [u32; 2] {
+    let lo = (f + 1).saturating_sub(n_f).max(first);
+    let n = f.min(last_group) + 1 - lo;
+    let odd = (lo + n) / 2 - lo / 2;
+    [n - odd, odd]
 }
 
 #[cfg(test)]

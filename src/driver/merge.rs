@@ -18,6 +18,7 @@
 //! one-process render does (same guides, same filter), given the scene to trace the guides in
 //! (`Denoising`), which must hash as the chunks' scene did.
 use super::denoise::{DenoiseSink, Layers};
+use super::groups::groups_holding;
 use super::options::check_output;
 use super::sink::{FileSink, FrameMeta};
 use crate::film::{develop, Developed, FrameAccum, Sink};
@@ -363,12 +364,10 @@ fn check_groups(acc: &FrameAccum, first: u32, last: u32, n_f: u32, method: Metho
         return Ok(());
     }
     let f = acc.frame();
-    let expected = expected_groups(f, first, last, n_f);
     // By the parity of their first frames too (the control variate's two folds): a count moved
     // from one to the other changed the frame's pixels.
-    let lo = (f + 1).saturating_sub(n_f).max(first);
-    let odd = (lo + expected) / 2 - lo / 2;
-    let parity = [expected - odd, odd];
+    let parity = groups_holding(f, first, last + 1 - n_f, n_f);
+    let expected = parity[0] + parity[1];
     if acc.group_count() == expected && acc.groups != parity {
         bail!(
             "frame {f}: the partial files hold {} groups of even and {} of odd first frames, \
@@ -390,9 +389,9 @@ fn check_groups(acc: &FrameAccum, first: u32, last: u32, n_f: u32, method: Metho
 }
 
 /// The groups that contain frame `f` of frames `first..=last` with `n_f` frames per group.
+#[cfg(test)]
 fn expected_groups(f: u32, first: u32, last: u32, n_f: u32) -> u32 {
-    let last_group = last + 1 - n_f;
-    f.min(last_group) + 1 - (f + 1).saturating_sub(n_f).max(first)
+    groups_holding(f, first, last + 1 - n_f, n_f).iter().sum()
 }
 
 #[cfg(test)]
@@ -406,6 +405,13 @@ mod tests {
         for f in 0..10 {
             let g = (0..=7u32).filter(|g| f >= *g && f < g + 3).count() as u32;
             assert_eq!(expected_groups(f, 0, 9, 3), g, "frame {f}");
+            // And by the parity of their first frames, frames 3-12 of a render from frame 3.
+            let holding: Vec<u32> = (3..=10u32)
+                .filter(|g| f + 3 >= *g && f + 3 < g + 3)
+                .collect();
+            let odd = holding.iter().filter(|g| *g % 2 == 1).count() as u32;
+            let want = [holding.len() as u32 - odd, odd];
+            assert_eq!(groups_holding(f + 3, 3, 10, 3), want, "frame {}", f + 3);
         }
         let counts: Vec<u32> = (0..10).map(|f| expected_groups(f, 0, 9, 3)).collect();
         assert_eq!(counts, [1, 2, 3, 3, 3, 3, 3, 3, 2, 1]);

@@ -156,12 +156,6 @@ impl Instance {
         }
     }
 
-    /// Move the placement by `by` (after its transform), in f64.
-    pub fn move_by(&mut self, by: DVec3) {
-        let t = self.to_world.w_axis;
-        self.to_world.w_axis = (t.truncate().as_dvec3() + by).as_vec3().extend(t.w);
-    }
-
     /// The transform as `TriangleScene::build` takes it: 3x4, row-major.
     pub fn rows(&self) -> [f32; 12] {
         let c = self.to_world.to_cols_array_2d();
