@@ -152,6 +152,34 @@ OIIO::ImageSpec make_spec(const ImageDesc& desc, size_t n_values,
     return spec;
 }
 
+// Why the image file `path`, just written at `width` x `height`, does not read back: its
+// pixels read as floats, all of them (`whole`, checking for an error the reader left set too) or
+// its last row; empty where it reads back.
+std::string read_back_fault(const std::string& path, int width, int height, bool whole) {
+    QuietStderr quiet;
+    auto in = OIIO::ImageInput::open(path);
+    if (!in) {
+        const std::string msg = OIIO::geterror();
+        return msg.empty() ? "it does not open" : msg;
+    }
+    const OIIO::ImageSpec& s = in->spec();
+    if (s.width != width || s.height != height) {
+        return "it reads back at another size";
+    }
+    const size_t row = size_t(std::max(s.width, 1)) * size_t(std::max(s.nchannels, 1));
+    std::vector<float> back(whole ? row * size_t(s.height) : row);
+    const bool ok = whole ? in->read_image(0, 0, 0, s.nchannels, OIIO::TypeDesc::FLOAT,
+                                           back.data()) &&
+                                !in->has_error()
+                          : in->read_scanline(s.y + height - 1, 0, OIIO::TypeDesc::FLOAT,
+                                              back.data());
+    if (!ok) {
+        const std::string msg = in->geterror();
+        return msg.empty() ? "it does not read back" : msg;
+    }
+    return "";
+}
+
 // Encodes the frame in memory where the format's writer takes an IOProxy (nearly all do) and
 // returns the file's bytes, for the caller to write, check and sync: OIIO 2.4's writers ignore
 // a failed write to disk (a full disk gave empty EXR, PNG and HDR frames with close() reporting
@@ -192,21 +220,9 @@ std::unique_ptr<std::vector<uint8_t>> write_pixels(const std::string& path,
         // Written to disk by the writer, which may not notice a failed write at all (SGI and
         // FITS left 512-byte files under a full disk and reported success): read back whole.
         bytes->clear();
-        QuietStderr quiet;
-        auto in = OIIO::ImageInput::open(path);
-        std::vector<float> back;
-        bool ok = in != nullptr && in->spec().width == spec.width &&
-                  in->spec().height == spec.height;
-        if (ok) {
-            back.resize(size_t(spec.width) * spec.height * in->spec().nchannels);
-            ok = in->read_image(0, 0, 0, in->spec().nchannels, OIIO::TypeDesc::FLOAT,
-                                back.data()) &&
-                 !in->has_error();
-        }
-        if (!ok) {
-            std::string msg = in ? in->geterror() : OIIO::geterror();
-            throw std::runtime_error("the written file does not read back whole" +
-                                     (msg.empty() ? std::string() : ": " + msg));
+        const std::string fault = read_back_fault(path, spec.width, spec.height, true);
+        if (!fault.empty()) {
+            throw std::runtime_error("the written file does not read back whole: " + fault);
         }
     }
     return bytes;
@@ -274,24 +290,8 @@ void probe_output(rust::Slice<const uint8_t> path, rust::Slice<const uint8_t> pr
     // files and .jp2 files its own reader refuses.
     std::string unreadable;
     if (opened) {
-        QuietStderr quiet;
-        auto in = OIIO::ImageInput::open(q);
         // The last row: a file cut short fails there, and a frame's whole would be gigabytes.
-        std::vector<float> row;
-        if (in) {
-            row.resize(size_t(std::max(in->spec().width, 1)) *
-                       size_t(std::max(in->spec().nchannels, 1)));
-        }
-        if (!in) {
-            unreadable = OIIO::geterror();
-        } else if (in->spec().width != int(desc.width) || in->spec().height != int(desc.height) ||
-                   !in->read_scanline(int(desc.height) - 1 + in->spec().y, 0,
-                                      OIIO::TypeDesc::FLOAT, row.data())) {
-            unreadable = in->geterror();
-            if (unreadable.empty()) {
-                unreadable = "it reads back at another size";
-            }
-        }
+        unreadable = read_back_fault(q, int(desc.width), int(desc.height), false);
         if (!unreadable.empty() && !writer_said.empty()) {
             unreadable = writer_said + "; reading it back: " + unreadable;
         }
@@ -447,14 +447,13 @@ void ImageReader::read_f32(rust::Slice<float> out) {
                 continue;
             }
             ok = in_->read_scanline(spec_.y + y, 0, OIIO::TypeDesc::FLOAT, row.data());
-            for (int x = 0; x < spec_.width && ok; ++x) {
-                const int dx = spec_.x + x - spec_.full_x;
-                if (dx < 0 || dx >= spec_.full_width) {
-                    continue;
-                }
-                const float* from = row.data() + size_t(x) * nch;
-                std::copy(from, from + nch,
-                          out.data() + (size_t(dy) * spec_.full_width + dx) * nch);
+            // The stored columns inside the display window: `x0..x1` of the file's.
+            const int x0 = std::max(spec_.x, spec_.full_x);
+            const int x1 = std::min(spec_.x + spec_.width, spec_.full_x + spec_.full_width);
+            if (ok && x0 < x1) {
+                std::copy(row.data() + size_t(x0 - spec_.x) * nch,
+                          row.data() + size_t(x1 - spec_.x) * nch,
+                          out.data() + (size_t(dy) * spec_.full_width + (x0 - spec_.full_x)) * nch);
             }
         }
     }
