@@ -524,8 +524,10 @@ fn strict_flag_turns_repairs_into_refusals() {
 /// The memory a render is refused for passing (`RenderOptions::memory_estimate`) covers what a
 /// real render takes beyond the process at start: `mis-cv` with `--aov` at n_f = 9 (its
 /// accumulators, 40 bytes per pixel per frame in flight, are most of it), `mis-cv` at a high
-/// `--spp` on a small film (the workers' native samples of a tile are most of it), the
-/// independent tracer, and it with `--denoise`; and it does not overstate it more than a few times.
+/// `--spp` on a small film (the workers' native samples of a tile are most of it), a film of
+/// one pixel at 10^5 spp (one pixel's samples, not a full tile's: it was refused as needing
+/// 75.9 GB at 3.5x10^5 spp), the independent tracer, and it with `--denoise`; and it does not
+/// overstate it more than a few times.
 #[test]
 fn memory_estimate_covers_a_real_render() {
     use reframe::reuse::Method;
@@ -534,6 +536,7 @@ fn memory_estimate_covers_a_real_render() {
     let cases = [
         (Method::MisCv, 9, true, "0-8", (640, 480), 1, false),
         (Method::MisCv, 3, false, "0-2", (64, 64), 256, false),
+        (Method::MisExact, 3, false, "0-2", (1, 1), 100_000, false),
         (Method::Independent, 1, false, "0-1", (640, 480), 1, false),
         // The denoiser's images and scratch (a render that fitted without them aborted in
         // the denoiser when memory ran short).

@@ -356,6 +356,44 @@ fn chunks_merge_to_identical_frames_for_any_n() {
         !o.status.success() && err.contains("not chunks of the same render"),
         "{err}"
     );
+    // Chunks given a relative --out and merged from another folder without --out: the frames
+    // go beside the partials (where the chunks were told to write them), not under the merge's
+    // own folder, and a missing chunk is named there too.
+    let ran = d.join("ran");
+    std::fs::create_dir(&ran).unwrap();
+    for k in 1..=2 {
+        let args = with(
+            &b2,
+            &["--out", "o/f_####.exr", "--chunk", &format!("{k}/2")],
+        );
+        let o = reframe().args(&args).current_dir(&ran).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let elsewhere = d.join("elsewhere");
+    std::fs::create_dir(&elsewhere).unwrap();
+    let second = ran.join("o/f.chunk-2-of-2.partial");
+    let o = reframe()
+        .arg("merge")
+        .arg(&second)
+        .current_dir(&elsewhere)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    let first = ran.join("o/f.chunk-1-of-2.partial");
+    assert!(
+        !o.status.success() && err.contains(&first.display().to_string()),
+        "{err}"
+    );
+    let o = reframe()
+        .arg("merge")
+        .arg(&first)
+        .arg(&second)
+        .current_dir(&elsewhere)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(ran.join("o/f_0010.exr").exists() && ran.join("o/f_0021.exr").exists());
+    assert!(common::files_under(&elsewhere).is_empty());
     // A truncated partial (a copy cut short) is refused, naming the file.
     let p = d.join("n3/f.chunk-2-of-3.partial");
     let bytes = std::fs::read(&p).unwrap();

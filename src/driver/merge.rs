@@ -30,7 +30,7 @@ use crate::state::key::{partial_path, run_units, Chunk, RunKey};
 use crate::state::{Kind, Record, StateFile};
 use anyhow::{anyhow, bail, Context, Result};
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 pub struct MergeReport {
@@ -125,12 +125,30 @@ pub fn merge(
         by_k.insert(c.k, i);
     }
     let n = n.unwrap();
+    // The pattern the chunks were given. A relative one was relative to the folder the chunks
+    // ran in, which holds their partial files (written beside the frames): it is resolved
+    // against the partials' folder, not the merge's own, so that a merge run from elsewhere
+    // writes (by default) and names missing chunks beside the partials.
+    let chunks_out = match Path::new(&t0.out) {
+        p if p.is_relative() => {
+            let name = p.file_name().unwrap_or_default();
+            let beside = match files[0].path.parent() {
+                Some(dir) => dir.join(name),
+                None => PathBuf::from(name),
+            };
+            beside
+                .to_str()
+                .ok_or_else(|| anyhow!("{}: the folder's name is not UTF-8", label(&files[0])))?
+                .to_string()
+        }
+        _ => t0.out.clone(),
+    };
     if let Some(k) = (1..=n).find(|k| !by_k.contains_key(k)) {
         let c = Chunk { k, n };
         bail!(
             "chunk {c} is missing (expected {}): render it with --chunk {c} and merge again; \
              no frame was written",
-            partial_path(&t0.out, c).display()
+            partial_path(&chunks_out, c).display()
         );
     }
     let key = &t0.key;
@@ -174,7 +192,7 @@ pub fn merge(
         }
     };
     let range = key.first_frame..=key.last_frame;
-    let pattern = out.unwrap_or(&t0.out);
+    let pattern = out.unwrap_or(&chunks_out);
     let (out, created) = check_output(pattern, &range, (key.width, key.height))?;
     let mut warnings = Vec::new();
     if key.aov && method.reuses() && !out.is_exr() {

@@ -301,7 +301,12 @@ impl RenderOptions {
         } else {
             0
         };
-        let tile = crate::film::tiles::TILE as u64;
+        // A frame smaller than a tile has one smaller tile, and only as many workers hold a
+        // tile's samples as there are tiles.
+        let tile = crate::film::tiles::TILE;
+        let tile_pixels = (tile.min(w) * tile.min(h)) as u64;
+        let tiles = (w.div_ceil(tile) as u64) * (h.div_ceil(tile) as u64);
+        let threads = threads.min(tiles.max(1));
         let workers = if self.method.reuses() {
             let samples = self.spp
                 * if self.adaptive.is_some() {
@@ -309,9 +314,9 @@ impl RenderOptions {
                 } else {
                     1
                 };
-            threads * crate::reuse::shade::worker_bytes(samples, self.window)
+            threads * crate::reuse::shade::worker_bytes(samples, self.window, tile_pixels)
         } else {
-            threads * tile * tile * crate::integrator::wavefront::Wavefront::bytes_per_path() as u64
+            threads * tile_pixels * crate::integrator::wavefront::Wavefront::bytes_per_path() as u64
         };
         // A developed frame (RGB and `--aov`'s two channels, f32), and the writer's copies.
         let develop = 3 * 4 * 5 * pixels;

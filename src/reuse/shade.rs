@@ -387,12 +387,13 @@ fn shade_eye(
 /// tens of megabytes per worker).
 const BATCH: usize = (TILE * TILE) as usize;
 
-/// Bytes a worker holds for one tile of one frame's native samples, at most `samples` per pixel
-/// (`--spp`, or `n_f` times it with `--adaptive`) in a group of `n_f` frames: every camera
+/// Bytes a worker holds for one tile of `tile_pixels` pixels (a full tile's, or fewer where the
+/// frame is smaller) of one frame's native samples, at most `samples` per pixel (`--spp`, or
+/// `n_f` times it with `--adaptive`) in a group of `n_f` frames: every camera
 /// sample before its primary ray, every hit's record, its point and normal in lanes, and its
 /// landing, view terms and splat in each eye, its dither, the escapes, and one wavefront batch (for
 /// `RenderOptions::memory_estimate`).
-pub fn worker_bytes(samples: u32, n_f: u32) -> u64 {
+pub fn worker_bytes(samples: u32, n_f: u32, tile_pixels: u64) -> u64 {
     use std::mem::size_of;
     let per_sample = size_of::<(u32, u32, Sampler, Vec3)>()
         + size_of::<NativeHit>()
@@ -400,7 +401,7 @@ pub fn worker_bytes(samples: u32, n_f: u32) -> u64 {
         + size_of::<Dither>()
         + HitLanes::bytes_per_hit()
         + size_of::<(u32, u32, Vec3)>();
-    let tile = (TILE * TILE) as u64 * samples as u64 * per_sample as u64;
+    let tile = tile_pixels.min((TILE * TILE) as u64) * samples as u64 * per_sample as u64;
     tile + (BATCH * (Wavefront::bytes_per_path() + size_of::<(u32, u32)>())) as u64
 }
 
