@@ -67,7 +67,10 @@ impl Device {
         if raw.is_null() {
             // SAFETY: the null device reports the error of the failed creation.
             let code = unsafe { sys::rtcGetDeviceError(ptr::null_mut()) };
-            bail!("could not create the Embree device ({code:?})");
+            bail!(
+                "could not create the Embree device ({code:?}){}",
+                crate::util::mem::address_space_note()
+            );
         }
         let errors = Box::new(ErrorSink(Mutex::new(Vec::new())));
         let user = &*errors as *const ErrorSink as *mut c_void;
@@ -106,7 +109,10 @@ impl Device {
         }
         let msg = v.join("; ");
         v.clear();
-        Err(anyhow!("{what}: {msg}"))
+        Err(anyhow!(
+            "{what}: {msg}{}",
+            crate::util::mem::address_space_note()
+        ))
     }
 }
 
@@ -553,7 +559,9 @@ impl TriangleScene {
                 sys::rtcReleaseGeometry(geom);
                 sys::rtcCommitScene(proto);
                 s.prototypes.push(proto);
-                device.check("building an instanced mesh")?;
+                if let Err(e) = device.check("building an instanced mesh") {
+                    return Err(abandon(s, e));
+                }
             }
             sys::rtcSetSceneBuildQuality(scene, sys::RTCBuildQuality::HIGH);
             if let Some(m) = own {
@@ -576,8 +584,10 @@ impl TriangleScene {
                 sys::rtcReleaseGeometry(geom);
             }
             sys::rtcCommitScene(scene);
-            device.check("building the scene")?;
-            Ok(s)
+            match device.check("building the scene") {
+                Ok(()) => Ok(s),
+                Err(e) => Err(abandon(s, e)),
+            }
         }
     }
 
@@ -704,6 +714,16 @@ impl TriangleScene {
             p.occluded[lane] = p.active[lane] != 0 && p.raw.rh.ray.tfar[lane] == f32::NEG_INFINITY;
         }
     }
+}
+
+/// The error of a scene whose build failed (out of memory, mostly), with the scene left
+/// unreleased: a build that failed inside Embree's task system (TBB) leaves a task group that
+/// was never waited for, and releasing the scene then ends the process in `std::terminate`
+/// (seen under `ulimit -v`). What it holds is given up to the process's end, which follows
+/// such an error.
+fn abandon(s: TriangleScene, e: anyhow::Error) -> anyhow::Error {
+    std::mem::forget(s);
+    e
 }
 
 impl Drop for TriangleScene {

@@ -28,6 +28,9 @@ use std::sync::Arc;
 
 fn main() {
     reframe::sys::keep_stderr();
+    if reframe::util::mem::address_space_limited() {
+        reframe::sys::limit_malloc_arenas(2);
+    }
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) if !e.use_stderr() => e.exit(), // --help, --version

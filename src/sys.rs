@@ -15,6 +15,16 @@ pub fn exit_now(code: i32) -> ! {
     unsafe { libc::_exit(code) }
 }
 
+/// Let the C library's allocator keep at most `n` arenas. Each arena a thread opens reserves
+/// 64 MB of address space up front (glibc), and with one per thread of Embree's, rayon's and
+/// OpenImageIO's pools the address space a run maps moves by hundreds of megabytes with the
+/// threads' timing: under `ulimit -v` that made a small render fit in one run and fail in the
+/// next. Call it before any thread starts.
+pub fn limit_malloc_arenas(n: i32) {
+    // SAFETY: `mallopt` sets an allocator parameter; it touches no Rust state.
+    unsafe { libc::mallopt(libc::M_ARENA_MAX, n) };
+}
+
 /// Standard error as the process started with it: a copy of descriptor 2 (`keep_stderr`), made
 /// before any reader quiets descriptor 2 (`QuietStderr` in `ffi/oiio.cpp` points it at
 /// /dev/null while a codec may print), or -1.

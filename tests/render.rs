@@ -595,6 +595,56 @@ fn memory_estimate_covers_a_real_render() {
     }
 }
 
+/// Under an address-space limit (`ulimit -v`, as batch systems set for a job's memory) a render
+/// either runs or stops with one line that names the limit, at every limit: swept across the
+/// band where the libraries, Embree's threads and the frames stop fitting. A failed Embree
+/// build used to end in a C++ `terminate` (exit 134) when the scene was released.
+#[test]
+fn under_an_address_space_limit_a_render_runs_or_says_why() {
+    let d = tempfile::tempdir().unwrap();
+    let under = |mb: u32, args: &str| {
+        let cmd = format!(
+            "ulimit -v {}; exec '{}' {args}",
+            mb * 1024,
+            env!("CARGO_BIN_EXE_reframe")
+        );
+        std::process::Command::new("bash")
+            .args(["-c", &cmd])
+            .output()
+            .unwrap()
+    };
+    // Below some limit the process cannot start: the dynamic loader cannot map the libraries,
+    // or a library's static constructor (log4cplus, below OpenImageIO) cannot start its thread
+    // and aborts before `main`. The sweep starts above the limit where it starts every time.
+    let starts = (300..2000)
+        .step_by(10)
+        .find(|&mb| (0..3).all(|_| under(mb, "--version").status.success()))
+        .expect("reframe --version runs under some limit");
+    let (mut ran, mut refused) = (0, 0);
+    for mb in (starts + 10..starts + 400).step_by(10) {
+        let args = format!(
+            "render cornell --res 16x12 --spp 1 --frames 0 --threads 2 --out '{}/l{mb}/f_####.exr'",
+            d.path().display()
+        );
+        let o = under(mb, &args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        match o.status.code() {
+            Some(0) => ran += 1,
+            Some(1) => {
+                refused += 1;
+                assert_eq!(err.trim().lines().count(), 1, "{mb} MB: {err}");
+                assert!(
+                    err.contains("ulimit -v") || err.contains("lower --res"),
+                    "{mb} MB: {err}"
+                );
+            }
+            c => panic!("{mb} MB: exit {c:?}: {err}"),
+        }
+    }
+    // The sweep crossed the band: some limits were too tight, some fitted.
+    assert!(ran > 0 && refused > 0, "{ran} ran, {refused} refused");
+}
+
 /// A frame whose bytes cannot all be written (a full disk, a quota; here a file size limit of
 /// 4 KiB, with SIGXFSZ ignored so that the write fails with EFBIG) is an error naming the frame,
 /// and leaves no file behind: no frame, no temporary, no lock, no empty checkpoint folder. (The

@@ -24,20 +24,45 @@ fn proc_status_bytes(key: &str) -> u64 {
         .map_or(0, |kb| kb * 1024)
 }
 
-/// The soft limit on this process's address space (`ulimit -v`, `RLIMIT_AS`) less the address
-/// space it already maps (`VmSize`); `None` where there is no limit.
-fn address_space_left() -> Option<u64> {
+/// The soft limit on this process's address space (`ulimit -v`, `RLIMIT_AS`); `None` where
+/// there is none.
+fn address_space_limit() -> Option<u64> {
     let limits = std::fs::read_to_string("/proc/self/limits").ok()?;
     // "Max address space    unlimited    unlimited    bytes"
-    let soft = limits
+    limits
         .lines()
         .find(|l| l.starts_with("Max address space"))?
         .trim_start_matches("Max address space")
         .split_whitespace()
         .next()?
         .parse::<u64>()
-        .ok()?;
-    Some(soft.saturating_sub(proc_status_bytes("VmSize:")))
+        .ok()
+}
+
+/// Whether this process's address space is limited (`ulimit -v`).
+pub fn address_space_limited() -> bool {
+    address_space_limit().is_some()
+}
+
+/// The address-space limit less the address space this process already maps (`VmSize`);
+/// `None` where there is no limit.
+fn address_space_left() -> Option<u64> {
+    Some(address_space_limit()?.saturating_sub(proc_status_bytes("VmSize:")))
+}
+
+/// For a message about a failure to allocate or to start a thread: where the process's address
+/// space is limited (`ulimit -v`, as batch systems set it for a job's memory), a note saying so,
+/// since that limit, not the machine's memory, is then the likely cause; empty otherwise.
+pub fn address_space_note() -> String {
+    match address_space_limit() {
+        Some(limit) => format!(
+            " (this process's address space is limited to {} by `ulimit -v`, and it maps {} \
+             already, mostly its libraries: raise the limit)",
+            size(limit),
+            size(proc_status_bytes("VmSize:"))
+        ),
+        None => String::new(),
+    }
 }
 
 /// Memory this process can still take: `MemAvailable` of `/proc/meminfo`, or less where the
