@@ -209,7 +209,8 @@ fn a_refusal_names_what_the_holder_writes() {
 
 /// Two renders whose frame files share a name are refused whatever their patterns
 /// (`f_####.exr` and `f_0###.exr` both write `f_0030.exr`, a single frame named `f_0007.exr`
-/// is frame 7 of both), and so are two renders given one `--checkpoint` folder; renders whose
+/// is frame 7 of both), and so are two renders given one `--checkpoint` folder and a `--stats`
+/// report named like a running render's frame; renders whose
 /// names never meet run side by side, and a killed holder's lock stops nobody.
 #[test]
 fn renders_whose_frame_files_meet_are_refused_whatever_their_patterns() {
@@ -268,6 +269,14 @@ fn renders_whose_frame_files_meet_are_refused_whatever_their_patterns() {
         code == Some(1) && err.contains(&pid) && err.contains("checkpoint folder"),
         "{err}"
     );
+    // A report named like one of its frames: it would replace the frame, or be replaced.
+    let stats = d.join("f_0012.exr").display().to_string();
+    let (code, err) = refusal(args("h_####.exr", "0-1", &["--stats", &stats]));
+    assert!(
+        code == Some(1) && err.contains(&pid) && err.contains("frame 12"),
+        "{err}"
+    );
+    assert!(!d.join("h_0000.exr").exists());
     // Names that never meet: f_1000.exr and up, and another stem.
     reframe_ok(&args("f_1###.exr", "0-1", &[]));
     reframe_ok(&args("g_####.exr", "0-1", &[]));

@@ -129,14 +129,61 @@ pub struct Frames<'a> {
 const FRAMES: &str = "frames ";
 
 /// Refuse if another live lock in the folder of the lock `ours_lock` is held by a render whose
-/// frame files include one of `ours`'. Lock files without a frames line (a chunk's, `compare`'s),
-/// unreadable ones and ones nobody holds (their holder was killed) are passed over.
+/// frame files include one of `ours`'.
 fn check_other_patterns(ours_lock: &Path, ours: &Frames) -> Result<()> {
-    use std::os::unix::fs::OpenOptionsExt;
-    let Ok(entries) = std::fs::read_dir(parent_dir(ours_lock)) else {
+    let Some(((mine, its), holder)) = live_frames_lock(ours_lock, |pattern, theirs| {
+        shared_frame(ours, pattern, theirs)
+    }) else {
         return Ok(());
     };
-    let own_name = ours_lock.file_name();
+    let file = ours.pattern.path(mine);
+    bail!(
+        "{}, and its frame {its} is {}, frame {mine} of this command's {}: wait for it to \
+         finish, or write to other names",
+        holder,
+        file.file_name()
+            .map_or(file.as_os_str(), |n| n)
+            .to_string_lossy(),
+        ours.pattern
+    );
+}
+
+/// Refuse a report (`flag`: `--stats`, `--json`) at `path` when a live lock in its folder is
+/// held by a render one of whose frames has that name: the report would replace a frame that
+/// render wrote, or be replaced by it.
+fn check_report_apart(flag: &str, path: &Path) -> Result<()> {
+    let Some(name) = path.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+        return Ok(());
+    };
+    let Some((its, holder)) = live_frames_lock(path, |pattern, theirs| {
+        let its = if pattern.has_frame_field() {
+            pattern.frame_named(&name)?
+        } else {
+            let literal = pattern.path(*theirs.start());
+            (literal.file_name()?.to_string_lossy() == name).then_some(*theirs.start())?
+        };
+        theirs.contains(&its).then_some(its)
+    }) else {
+        return Ok(());
+    };
+    bail!(
+        "{flag} {}: {holder}, and {name} is its frame {its}; nothing was written",
+        path.display()
+    );
+}
+
+/// The first lock file in the folder of `beside` (other than `beside` itself, where that is a
+/// lock) that is held by a live process writing frames, and for which `matches` (given the
+/// holder's pattern and frames) says something: that, and a clause naming the holder. Lock
+/// files without a frames line (a chunk's, `compare`'s), unreadable ones and ones nobody holds
+/// (their holder was killed) are passed over.
+fn live_frames_lock<T>(
+    beside: &Path,
+    mut matches: impl FnMut(&OutputPattern, &RangeInclusive<u32>) -> Option<T>,
+) -> Option<(T, String)> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let entries = std::fs::read_dir(parent_dir(beside)).ok()?;
+    let own_name = beside.file_name();
     for e in entries.flatten() {
         let name = e.file_name();
         let n = name.to_string_lossy();
@@ -163,7 +210,7 @@ fn check_other_patterns(ours_lock: &Path, ours: &Frames) -> Result<()> {
         let Ok(pattern) = OutputPattern::parse(what) else {
             continue;
         };
-        let Some((mine, its)) = shared_frame(ours, &pattern, &theirs) else {
+        let Some(found) = matches(&pattern, &theirs) else {
             continue;
         };
         // Live only while its holder holds it; a moment's lock here to find out.
@@ -171,21 +218,15 @@ fn check_other_patterns(ours_lock: &Path, ours: &Frames) -> Result<()> {
             let _ = f.unlock();
             continue;
         }
-        let file = ours.pattern.path(mine);
-        bail!(
-            "another reframe (pid {pid}) is writing frames {}-{} of {what} (its lock is {}), and \
-             its frame {its} is {}, frame {mine} of this command's {}: wait for it to finish, or \
-             write to other names",
+        let holder = format!(
+            "another reframe (pid {pid}) is writing frames {}-{} of {what} (its lock is {})",
             theirs.start(),
             theirs.end(),
-            e.path().display(),
-            file.file_name()
-                .map_or(file.as_os_str(), |n| n)
-                .to_string_lossy(),
-            ours.pattern
+            e.path().display()
         );
+        return Some((found, holder));
     }
-    Ok(())
+    None
 }
 
 /// A lock file's holder: its pid, what it writes and its frames (`None` without a frames line).
@@ -276,13 +317,17 @@ pub fn check_outputs<'a>(
     for (flag, out) in outputs {
         crate::util::fs::check_replaceable(&out)
             .map_err(|e| anyhow!("{flag} {e}; nothing was written"))?;
-        // A report (--stats, bench's --json) is never written over a run's state.
-        if matches!(flag, "--stats" | "--json") && crate::state::is_state_file(&out) {
-            bail!(
-                "{flag} {}: that is a reframe state file (a checkpoint or a chunk's partial), \
-                 which a report must not replace; nothing was written",
-                out.display()
-            );
+        // A report (--stats, bench's --json) is never written over a run's state, nor over a
+        // frame that a running render writes.
+        if matches!(flag, "--stats" | "--json") {
+            if crate::state::is_state_file(&out) {
+                bail!(
+                    "{flag} {}: that is a reframe state file (a checkpoint or a chunk's \
+                     partial), which a report must not replace; nothing was written",
+                    out.display()
+                );
+            }
+            check_report_apart(flag, &out)?;
         }
         let Some(r) = resolved(&out) else { continue };
         if let Some((_, input)) = inputs.iter().find(|(c, _)| *c == r) {
