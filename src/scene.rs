@@ -246,19 +246,89 @@ struct KeyframeFile {
 }
 
 /// Emitting triangles, sampled in proportion to their power (area times luminance of `Ke`).
+/// A triangle with an emission map (`map_Ke`) is sampled through a regular subdivision of it
+/// into `n^2` equal parts, each picked in proportion to the map's radiance over it, so that the
+/// bright texels of a map get the samples (docs/light-sampling.md).
 pub struct Lights {
     /// Triangle index of each light.
     pub tris: Vec<u32>,
+    /// Per entry of `table`, the CDF of picking it.
     cdf: Vec<f32>,
     /// Per triangle of the scene: probability of choosing it divided by its area (0 if not a
-    /// light), i.e. the area density of light sampling on it.
+    /// light), i.e. the area density of light sampling on it; negative for a subdivided one,
+    /// whose densities are in `grids[-pdf_area - 1]`.
     pdf_area: Vec<f32>,
-    /// Per light, what sampling a point on it reads, in one place (`Scene::area_inputs`).
+    /// Per part of a light (a whole triangle, or a part of a subdivided one), what sampling a
+    /// point on it reads, in one place (`Scene::area_inputs`).
     table: Vec<LightTriangle>,
+    grids: Vec<LightGrid>,
 }
 
-/// A light triangle as `Scene::sample_light` reads it: its corners and normal, its area
-/// density, its share `[lo, lo + width)` of the CDF, and its index among the scene's triangles.
+/// The subdivision of a light triangle with an emission map: `n` parts along each edge, the
+/// part holding barycentrics `(b1, b2)` found by `LightGrid::part`, and the area density of
+/// each part (`2 n^2` slots, the unused ones 0).
+struct LightGrid {
+    n: u32,
+    corners: [Vec3; 3],
+    pdf_area: Vec<f32>,
+}
+
+impl LightGrid {
+    /// The part of an `n`-grid holding barycentrics `(b1, b2)`: slot `2 (i n + j) + d` for the
+    /// cell `(i, j)` (`i + j < n`) and its lower (`d` 0: corners `(i, j), (i+1, j), (i, j+1)`)
+    /// or upper triangle (`d` 1: `(i+1, j), (i+1, j+1), (i, j+1)`, where `i + j < n - 1`).
+    fn part(n: u32, b1: f32, b2: f32) -> usize {
+        let nf = n as f32;
+        let (s, t) = (b1.clamp(0.0, 1.0) * nf, b2.clamp(0.0, 1.0) * nf);
+        let i = (s.floor() as u32).min(n - 1);
+        let j = (t.floor() as u32).min(n - 1 - i);
+        let upper = (s - i as f32) + (t - j as f32) > 1.0 && i + j + 1 < n;
+        2 * (i * n + j) as usize + upper as usize
+    }
+
+    /// Whether slot `k` of an `n`-grid is a part (an upper triangle exists only inside).
+    fn exists(n: u32, k: usize) -> bool {
+        let cell = (k / 2) as u32;
+        let (i, j) = (cell / n, cell % n);
+        i + j + ((k % 2) as u32) < n
+    }
+
+    /// The barycentrics `(b1, b2)` of the corners of slot `k`'s part.
+    fn corners_of(n: u32, k: usize) -> [Vec2; 3] {
+        let (cell, upper) = ((k / 2) as u32, k % 2 == 1);
+        let (i, j) = ((cell / n) as f32, (cell % n) as f32);
+        let nf = n as f32;
+        let b = |a: f32, c: f32| Vec2::new(a / nf, c / nf);
+        if upper {
+            [b(i + 1.0, j), b(i + 1.0, j + 1.0), b(i, j + 1.0)]
+        } else {
+            [b(i, j), b(i + 1.0, j), b(i, j + 1.0)]
+        }
+    }
+
+    /// The area density of light sampling at point `y` of the triangle.
+    fn pdf_at(&self, y: Vec3) -> f32 {
+        let [c0, c1, c2] = self.corners;
+        let (e1, e2, d) = (c1 - c0, c2 - c0, y - c0);
+        let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+        let (d1, d2) = (d.dot(e1), d.dot(e2));
+        let det = d11 * d22 - d12 * d12;
+        if det <= 0.0 {
+            return 0.0;
+        }
+        let b1 = (d22 * d1 - d12 * d2) / det;
+        let b2 = (d11 * d2 - d12 * d1) / det;
+        self.pdf_area[Self::part(self.n, b1, b2)]
+    }
+}
+
+/// The most parts one textured light triangle is cut into per edge, and in all.
+const MAX_GRID_SIDE: u32 = 64;
+const MAX_GRID_PARTS: u64 = 1 << 18;
+
+/// A light triangle (or part of one) as `Scene::sample_light` reads it: its corners and
+/// normal, its area density, its share `[lo, lo + width)` of the CDF, its index among the
+/// scene's triangles, and for a part the barycentrics of its corners in the whole triangle.
 #[derive(Clone, Copy, Debug)]
 struct LightTriangle {
     corners: [Vec3; 3],
@@ -267,6 +337,7 @@ struct LightTriangle {
     lo: f32,
     width: f32,
     tri: u32,
+    part_of: Option<[Vec2; 3]>,
 }
 
 /// A point sampled on a light, seen from a shading point (for the environment: a direction, with
@@ -648,7 +719,7 @@ impl Scene {
         };
         let geometry = TriangleScene::build(device, own, &proto_meshes, &placements, cutouts)
             .with_context(|| format!("{obj_label}: building the Embree scene"))?;
-        let lights = Lights::new(&mesh);
+        let lights = Lights::new(&mesh, textures.as_deref());
         let env_emits = environment.as_ref().is_some_and(Environment::emits);
         if lights.tris.is_empty() && !env_emits {
             // A light lost with its material is the likely cause: say so on the same line.
@@ -892,7 +963,7 @@ impl Scene {
         if l.tris.is_empty() {
             return None;
         }
-        let i = l.cdf.partition_point(|&c| c <= u.x).min(l.tris.len() - 1);
+        let i = l.cdf.partition_point(|&c| c <= u.x).min(l.table.len() - 1);
         // The stretch of `u.x` over the light's share of the CDF is `area_sample`'s.
         Some(LightPick::Area(AreaPick { light: i as u32, u }))
     }
@@ -937,7 +1008,14 @@ impl Scene {
         let tri = light.tri as usize;
         let le = if at.cos_l > 0.0 {
             let [i0, i1, i2] = self.triangles[tri];
-            let (b1, b2) = (at.b1, at.b2);
+            // A part's barycentrics, in the whole triangle's.
+            let (b1, b2) = match light.part_of {
+                None => (at.b1, at.b2),
+                Some([a, b, c]) => {
+                    let w = a * (1.0 - at.b1 - at.b2) + b * at.b1 + c * at.b2;
+                    (w.x, w.y)
+                }
+            };
             let uv = if self.uvs.is_empty() {
                 Vec2::ZERO
             } else {
@@ -964,7 +1042,7 @@ impl Scene {
     #[inline]
     pub fn light_pdf(&self, x: Vec3, y: Vec3, prim: u32) -> f32 {
         // A point on an instance (`prim` u32::MAX) is on no light.
-        let pa = self
+        let mut pa = self
             .lights
             .pdf_area
             .get(prim as usize)
@@ -972,6 +1050,9 @@ impl Scene {
             .unwrap_or(0.0);
         if pa == 0.0 {
             return 0.0;
+        }
+        if pa < 0.0 {
+            pa = self.lights.grids[(-pa) as usize - 1].pdf_at(y);
         }
         let d = y - x;
         let dist2 = d.length_squared();
@@ -1003,18 +1084,60 @@ impl Scene {
 }
 
 impl Lights {
-    /// The emitting triangles of `mesh` (none, if no material emits).
-    fn new(mesh: &Mesh) -> Lights {
+    /// The emitting triangles of `mesh` (none, if no material emits), those with an emission
+    /// map subdivided by it (`textures`).
+    fn new(mesh: &Mesh, textures: Option<&Textures>) -> Lights {
         let mut tris = Vec::new();
-        let mut power = Vec::new();
+        // Per light: its parts' powers (one for a whole triangle) and its grid side (0: whole).
+        let mut parts: Vec<(Vec<f64>, u32)> = Vec::new();
+        let sides = grid_sides(mesh, textures);
         for (t, &m) in mesh.tri_material.iter().enumerate() {
             let ke = mesh.materials[m as usize].ke;
-            if ke.max_element() > 0.0 {
-                tris.push(t as u32);
-                // Luminance can be zero for a saturated colour; the max keeps it samplable.
-                // In f64: an area up to (2e18)^2 times `MAX_KE` is past f32.
-                let l = luminance(ke).max(ke.max_element() * 1e-3) as f64;
-                power.push(mesh.tri_area[t] as f64 * l);
+            if ke.max_element() <= 0.0 {
+                continue;
+            }
+            tris.push(t as u32);
+            // In f64: an area up to (2e18)^2 times `MAX_KE` is past f32.
+            let area = mesh.tri_area[t] as f64;
+            match (sides.get(&(t as u32)), textures) {
+                (Some(&n), Some(tex)) => {
+                    let map = mesh.maps[m as usize].ke.expect("a side for a mapped light");
+                    let [i0, i1, i2] = mesh.triangles[t].map(|v| v as usize);
+                    let uv = [mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]];
+                    let radiance = (0..2 * (n * n) as usize)
+                        .map(|k| {
+                            if LightGrid::exists(n, k) {
+                                let b = LightGrid::corners_of(n, k);
+                                part_power(&uv, b, |u| ke * map.rgb(tex, u))
+                            } else {
+                                0.0
+                            }
+                        })
+                        .collect::<Vec<f64>>();
+                    // Every part keeps a share, a thousandth of the mean (a texel between the
+                    // points read may be bright): the density is positive wherever the map is.
+                    let parts_n = (n * n) as f64;
+                    let floor =
+                        (1e-3 * radiance.iter().sum::<f64>() / parts_n).max(f64::MIN_POSITIVE);
+                    let part_area = area / parts_n;
+                    let powers = radiance
+                        .iter()
+                        .enumerate()
+                        .map(|(k, &l)| {
+                            if LightGrid::exists(n, k) {
+                                part_area * l.max(floor)
+                            } else {
+                                0.0
+                            }
+                        })
+                        .collect();
+                    parts.push((powers, n));
+                }
+                _ => {
+                    // Luminance can be zero for a saturated colour; the max keeps it samplable.
+                    let l = luminance(ke).max(ke.max_element() * 1e-3) as f64;
+                    parts.push((vec![area * l], 0));
+                }
             }
         }
         if tris.is_empty() {
@@ -1023,42 +1146,141 @@ impl Lights {
                 cdf: Vec::new(),
                 pdf_area: vec![0.0; mesh.triangles.len()],
                 table: Vec::new(),
+                grids: Vec::new(),
             };
         }
-        let total: f64 = power.iter().sum();
+        let total: f64 = parts.iter().flat_map(|(p, _)| p.iter()).sum();
         let mut acc = 0.0f64;
-        let mut cdf = Vec::with_capacity(power.len());
+        let mut cdf = Vec::new();
+        let mut table = Vec::new();
+        let mut grids = Vec::new();
         let mut pdf_area = vec![0.0f32; mesh.triangles.len()];
-        for (k, &p) in power.iter().enumerate() {
-            acc += p;
-            cdf.push((acc / total) as f32);
-            let t = tris[k] as usize;
-            pdf_area[t] = ((p / total) / mesh.tri_area[t] as f64) as f32;
+        for (&tri, (powers, n)) in tris.iter().zip(&parts) {
+            let t = tri as usize;
+            let corners = mesh.triangles[t].map(|v| mesh.positions[v as usize]);
+            let mut push = |p: f64, area: f64, part_of: Option<[Vec2; 3]>, cdf: &mut Vec<f32>| {
+                let lo = cdf.last().copied().unwrap_or(0.0);
+                acc += p;
+                cdf.push((acc / total) as f32);
+                let density = ((p / total) / area) as f32;
+                let part_corners = match part_of {
+                    None => corners,
+                    Some(b) => b.map(|b| {
+                        corners[0] * (1.0 - b.x - b.y) + corners[1] * b.x + corners[2] * b.y
+                    }),
+                };
+                table.push(LightTriangle {
+                    corners: part_corners,
+                    n: mesh.tri_normal[t],
+                    pdf_area: density,
+                    lo,
+                    width: cdf.last().unwrap() - lo,
+                    tri,
+                    part_of,
+                });
+                density
+            };
+            if *n == 0 {
+                pdf_area[t] = push(powers[0], mesh.tri_area[t] as f64, None, &mut cdf);
+                continue;
+            }
+            let part_area = mesh.tri_area[t] as f64 / (n * n) as f64;
+            let densities = powers
+                .iter()
+                .enumerate()
+                .map(|(k, &p)| {
+                    if p > 0.0 {
+                        push(p, part_area, Some(LightGrid::corners_of(*n, k)), &mut cdf)
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            grids.push(LightGrid {
+                n: *n,
+                corners,
+                pdf_area: densities,
+            });
+            pdf_area[t] = -(grids.len() as f32);
         }
         *cdf.last_mut().unwrap() = 1.0;
-        let table = tris
-            .iter()
-            .enumerate()
-            .map(|(i, &tri)| {
-                let t = tri as usize;
-                let lo = if i == 0 { 0.0 } else { cdf[i - 1] };
-                LightTriangle {
-                    corners: mesh.triangles[t].map(|v| mesh.positions[v as usize]),
-                    n: mesh.tri_normal[t],
-                    pdf_area: pdf_area[t],
-                    lo,
-                    width: cdf[i] - lo,
-                    tri,
-                }
-            })
-            .collect();
+        if let Some(last) = table.last_mut() {
+            last.width = 1.0 - last.lo;
+        }
         Lights {
             tris,
             cdf,
             pdf_area,
             table,
+            grids,
         }
     }
+}
+
+/// The grid side of each emitting triangle with an emission map, by triangle: about two texels
+/// of the map per part, at most `MAX_GRID_SIDE` per edge and `MAX_GRID_PARTS` in all (fewer
+/// each where the scene's maps would pass that); none where a part would hold the whole map's
+/// texels (1 on a side: nothing to pick between) or the triangle has no texture coordinates.
+fn grid_sides(mesh: &Mesh, textures: Option<&Textures>) -> HashMap<u32, u32> {
+    let Some(tex) = textures else {
+        return HashMap::new();
+    };
+    if mesh.uvs.is_empty() {
+        return HashMap::new();
+    }
+    let mut wanted: Vec<(u32, f64)> = Vec::new();
+    for (t, &m) in mesh.tri_material.iter().enumerate() {
+        let ke = mesh.materials[m as usize].ke;
+        let Some(map) = mesh.maps.get(m as usize).and_then(|maps| maps.ke) else {
+            continue;
+        };
+        if ke.max_element() <= 0.0 {
+            continue;
+        }
+        let [a, b, c] = mesh.triangles[t].map(|v| mesh.uvs[v as usize] * map.scale);
+        let (w, h) = tex.size(map.tex);
+        let texels = 0.5 * ((b - a).perp_dot(c - a) as f64).abs() * w as f64 * h as f64;
+        if texels.is_finite() && texels > 8.0 {
+            wanted.push((t as u32, (texels / 2.0).sqrt().min(MAX_GRID_SIDE as f64)));
+        }
+    }
+    // Sides rounded down, so that the parts stay within the bound after the shrink.
+    let parts: f64 = wanted.iter().map(|(_, n)| n * n).sum();
+    let shrink = if parts > MAX_GRID_PARTS as f64 {
+        (MAX_GRID_PARTS as f64 / parts).sqrt()
+    } else {
+        1.0
+    };
+    wanted
+        .into_iter()
+        .map(|(t, n)| (t, (n * shrink).floor() as u32))
+        .filter(|&(_, n)| n > 1)
+        .collect()
+}
+
+/// The power per unit area of a part of a triangle with corner texture coordinates `uv`, the
+/// part's corners at barycentrics `b`, as far as the radiance `le` at seven points tells (its
+/// corners, edge midpoints and centre): the mean of their luminance and the largest, halved,
+/// so that a bright texel between the points still draws samples.
+fn part_power(uv: &[Vec2; 3], b: [Vec2; 3], le: impl Fn(Vec2) -> Vec3) -> f64 {
+    let at = |w: Vec2| uv[0] * (1.0 - w.x - w.y) + uv[1] * w.x + uv[2] * w.y;
+    let centre = (b[0] + b[1] + b[2]) / 3.0;
+    let points = [
+        b[0],
+        b[1],
+        b[2],
+        (b[0] + b[1]) * 0.5,
+        (b[1] + b[2]) * 0.5,
+        (b[2] + b[0]) * 0.5,
+        centre,
+    ];
+    let (mut sum, mut max) = (0.0f64, 0.0f64);
+    for w in points {
+        let l = luminance(le(at(w))).max(0.0) as f64;
+        sum += l;
+        max = max.max(l);
+    }
+    0.5 * (sum / points.len() as f64 + max)
 }
 
 /// The scene TOML, with errors on one line that name the line and quote it.
@@ -2043,6 +2265,32 @@ mod tests {
             "{:?}",
             sp
         );
+    }
+
+    /// Every part of a light's grid holds its own corners' centre and points near its corners
+    /// (`LightGrid::part` finds the part `corners_of` made), the parts tile the triangle (their
+    /// count is n^2), and a point outside its barycentric range is clamped to a part.
+    #[test]
+    fn a_light_grid_finds_the_part_it_made() {
+        for n in [2u32, 3, 7, 64] {
+            let mut parts = 0;
+            for k in 0..2 * (n * n) as usize {
+                if !LightGrid::exists(n, k) {
+                    continue;
+                }
+                parts += 1;
+                let c = LightGrid::corners_of(n, k);
+                let centre = (c[0] + c[1] + c[2]) / 3.0;
+                assert_eq!(LightGrid::part(n, centre.x, centre.y), k, "n {n}, part {k}");
+                for corner in c {
+                    let near = corner + (centre - corner) * 0.01;
+                    assert_eq!(LightGrid::part(n, near.x, near.y), k, "n {n}, part {k}");
+                }
+            }
+            assert_eq!(parts, n * n);
+            assert!(LightGrid::exists(n, LightGrid::part(n, 2.0, -1.0)));
+            assert!(LightGrid::exists(n, LightGrid::part(n, 0.7, 0.7)));
+        }
     }
 
     #[test]

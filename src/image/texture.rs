@@ -211,6 +211,12 @@ impl Textures {
         self.info[id.0 as usize].parts
     }
 
+    /// Texture `id`'s size in texels (width, height).
+    pub fn size(&self, id: TextureId) -> (u32, u32) {
+        let info = &self.info[id.0 as usize];
+        (info.width, info.height)
+    }
+
     /// The largest value of each colour channel of texture `id` (red, green, blue).
     pub fn max_rgb(&self, id: TextureId) -> [f32; 3] {
         self.info[id.0 as usize].max
