@@ -28,6 +28,24 @@ use std::sync::Arc;
 
 fn main() {
     reframe::sys::keep_stderr();
+    // A panic's message goes to standard error as the process started with it, like every
+    // other line: the default hook writes to descriptor 2, which a reader may have pointed at
+    // /dev/null for a moment (`QuietStderr`), and the message was lost.
+    std::panic::set_hook(Box::new(|info| {
+        let thread = std::thread::current();
+        let backtrace = std::backtrace::Backtrace::capture();
+        let trace = match backtrace.status() {
+            std::backtrace::BacktraceStatus::Captured => format!("\n{backtrace}"),
+            _ => "\nnote: run with `RUST_BACKTRACE=1` environment variable to display a \
+                  backtrace"
+                .to_string(),
+        };
+        // `info` reads "panicked at FILE:LINE:COL:\nMESSAGE", as the default hook writes it.
+        errln!(
+            "thread '{}' {info}{trace}",
+            thread.name().unwrap_or("<unnamed>")
+        );
+    }));
     if reframe::util::mem::address_space_limited() {
         reframe::sys::limit_malloc_arenas(2);
     }

@@ -438,7 +438,12 @@ mod tests {
             ("v 1 nan 0", "vertex 5 is not finite"),
             (
                 "v 1 1e39 0",
-                "vertex 5 is not finite (a number beyond single precision",
+                "vertex 5 is not finite (infinite: an infinity as written, inf or 1.#INF, or a \
+                 number beyond single precision",
+            ),
+            (
+                "v 1.#INF 0 -1",
+                "vertex 5 is not finite (infinite: an infinity as written",
             ),
             ("v 1 2", "expected 'v x y z'"),
             ("v 1 2 3 w", "expected 'v x y z'"),

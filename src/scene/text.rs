@@ -19,13 +19,15 @@ pub const MAX_DEGREES: f64 = 1e6;
 /// methods' film Jacobians come out infinite (every frame black).
 pub const MIN_FOV: f32 = 1e-3;
 
-/// What to add to "is not finite" when the values hold an infinity but no NaN: a number written
-/// finite but beyond single precision (1e39) reads as infinite, and the message would otherwise
-/// show `inf` for what the file says is a number.
+/// What to add to "is not finite" when the values hold an infinity but no NaN: an infinity as
+/// the file writes it (`inf`, MSVC's `1.#INF`), or a number written finite but beyond single
+/// precision (1e39), which reads as infinite, where the message would otherwise show `inf` for
+/// what the file says is a number.
 pub fn beyond_f32(values: impl IntoIterator<Item = f32>) -> &'static str {
     let v: Vec<f32> = values.into_iter().collect();
     if v.iter().any(|x| x.is_infinite()) && !v.iter().any(|x| x.is_nan()) {
-        " (a number beyond single precision, about 3.4e38, reads as inf: coordinates are at most 1e18)"
+        " (infinite: an infinity as written, inf or 1.#INF, or a number beyond single precision, \
+         about 3.4e38, which reads as inf; coordinates are at most 1e18)"
     } else {
         ""
     }
