@@ -374,6 +374,13 @@ fn run(cli: Cli) -> Result<()> {
             };
             let report = compare::compare(&scene, &opts)?;
             print_warnings(&scene);
+            if let Some(c) = opts.methods.iter().find(|c| c.denoise) {
+                let size = opts.res.unwrap_or((scene.width, scene.height));
+                let what = format!("--methods {}", c.name());
+                if let Some(w) = driver::options::small_denoise_warning(&what, size) {
+                    errln!("warning: {}", printable(&w));
+                }
+            }
             outln!("{}", compare::summary(&report));
             outln!("results in {}", printable(&opts.out.display().to_string()));
             Ok(())

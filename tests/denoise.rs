@@ -182,6 +182,28 @@ fn png_output_gets_the_denoised_frame_and_a_missing_library_is_one_line() {
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(err.contains("cannot load Open Image Denoise"), "{err}");
     assert!(!d.path().join("missing").exists());
+    // `compare` names its own flag, the method that asked for the denoiser.
+    let o = common::reframe(&[
+        "compare",
+        "furnace",
+        "--methods",
+        "independent+oidn",
+        "--frames",
+        "0-2",
+        "--res",
+        "32x32",
+        "--out",
+        d.path().join("cmp").to_str().unwrap(),
+    ])
+    .env("REFRAME_OIDN_LIB", "/nonexistent/libOpenImageDenoise.so.2")
+    .output()
+    .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success()
+            && err.starts_with("error: --methods independent+oidn: cannot load Open Image Denoise"),
+        "{err}"
+    );
     // Not a denoiser: the library loads but lacks the API.
     let o = run(
         &["--denoise", "--out", out.to_str().unwrap()],

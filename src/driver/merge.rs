@@ -188,7 +188,12 @@ pub fn merge(
                 );
             }
             let pool = super::thread_pool(d.threads)?;
-            Some((Denoiser::load(d.threads)?, layers, d.scene, pool))
+            Some((
+                Denoiser::load(d.threads, "the chunks' --denoise")?,
+                layers,
+                d.scene,
+                pool,
+            ))
         }
     };
     let range = key.first_frame..=key.last_frame;

@@ -274,7 +274,9 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     let denoiser = opts
         .denoise
         .filter(|_| opts.chunk.is_none())
-        .map(|layers| crate::image::oidn::Denoiser::load(opts.threads).map(|d| (d, layers)))
+        .map(|layers| {
+            crate::image::oidn::Denoiser::load(opts.threads, "--denoise").map(|d| (d, layers))
+        })
         .transpose()?;
     let (out, created) = opts.check_files(&plan)?;
     // One render per output, and never over its own inputs.

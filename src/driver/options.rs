@@ -374,17 +374,25 @@ impl RenderOptions {
 /// Frames smaller than this on a side are denoised with a warning (`flag_warnings`).
 const MIN_DENOISE_SIDE: u32 = 32;
 
+/// The warning for denoising (`what`: the flag that asks for it) frames of `width` x `height`
+/// too small for the denoiser to work well, if they are.
+pub fn small_denoise_warning(what: &str, (width, height): (u32, u32)) -> Option<String> {
+    (width.min(height) < MIN_DENOISE_SIDE).then(|| {
+        format!(
+            "{what} on {width}x{height} frames: the denoiser needs more of an image to work from \
+             than {MIN_DENOISE_SIDE} pixels a side (8x8 frames of 'cornell' came out 30% darker \
+             than their radiance, 16x12 5%, 64x48 2%)"
+        )
+    })
+}
+
 impl RenderOptions {
     /// Flags given that change nothing for this render, or not what they should, in words (the
     /// command line warns); `(width, height)`: the frames'.
     pub fn flag_warnings(&self, out: &OutputPattern, (width, height): (u32, u32)) -> Vec<String> {
         let mut w = Vec::new();
-        if self.denoise.is_some() && width.min(height) < MIN_DENOISE_SIDE {
-            w.push(format!(
-                "--denoise on {width}x{height} frames: the denoiser needs more of an image to \
-                 work from than {MIN_DENOISE_SIDE} pixels a side (8x8 frames of 'cornell' came \
-                 out 30% darker than their radiance, 16x12 5%, 64x48 2%)"
-            ));
+        if self.denoise.is_some() {
+            w.extend(small_denoise_warning("--denoise", (width, height)));
         }
         if self.aov && !self.method.reuses() {
             w.push("--aov: the independent tracer has no reuse channels; ignored".into());

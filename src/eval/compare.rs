@@ -328,10 +328,12 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         );
     }
     // The denoiser is loaded before anything is rendered: a missing library is one line now.
-    let mut denoiser = if opts.methods.iter().any(|c| c.denoise) {
-        Some(Denoiser::load(opts.threads)?)
-    } else {
-        None
+    let mut denoiser = match opts.methods.iter().find(|c| c.denoise) {
+        Some(c) => Some(Denoiser::load(
+            opts.threads,
+            &format!("--methods {}", c.name()),
+        )?),
+        None => None,
     };
     // The default crop: a centred square of half the shorter side.
     let side = (w.min(h) / 2).max(1);

@@ -175,7 +175,7 @@ pub fn check_size(flag: &str, (w, h): (u32, u32)) -> anyhow::Result<()> {
 
 impl Denoiser {
     /// Open the library and make a CPU device with `threads` threads (0: OIDN's choice).
-    pub fn load(threads: usize) -> Result<Denoiser> {
+    pub fn load(threads: usize, what: &str) -> Result<Denoiser> {
         let mut tried = Vec::new();
         let mut found = None;
         for path in candidates() {
@@ -217,22 +217,19 @@ impl Denoiser {
         }
         let Some((lib, library)) = found else {
             bail!(
-                "--denoise: cannot load Open Image Denoise ({}); run ./setup.sh, or set \
+                "{what}: cannot load Open Image Denoise ({}); run ./setup.sh, or set \
                  REFRAME_OIDN_LIB to libOpenImageDenoise.so.2",
                 tried.join("; ")
             );
         };
         let api = resolve(&lib).with_context(|| {
-            format!(
-                "--denoise: {} is not Open Image Denoise 2",
-                library.display()
-            )
+            format!("{what}: {} is not Open Image Denoise 2", library.display())
         })?;
         // SAFETY: the functions were resolved from the library with oidn.h's signatures.
         let device = unsafe { (api.new_device)(DEVICE_TYPE_CPU) };
         if device.is_null() {
             bail!(
-                "--denoise: Open Image Denoise ({}) made no CPU device",
+                "{what}: Open Image Denoise ({}) made no CPU device",
                 library.display()
             );
         }
