@@ -651,3 +651,76 @@ fn a_render_clears_the_temporary_frames_a_killed_one_left() {
     assert!(!ours.exists() && other.exists());
     assert!(o.join("f_0001.exr").exists());
 }
+
+/// A run's state is its own while it runs: a report (`--stats`) named as a running chunk's log
+/// or into a running render's checkpoint folder is refused, and a chunk whose log was replaced
+/// under it by another program (a rename over it) fails naming the log and writes no partial
+/// file (it had renamed whatever sat at the log's path into place and reported success).
+#[test]
+fn a_running_chunks_state_is_never_replaced_or_taken_for_its_own() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let sub = d.join("chunks");
+    let out = format!("{}/f_####.exr", sub.display());
+    let mut chunk = with(&REUSE, &["--out", &out, "--chunk", "1/2"]);
+    chunk.extend(["--checkpoint-every".into(), "0".into()]);
+    let mut child = reframe()
+        .args(&chunk)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let state = sub.join("f.chunk-1-of-2.checkpoint/state");
+    let log = sub.join("f.chunk-1-of-2.partial.log");
+    let start = Instant::now();
+    while !(state.exists() && log.exists()) {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the chunk finished early"
+        );
+        assert!(start.elapsed() < Duration::from_secs(120), "no checkpoint");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let report = |at: &Path| {
+        let out = d.join("other/f_####.exr");
+        let o = reframe()
+            .args([
+                "render", "cornell", "--res", "8x6", "--spp", "1", "--frames", "0",
+            ])
+            .arg("--out")
+            .arg(&out)
+            .arg("--stats")
+            .arg(at)
+            .output()
+            .unwrap();
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let (code, err) = report(&log);
+    assert!(
+        code == Some(1) && err.contains("chunk's partial file or its log"),
+        "{err}"
+    );
+    let (code, err) = report(&state.with_file_name("report.json"));
+    assert!(
+        code == Some(1) && err.contains("checkpoint folder of a running"),
+        "{err}"
+    );
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "the chunk finished early"
+    );
+    // Another program's file renamed over the log.
+    let other = sub.join("other.txt");
+    std::fs::write(&other, "not a log\n").unwrap();
+    std::fs::rename(&other, &log).unwrap();
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.code() == Some(1) && err.contains("was replaced by another file"),
+        "{err}"
+    );
+    assert!(!sub.join("f.chunk-1-of-2.partial").exists());
+}

@@ -172,6 +172,56 @@ fn check_report_apart(flag: &str, path: &Path) -> Result<()> {
     );
 }
 
+/// Refuse a report (`flag`) at `path` where a run keeps its state: a name a chunk gives its
+/// partial file or its log (`NAME.chunk-K-of-N.partial`, `.partial.log`, which a running chunk
+/// renames into place at its end, whatever then sits there), or a file in the checkpoint folder
+/// of a running render (its lock, `.NAME.lock` beside the folder, is held).
+fn check_report_off_state(flag: &str, path: &Path) -> Result<()> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    if name.ends_with(".partial") || name.ends_with(".partial.log") {
+        bail!(
+            "{flag} {}: that is named as a chunk's partial file or its log, which a report must \
+             not replace; nothing was written",
+            path.display()
+        );
+    }
+    let dir = parent_dir(path);
+    let lock = folder_lock_path(&dir);
+    if let Some(pid) = held_by(&lock) {
+        bail!(
+            "{flag} {}: that folder is the checkpoint folder of a running reframe (pid {pid}, \
+             its lock is {}), which a report must not write into; nothing was written",
+            path.display(),
+            lock.display()
+        );
+    }
+    Ok(())
+}
+
+/// The pid written in lock file `lock` where a live process holds it; `None` where it does
+/// not exist, cannot be read, or nobody holds it.
+fn held_by(lock: &Path) -> Option<String> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let mut f = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
+        .open(lock)
+        .ok()?;
+    if !f.metadata().ok()?.is_file() {
+        return None;
+    }
+    if f.try_lock().is_ok() {
+        let _ = f.unlock();
+        return None;
+    }
+    let mut text = String::new();
+    let _ = (&mut f).take(1 << 16).read_to_string(&mut text);
+    Some(text.lines().next().unwrap_or("?").to_string())
+}
+
 /// The first lock file in the folder of `beside` (other than `beside` itself, where that is a
 /// lock) that is held by a live process writing frames, and for which `matches` (given the
 /// holder's pattern and frames) says something: that, and a clause naming the holder. Lock
@@ -328,6 +378,7 @@ pub fn check_outputs<'a>(
                 );
             }
             check_report_apart(flag, &out)?;
+            check_report_off_state(flag, &out)?;
         }
         let Some(r) = resolved(&out) else { continue };
         if let Some((_, input)) = inputs.iter().find(|(c, _)| *c == r) {

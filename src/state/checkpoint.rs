@@ -351,6 +351,16 @@ impl Checkpointer {
             write_trailer(&mut w, &t).with_context(|| format!("writing {}", lp.display()))?;
             let f = w.into_inner().map_err(|e| e.into_error())?;
             f.sync_all()?;
+            // The log is renamed by its name: whatever sits there now must be the file this run
+            // wrote (another program's file renamed over it made the partial file that file,
+            // and the chunk reported success).
+            if !same_file(&f, &lp) {
+                bail!(
+                    "{} was replaced by another file while the chunk rendered; its partial file \
+                     was not written: render the chunk again",
+                    lp.display()
+                );
+            }
             std::fs::rename(&lp, partial)
                 .with_context(|| format!("renaming {} to {}", lp.display(), partial.display()))?;
             out = Some(partial.clone());
@@ -360,6 +370,15 @@ impl Checkpointer {
             let _ = std::fs::remove_dir(d);
         }
         Ok(out)
+    }
+}
+
+/// Whether `path` (not followed, if a link) is the open file `f`.
+fn same_file(f: &File, path: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (f.metadata(), std::fs::symlink_metadata(path)) {
+        (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+        _ => false,
     }
 }
 
