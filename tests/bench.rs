@@ -195,6 +195,28 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
     let c = json(&out.join("compare.json"));
     assert_eq!(c["runs"].as_array().unwrap().len(), 2 + 2);
     assert!(c["skipped"][0].as_str().unwrap().contains("n_f 21"), "{c}");
+    // Every window skipped: nothing to compare, refused before the reference is rendered, and
+    // neither the output folder nor the cache is made.
+    let (none, no_cache) = (dir.path().join("none"), dir.path().join("no-cache"));
+    let mut a = args(&["--methods", "mis-cv"]);
+    a.iter_mut().for_each(|x| {
+        if *x == "3,5" {
+            *x = "21".into();
+        } else if *x == out.to_str().unwrap() {
+            *x = none.to_str().unwrap().into();
+        } else if *x == cache.to_str().unwrap() {
+            *x = no_cache.to_str().unwrap().into();
+        }
+    });
+    let o = common::reframe(&a).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.code() == Some(1)
+            && err.contains("nothing to compare")
+            && !err.contains("reference:"),
+        "{err}"
+    );
+    assert!(!none.exists() && !no_cache.exists());
     // Second time: the reference comes from the cache, and `reframe reference` finds it too.
     run(args(&["--methods", "independent"]));
     assert_eq!(json(&out.join("compare.json"))["reference"]["cached"], true);

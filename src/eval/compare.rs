@@ -351,73 +351,8 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             crop[3]
         );
     }
-    let created = CreatedDirs::create(&opts.out)
-        .with_context(|| format!("--out {}: cannot create the folder", opts.out.display()))?;
-    check_writable_dir(&opts.out).with_context(|| format!("--out {}", opts.out.display()))?;
-    let lock = opts.out.join(".compare.lock");
-    let written = [
-        "compare.json",
-        "compare.csv",
-        "error_vs_time.png",
-        "error_vs_time.svg",
-        "speedup_vs_nf.png",
-        "speedup_vs_nf.svg",
-        "flicker.png",
-        "flicker.svg",
-        "flicker_denoised.png",
-        "flicker_denoised.svg",
-        "crops.png",
-        "crops.svg",
-        "bias.png",
-        "bias.svg",
-        ".compare.lock",
-    ];
-    let bias_files: Vec<String> = opts
-        .methods
-        .iter()
-        .map(|c| format!("bias_{}.exr", c.name()))
-        .collect();
-    check_outputs(
-        written
-            .iter()
-            .copied()
-            .chain(bias_files.iter().map(String::as_str))
-            .map(|n| ("--out", opts.out.join(n))),
-        &scene.inputs,
-    )?;
-    let _lock = OutputLock::acquire(&lock, &opts.out.display().to_string(), None)?;
-    created.keep();
-    let pool = thread_pool(opts.threads)?;
-    let threads = pool.current_num_threads();
-    crate::embree::set_flush_denormals();
-
-    let reference = reference(
-        scene,
-        range.clone(),
-        (w, h),
-        opts.reference_spp,
-        opts.max_depth,
-        &opts.cache,
-        &pool,
-        opts.progress,
-    )?;
-    errln!(
-        "reference: {} spp, {} ({})",
-        reference.spp,
-        crate::util::text::printable(&reference.dir.display().to_string()),
-        if reference.cached {
-            "cached".to_string()
-        } else {
-            format!("rendered in {:.1} s", reference.seconds)
-        }
-    );
-    if let Some(d) = denoiser.as_mut() {
-        d.prepare(w as usize, h as usize)?;
-    }
-    let integrator = Integrator::new(scene, opts.max_depth);
-    let crop_frame = first + n_frames / 2;
-    let mut runs: Vec<Run> = Vec::new();
-    let mut crops: Vec<Vec<Vec3>> = Vec::new();
+    // The runs, planned before anything is made or rendered: a plan with nothing to compare
+    // is refused before the reference (minutes of work on the default scene) is rendered.
     // (method, window, spp, frames rendered) of every run.
     let mut plan: Vec<(Candidate, u32, u32, RangeInclusive<u32>)> = Vec::new();
     let mut skipped = Vec::new();
@@ -461,6 +396,74 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     if plan.is_empty() {
         bail!("nothing to compare: no method with a budget and a window that fits the frames");
     }
+    let created = CreatedDirs::create(&opts.out)
+        .with_context(|| format!("--out {}: cannot create the folder", opts.out.display()))?;
+    check_writable_dir(&opts.out).with_context(|| format!("--out {}", opts.out.display()))?;
+    let lock = opts.out.join(".compare.lock");
+    let written = [
+        "compare.json",
+        "compare.csv",
+        "error_vs_time.png",
+        "error_vs_time.svg",
+        "speedup_vs_nf.png",
+        "speedup_vs_nf.svg",
+        "flicker.png",
+        "flicker.svg",
+        "flicker_denoised.png",
+        "flicker_denoised.svg",
+        "crops.png",
+        "crops.svg",
+        "bias.png",
+        "bias.svg",
+        ".compare.lock",
+    ];
+    let bias_files: Vec<String> = opts
+        .methods
+        .iter()
+        .map(|c| format!("bias_{}.exr", c.name()))
+        .collect();
+    check_outputs(
+        written
+            .iter()
+            .copied()
+            .chain(bias_files.iter().map(String::as_str))
+            .map(|n| ("--out", opts.out.join(n))),
+        &scene.inputs,
+    )?;
+    let _lock = OutputLock::acquire(&lock, &opts.out.display().to_string(), None)?;
+    let pool = thread_pool(opts.threads)?;
+    let threads = pool.current_num_threads();
+    crate::embree::set_flush_denormals();
+
+    let reference = reference(
+        scene,
+        range.clone(),
+        (w, h),
+        opts.reference_spp,
+        opts.max_depth,
+        &opts.cache,
+        &pool,
+        opts.progress,
+    )?;
+    // The reference is in hand: the output folder stays (a refusal until here removes it).
+    created.keep();
+    errln!(
+        "reference: {} spp, {} ({})",
+        reference.spp,
+        crate::util::text::printable(&reference.dir.display().to_string()),
+        if reference.cached {
+            "cached".to_string()
+        } else {
+            format!("rendered in {:.1} s", reference.seconds)
+        }
+    );
+    if let Some(d) = denoiser.as_mut() {
+        d.prepare(w as usize, h as usize)?;
+    }
+    let integrator = Integrator::new(scene, opts.max_depth);
+    let crop_frame = first + n_frames / 2;
+    let mut runs: Vec<Run> = Vec::new();
+    let mut crops: Vec<Vec<Vec3>> = Vec::new();
     let pb = progress_bar(opts.progress, plan.len() as u64, "runs");
     for (method, window, spp, rendered) in plan {
         let mut out = render_run(
