@@ -262,6 +262,9 @@ pub struct Lights {
     /// point on it reads, in one place (`Scene::area_inputs`).
     table: Vec<LightTriangle>,
     grids: Vec<LightGrid>,
+    /// Triangles whose material has a positive `Ke` but an emission map black in every texel:
+    /// they emit nothing, and are not lights.
+    pub black_maps: usize,
 }
 
 /// The subdivision of a light triangle with an emission map: `n` parts along each edge, the
@@ -732,9 +735,12 @@ impl Scene {
             } else {
                 "it has no [environment]"
             };
-            bail!(
-                "{obj_label}: the scene has no light: no material has a positive Ke, and {env}{lost}"
-            );
+            let none = if lights.black_maps > 0 {
+                "the emission maps (map_Ke) of its emitting materials are black in every texel"
+            } else {
+                "no material has a positive Ke"
+            };
+            bail!("{obj_label}: the scene has no light: {none}, and {env}{lost}");
         }
         let env_select = match (env_emits, lights.tris.is_empty()) {
             (false, _) => 0.0,
@@ -743,6 +749,13 @@ impl Scene {
         };
         let offset_floor = offset_floor(lo, hi);
         let mut warnings = repairs.into_warnings();
+        if lights.black_maps > 0 && !lights.tris.is_empty() {
+            warnings.push(format!(
+                "{obj_label}: {} triangle(s) of materials with a positive Ke have an emission \
+                 map (map_Ke) black in every texel: they emit nothing",
+                lights.black_maps
+            ));
+        }
         warnings.extend(spread_warning(
             &obj_label,
             lo,
@@ -1091,9 +1104,27 @@ impl Lights {
         // Per light: its parts' powers (one for a whole triangle) and its grid side (0: whole).
         let mut parts: Vec<(Vec<f64>, u32)> = Vec::new();
         let sides = grid_sides(mesh, textures);
+        // An emission map black in every texel makes its triangles emit nothing: not lights.
+        let black: Vec<bool> = (0..mesh.materials.len())
+            .map(|m| {
+                let map = mesh.maps.get(m).and_then(|maps| maps.ke);
+                match (map, textures) {
+                    (Some(map), Some(tex)) => {
+                        (mesh.materials[m].ke * Vec3::from(tex.max_rgb(map.tex))).max_element()
+                            <= 0.0
+                    }
+                    _ => false,
+                }
+            })
+            .collect();
+        let mut black_maps = 0;
         for (t, &m) in mesh.tri_material.iter().enumerate() {
             let ke = mesh.materials[m as usize].ke;
             if ke.max_element() <= 0.0 {
+                continue;
+            }
+            if black[m as usize] {
+                black_maps += 1;
                 continue;
             }
             tris.push(t as u32);
@@ -1147,6 +1178,7 @@ impl Lights {
                 pdf_area: vec![0.0; mesh.triangles.len()],
                 table: Vec::new(),
                 grids: Vec::new(),
+                black_maps,
             };
         }
         let total: f64 = parts.iter().flat_map(|(p, _)| p.iter()).sum();
@@ -1213,6 +1245,7 @@ impl Lights {
             pdf_area,
             table,
             grids,
+            black_maps,
         }
     }
 }
