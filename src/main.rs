@@ -73,6 +73,10 @@ fn main() {
         if reframe::util::fs::stopping() {
             exit_with(130); // the signal handler's exit, and its line
         }
+        if let Some(c) = e.downcast_ref::<reframe::state::checkpoint::ChunkComplete>() {
+            outln!("{}", printable(&c.to_string()));
+            exit_with(0);
+        }
         if let Some(i) = e.downcast_ref::<driver::Interrupted>() {
             errln!("{}", printable(&i.to_string()));
             if i.checkpoint.is_some() {

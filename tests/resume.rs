@@ -462,6 +462,21 @@ fn a_killed_chunk_resumes_and_merges_identically() {
     std::fs::write(&log, &bytes).unwrap();
     run(&resume.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(!log.exists() && !state.exists());
+    // Resumed again once complete (a Slurm array resubmitted whole): nothing to do, and the
+    // partial file is left as it is.
+    let partial = sub.join("f.chunk-1-of-2.partial");
+    let before = std::fs::metadata(&partial).unwrap().modified().unwrap();
+    let o = run(&resume.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("chunk 1/2 is already complete"),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    assert_eq!(
+        std::fs::metadata(&partial).unwrap().modified().unwrap(),
+        before
+    );
+    assert!(!state.exists() && !log.exists());
     run(&[
         "merge",
         &sub.join("f.chunk-1-of-2.partial").display().to_string(),

@@ -221,6 +221,29 @@ impl Checkpointer {
                     }
                 }
                 resumed = Some(Resumed { trailer: t, active });
+            } else if let (true, Some(c)) = (resume, template.chunk) {
+                // A chunk that finished has no checkpoint, but its partial file: with --resume
+                // (which the Slurm scripts always pass) it is not rendered again.
+                let partial = partial_path(&template.out, c);
+                if let Ok(sf) = StateFile::open(&partial) {
+                    let t = &sf.trailer;
+                    if t.kind == Kind::Partial
+                        && t.key.difference(&template.key).is_none()
+                        && t.chunk == template.chunk
+                        && t.units == template.units
+                        && t.next_unit == template.units[1] + 1
+                    {
+                        return Err(ChunkComplete {
+                            chunk: c.to_string(),
+                            partial,
+                        }
+                        .into());
+                    }
+                }
+                errln!(
+                    "note: no checkpoint in {}: starting from the beginning",
+                    crate::util::text::printable(&d.display().to_string())
+                );
             } else if resume {
                 errln!(
                     "note: no checkpoint in {}: starting from the beginning",
@@ -372,6 +395,27 @@ impl Checkpointer {
         Ok(out)
     }
 }
+
+/// `--resume` of a chunk whose partial file is already there, complete and of the same run:
+/// nothing to do (not an error; the command says so and succeeds).
+#[derive(Debug)]
+pub struct ChunkComplete {
+    pub chunk: String,
+    pub partial: PathBuf,
+}
+
+impl std::fmt::Display for ChunkComplete {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "chunk {} is already complete ({}): nothing to do",
+            self.chunk,
+            self.partial.display()
+        )
+    }
+}
+
+impl std::error::Error for ChunkComplete {}
 
 /// Whether `path` (not followed, if a link) is the open file `f`.
 fn same_file(f: &File, path: &Path) -> bool {
