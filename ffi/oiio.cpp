@@ -333,7 +333,25 @@ std::unique_ptr<std::vector<uint8_t>> write_u8(rust::Slice<const uint8_t> path,
 }
 
 ImageReader::ImageReader(std::unique_ptr<OIIO::ImageInput> in)
-    : in_(std::move(in)), spec_(in_->spec()) {}
+    : in_(std::move(in)), spec_(in_->spec()) {
+    // The images the file holds: OIIO names them (`oiio:subimages`) for OpenEXR only; a
+    // multi-page TIFF or an animated GIF shows its second image only to a seek.
+    QuietStderr quiet;
+    if (in_->seek_subimage(1, 0)) {
+        subimages_ = 2;
+        while (subimages_ < 65 && in_->seek_subimage(subimages_, 0)) {
+            ++subimages_;
+        }
+    }
+    // The failed seek past the last image leaves its error pending, which the next read would
+    // report as its own.
+    (void)in_->geterror();
+    if (subimages_ > 1) {
+        in_->seek_subimage(0, 0);
+        (void)in_->geterror();
+        spec_ = in_->spec();
+    }
+}
 
 std::unique_ptr<ImageReader> open_reader(rust::Slice<const uint8_t> path) {
     const std::string p = path_string(path);
@@ -384,6 +402,7 @@ ImageInfo ImageReader::info() const {
     info.stored_height = uint32_t(spec_.height);
     info.format_name = rust::String::lossy(in_->format_name());
     info.integer = !spec_.format.is_floating_point();
+    info.images = uint32_t(subimages_);
     return info;
 }
 

@@ -34,6 +34,7 @@ public:
 private:
     std::unique_ptr<OIIO::ImageInput> in_;
     OIIO::ImageSpec spec_;
+    int subimages_ = 1;
 };
 
 // A private OIIO::TextureSystem (its own image cache) and the textures a scene uses, each by

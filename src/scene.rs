@@ -1698,7 +1698,7 @@ fn load_environment(
                     format!(
                         "environment image '{}': the file holds {} images",
                         quote(img.get_ref()),
-                        layout.parts
+                        crate::image::images_in_words(layout.parts)
                     )
                 })?;
             }

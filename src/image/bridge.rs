@@ -65,6 +65,9 @@ pub(crate) mod ffi {
         format_name: String,
         /// Whether the file stores its values as integers (8- or 16-bit codes), not floats.
         integer: bool,
+        /// The images the file holds (found by seeking: a multi-page TIFF's pages, an
+        /// animated GIF's frames; counted up to 65: 65 means more than 64).
+        images: u32,
     }
 
     unsafe extern "C++" {

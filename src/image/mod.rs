@@ -902,6 +902,16 @@ pub fn read_linear_rgb(path: &Path, max_pixels: u64, then_per_pixel: u64) -> Res
     read_colour(path, max_pixels, then_per_pixel).map(|(img, _)| img)
 }
 
+/// The images a file holds, in words: its count, or "more than 64" where the count stopped
+/// (`ImageInfo::images`).
+pub fn images_in_words(n: u32) -> String {
+    if n > 64 {
+        "more than 64".into()
+    } else {
+        n.to_string()
+    }
+}
+
 /// How a colour input's file holds its colour: in which channels (`colour_channels`), and
 /// whether they are sRGB-encoded (OIIO's `oiio:ColorSpace`).
 #[derive(Clone, Copy, Debug)]
@@ -931,7 +941,8 @@ pub fn read_colour(
         let parts = attrs
             .iter()
             .find(|a| a.name == "oiio:subimages")
-            .map_or(1, |a| a.int_value.max(1) as u32);
+            .map_or(1, |a| a.int_value.max(1) as u32)
+            .max(info.images);
         let nch = info.channels.len();
         let colour = colour_channels(&info.channels)?;
         let pick = colour.indices();

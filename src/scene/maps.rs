@@ -55,10 +55,11 @@ const COLOUR_AS_MASK: Kind = Kind {
     many: "map_d names the colour texture (map_Kd), which has no alpha: no cut-outs",
 };
 
-/// An image file of several images (a multi-part EXR's parts): the first is read.
+/// An image file of several images (a multi-part EXR's parts, a multi-page TIFF's pages, an
+/// animated GIF's frames): the first is read.
 pub const MULTI_PART: Kind = Kind {
-    one: "only the first of the file's images (a multi-part EXR's parts) is read",
-    many: "only the first of each file's images (a multi-part EXR's parts) is read",
+    one: "only the first of the file's images (a multi-part EXR's parts, a multi-page TIFF's pages, an animated GIF's frames) is read",
+    many: "only the first of each file's images (a multi-part EXR's parts, a multi-page TIFF's pages, an animated GIF's frames) is read",
 };
 
 const KE_MAP_CAPPED: Kind = Kind {
@@ -178,8 +179,9 @@ impl Maps {
                 if parts > 1 {
                     repairs.note(mtl_label, spec.line, MULTI_PART, || {
                         format!(
-                            "'{}': the file holds {parts} images",
-                            quote(&spec.statement)
+                            "'{}': the file holds {} images",
+                            quote(&spec.statement),
+                            crate::image::images_in_words(parts)
                         )
                     })?;
                 }
