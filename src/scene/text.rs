@@ -57,6 +57,7 @@ pub fn fov_fault(fov: f64) -> Option<String> {
 
 /// `bytes` as text, or an error naming the line of the first byte that is not text.
 pub fn as_text(bytes: &[u8]) -> Result<&str> {
+    utf16(bytes)?;
     let text = std::str::from_utf8(bytes).map_err(|e| {
         anyhow!(
             "line {}: not UTF-8 text (a binary file?)",
@@ -67,11 +68,28 @@ pub fn as_text(bytes: &[u8]) -> Result<&str> {
     Ok(text)
 }
 
-/// The first control character that is not whitespace: a sign of a binary file.
-fn binary(bytes: &[u8]) -> Result<()> {
+/// Refuse UTF-16 text (Excel's "Unicode text", PowerShell 5's redirections): by its byte
+/// order mark, or without one by its first two characters, ASCII with a zero byte beside each.
+fn utf16(bytes: &[u8]) -> Result<()> {
     if bytes.starts_with(b"\xff\xfe") || bytes.starts_with(b"\xfe\xff") {
         bail!("the file is UTF-16 text (its byte order mark says so): save it as UTF-8 or ASCII");
     }
+    if let [a, b, c, d, ..] = *bytes {
+        let ascii = |x: u8| x != 0 && x.is_ascii();
+        if (a == 0 && ascii(b) && c == 0 && ascii(d)) || (ascii(a) && b == 0 && ascii(c) && d == 0)
+        {
+            bail!(
+                "the file is UTF-16 text (a zero byte beside each of its first characters): save \
+                 it as UTF-8 or ASCII"
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The first control character that is not whitespace: a sign of a binary file.
+fn binary(bytes: &[u8]) -> Result<()> {
+    utf16(bytes)?;
     let control = |b: u8| (b < 0x20 && !matches!(b, b'\t' | b'\n' | b'\r' | 0x0c)) || b == 0x7f;
     if let Some(i) = bytes.iter().position(|&b| control(b)) {
         bail!(
@@ -349,6 +367,23 @@ mod tests {
         assert!(e.starts_with("line 2: control character 0x00"), "{e}");
         let e = lines(b"a\n\0").err().unwrap().to_string();
         assert!(e.starts_with("line 2: control character 0x00"), "{e}");
+    }
+
+    /// A scene TOML or camera file saved as UTF-16 (with a byte order mark, or without one in
+    /// either byte order) is named so, as an OBJ is, not as binary data.
+    #[test]
+    fn utf16_text_is_named_so() {
+        let text = "frame,x\n0,1\n";
+        let le: Vec<u8> = text.encode_utf16().flat_map(|u| u.to_le_bytes()).collect();
+        let be: Vec<u8> = text.encode_utf16().flat_map(|u| u.to_be_bytes()).collect();
+        let bom = [&b"\xff\xfe"[..], &le].concat();
+        for bytes in [&bom[..], &le[..], &be[..]] {
+            let e = as_text(bytes).unwrap_err().to_string();
+            assert!(e.starts_with("the file is UTF-16 text"), "{e}");
+        }
+        // Text with a zero byte further in is not UTF-16 (a binary file).
+        let e = as_text(b"abcd\0").unwrap_err().to_string();
+        assert!(e.starts_with("line 1: control character 0x00"), "{e}");
     }
 
     #[test]
