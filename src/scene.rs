@@ -1653,7 +1653,9 @@ fn load_environment(
                     at(r.span(), "rotation")
                 );
             }
-            v as f32
+            // Reduced in f64 before it is rounded: 360000 degrees is 0 (in f32 its sine and
+            // cosine had lost digits, and the sky came out turned by a hair).
+            v.rem_euclid(360.0) as f32
         }
         None => 0.0,
     };

@@ -311,3 +311,32 @@ fn power_heuristic_after_the_first_hit_is_unbiased() {
         assert_unbiased(&format!("power heuristic on {}", scene.name), &z);
     }
 }
+
+/// An environment's rotation is an angle modulo a turn: 20 degrees, 20 plus a thousand turns and
+/// -340 are the same scene (and so render the same: the hash covers the rotation's sine and
+/// cosine), which 21 degrees is not. 360020 rounded to f32 before it was reduced turned the sky
+/// by a hair.
+#[test]
+fn an_environment_rotation_is_taken_modulo_a_turn() {
+    let device = Device::new().unwrap();
+    let hash = |rotation: &str| {
+        let d = tempfile::tempdir().unwrap();
+        sky(&d.path().join("sky.exr"));
+        let p = write_scene(
+            d.path(),
+            CUBE,
+            "newmtl box\nKd 0.5 0.5 0.5\n",
+            &camera(
+                3,
+                &format!("[environment]\nimage = \"sky.exr\"\nrotation = {rotation}"),
+            ),
+        );
+        scene_and_build_hashes(&Scene::load(&p, &device).unwrap())
+            .unwrap()
+            .0
+    };
+    let base = hash("20.0");
+    assert_eq!(base, hash("360020.0"));
+    assert_eq!(base, hash("-340.0"));
+    assert_ne!(base, hash("21.0"));
+}
