@@ -182,7 +182,38 @@ impl Checkpointer {
             }
         }
         if let Some(d) = &dir {
+            // What sits at the folder's path, named as what it is.
+            if let Ok(m) = std::fs::symlink_metadata(d) {
+                let t = m.file_type();
+                if t.is_symlink() && !d.exists() {
+                    bail!(
+                        "--checkpoint {}: that is a symbolic link to nothing; remove it or name \
+                         another folder",
+                        d.display()
+                    );
+                }
+                if !d.is_dir() {
+                    let what = if d.is_file() {
+                        "a file"
+                    } else {
+                        crate::util::input::kind(std::fs::metadata(d).map_or(t, |m| m.file_type()))
+                    };
+                    bail!(
+                        "--checkpoint {}: that is {what}, not a folder (the checkpoint is a \
+                         folder)",
+                        d.display()
+                    );
+                }
+            }
             let state = d.join("state");
+            if state.exists() && !resume && !super::is_state_file(&state) {
+                bail!(
+                    "--checkpoint {}: the folder holds a file named 'state' that is not a \
+                     complete reframe checkpoint (another program's file, or one cut short); \
+                     name another folder, or remove the file",
+                    d.display()
+                );
+            }
             if state.exists() {
                 if !resume {
                     bail!(
