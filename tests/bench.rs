@@ -360,3 +360,44 @@ fn compare_refuses_a_bias_seed_count_that_would_run_for_days() {
     );
     assert!(!dir.path().join("cmp").exists());
 }
+
+/// Two `reference` runs of one cache entry at once (two `compare` jobs sharing a cache): one
+/// renders it, the other waits for it and reads it from the cache, whichever starts first.
+#[test]
+fn two_runs_of_one_reference_render_it_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let args = [
+        "reference",
+        "cornell",
+        "--res",
+        "64x48",
+        "--frames",
+        "0-1",
+        "--reference-spp",
+        "512",
+        "--threads",
+        "1",
+        "--cache",
+        cache.to_str().unwrap(),
+    ];
+    let spawn = || {
+        common::reframe(&args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let (a, b) = (spawn(), spawn());
+    let outs: Vec<String> = [a, b]
+        .into_iter()
+        .map(|c| {
+            let o = c.wait_with_output().unwrap();
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            String::from_utf8_lossy(&o.stdout).into_owned()
+        })
+        .collect();
+    let rendered = outs.iter().filter(|o| o.contains("rendered in")).count();
+    assert_eq!(rendered, 1, "{outs:?}");
+    assert!(outs.iter().any(|o| o.contains("(cached)")), "{outs:?}");
+}

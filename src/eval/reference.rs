@@ -109,6 +109,42 @@ pub fn reference_key(
     Ok(f.hex())
 }
 
+/// The lock of the cache entry `dir` (`cache/.NAME.lock`), held until dropped: taken at once,
+/// or after waiting (with a note) for the process that holds it. The lock file stays (a process
+/// waiting on it must find the same file when its holder is done). `None` where the cache
+/// folder cannot be made or the lock file cannot be opened as a regular file (the render
+/// goes on unlocked, and fails later where the folder cannot be written).
+fn lock_entry(cache: &Path, dir: &Path) -> Result<Option<std::fs::File>> {
+    use std::os::unix::fs::OpenOptionsExt;
+    if std::fs::create_dir_all(cache).is_err() {
+        return Ok(None);
+    }
+    let name = dir.file_name().unwrap_or_default().to_string_lossy();
+    let path = cache.join(format!(".{name}.lock"));
+    let Ok(f) = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
+        .open(&path)
+    else {
+        return Ok(None);
+    };
+    if !f.metadata().is_ok_and(|m| m.is_file()) {
+        return Ok(None);
+    }
+    if f.try_lock().is_err() {
+        errln!(
+            "note: another reframe is rendering this reference (its lock is {}); waiting for it",
+            crate::util::text::printable(&path.display().to_string())
+        );
+        f.lock()
+            .with_context(|| format!("waiting for the lock {}", path.display()))?;
+    }
+    Ok(Some(f))
+}
+
 /// The reference of `range` at `w` x `h`: from the cache when there, else rendered and cached.
 #[allow(clippy::too_many_arguments)]
 pub fn reference(
@@ -143,6 +179,9 @@ pub fn reference(
         "{}_{w}x{h}_f{first}-{last}_{spp}spp_d{max_depth}_{key}",
         scene.name
     ));
+    // One process renders an entry at a time: another that wants it waits, then reads it from
+    // the cache (two `compare` jobs sharing a cache both rendered the same reference).
+    let _entry = lock_entry(cache, &dir)?;
     let info_path = dir.join("reference.json");
     let frame_path = |f: u32| dir.join(format!("ref_{f:04}.exr"));
     // Read as any input is (a FIFO or a device planted there is refused, not waited on); a
