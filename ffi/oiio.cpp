@@ -332,26 +332,34 @@ std::unique_ptr<std::vector<uint8_t>> write_u8(rust::Slice<const uint8_t> path,
     return write_pixels(path_string(path), spec, OIIO::TypeDesc::UINT8, pixels.data());
 }
 
-ImageReader::ImageReader(std::unique_ptr<OIIO::ImageInput> in)
-    : in_(std::move(in)), spec_(in_->spec()) {
-    // The images the file holds: OIIO names them (`oiio:subimages`) for OpenEXR only; a
-    // multi-page TIFF or an animated GIF shows its second image only to a seek.
+ImageReader::ImageReader(std::unique_ptr<OIIO::ImageInput> in, int subimages)
+    : in_(std::move(in)), spec_(in_->spec()), subimages_(subimages) {}
+
+namespace {
+
+// The images the file at `p` holds, counted up to 65: OIIO names them (`oiio:subimages`) for
+// OpenEXR only, and a multi-page TIFF or an animated GIF shows its second image only to a
+// seek. The seeks go through a reader of their own: some readers (WebP's) cannot decode their
+// first image again after a seek past their last.
+int count_subimages(const std::string& p, const OIIO::ImageSpec& config, const char* format) {
+    if (std::string(format) == "openexr") {
+        return 1;
+    }
     QuietStderr quiet;
-    if (in_->seek_subimage(1, 0)) {
-        subimages_ = 2;
-        while (subimages_ < 65 && in_->seek_subimage(subimages_, 0)) {
-            ++subimages_;
-        }
+    std::unique_ptr<OIIO::ImageInput> probe = OIIO::ImageInput::open(p, &config);
+    if (!probe) {
+        (void)OIIO::geterror();
+        return 1;
     }
-    // The failed seek past the last image leaves its error pending, which the next read would
-    // report as its own.
-    (void)in_->geterror();
-    if (subimages_ > 1) {
-        in_->seek_subimage(0, 0);
-        (void)in_->geterror();
-        spec_ = in_->spec();
+    int n = 1;
+    while (n < 65 && probe->seek_subimage(n, 0)) {
+        ++n;
     }
+    (void)probe->geterror();
+    return n;
 }
+
+}  // namespace
 
 std::unique_ptr<ImageReader> open_reader(rust::Slice<const uint8_t> path) {
     const std::string p = path_string(path);
@@ -372,7 +380,10 @@ std::unique_ptr<ImageReader> open_reader(rust::Slice<const uint8_t> path) {
     if (spec.deep || spec.depth > 1 || spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0) {
         throw std::runtime_error("not a flat 2D image");
     }
-    return std::make_unique<ImageReader>(std::move(in));
+    OIIO::ImageSpec config;
+    config.attribute("oiio:UnassociatedAlpha", 1);
+    const int subimages = count_subimages(p, config, in->format_name());
+    return std::make_unique<ImageReader>(std::move(in), subimages);
 }
 
 namespace {

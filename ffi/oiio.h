@@ -26,7 +26,7 @@ struct ImageInfo;
 // one opaque type with exactly the operations it needs.
 class ImageReader {
 public:
-    explicit ImageReader(std::unique_ptr<OIIO::ImageInput> in);
+    ImageReader(std::unique_ptr<OIIO::ImageInput> in, int subimages);
     ImageInfo info() const;
     rust::Vec<Attribute> attributes() const;
     void read_f32(rust::Slice<float> out);
