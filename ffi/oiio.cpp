@@ -337,12 +337,14 @@ ImageReader::ImageReader(std::unique_ptr<OIIO::ImageInput> in, int subimages)
 
 namespace {
 
-// The images the file at `p` holds, counted up to 65: OIIO names them (`oiio:subimages`) for
-// OpenEXR only, and a multi-page TIFF or an animated GIF shows its second image only to a
-// seek. The seeks go through a reader of their own: some readers (WebP's) cannot decode their
-// first image again after a seek past their last.
+// The images the file at `p` holds, counted up to 65, for the formats whose first image may
+// not be the one meant: OIIO names them (`oiio:subimages`) for OpenEXR only, and a multi-page
+// TIFF or an animated GIF shows its second image only to a seek. (A layered PSD's first image
+// is its composite, the image meant.) The seeks go through a reader of their own: some readers
+// (WebP's) cannot decode their first image again after a seek past their last.
 int count_subimages(const std::string& p, const OIIO::ImageSpec& config, const char* format) {
-    if (std::string(format) == "openexr") {
+    const std::string f(format);
+    if (f != "tiff" && f != "gif") {
         return 1;
     }
     QuietStderr quiet;

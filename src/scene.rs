@@ -311,8 +311,10 @@ impl LightGrid {
 
     /// The area density of light sampling at point `y` of the triangle.
     fn pdf_at(&self, y: Vec3) -> f32 {
-        let [c0, c1, c2] = self.corners;
-        let (e1, e2, d) = (c1 - c0, c2 - c0, y - c0);
+        // In f64: the determinant grows as an edge's fourth power (past f32 for edges of 4e9,
+        // below its range for edges of 1e-10, both within the coordinates a scene may have).
+        let [c0, c1, c2] = self.corners.map(|c| c.as_dvec3());
+        let (e1, e2, d) = (c1 - c0, c2 - c0, y.as_dvec3() - c0);
         let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
         let (d1, d2) = (d.dot(e1), d.dot(e2));
         let det = d11 * d22 - d12 * d12;
@@ -321,7 +323,7 @@ impl LightGrid {
         }
         let b1 = (d22 * d1 - d12 * d2) / det;
         let b2 = (d11 * d2 - d12 * d1) / det;
-        self.pdf_area[Self::part(self.n, b1, b2)]
+        self.pdf_area[Self::part(self.n, b1 as f32, b2 as f32)]
     }
 }
 
@@ -1132,14 +1134,15 @@ impl Lights {
             let area = mesh.tri_area[t] as f64;
             match (sides.get(&(t as u32)), textures) {
                 (Some(&n), Some(tex)) => {
-                    let map = mesh.maps[m as usize].ke.expect("a side for a mapped light");
                     let [i0, i1, i2] = mesh.triangles[t].map(|v| v as usize);
                     let uv = [mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]];
                     let radiance = (0..2 * (n * n) as usize)
                         .map(|k| {
                             if LightGrid::exists(n, k) {
                                 let b = LightGrid::corners_of(n, k);
-                                part_power(&uv, b, |u| ke * map.rgb(tex, u))
+                                // The radiance as shading sees it: capped at `MAX_KE`.
+                                let maps = &mesh.maps[m as usize];
+                                part_power(&uv, b, |u| maps.ke(ke, tex, u))
                             } else {
                                 0.0
                             }
@@ -1148,8 +1151,14 @@ impl Lights {
                     // Every part keeps a share, a thousandth of the mean (a texel between the
                     // points read may be bright): the density is positive wherever the map is.
                     let parts_n = (n * n) as f64;
-                    let floor =
-                        (1e-3 * radiance.iter().sum::<f64>() / parts_n).max(f64::MIN_POSITIVE);
+                    // Where the points read are all black, the floor is a plain light's weight
+                    // (a thousandth of it): never zero, whatever the triangle's size.
+                    let mean = radiance.iter().sum::<f64>() / parts_n;
+                    let floor = if mean > 0.0 && mean.is_finite() {
+                        1e-3 * mean
+                    } else {
+                        1e-3 * luminance(ke).max(ke.max_element() * 1e-3) as f64
+                    };
                     let part_area = area / parts_n;
                     let powers = radiance
                         .iter()
@@ -1187,6 +1196,9 @@ impl Lights {
         let mut table = Vec::new();
         let mut grids = Vec::new();
         let mut pdf_area = vec![0.0f32; mesh.triangles.len()];
+        // Per grid: its index, its parts' area, and (slot, table entry) of each part.
+        type GridParts = (usize, f64, Vec<(usize, usize)>);
+        let mut parts_of: Vec<GridParts> = Vec::new();
         for (&tri, (powers, n)) in tris.iter().zip(&parts) {
             let t = tri as usize;
             let corners = mesh.triangles[t].map(|v| mesh.positions[v as usize]);
@@ -1217,27 +1229,34 @@ impl Lights {
                 continue;
             }
             let part_area = mesh.tri_area[t] as f64 / (n * n) as f64;
-            let densities = powers
-                .iter()
-                .enumerate()
-                .map(|(k, &p)| {
-                    if p > 0.0 {
-                        push(p, part_area, Some(LightGrid::corners_of(*n, k)), &mut cdf)
-                    } else {
-                        0.0
-                    }
-                })
-                .collect();
+            let mut slots = Vec::new();
+            for (k, &p) in powers.iter().enumerate() {
+                if p > 0.0 {
+                    slots.push((k, cdf.len()));
+                    push(p, part_area, Some(LightGrid::corners_of(*n, k)), &mut cdf);
+                }
+            }
             grids.push(LightGrid {
                 n: *n,
                 corners,
-                pdf_area: densities,
+                pdf_area: vec![0.0; powers.len()],
             });
+            parts_of.push((grids.len() - 1, part_area, slots));
             pdf_area[t] = -(grids.len() as f32);
         }
         *cdf.last_mut().unwrap() = 1.0;
         if let Some(last) = table.last_mut() {
             last.width = 1.0 - last.lo;
+        }
+        // A part's density is the share of the CDF that picks it, as f32 holds it, over its
+        // area: among up to 2^18 parts a faint one's share can round to nothing (never picked)
+        // or to a step of the CDF, and `light_pdf` must say what sampling does.
+        for (g, part_area, slots) in parts_of {
+            for (k, ti) in slots {
+                let d = (table[ti].width as f64 / part_area) as f32;
+                table[ti].pdf_area = d;
+                grids[g].pdf_area[k] = d;
+            }
         }
         Lights {
             tris,

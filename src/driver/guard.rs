@@ -334,7 +334,9 @@ pub fn resolved(p: &Path) -> Option<PathBuf> {
 /// Refuse a folder a command creates (`flag`, `--checkpoint`) at the path of one of its
 /// `outputs` (a checkpoint named like a later frame made that frame's write fail at its turn).
 pub fn check_folder_apart(flag: &str, dir: &Path, outputs: &[(&str, PathBuf)]) -> Result<()> {
-    let Some(d) = resolved(dir) else {
+    // Where a path is or will be: resolved where its folder exists, else as written, absolute.
+    let place = |p: &Path| resolved(p).or_else(|| std::path::absolute(p).ok());
+    let Some(d) = place(dir) else {
         return Ok(());
     };
     if let Some((other, out)) = outputs
@@ -345,6 +347,18 @@ pub fn check_folder_apart(flag: &str, dir: &Path, outputs: &[(&str, PathBuf)]) -
             "{flag} {}: that is also where {other} {} goes; nothing was written",
             dir.display(),
             out.display()
+        );
+    }
+    // A report inside the folder: the folder (a checkpoint) is removed when the run completes,
+    // and the report, written last, found no folder after the work was done.
+    if let Some((other, out)) = outputs.iter().find(|(f, o)| {
+        matches!(*f, "--stats" | "--json") && place(&parent_dir(o)).as_ref() == Some(&d)
+    }) {
+        bail!(
+            "{other} {}: that is inside the {flag} folder {}, which the render removes when it \
+             completes; nothing was written",
+            out.display(),
+            dir.display()
         );
     }
     Ok(())

@@ -390,10 +390,13 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             );
         }
     }
-    for s in &skipped {
-        errln!("compare: skipped {s}");
-    }
+    let say_skipped = || {
+        for s in &skipped {
+            errln!("compare: skipped {s}");
+        }
+    };
     if plan.is_empty() {
+        say_skipped();
         bail!("nothing to compare: no method with a budget and a window that fits the frames");
     }
     let created = CreatedDirs::create(&opts.out)
@@ -447,6 +450,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     )?;
     // The reference is in hand: the output folder stays (a refusal until here removes it).
     created.keep();
+    say_skipped();
     errln!(
         "reference: {} spp, {} ({})",
         reference.spp,
