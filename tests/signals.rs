@@ -42,9 +42,17 @@ fn wait_for(p: &Path, what: &str) {
     }
 }
 
+/// Temporary files, probes and the locks of outputs left in `d`. (A reference cache entry's
+/// lock, `cache/.ENTRY.lock`, stays by design: a process waiting on it must find the same
+/// file when its holder is done.)
 fn leftovers(d: &Path) -> Vec<String> {
     files_under(d)
         .into_iter()
+        .filter(|p| {
+            let in_cache = p.parent().and_then(|q| q.file_name()) == Some("cache".as_ref());
+            let n = p.file_name().unwrap().to_string_lossy();
+            !(in_cache && n.starts_with('.') && n.ends_with(".lock"))
+        })
         .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
         .filter(|n| n.contains(".tmp-") || n.contains("probe") || n.ends_with(".lock"))
         .collect()
