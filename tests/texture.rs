@@ -814,26 +814,7 @@ fn a_textured_emitter_lights_in_proportion_to_its_map_and_is_sampled_by_it() {
         .collect();
     // A light sample's density is the one `light_pdf` gives its point (which weighs the hits
     // of BSDF samples against light samples): the part found again from the point.
-    let x = glam::Vec3::new(0.3, -0.2, 2.0 - 1e-3);
-    let mut sampler = reframe::sampling::Sampler::new(7, 0, 0, 0);
-    let mut checked = 0;
-    for _ in 0..2000 {
-        let Some(ls) = scene.sample_light(x, sampler.next_2d()) else {
-            continue;
-        };
-        let ray = reframe::embree::Ray::new(x, ls.wi);
-        let Some(hit) = scene.geometry.intersect1(&ray) else {
-            continue;
-        };
-        let pdf = scene.light_pdf(x, ls.p, hit.prim_id);
-        assert!(
-            (pdf / ls.pdf - 1.0).abs() < 1e-3,
-            "{pdf} against the sample's {} at {}",
-            ls.pdf,
-            ls.p
-        );
-        checked += 1;
-    }
+    let checked = light_pdf_matches_samples(&scene, glam::Vec3::new(0.3, -0.2, 2.0 - 1e-3), 2000);
     assert!(checked > 1900, "{checked}");
     let integ = Integrator::new(&scene, 1);
     let pool = thread_pool(0).unwrap();
@@ -938,25 +919,8 @@ fn a_mapped_light_is_sampled_consistently_at_any_size_and_brightness() {
         let device = Device::new().unwrap();
         let scene = Scene::load(&path, &device).unwrap();
         let x = glam::Vec3::new(0.3 * scale, -0.2 * scale, 2.0 * scale * (1.0 - 1e-4));
-        let mut sampler = reframe::sampling::Sampler::new(3, 0, 0, 0);
-        let mut checked = 0;
-        for _ in 0..500 {
-            let Some(ls) = scene.sample_light(x, sampler.next_2d()) else {
-                continue;
-            };
-            let ray = reframe::embree::Ray::new(x, ls.wi);
-            let Some(hit) = scene.geometry.intersect1(&ray) else {
-                continue;
-            };
-            let pdf = scene.light_pdf(x, ls.p, hit.prim_id);
-            assert!(
-                (pdf / ls.pdf - 1.0).abs() < 1e-3,
-                "scale {scale}, texel {texel}: {pdf} against the sample's {}",
-                ls.pdf
-            );
-            checked += 1;
-        }
-        assert!(checked > 400, "scale {scale}: {checked}");
+        let checked = light_pdf_matches_samples(&scene, x, 500);
+        assert!(checked > 400, "scale {scale}, texel {texel}: {checked}");
         let integ = Integrator::new(&scene, 1);
         let pool = thread_pool(0).unwrap();
         let px = pool
@@ -970,4 +934,29 @@ fn a_mapped_light_is_sampled_consistently_at_any_size_and_brightness() {
             "scale {scale}, texel {texel}: mean {mean}"
         );
     }
+}
+
+/// Take `n` light samples seen from `x` and check each one's density against what `light_pdf`
+/// gives its point (found again by a ray: the light's triangle); the samples checked.
+fn light_pdf_matches_samples(scene: &Scene, x: glam::Vec3, n: usize) -> usize {
+    let mut sampler = reframe::sampling::Sampler::new(7, 0, 0, 0);
+    let mut checked = 0;
+    for _ in 0..n {
+        let Some(ls) = scene.sample_light(x, sampler.next_2d()) else {
+            continue;
+        };
+        let ray = reframe::embree::Ray::new(x, ls.wi);
+        let Some(hit) = scene.geometry.intersect1(&ray) else {
+            continue;
+        };
+        let pdf = scene.light_pdf(x, ls.p, hit.prim_id);
+        assert!(
+            (pdf / ls.pdf - 1.0).abs() < 1e-3,
+            "{pdf} against the sample's {} at {}",
+            ls.pdf,
+            ls.p
+        );
+        checked += 1;
+    }
+    checked
 }
