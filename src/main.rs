@@ -157,7 +157,8 @@ fn install_signal_handler() -> Result<Arc<AtomicBool>> {
 }
 
 fn run(cli: Cli) -> Result<()> {
-    let interrupt = install_signal_handler()?;
+    let interrupt = install_signal_handler()
+        .map_err(|e| anyhow::anyhow!("{e:#}{}", reframe::util::mem::address_space_note()))?;
     match cli.command {
         Command::Render(a) => {
             let scene_name = a.scene.unwrap_or_else(|| "vase".into());

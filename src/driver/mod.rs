@@ -41,7 +41,7 @@ use crate::state::checkpoint::{Checkpointer, Counters};
 use crate::state::key::{output_stem, partial_path, scene_and_build_hashes, Chunk, RunKey};
 use crate::state::Trailer;
 use crate::util::fs::{parent_dir, remove_stale_tmp, write_json};
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use groups::{run_groups, GroupSettings};
 use indicatif::{ProgressBar, ProgressStyle};
 use run::Run;
@@ -158,7 +158,12 @@ pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
         .num_threads(threads)
         .start_handler(|_| crate::embree::set_flush_denormals())
         .build()
-        .context("creating the worker threads")
+        .map_err(|e| {
+            anyhow::anyhow!(
+                "creating the worker threads: {e}{}",
+                crate::util::mem::address_space_note()
+            )
+        })
 }
 
 pub fn progress_bar(enabled: bool, len: u64, what: &str) -> ProgressBar {
