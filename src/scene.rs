@@ -1136,24 +1136,23 @@ impl Lights {
                 (Some(&n), Some(tex)) => {
                     let [i0, i1, i2] = mesh.triangles[t].map(|v| v as usize);
                     let uv = [mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]];
-                    let radiance = (0..2 * (n * n) as usize)
+                    // The radiance as shading sees it (capped at `MAX_KE`) over each part, in
+                    // the grid's slots (`None`: no part there).
+                    let maps = &mesh.maps[m as usize];
+                    let radiance: Vec<Option<f64>> = (0..2 * (n * n) as usize)
                         .map(|k| {
-                            if LightGrid::exists(n, k) {
+                            LightGrid::exists(n, k).then(|| {
                                 let b = LightGrid::corners_of(n, k);
-                                // The radiance as shading sees it: capped at `MAX_KE`.
-                                let maps = &mesh.maps[m as usize];
                                 part_power(&uv, b, |u| maps.ke(ke, tex, u))
-                            } else {
-                                0.0
-                            }
+                            })
                         })
-                        .collect::<Vec<f64>>();
+                        .collect();
                     // Every part keeps a share, a thousandth of the mean (a texel between the
-                    // points read may be bright): the density is positive wherever the map is.
+                    // points read may be bright), so the density is positive wherever the map
+                    // is; where the points read are all black, a thousandth of a plain light's
+                    // weight: never zero, whatever the triangle's size.
                     let parts_n = (n * n) as f64;
-                    // Where the points read are all black, the floor is a plain light's weight
-                    // (a thousandth of it): never zero, whatever the triangle's size.
-                    let mean = radiance.iter().sum::<f64>() / parts_n;
+                    let mean = radiance.iter().flatten().sum::<f64>() / parts_n;
                     let floor = if mean > 0.0 && mean.is_finite() {
                         1e-3 * mean
                     } else {
@@ -1162,14 +1161,7 @@ impl Lights {
                     let part_area = area / parts_n;
                     let powers = radiance
                         .iter()
-                        .enumerate()
-                        .map(|(k, &l)| {
-                            if LightGrid::exists(n, k) {
-                                part_area * l.max(floor)
-                            } else {
-                                0.0
-                            }
-                        })
+                        .map(|l| l.map_or(0.0, |l| part_area * l.max(floor)))
                         .collect();
                     parts.push((powers, n));
                 }

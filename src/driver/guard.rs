@@ -204,22 +204,36 @@ fn check_report_off_state(flag: &str, path: &Path) -> Result<()> {
 /// The pid written in lock file `lock` where a live process holds it; `None` where it does
 /// not exist, cannot be read, or nobody holds it.
 fn held_by(lock: &Path) -> Option<String> {
+    let (f, text) = read_lock(lock)?;
+    is_held(&f).then(|| text.lines().next().unwrap_or("?").to_string())
+}
+
+/// Lock file `path` opened (not followed if a link, not waited on if a FIFO) and its text
+/// (empty where it cannot be read as text): `None` where it is missing or not a regular file.
+fn read_lock(path: &Path) -> Option<(File, String)> {
     use std::os::unix::fs::OpenOptionsExt;
     let mut f = std::fs::OpenOptions::new()
         .read(true)
         .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
-        .open(lock)
+        .open(path)
         .ok()?;
     if !f.metadata().ok()?.is_file() {
         return None;
     }
+    let mut text = String::new();
+    if (&mut f).take(1 << 16).read_to_string(&mut text).is_err() {
+        text.clear();
+    }
+    Some((f, text))
+}
+
+/// Whether a live process holds lock file `f`: a moment's lock here to find out.
+fn is_held(f: &File) -> bool {
     if f.try_lock().is_ok() {
         let _ = f.unlock();
-        return None;
+        return false;
     }
-    let mut text = String::new();
-    let _ = (&mut f).take(1 << 16).read_to_string(&mut text);
-    Some(text.lines().next().unwrap_or("?").to_string())
+    true
 }
 
 /// The first lock file in the folder of `beside` (other than `beside` itself, where that is a
@@ -231,7 +245,6 @@ fn live_frames_lock<T>(
     beside: &Path,
     mut matches: impl FnMut(&OutputPattern, &RangeInclusive<u32>) -> Option<T>,
 ) -> Option<(T, String)> {
-    use std::os::unix::fs::OpenOptionsExt;
     let entries = std::fs::read_dir(parent_dir(beside)).ok()?;
     let own_name = beside.file_name();
     for e in entries.flatten() {
@@ -243,17 +256,9 @@ fn live_frames_lock<T>(
         {
             continue;
         }
-        let Ok(mut f) = std::fs::OpenOptions::new()
-            .read(true)
-            .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
-            .open(e.path())
-        else {
+        let Some((f, text)) = read_lock(&e.path()) else {
             continue;
         };
-        let mut text = String::new();
-        if (&mut f).take(1 << 16).read_to_string(&mut text).is_err() {
-            continue;
-        }
         let Some((pid, what, theirs)) = parse_holder(&text) else {
             continue;
         };
@@ -263,9 +268,7 @@ fn live_frames_lock<T>(
         let Some(found) = matches(&pattern, &theirs) else {
             continue;
         };
-        // Live only while its holder holds it; a moment's lock here to find out.
-        if f.try_lock().is_ok() {
-            let _ = f.unlock();
+        if !is_held(&f) {
             continue;
         }
         let holder = format!(

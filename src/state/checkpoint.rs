@@ -252,39 +252,30 @@ impl Checkpointer {
                     }
                 }
                 resumed = Some(Resumed { trailer: t, active });
-            } else if let (true, Some(c)) = (resume, template.chunk) {
+            } else if resume {
                 // A chunk that finished has no checkpoint, but its partial file: with --resume
                 // (which the Slurm scripts always pass) it is not rendered again.
-                let partial = partial_path(&template.out, c);
-                if let Ok(sf) = StateFile::open(&partial) {
-                    let t = &sf.trailer;
-                    if t.kind == Kind::Partial
-                        && t.key.difference(&template.key).is_none()
-                        && t.chunk == template.chunk
-                        && t.units == template.units
-                        && t.next_unit == template.units[1] + 1
-                    {
-                        return Err(ChunkComplete {
-                            chunk: c.to_string(),
-                            partial,
+                if let Some(c) = template.chunk {
+                    let partial = partial_path(&template.out, c);
+                    if let Ok(sf) = StateFile::open(&partial) {
+                        let t = &sf.trailer;
+                        if t.kind == Kind::Partial
+                            && t.key.difference(&template.key).is_none()
+                            && t.chunk == template.chunk
+                            && t.units == template.units
+                            && t.next_unit == template.units[1] + 1
+                        {
+                            return Err(ChunkComplete {
+                                chunk: c.to_string(),
+                                partial,
+                            }
+                            .into());
                         }
-                        .into());
                     }
                 }
                 errln!(
                     "note: no checkpoint in {}: starting from the beginning",
                     crate::util::text::printable(&d.display().to_string())
-                );
-            } else if resume {
-                errln!(
-                    "note: no checkpoint in {}: starting from the beginning",
-                    crate::util::text::printable(&d.display().to_string())
-                );
-            }
-            if d.exists() && !d.is_dir() {
-                bail!(
-                    "--checkpoint {}: that is a file, not a folder (the checkpoint is a folder)",
-                    d.display()
                 );
             }
             if !d.exists() {
