@@ -452,14 +452,11 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
                 ffi::write_f32(tmp_str, &desc, &img.data, &attrs)
             }
         }
-        FileKind::FloatRgb => {
-            let rgb = first_three(img)?;
-            let desc = rgb_desc(img, ffi::PixelType::Float);
-            ffi::write_f32(tmp_str, &desc, &rgb, &attrs)
-        }
-        FileKind::Rgbe => {
+        FileKind::FloatRgb | FileKind::Rgbe => {
             let mut rgb = first_three(img)?;
-            round_for_rgbe(&mut rgb);
+            if kind == FileKind::Rgbe {
+                round_for_rgbe(&mut rgb);
+            }
             let desc = rgb_desc(img, ffi::PixelType::Float);
             ffi::write_f32(tmp_str, &desc, &rgb, &attrs)
         }
