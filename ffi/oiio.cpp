@@ -365,14 +365,14 @@ int count_subimages(const std::string& p, const OIIO::ImageSpec& config, const c
 
 std::unique_ptr<ImageReader> open_reader(rust::Slice<const uint8_t> path) {
     const std::string p = path_string(path);
+    // Colours as the file stores them: OIIO would multiply a PNG's or TGA's colour by its
+    // alpha (associate it), darkening a texture wherever it is partly transparent, and a mask
+    // read from a colour channel with it.
+    OIIO::ImageSpec config;
+    config.attribute("oiio:UnassociatedAlpha", 1);
     std::unique_ptr<OIIO::ImageInput> in;
     {
         QuietStderr quiet;
-        // Colours as the file stores them: OIIO would multiply a PNG's or TGA's colour by its
-        // alpha (associate it), darkening a texture wherever it is partly transparent, and a
-        // mask read from a colour channel with it.
-        OIIO::ImageSpec config;
-        config.attribute("oiio:UnassociatedAlpha", 1);
         in = OIIO::ImageInput::open(p, &config);
     }
     if (!in) {
@@ -382,8 +382,6 @@ std::unique_ptr<ImageReader> open_reader(rust::Slice<const uint8_t> path) {
     if (spec.deep || spec.depth > 1 || spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0) {
         throw std::runtime_error("not a flat 2D image");
     }
-    OIIO::ImageSpec config;
-    config.attribute("oiio:UnassociatedAlpha", 1);
     const int subimages = count_subimages(p, config, in->format_name());
     return std::make_unique<ImageReader>(std::move(in), subimages);
 }
