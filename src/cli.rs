@@ -385,10 +385,14 @@ pub fn render_summary(stats: &reframe::driver::RenderStats) -> String {
 }
 
 /// `wrote FIRST .. LAST` (or `wrote FILE`) for the files a command wrote.
+/// A line break in a file's name is shown as an escape (`\u{a}`), as the other control
+/// characters are (`printable`, which turns a message's own line breaks into spaces): shown as a
+/// space, the name read as another file's.
 pub fn wrote(files: &[String]) -> String {
+    let name = |f: &String| f.replace('\n', "\\u{a}");
     match files {
         [] => "wrote nothing".into(),
-        [one] => format!("wrote {one}"),
-        [first, .., last] => format!("wrote {first} .. {last}"),
+        [one] => format!("wrote {}", name(one)),
+        [first, .., last] => format!("wrote {} .. {}", name(first), name(last)),
     }
 }

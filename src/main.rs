@@ -49,6 +49,21 @@ fn main() {
     if reframe::util::mem::address_space_limited() {
         reframe::sys::limit_malloc_arenas(2);
     }
+    // clap refuses an argument that is not UTF-8 without saying which: say it, and what to do
+    // (paths travel as text through the output patterns and the state files' keys).
+    if let Some((k, arg)) = std::env::args_os()
+        .enumerate()
+        .skip(1)
+        .find(|(_, a)| a.to_str().is_none())
+    {
+        errln!(
+            "error: argument {k} ('{}', its bytes that are not UTF-8 shown as \u{fffd}) is not UTF-8 \
+             text: reframe takes file names and patterns in UTF-8; rename the file (for example \
+             `convmv -f latin1 -t utf8 FILE`) or link it under a UTF-8 name (see --help)",
+            printable(&arg.to_string_lossy())
+        );
+        std::process::exit(2);
+    }
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) if !e.use_stderr() => e.exit(), // --help, --version

@@ -650,6 +650,7 @@ impl Scene {
                     inputs: objs.into_iter().chain(mtls).collect(),
                     // Its positions are given from its anchor: that is the scene's origin.
                     origin: anchor,
+                    notes: Vec::new(),
                 }
             }
             (None, Some(list)) if !list.is_empty() => {
@@ -673,6 +674,7 @@ impl Scene {
             instances,
             inputs: object_inputs,
             origin,
+            notes: object_notes,
         } = loaded;
         let (width, height, cameras) = if origin == DVec3::ZERO {
             first_cameras?
@@ -751,6 +753,7 @@ impl Scene {
         };
         let offset_floor = offset_floor(lo, hi);
         let mut warnings = repairs.into_warnings();
+        warnings.extend(object_notes);
         if lights.black_maps > 0 && !lights.tris.is_empty() {
             warnings.push(format!(
                 "{obj_label}: {} triangle(s) of materials with a positive Ke have an emission \
@@ -1773,6 +1776,8 @@ struct Objects {
     /// `Scene::origin`: the geometry is given from it, moved in f64 before its positions were
     /// rounded to f32 (by the OBJ's anchor, or by the placements).
     origin: DVec3,
+    /// Warnings of the placements (not repairs: `--strict` keeps them).
+    notes: Vec<String>,
 }
 
 /// The `[[object]]` tables of scene file `label` (text `text`, in folder `dir`): each OBJ read
@@ -1853,6 +1858,7 @@ fn load_objects(
     let mut own = objects::empty();
     let mut prototypes = Vec::new();
     let mut instances = Vec::new();
+    let mut notes = Vec::new();
     for ((_, at, placements), (mesh, anchor)) in groups.iter().zip(meshes) {
         // From the OBJ's anchor to the file's space, placed, then to the render's origin (no
         // product where both are zero: the matrices as given, to the bit).
@@ -1869,6 +1875,18 @@ fn load_objects(
             .tri_material
             .iter()
             .any(|&m| mesh.materials[m as usize].is_emissive());
+        // A mirror turns the counter-clockwise side over, and a light emits from that side (as in
+        // Mitsuba 3, whose OBJ reader also takes the winding after the transform): a lamp
+        // mirrored to make a symmetric copy shines the other way, which is easy to miss.
+        let mirrored = placements.iter().filter(|m| m.determinant() < 0.0).count();
+        if emits && mirrored > 0 {
+            notes.push(format!(
+                "{at}: placed mirrored (a transform of negative determinant) {mirrored} time(s), and \
+                 it emits: a mirror turns the emitting (counter-clockwise) side of its triangles \
+                 over, so those lights shine the other way than a mirror image of the OBJ's; if \
+                 a light goes dark, turn its faces around in the OBJ or place it unmirrored"
+            ));
+        }
         if placements.len() == 1 || emits {
             // Each copy is a mesh of its own in memory (its vertices, its triangles' records,
             // Embree's build, a light's table entries): refused in one line before the copies
@@ -1905,6 +1923,7 @@ fn load_objects(
         instances,
         inputs,
         origin,
+        notes,
     })
 }
 

@@ -239,6 +239,45 @@ fn usage_errors_are_one_line_that_says_what_is_missing() {
 }
 
 #[test]
+fn an_argument_that_is_not_utf8_is_named() {
+    // A Latin-1 file name from an old archive: clap's line said only "invalid UTF-8 was
+    // detected in one or more arguments".
+    use std::os::unix::ffi::OsStrExt;
+    let name = std::ffi::OsStr::from_bytes(b"sc\xe9ne.toml");
+    let args = [std::ffi::OsStr::new("render"), name];
+    let line = refusal(&run_reframe(&args, Duration::from_secs(60))).unwrap();
+    assert!(
+        line.starts_with("error: argument 2 ('sc\u{fffd}ne.toml'") && line.contains("is not UTF-8"),
+        "{line}"
+    );
+}
+
+#[test]
+fn a_line_break_in_a_frame_name_is_shown_escaped() {
+    // Shown as a space, the name read as another file's.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("f\n_####.png");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
+        .args([
+            "render", "cornell", "--res", "8x6", "--spp", "1", "--frames", "0-1",
+        ])
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8(o.stdout).unwrap();
+    let dir = tmp.path().display();
+    assert!(
+        stdout.contains(&format!(
+            "wrote {dir}/f\\u{{a}}_0000.png .. {dir}/f\\u{{a}}_0001.png"
+        )),
+        "{stdout}"
+    );
+    assert!(tmp.path().join("f\n_0001.png").exists());
+}
+
+#[test]
 fn an_output_name_too_long_for_its_temporary_file_is_refused_before_rendering() {
     // 245 bytes fit a file name, but not the temporary name a frame is written under first:
     // the first frame failed after its rendering, leaving an empty checkpoint folder.

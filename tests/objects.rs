@@ -278,6 +278,67 @@ fn an_emitting_object_placed_twice_is_two_lights() {
 }
 
 #[test]
+fn a_mirrored_emitting_placement_turns_its_light_over_and_says_so() {
+    // A mirror turns the counter-clockwise side over (as Mitsuba 3 takes an OBJ's winding after
+    // its transform): a lamp facing down, mirrored in x, faces up, and loading says so once per
+    // emitting OBJ placed mirrored; a mirrored object that does not emit is not warned of.
+    let d = tempfile::tempdir().unwrap();
+    let lamp = "mtllib s.mtl\nv -0.2 0 -0.2\nv 0.2 0 -0.2\nv 0.2 0 0.2\nv -0.2 0 0.2\n\
+                usemtl light\nf 1 2 3 4\n";
+    let floor = "mtllib s.mtl\nv -4 -0.5 -4\nv 4 -0.5 -4\nv 4 -0.5 4\nv -4 -0.5 4\n\
+                 usemtl floor\nf 1 4 3 2\n";
+    let mtl = "newmtl light\nKe 5 5 5\nnewmtl floor\nKd 0.5 0.5 0.5\n";
+    let device = Device::new().unwrap();
+    for (lamp_scale, floor_scale, warned, lit_below) in [
+        ("[1, 1, 1]", "[-1, 1, 1]", false, true),
+        ("[-1, 1, 1]", "[1, 1, 1]", true, false),
+        // Two mirrors are a rotation (180 degrees about x): it faces up, as turned, unwarned.
+        ("[1, -1, -1]", "[1, 1, 1]", false, false),
+    ] {
+        let objects = format!(
+            "[[object]]\nobj = \"floor.obj\"\nscale = {floor_scale}\n\
+             [[object]]\nobj = \"lamp.obj\"\ntranslate = [0, 2, 0]\nscale = {lamp_scale}\n"
+        );
+        let path = write(
+            d.path(),
+            &[
+                ("lamp.obj", lamp),
+                ("floor.obj", floor),
+                ("s.mtl", mtl),
+                (
+                    "s.toml",
+                    &toml(&objects).replace("[environment]\nradiance = [0.6, 0.7, 0.9]\n", ""),
+                ),
+            ],
+        );
+        let s = Scene::load(&path, &device).unwrap();
+        let mirrored: Vec<&String> = s
+            .warnings
+            .iter()
+            .filter(|w| w.contains("placed mirrored"))
+            .collect();
+        assert_eq!(
+            mirrored.len(),
+            warned as usize,
+            "{lamp_scale}: {:?}",
+            s.warnings
+        );
+        if warned {
+            assert!(mirrored[0].contains("object 'lamp.obj'"), "{}", mirrored[0]);
+        }
+        // Which side the lamp lights: a point below it, and one above.
+        let lit = |p: Vec3| {
+            (0..64).any(|k| {
+                let u = Vec2::new((k as f32 + 0.5) / 64.0, 0.3);
+                s.sample_light(p, u).is_some_and(|ls| ls.le != Vec3::ZERO)
+            })
+        };
+        assert_eq!(lit(Vec3::new(0.0, -0.5, 0.0)), lit_below, "{lamp_scale}");
+        assert_eq!(lit(Vec3::new(0.0, 3.0, 0.0)), !lit_below, "{lamp_scale}");
+    }
+}
+
+#[test]
 fn object_tables_are_checked() {
     let d = tempfile::tempdir().unwrap();
     let floor = "v -4 -0.5 -4\nv 4 -0.5 -4\nv 4 -0.5 4\nv -4 -0.5 4\nf 1 4 3 2\n";

@@ -447,6 +447,19 @@ fn a_killed_chunk_resumes_and_merges_identically() {
     assert!(!o.status.success());
     let mut resume = chunk(1);
     resume.push("--resume".into());
+    // The log moved away: the resume says it is missing (it said "shorter than its checkpoint
+    // says", of a file that was not there), and goes ahead once it is back.
+    let aside = sub.join("log-aside");
+    std::fs::rename(&log, &aside).unwrap();
+    let o = reframe().args(&resume).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.code() == Some(1)
+            && err.contains("the chunk log is missing, but its checkpoint says it holds"),
+        "{err}"
+    );
+    assert!(!log.exists(), "the refusal made no log");
+    std::fs::rename(&aside, &log).unwrap();
     // A record the checkpoint counts, damaged in the log since: the resume refuses it (the
     // frames in the log are not rendered again), and goes ahead once it is whole again.
     let mut bytes = std::fs::read(&log).unwrap();

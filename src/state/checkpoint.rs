@@ -291,6 +291,16 @@ impl Checkpointer {
             None => None,
             Some(p) => {
                 let lp = log_path(p);
+                let log_len = resumed.as_ref().map_or(0, |r| r.trailer.log_len);
+                if log_len > 0 && std::fs::symlink_metadata(&lp).is_err() {
+                    bail!(
+                        "{}: the chunk log is missing, but its checkpoint says it holds {} \
+                         finished frame(s); put it back, or delete the checkpoint to start the \
+                         chunk over",
+                        lp.display(),
+                        resumed.as_ref().map_or(0, |r| r.trailer.log_records.len())
+                    );
+                }
                 // As the lock file is opened (a link planted there to the scene's OBJ had the
                 // OBJ overwritten; a FIFO blocked the open).
                 let f = open_own_file(&lp, "the chunk log")?;

@@ -24,7 +24,7 @@ pub struct Outcome {
 }
 
 /// Run `reframe` with `args`, killing it after `limit`.
-pub fn run_reframe(args: &[String], limit: Duration) -> Outcome {
+pub fn run_reframe<S: AsRef<std::ffi::OsStr>>(args: &[S], limit: Duration) -> Outcome {
     let mut child = Command::new(env!("CARGO_BIN_EXE_reframe"))
         .args(args)
         .stdin(Stdio::null())
