@@ -601,19 +601,49 @@ fn a_textured_reflectance_is_clamped_after_the_product() {
         |_, _| Vec3::new(1.6, 0.3, 1.2),
         true,
     );
+    // And a dark texture under constants whose sum passes 1 (Blender's Kd 0.8 + Ks 0.5 with a
+    // map_Kd): the texel is taken first and the pair is within 1, so nothing is scaled (the
+    // constants were scaled at load as if the texel were white: a fifth dark, in both lobes).
+    write_texture(
+        &tmp.path().join("dark.exr"),
+        4,
+        |_, _| Vec3::new(0.25, 0.5, 0.1),
+        true,
+    );
     let device = Device::new().unwrap();
     let lamp = "v -1 -1 3\nv 1 -1 3\nv 0 1 3\nusemtl lamp\nf 5 7 6\n";
-    for (kd, ks, want_kd, want_ks) in [
-        (0.5, 0.2, Vec3::new(0.8, 0.15, 0.6), Vec3::splat(0.2)),
+    for (kd, ks, map, want_kd, want_ks) in [
+        (
+            0.5,
+            0.2,
+            "map_Kd t.exr",
+            Vec3::new(0.8, 0.15, 0.6),
+            Vec3::splat(0.2),
+        ),
         (
             0.7,
             0.2,
+            "map_Kd t.exr",
             Vec3::new(1.0, 0.21, 0.84) / 1.2,
             Vec3::splat(0.2 / 1.2),
         ),
+        (
+            0.8,
+            0.5,
+            "map_Kd dark.exr",
+            Vec3::new(0.2, 0.4, 0.08),
+            Vec3::splat(0.5),
+        ),
+        (
+            0.5,
+            1.0,
+            "map_Ks dark.exr",
+            Vec3::splat(0.5),
+            Vec3::new(0.25, 0.5, 0.1),
+        ),
     ] {
         let mtl = format!(
-            "newmtl q\nKd {kd} {kd} {kd}\nKs {ks} {ks} {ks}\nNs 20\nmap_Kd t.exr\n\
+            "newmtl q\nKd {kd} {kd} {kd}\nKs {ks} {ks} {ks}\nNs 20\n{map}\n\
              newmtl lamp\nKd 0 0 0\nKe 1 1 1\n"
         );
         let scene = write_scene(
@@ -629,7 +659,7 @@ fn a_textured_reflectance_is_clamped_after_the_product() {
         assert!(
             (m.kd - want_kd).abs().max_element() < 1e-5
                 && (m.ks - want_ks).abs().max_element() < 1e-5,
-            "Kd {kd} Ks {ks}: got Kd {} Ks {}, want {want_kd} {want_ks}",
+            "Kd {kd} Ks {ks} {map}: got Kd {} Ks {}, want {want_kd} {want_ks}",
             m.kd,
             m.ks
         );

@@ -285,7 +285,13 @@ impl MtlMaterial {
         let name = &self.name;
         // In f64: Kd + Ks of two values near f32::MAX is not finite in f32.
         let sum = kd.as_dvec3() + ks.as_dvec3();
-        if sum.max_element() > 1.0 + 1e-6 {
+        // A lobe with a map is the constant times the texel, and the pair is scaled where that
+        // passes 1, point by point (`Maps::apply`): scaled here too, a textured material was
+        // darkened as if every texel were white (Blender's `Kd 0.8` + `Ks 0.5` + `map_Kd`, a
+        // fifth dark in both lobes where the texture is dark, against Mitsuba 3).
+        let textured =
+            self.maps[Slot::Kd as usize].is_some() || self.maps[Slot::Ks as usize].is_some();
+        if !textured && sum.max_element() > 1.0 + 1e-6 {
             // Scale both lobes by one factor, so that the largest channel's sum is 1: the
             // colours of both lobes are kept (per channel, a red diffuse under a white Ks 0.5,
             // as Blender exports it, got a cyan highlight).
@@ -293,16 +299,11 @@ impl MtlMaterial {
             let (kd0, ks0) = (kd, ks);
             kd = (kd.as_dvec3() * scale).as_vec3();
             ks = (ks.as_dvec3() * scale).as_vec3();
-            // A colour the file does not give is said to be the map's.
-            let given = |v: Option<(Vec3, usize)>, c: Vec3, map: &str| match v {
-                Some(_) => rgb(c),
-                None => format!("{} (map_{map} without {map})", rgb(c)),
-            };
             repairs.note(label, self.line, ENERGY, || {
                 format!(
                     "material '{name}': Kd {} + Ks {} became Kd {} + Ks {}",
-                    given(self.kd, kd0, "Kd"),
-                    given(self.ks, ks0, "Ks"),
+                    rgb(kd0),
+                    rgb(ks0),
                     rgb(kd),
                     rgb(ks)
                 )
