@@ -243,6 +243,18 @@ impl RenderOptions {
                 self.window
             );
         }
+        // A pixel's adaptive count (its `--spp` and its top-up, at most `n_f` times `--spp`) is
+        // held in 16 bits (a count per pixel of every frame of a group): 65536 wrapped to 0, and
+        // the pixels that see no surface rendered black.
+        if self.adaptive.is_some() && self.spp as u64 * self.window as u64 > u16::MAX as u64 {
+            bail!(
+                "--adaptive with --spp {} and --window {}: at most {} native samples per pixel \
+                 per group (--spp times --window) with adaptive counts",
+                self.spp,
+                self.window,
+                u16::MAX
+            );
+        }
         check_threads(self.threads)?;
         check_max_depth(self.max_depth)?;
         self.check_memory((w, h), crate::util::mem::available_bytes())?;

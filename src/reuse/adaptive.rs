@@ -41,7 +41,9 @@ pub fn adaptive_counts(
             let (x0, y0, x1, y1) = tile_list[t];
             let cam_m = group[m].cam;
             let mut rays = RayCounts::default();
-            let mut out = vec![spp as u16; ((x1 - x0) * (y1 - y0)) as usize];
+            // `RenderOptions::validate` keeps `n_f * spp` (the most a pixel gets) within a u16.
+            let base = u16::try_from(spp).expect("adaptive spp fits 16 bits");
+            let mut out = vec![base; ((x1 - x0) * (y1 - y0)) as usize];
             for by in (y0..y1).step_by(PILOT_BLOCK as usize) {
                 for bx in (x0..x1).step_by(PILOT_BLOCK as usize) {
                     let (ex, ey) = ((bx + PILOT_BLOCK).min(x1), (by + PILOT_BLOCK).min(y1));
@@ -71,7 +73,7 @@ pub fn adaptive_counts(
                         }
                     }
                     let n = spp + (full - expected).floor().clamp(0.0, cap) as u32;
-                    let n = n.min(u16::MAX as u32) as u16;
+                    let n = u16::try_from(n).expect("adaptive counts fit 16 bits");
                     for y in by..ey {
                         for x in bx..ex {
                             out[((y - y0) * (x1 - x0) + x - x0) as usize] = n;
