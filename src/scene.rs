@@ -2061,7 +2061,15 @@ fn ignoring_case(dir: &Path, rel: &str) -> Option<PathBuf> {
             at = exact;
             continue;
         }
-        let mut found = std::fs::read_dir(&at)
+        // The folder of a bare file name (`s.mtl`, the scene given as `s.toml`) is the empty
+        // path, which `read_dir` cannot list: it is the working folder. The name found is
+        // joined to `at`, so that a path stays as relative as it was given.
+        let listed = if at.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            at.as_path()
+        };
+        let mut found = std::fs::read_dir(listed)
             .ok()?
             .filter_map(|e| e.ok())
             .filter(|e| {
@@ -2073,7 +2081,7 @@ fn ignoring_case(dir: &Path, rel: &str) -> Option<PathBuf> {
         if found.next().is_some() {
             return None;
         }
-        at = one.path();
+        at = at.join(one.file_name());
     }
     Some(at).filter(|p| p.is_file())
 }

@@ -238,6 +238,42 @@ fn usage_errors_are_one_line_that_says_what_is_missing() {
     }
 }
 
+/// The corpus runs every case by its absolute path; names in another case are found from the
+/// scene's own folder too, named by a bare file name (`reframe render s.toml`, the usual way):
+/// the folder of `s.mtl` is then the empty path, which could not be listed, and both the map
+/// and the MTL were "no file" (the light's MTL missed, "the scene has no light").
+#[test]
+fn names_in_another_case_are_found_from_the_scenes_own_folder() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    for from in [
+        corpus().join("base"),
+        corpus().join("cases/tex-case-mismatch"),
+    ] {
+        for f in files_under(&from) {
+            let rel = f.strip_prefix(&from).unwrap();
+            if rel != Path::new("case.toml") {
+                std::fs::create_dir_all(d.join(rel).parent().unwrap()).unwrap();
+                std::fs::copy(&f, d.join(rel)).unwrap();
+            }
+        }
+    }
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
+        .current_dir(d)
+        .args(["render", "s.toml", "--spp", "1", "--threads", "1"])
+        .args(["--res", "16x12", "--out", "out/f_####.png"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    for want in [
+        "s.obj: line 1: 'mtllib Mats/S.MTL': found 'mats/s.mtl'",
+        "mats/s.mtl: line 3: 'map_Kd Textures/Wood.PNG': found 'mats/textures/wood.png'",
+    ] {
+        assert!(err.contains(want), "{want}: {err}");
+    }
+}
+
 #[test]
 fn an_argument_that_is_not_utf8_is_named() {
     // A Latin-1 file name from an old archive: clap's line said only "invalid UTF-8 was
