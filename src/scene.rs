@@ -1718,6 +1718,15 @@ fn load_environment(
                     )
                 })?;
             }
+            if !layout.layers.is_empty() {
+                repairs.note(label, table_line, maps::MULTI_LAYER, || {
+                    format!(
+                        "environment image '{}': {}",
+                        quote(img.get_ref()),
+                        maps::layers_read(&layout.layers)
+                    )
+                })?;
+            }
             let at = format!("{at}: environment image {}", path.display());
             let (width, height) = (image.width, image.height);
             // 2:1 within a pixel or 1% (4000 x 2001 is a lat-long map rounded).

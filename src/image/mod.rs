@@ -857,6 +857,17 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
     if rgb.iter().any(Option::is_some) {
         return Ok(Colour::Rgb(rgb));
     }
+    // A multi-layer EXR (Blender's MultiLayer output, a compositor's AOVs): the channels of
+    // the layer `colour_layers` picks, never the first three across layers (the AO pass read
+    // for the Combined one, or a depth channel mixed with a colour's red and green).
+    if let Some(layer) = colour_layers(names).first() {
+        let find = |c: &str| {
+            names
+                .iter()
+                .position(|n| layer_of(n) == Some((layer.as_str(), c)))
+        };
+        return Ok(Colour::Rgb(["R", "G", "B"].map(find)));
+    }
     // Printers' inks (a CMYK TIFF as OpenImageIO hands it over: C, M, Y, K, or ink0..), whose
     // first three read as RGB would turn red into cyan, and whose Y is yellow, not grey.
     let cmyk = ["C", "M", "Y", "K"].iter().all(|c| find(c).is_some());
@@ -870,6 +881,19 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
     if let Some(y) = find("Y") {
         return Ok(Colour::Grey(y));
     }
+    // Layers, none with colour: the first layer's own channels, not three across layers.
+    let first_layer: Vec<String>;
+    let names = match names.first().and_then(|n| layer_of(n)) {
+        Some((layer, _)) if names.len() > 1 => {
+            first_layer = names
+                .iter()
+                .take_while(|n| layer_of(n).is_some_and(|(l, _)| l == layer))
+                .cloned()
+                .collect();
+            &first_layer[..]
+        }
+        _ => names,
+    };
     match names {
         [] => bail!("the image has no channels"),
         [a, ..] if a == "A" && names.len() <= 2 => bail!(
@@ -879,6 +903,39 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
         [_] | [_, _] => Ok(Colour::Grey(0)),
         _ => Ok(Colour::Rgb([Some(0), Some(1), Some(2)])),
     }
+}
+
+/// A layered channel name (`ViewLayer.Combined.R`, as OpenEXR names the channels of a
+/// layer): its layer and its own name, split at the last dot; `None` for a name of no layer.
+fn layer_of(name: &str) -> Option<(&str, &str)> {
+    name.rsplit_once('.')
+        .filter(|(l, c)| !l.is_empty() && !c.is_empty())
+}
+
+/// The layers of a file's channels (`names`) that hold colour (a channel named R, G or B in
+/// the layer), the one a colour is read from first: a layer named Combined (Blender's beauty
+/// pass, `ViewLayer.Combined`), else one named beauty, rgba, rgb, color or colour (another
+/// program's), else the first in the file's order. Empty where no layer holds colour.
+pub fn colour_layers(names: &[String]) -> Vec<String> {
+    let mut layers: Vec<String> = Vec::new();
+    for n in names {
+        if let Some((layer, c)) = layer_of(n) {
+            if matches!(c, "R" | "G" | "B") && !layers.iter().any(|l| l == layer) {
+                layers.push(layer.to_string());
+            }
+        }
+    }
+    let rank = |l: &String| {
+        let last = l.rsplit('.').next().unwrap_or(l).to_ascii_lowercase();
+        match last.as_str() {
+            "combined" => 0,
+            "beauty" | "rgba" | "rgb" | "color" | "colour" => 1,
+            _ => 2,
+        }
+    };
+    // Stable: the file's order within a rank.
+    layers.sort_by_key(rank);
+    layers
 }
 
 /// Whether a colour file's values are sRGB-encoded, from the colour space the file names
@@ -946,13 +1003,28 @@ pub fn images_in_words(n: u32) -> String {
 
 /// How a colour input's file holds its colour: in which channels (`colour_channels`), and
 /// whether they are sRGB-encoded (OIIO's `oiio:ColorSpace`).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct ColourLayout {
     pub colour: Colour,
     pub srgb: bool,
     /// The images the file holds (a multi-part EXR's parts, OIIO's subimages); the first is
     /// the one read.
     pub parts: u32,
+    /// The layers of colour the file holds where it holds more than one (a multi-layer EXR), the
+    /// one read first (`colour_layers`); empty otherwise.
+    pub layers: Vec<String>,
+}
+
+/// The layers of colour of channels `names` where there are several (`ColourLayout::layers`),
+/// unless the file's unlayered R, G or B is its colour.
+fn several_layers(names: &[String]) -> Vec<String> {
+    let plain = names.iter().any(|n| matches!(n.as_str(), "R" | "G" | "B"));
+    let layers = colour_layers(names);
+    if plain || layers.len() < 2 {
+        Vec::new()
+    } else {
+        layers
+    }
 }
 
 /// `read_linear_rgb`, and how the file held the colour (for a lookup that reads the file's own
@@ -970,11 +1042,7 @@ pub fn read_colour(
             .find(|a| a.name.eq_ignore_ascii_case("oiio:ColorSpace"))
             .map(|a| a.text.as_str());
         let srgb = srgb_encoded(space, info.integer, &info.format_name);
-        let parts = attrs
-            .iter()
-            .find(|a| a.name == "oiio:subimages")
-            .map_or(1, |a| a.int_value.max(1) as u32)
-            .max(info.images);
+        let parts = parts_of(&reader, &info);
         let nch = info.channels.len();
         let colour = colour_channels(&info.channels)?;
         let pick = colour.indices();
@@ -1014,6 +1082,7 @@ pub fn read_colour(
                 colour,
                 srgb,
                 parts,
+                layers: several_layers(&info.channels),
             },
         ))
     };
@@ -1027,7 +1096,20 @@ pub fn read_colour(
 /// (`true`: named by `-imfchan`, an alpha or a grey channel, or an image of one or two
 /// channels) rather than the first channel of a colour image without alpha.
 pub fn mask_source(names: &[String], imfchan: Option<char>) -> Result<(usize, bool)> {
-    let find = |c: &str| names.iter().position(|n| n == c);
+    // A channel by its name, else (a multi-layer EXR) that channel of the layer a colour is
+    // read from (`colour_layers`), else of the first layer that has it: Blender's alpha is
+    // `ViewLayer.Combined.A`, and the first channel was its AO pass's red.
+    let layers = colour_layers(names);
+    let find = |c: &str| {
+        names.iter().position(|n| n == c).or_else(|| {
+            let in_layer = |layer: &str| names.iter().position(|n| layer_of(n) == Some((layer, c)));
+            layers.first().and_then(|l| in_layer(l)).or_else(|| {
+                names
+                    .iter()
+                    .position(|n| layer_of(n).is_some_and(|(_, k)| k == c))
+            })
+        })
+    };
     if names.is_empty() {
         bail!("the image has no channels");
     }
@@ -1053,17 +1135,40 @@ pub fn mask_source(names: &[String], imfchan: Option<char>) -> Result<(usize, bo
     Ok((channel, coverage))
 }
 
+/// Where a cut-out mask's file holds its coverage (`read_mask`).
+#[derive(Clone, Debug)]
+pub struct MaskLayout {
+    /// The channel read (its index in the file), and whether it holds a coverage
+    /// (`mask_source`).
+    pub channel: usize,
+    pub coverage: bool,
+    /// As `ColourLayout`'s: the images the file holds, and its layers of colour where several.
+    pub parts: u32,
+    pub layers: Vec<String>,
+}
+
+/// The images a file holds, from its reader's attributes (`oiio:subimages`, which OIIO sets for
+/// some formats) and the count `open_input_image` took.
+fn parts_of(reader: &ffi::ImageReader, info: &ffi::ImageInfo) -> u32 {
+    reader
+        .attributes()
+        .iter()
+        .find(|a| a.name == "oiio:subimages")
+        .map_or(1, |a| a.int_value.max(1) as u32)
+        .max(info.images)
+}
+
 /// Reads a cut-out mask: the channel `mask_source` picks, as the file holds it (coverage is
 /// not a colour: an 8-bit file's codes / 255, never decoded from sRGB), as a one-channel image
-/// named `A`, that channel's index in the file, and whether it holds a coverage
-/// (`mask_source`). Refused as `read_colour` refuses.
+/// named `A`, and where the file held it (`MaskLayout`). Refused as `read_colour` refuses.
 pub fn read_mask(
     path: &Path,
     max_pixels: u64,
     imfchan: Option<char>,
-) -> Result<(Image, usize, bool)> {
-    let read = || -> Result<(Image, usize, bool)> {
+) -> Result<(Image, MaskLayout)> {
+    let read = || -> Result<(Image, MaskLayout)> {
         let (mut reader, info, pixels) = open_input_image(path, max_pixels)?;
+        let parts = parts_of(&reader, &info);
         let nch = info.channels.len();
         let (channel, coverage) = mask_source(&info.channels, imfchan)?;
         let need = pixels * (4 * nch as u64 + 4);
@@ -1075,7 +1180,13 @@ pub fn read_mask(
             channels: vec!["A".into()],
             data: data.chunks_exact(nch).map(|px| px[channel]).collect(),
         };
-        Ok((img, channel, coverage))
+        let layout = MaskLayout {
+            channel,
+            coverage,
+            parts,
+            layers: several_layers(&info.channels),
+        };
+        Ok((img, layout))
     };
     read().map_err(|e| anyhow!("cannot read {}: {e}", path.display()))
 }
@@ -1148,6 +1259,57 @@ mod tests {
             let e = colour_channels(&names(inks)).unwrap_err().to_string();
             assert!(e.contains("printing inks (CMYK)"), "{e}");
         }
+    }
+
+    #[test]
+    fn a_multi_layer_file_gives_the_colour_and_the_mask_of_one_layer() {
+        let names = |n: &[&str]| -> Vec<String> { n.iter().map(|c| c.to_string()).collect() };
+        // Blender's MultiLayer output as OpenImageIO lists it (layers in alphabetical order):
+        // the Combined layer, not the AO pass that comes first.
+        let blender = names(&[
+            "ViewLayer.AO.R",
+            "ViewLayer.AO.G",
+            "ViewLayer.AO.B",
+            "ViewLayer.Combined.R",
+            "ViewLayer.Combined.G",
+            "ViewLayer.Combined.B",
+            "ViewLayer.Combined.A",
+            "ViewLayer.Depth.Z",
+        ]);
+        assert_eq!(
+            colour_channels(&blender).unwrap(),
+            Colour::Rgb([Some(3), Some(4), Some(5)])
+        );
+        assert_eq!(
+            colour_layers(&blender),
+            ["ViewLayer.Combined", "ViewLayer.AO"]
+        );
+        assert_eq!(mask_source(&blender, None).unwrap(), (6, true));
+        assert_eq!(mask_source(&blender, Some('g')).unwrap(), (4, true));
+        // One layer of colour beside one that is not: never a colour mixed across layers.
+        let mixed = names(&["depth.Z", "diffuse.R", "diffuse.G", "diffuse.B"]);
+        assert_eq!(
+            colour_channels(&mixed).unwrap(),
+            Colour::Rgb([Some(1), Some(2), Some(3)])
+        );
+        assert!(several_layers(&mixed).is_empty());
+        assert_eq!(several_layers(&blender).len(), 2);
+        // Several layers of colour, none named as a beauty pass: the first in the file's order.
+        let passes = names(&["spec.R", "spec.G", "spec.B", "diff.R", "diff.G", "diff.B"]);
+        assert_eq!(
+            colour_channels(&passes).unwrap(),
+            Colour::Rgb([Some(0), Some(1), Some(2)])
+        );
+        // Plain R, G, B beside layers are the colour, and nothing is said of the layers.
+        let plain = names(&["R", "G", "B", "A", "N.R", "N.G", "N.B"]);
+        assert_eq!(
+            colour_channels(&plain).unwrap(),
+            Colour::Rgb([Some(0), Some(1), Some(2)])
+        );
+        assert!(several_layers(&plain).is_empty());
+        // Layers without colour: the first layer's own channels (here two: grey).
+        let data = names(&["depth.Z", "depth.W", "motion.X", "motion.Y"]);
+        assert_eq!(colour_channels(&data).unwrap(), Colour::Grey(0));
     }
 
     /// A deterministic spread of values, including negatives and values above 1.

@@ -27,7 +27,7 @@
 //! # anyhow::Ok(())
 //! ```
 use super::bridge::ffi;
-use super::{decode_srgb, path_bytes, read_colour, read_mask, Colour, ColourLayout};
+use super::{decode_srgb, path_bytes, read_colour, read_mask, Colour, ColourLayout, MaskLayout};
 use crate::util::hash::Fnv;
 use anyhow::{anyhow, bail, Result};
 use glam::{Vec2, Vec3};
@@ -58,6 +58,9 @@ struct Info {
     /// The largest linear value of each colour channel (red, green, blue), for the emission
     /// cap's check (`Maps::open`).
     max: [f32; 3],
+    /// The file's layers of colour where it holds several, the one read first
+    /// (`ColourLayout::layers`).
+    layers: Vec<String>,
     /// The images its file holds (`ColourLayout::parts`); 1 for a mask.
     parts: u32,
     /// The file, and for a mask whether it reads the first channel of a colour image without
@@ -123,6 +126,7 @@ impl Textures {
                 colour,
                 srgb,
                 parts,
+                layers,
             },
         ) = read_colour(path, MAX_TEXELS, 0)?;
         check_texels(path, &img.data)?;
@@ -144,7 +148,9 @@ impl Textures {
             Colour::Grey(c) => [Some(c - first); 3],
             Colour::Rgb(c) => c.map(|c| c.map(|c| c - first)),
         };
-        Ok(self.add(key, id, &img, (last - first + 1, pick, srgb, parts), false))
+        let id = self.add(key, id, &img, (last - first + 1, pick, srgb, parts), false);
+        self.info[id.0 as usize].layers = layers;
+        Ok(id)
     }
 
     /// Open the texture at `path` as a cut-out mask (once: a second time gives the same id):
@@ -156,20 +162,30 @@ impl Textures {
         if let Some(&id) = self.by_path.get(&key) {
             return Ok(id);
         }
-        let (img, channel, coverage) = read_mask(path, MAX_TEXELS, imfchan)?;
+        let (
+            img,
+            MaskLayout {
+                channel,
+                coverage,
+                parts,
+                layers,
+            },
+        ) = read_mask(path, MAX_TEXELS, imfchan)?;
         check_texels(path, &img.data)?;
         let id = self
             .set
             .pin_mut()
             .add(path_bytes(path), channel as u32, channel as u32 + 1)
             .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
-        Ok(self.add(
+        let id = self.add(
             key,
             id,
             &img,
-            (1, [Some(0), None, None], false, 1),
+            (1, [Some(0), None, None], false, parts),
             !coverage,
-        ))
+        );
+        self.info[id.0 as usize].layers = layers;
+        Ok(id)
     }
 
     /// Record texture `id` of the texture set, opened as `key` and read as `img` (what its
@@ -199,6 +215,7 @@ impl Textures {
             }),
             path: key.0.clone(),
             colour_mask,
+            layers: Vec::new(),
         });
         let id = TextureId(id);
         self.by_path.insert(key, id);
@@ -209,6 +226,12 @@ impl Textures {
     /// the first part is read.
     pub fn parts(&self, id: TextureId) -> u32 {
         self.info[id.0 as usize].parts
+    }
+
+    /// The layers of colour of texture `id`'s file where it holds several (a multi-layer EXR),
+    /// the one read first; empty otherwise.
+    pub fn layers(&self, id: TextureId) -> &[String] {
+        &self.info[id.0 as usize].layers
     }
 
     /// Texture `id`'s size in texels (width, height).

@@ -62,6 +62,24 @@ pub const MULTI_PART: Kind = Kind {
     many: "only the first of each file's images (a multi-part EXR's parts, a multi-page TIFF's pages, an animated GIF's frames) is read",
 };
 
+pub const MULTI_LAYER: Kind = Kind {
+    one: "a multi-layer EXR: one layer is read (Combined, else one named beauty, rgba, rgb, color or colour, else the first)",
+    many: "multi-layer EXRs: one layer of each is read (Combined, else one named beauty, rgba, rgb, color or colour, else the first)",
+};
+
+/// What a multi-layer file's note says: its layers of colour and the one read (the first of
+/// `layers`, as `image::colour_layers` orders them).
+pub fn layers_read(layers: &[String]) -> String {
+    let mut all = layers.to_vec();
+    all.sort();
+    format!(
+        "the file holds {} layers of colour ({}): '{}' is read",
+        layers.len(),
+        quote(&all.join(", ")),
+        quote(&layers[0])
+    )
+}
+
 const KE_MAP_CAPPED: Kind = Kind {
     one: "emission map capped at 1e9 (radiance sums would overflow above it)",
     many: "emission maps capped at 1e9 (radiance sums would overflow above it)",
@@ -170,8 +188,14 @@ impl Maps {
             }
             (c, ..) => c,
         };
-        // A multi-part file (an EXR of several layers as parts): its first part is read.
-        for (map, slot) in [(&kd, Slot::Kd), (&ks, Slot::Ks), (&ke, Slot::Ke)] {
+        // A multi-part file (an EXR of several layers as parts): its first part is read; a
+        // multi-layer one (layers in one part): the layer `image::colour_layers` picks.
+        for (map, slot) in [
+            (&kd, Slot::Kd),
+            (&ks, Slot::Ks),
+            (&ke, Slot::Ke),
+            (&cutout, Slot::D),
+        ] {
             if let (Some(map), Some(t), Some(spec)) =
                 (map, textures.as_ref(), &m.maps[slot as usize])
             {
@@ -183,6 +207,12 @@ impl Maps {
                             quote(&spec.statement),
                             crate::image::images_in_words(parts)
                         )
+                    })?;
+                }
+                let layers = t.layers(map.tex);
+                if !layers.is_empty() {
+                    repairs.note(mtl_label, spec.line, MULTI_LAYER, || {
+                        format!("'{}': {}", quote(&spec.statement), layers_read(layers))
                     })?;
                 }
             }
