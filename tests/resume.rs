@@ -490,6 +490,25 @@ fn a_killed_chunk_resumes_and_merges_identically() {
         before
     );
     assert!(!state.exists() && !log.exists());
+    // A complete partial damaged since (a bad copy on a shared file system): merge refuses it,
+    // and --resume renders the chunk again (it called it complete, so that re-running the
+    // chunk never mended the set); the merge below gives the whole render's frames.
+    let mut bad = std::fs::read(&partial).unwrap();
+    bad[1000] ^= 0x40;
+    std::fs::write(&partial, &bad).unwrap();
+    let o = reframe()
+        .arg("merge")
+        .arg(&partial)
+        .arg(sub.join("f.chunk-2-of-2.partial"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let o = run(&resume.iter().map(String::as_str).collect::<Vec<_>>());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("damaged record at byte 0") && err.contains("chunk 1/2 is rendered again"),
+        "{err}"
+    );
     run(&[
         "merge",
         &sub.join("f.chunk-1-of-2.partial").display().to_string(),

@@ -257,19 +257,33 @@ impl Checkpointer {
                 // (which the Slurm scripts always pass) it is not rendered again.
                 if let Some(c) = template.chunk {
                     let partial = partial_path(&template.out, c);
-                    if let Ok(sf) = StateFile::open(&partial) {
-                        let t = &sf.trailer;
+                    if let Ok(mut sf) = StateFile::open(&partial) {
+                        let t = sf.trailer.clone();
                         if t.kind == Kind::Partial
                             && t.key.difference(&template.key).is_none()
                             && t.chunk == template.chunk
                             && t.units == template.units
                             && t.next_unit == template.units[1] + 1
                         {
-                            return Err(ChunkComplete {
-                                chunk: c.to_string(),
-                                partial,
-                            }
-                            .into());
+                            // Complete only if every record reads back whole, as `merge` reads
+                            // them: a damaged one was called complete, and the merge that
+                            // refused it could never be mended by running the chunk again.
+                            let damaged = t
+                                .records
+                                .iter()
+                                .find_map(|&(_, off)| sf.record(off, norm).err());
+                            let Some(e) = damaged else {
+                                return Err(ChunkComplete {
+                                    chunk: c.to_string(),
+                                    partial,
+                                }
+                                .into());
+                            };
+                            errln!(
+                                "note: {}: chunk {c} is rendered again (its partial file is \
+                                 replaced when it is done)",
+                                crate::util::text::printable(&format!("{e:#}"))
+                            );
                         }
                     }
                 }
