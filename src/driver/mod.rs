@@ -310,6 +310,9 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         guard::check_folder_apart("--checkpoint", d, &outputs)?;
     }
     guard::check_outputs(outputs, &scene.inputs)?;
+    if opts.chunk.is_some() {
+        guard::check_merged_frames(&out, plan.frames.clone(), &scene.inputs)?;
+    }
     let frames = opts.chunk.is_none().then(|| guard::Frames {
         pattern: &out,
         frames: plan.frames.clone(),
