@@ -170,16 +170,35 @@ fn killed_render_resumes_to_identical_frames() {
         o.status.code() == Some(1) && err.contains("the checkpoint is of --out"),
         "{err}"
     );
+    // The resume sweeps the checkpoint's own stale temporary (a process killed while writing
+    // it) and nothing else of the folder: it removed every `*.tmp-*` there, a user's file and
+    // another machine's temporary frame with them.
+    let ck = killed.join("f.checkpoint");
+    let theirs = [
+        ck.join("plan.tmp-draft.txt"),
+        ck.join(".shot_0001.exr.tmp-3999999-0.exr"),
+    ];
+    for f in &theirs {
+        std::fs::write(f, b"not reframe's").unwrap();
+    }
+    let stale = ck.join("state.tmp-3999999");
+    std::fs::write(&stale, b"half a state").unwrap();
     let resumed = reframe().args(&args).arg("--resume").output().unwrap();
     assert!(
         resumed.status.success(),
         "{}",
         String::from_utf8_lossy(&resumed.stderr)
     );
-    assert!(
-        !killed.join("f.checkpoint").exists(),
-        "checkpoint not removed"
-    );
+    assert!(!stale.exists() && !ck.join("state").exists());
+    for f in &theirs {
+        assert_eq!(
+            std::fs::read(f).unwrap(),
+            b"not reframe's",
+            "{}",
+            f.display()
+        );
+        std::fs::remove_file(f).unwrap();
+    }
     assert_identical(&whole, &killed, 4..=23);
 }
 

@@ -240,7 +240,11 @@ impl Checkpointer {
                         d.display()
                     );
                 }
-                remove_stale_tmp(d, |_| true);
+                // Only this checkpoint's own temporary (`state.tmp-PID`), which a process
+                // killed while writing it left: the folder may be one the user named and keeps
+                // other files in (every `*.tmp-*` was removed, a user's file and another node's
+                // temporary frame with it).
+                remove_stale_tmp(d, |n| n == "state");
                 let mut active = Vec::new();
                 for &(_, off) in &t.records {
                     match sf.record(off, norm)? {
