@@ -1941,6 +1941,11 @@ fn load_objects(
 /// at about 210 bytes on placements of an emitting 80000-triangle OBJ (1.7 GB for 100).
 const BYTES_PER_PLACED_TRIANGLE: u64 = 256;
 
+/// Memory the OBJ reader takes per byte of text, at most (its vertices, faces and their
+/// corners as they grow, before the mesh is built): under `ulimit -v`, a 26 MB grid of quads
+/// failed to parse with 0.12 GB of address space left and parsed with 0.15 GB (5.5 bytes a byte).
+const OBJ_PARSE_BYTES_PER_BYTE: u64 = 6;
+
 /// Where the MTL files an OBJ names come from.
 enum MtlSource {
     /// The OBJ's folder.
@@ -2131,6 +2136,19 @@ fn load_obj_files(
     textures: &mut Option<Textures>,
     repairs: &mut Repairs,
 ) -> Result<(Mesh, Vec<PathBuf>, DVec3)> {
+    // Refused in one line where the parse would not fit (an allocation that fails aborts the
+    // process: a 26 MB OBJ under `ulimit -v` ended in a backtrace, exit 134).
+    let need = bytes.len() as u64 * OBJ_PARSE_BYTES_PER_BYTE;
+    if let Some(a) = crate::util::mem::available_bytes().filter(|&a| need > a) {
+        bail!(
+            "{label}: reading its {} MB of text needs about {} MB of memory, but {} MB is \
+             available{}",
+            bytes.len().div_ceil(1_000_000),
+            need.div_ceil(1_000_000),
+            a / 1_000_000,
+            crate::util::mem::address_space_note()
+        );
+    }
     let parsed = obj::parse(label, bytes, repairs)?;
     let mut materials = Vec::new();
     let mut maps = Vec::new();

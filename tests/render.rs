@@ -654,6 +654,63 @@ fn under_an_address_space_limit_a_render_runs_or_says_why() {
     }
     // The sweep crossed the band: some limits were too tight, some fitted.
     assert!(ran > 0 && refused > 0, "{ran} ran, {refused} refused");
+    // A large OBJ (a 700 x 700 grid of quads, 27 MB): where reading it does not fit, one line
+    // (the reader's lists failed to grow: "memory allocation failed", a backtrace, exit 134).
+    let n = 700;
+    let mut obj = String::from("mtllib s.mtl\n");
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, z) = (
+                -1.0 + 2.0 * i as f64 / n as f64,
+                -1.0 + 2.0 * j as f64 / n as f64,
+            );
+            obj.push_str(&format!(
+                "v {x:.5} {:.3} {z:.5}\n",
+                0.001 * ((i * 7 + j * 13) % 5) as f64
+            ));
+        }
+    }
+    obj.push_str("v -0.2 1.9 -0.2\nv 0.2 1.9 -0.2\nv 0.2 1.9 0.2\nv -0.2 1.9 0.2\nusemtl floor\n");
+    for j in 0..n {
+        for i in 0..n {
+            let a = j * (n + 1) + i + 1;
+            obj.push_str(&format!("f {a} {} {} {}\n", a + 1, a + n + 2, a + n + 1));
+        }
+    }
+    let l = (n + 1) * (n + 1);
+    obj.push_str(&format!(
+        "usemtl light\nf {} {} {} {}\n",
+        l + 1,
+        l + 2,
+        l + 3,
+        l + 4
+    ));
+    let base = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/base");
+    std::fs::write(d.path().join("g.obj"), obj).unwrap();
+    std::fs::copy(base.join("s.mtl"), d.path().join("s.mtl")).unwrap();
+    let toml = std::fs::read_to_string(base.join("s.toml")).unwrap();
+    std::fs::write(d.path().join("g.toml"), toml.replace("s.obj", "g.obj")).unwrap();
+    let (mut ran, mut refused_reading) = (0, 0);
+    for mb in (starts + 50..starts + 550).step_by(25) {
+        let args = format!(
+            "render '{0}/g.toml' --res 16x12 --spp 1 --frames 0 --threads 1 --out '{0}/g{mb}/f_####.exr'",
+            d.path().display()
+        );
+        let o = under(mb, &args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        match o.status.code() {
+            Some(0) => ran += 1,
+            Some(1) => {
+                assert_eq!(err.trim().lines().count(), 1, "{mb} MB: {err}");
+                refused_reading += err.contains("g.obj: reading its") as u32;
+            }
+            c => panic!("{mb} MB, the large OBJ: exit {c:?}: {err}"),
+        }
+    }
+    assert!(
+        ran > 0 && refused_reading > 0,
+        "{ran} ran, {refused_reading} refused reading the OBJ"
+    );
 }
 
 /// A frame whose bytes cannot all be written (a full disk, a quota; here a file size limit of

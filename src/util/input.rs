@@ -126,7 +126,17 @@ pub fn read_input_or_missing(
     };
     let mut file = open_input_or_missing(path, what, max_bytes)?;
     let len = file.metadata().map_or(0, |m| m.len());
-    let mut bytes = Vec::with_capacity(len as usize);
+    // Reserved fallibly: an allocation that fails aborts the process (a 26 MB OBJ under a tight
+    // `ulimit -v` ended in a backtrace, exit 134).
+    let mut bytes = Vec::new();
+    if bytes.try_reserve_exact(len as usize).is_err() {
+        return Err(refuse(format!(
+            "its {} MB do not fit in the memory left ({} MB){}",
+            len.div_ceil(1_000_000),
+            crate::util::mem::available_bytes().unwrap_or(0) / 1_000_000,
+            crate::util::mem::address_space_note()
+        )));
+    }
     (&mut file)
         .take(max_bytes + 1)
         .read_to_end(&mut bytes)
