@@ -540,6 +540,8 @@ uint32_t TextureSet::add(rust::Slice<const uint8_t> path, uint32_t chbegin, uint
             format = name.string();
         }
     }
+    cache_bytes_ += uint64_t(spec->width) * uint64_t(spec->height) * uint64_t(spec->nchannels) *
+                    uint64_t(spec->format.size());
     if (windowed(*spec, format)) {
         textures_.push_back(Texture{handle, spec->full_x, spec->full_y, spec->full_width,
                                     spec->full_height, int(chbegin), int(chend)});
@@ -549,6 +551,10 @@ uint32_t TextureSet::add(rust::Slice<const uint8_t> path, uint32_t chbegin, uint
     }
     return static_cast<uint32_t>(textures_.size() - 1);
 }
+
+uint64_t TextureSet::cache_bytes() const { return cache_bytes_; }
+
+void TextureSet::set_cache_mb(float mb) { ts_->attribute("max_memory_MB", mb); }
 
 bool TextureSet::texels(uint32_t id, int64_t x, int64_t y, rust::Slice<float> out) const {
     const Texture& t = textures_[id];

@@ -53,6 +53,10 @@ public:
     // cache: `out` holds them row by row, each its channels. False (and `out` filled with 0)
     // if the texture system failed.
     bool texels(uint32_t id, int64_t x, int64_t y, rust::Slice<float> out) const;
+    // What the textures added hold in the cache when all of it is in memory (their pixels in
+    // the files' own channel formats), and the cache's limit in MB (1024 at first).
+    uint64_t cache_bytes() const;
+    void set_cache_mb(float mb);
 
 private:
     struct Texture {
@@ -62,6 +66,7 @@ private:
     };
     OIIO::TextureSystem* ts_;
     std::vector<Texture> textures_;
+    uint64_t cache_bytes_ = 0;
 };
 
 std::unique_ptr<TextureSet> new_texture_set();

@@ -712,6 +712,9 @@ impl Scene {
         let placements: Vec<Placement> = instances.iter().map(|i| (i.proto, i.rows())).collect();
         let own = (!mesh.triangles.is_empty())
             .then_some((mesh.positions.as_slice(), mesh.triangles.as_slice()));
+        let cache_note = textures
+            .as_mut()
+            .and_then(|t| t.size_cache(crate::util::mem::available_bytes()));
         let textures = textures.map(Arc::new);
         let cut = |tris: &[[u32; 3]], uvs: &[Vec2], tri_material: &[u32]| {
             MeshCutout::new(textures.as_ref(), &mesh.maps, tris, uvs, tri_material)
@@ -731,8 +734,14 @@ impl Scene {
         if lights.tris.is_empty() && !env_emits {
             // A light lost with its material is the likely cause: say so on the same line.
             let lost = repairs
-                .first_of(&[MTL_MISSING, NO_MTLLIB, UNKNOWN_MATERIAL])
+                .first_of(&[MTL_MISSING, NO_MTLLIB, UNKNOWN_MATERIAL, NO_USEMTL])
                 .map(|w| format!(" (materials fell back to the default: {w})"))
+                .or_else(|| {
+                    // A misspelt `usemtl`: its faces kept the material before it.
+                    repairs
+                        .first_of(&[obj::UNKNOWN])
+                        .map(|w| format!(" (a line was ignored: {w})"))
+                })
                 .unwrap_or_default();
             let env = if environment.is_some() {
                 "its [environment] is black"
@@ -754,6 +763,7 @@ impl Scene {
         let offset_floor = offset_floor(lo, hi);
         let mut warnings = repairs.into_warnings();
         warnings.extend(object_notes);
+        warnings.extend(cache_note);
         if lights.black_maps > 0 && !lights.tris.is_empty() {
             warnings.push(format!(
                 "{obj_label}: {} triangle(s) of materials with a positive Ke have an emission \
@@ -1336,6 +1346,32 @@ fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
         bail!("{label}: the file is empty");
     }
     toml::from_str(text).map_err(|e| {
+        // An OBJ or MTL given as the scene (a first try with a model): said so, not a TOML
+        // syntax error on its first statement.
+        let first = text
+            .lines()
+            .map(str::trim)
+            .find(|l| !l.is_empty() && !l.starts_with('#'))
+            .unwrap_or("");
+        let word = first.split_whitespace().next().unwrap_or("");
+        if matches!(
+            word,
+            "v" | "vt" | "vn" | "f" | "o" | "g" | "mtllib" | "usemtl"
+        ) {
+            return anyhow!(
+                "{label}: this is an OBJ file, not a scene: a scene is a TOML file that names it \
+                 (obj = \"{}\"), with its frames, resolution and camera (see the README's Scenes)",
+                Path::new(label)
+                    .file_name()
+                    .map_or("model.obj".into(), |n| n.to_string_lossy())
+            );
+        }
+        if matches!(word, "newmtl") {
+            return anyhow!(
+                "{label}: this is an MTL file (materials), not a scene: a scene is a TOML file \
+                 that names an OBJ (obj = \"model.obj\"), whose mtllib names this file"
+            );
+        }
         // toml's own message spans several lines (a snippet of the file); keep it to one.
         let msg = e.message().trim().replace('\n', " ");
         let Some(span) = e.span() else {
@@ -1941,11 +1977,6 @@ fn load_objects(
 /// at about 210 bytes on placements of an emitting 80000-triangle OBJ (1.7 GB for 100).
 const BYTES_PER_PLACED_TRIANGLE: u64 = 256;
 
-/// Memory the OBJ reader takes per byte of text, at most (its vertices, faces and their
-/// corners as they grow, before the mesh is built): under `ulimit -v`, a 26 MB grid of quads
-/// failed to parse with 0.12 GB of address space left and parsed with 0.15 GB (5.5 bytes a byte).
-const OBJ_PARSE_BYTES_PER_BYTE: u64 = 6;
-
 /// Where the MTL files an OBJ names come from.
 enum MtlSource {
     /// The OBJ's folder.
@@ -2136,19 +2167,6 @@ fn load_obj_files(
     textures: &mut Option<Textures>,
     repairs: &mut Repairs,
 ) -> Result<(Mesh, Vec<PathBuf>, DVec3)> {
-    // Refused in one line where the parse would not fit (an allocation that fails aborts the
-    // process: a 26 MB OBJ under `ulimit -v` ended in a backtrace, exit 134).
-    let need = bytes.len() as u64 * OBJ_PARSE_BYTES_PER_BYTE;
-    if let Some(a) = crate::util::mem::available_bytes().filter(|&a| need > a) {
-        bail!(
-            "{label}: reading its {} MB of text needs about {} MB of memory, but {} MB is \
-             available{}",
-            bytes.len().div_ceil(1_000_000),
-            need.div_ceil(1_000_000),
-            a / 1_000_000,
-            crate::util::mem::address_space_note()
-        );
-    }
     let parsed = obj::parse(label, bytes, repairs)?;
     let mut materials = Vec::new();
     let mut maps = Vec::new();

@@ -990,3 +990,29 @@ fn light_pdf_matches_samples(scene: &Scene, x: glam::Vec3, n: usize) -> usize {
     }
     checked
 }
+
+/// The texture cache is sized from what the textures hold in it, in their files' own formats
+/// (8-bit PNG: a byte a channel; half EXR: two; float EXR: four), so that every texture of a
+/// scene is read once (at OpenImageIO's default of 1 GB, eight 8K textures were read from disk
+/// again and again while rendering, and a file replaced during the render showed).
+#[test]
+fn the_texture_cache_counts_the_files_own_formats() {
+    let tmp = tempfile::tempdir().unwrap();
+    let grey = |_: u32, _: u32| Vec3::splat(0.5);
+    write_texture(&tmp.path().join("a.png"), 64, grey, false);
+    write_texture(&tmp.path().join("b.exr"), 32, grey, false);
+    write_texture(&tmp.path().join("c.exr"), 16, grey, true);
+    let mut t = Textures::new().unwrap();
+    let mut want = 0;
+    for (name, bytes) in [
+        ("a.png", 64 * 64 * 3),
+        ("b.exr", 32 * 32 * 3 * 2),
+        ("c.exr", 16 * 16 * 3 * 4),
+    ] {
+        t.open(&tmp.path().join(name)).unwrap();
+        want += bytes;
+        assert_eq!(t.cache_bytes(), want, "{name}");
+    }
+    // Little: the default of 1 GB holds them, whatever the memory; no warning.
+    assert_eq!(t.size_cache(Some(1 << 20)), None);
+}

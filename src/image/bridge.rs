@@ -115,6 +115,10 @@ pub(crate) mod ffi {
         /// The 2 x 2 texels from column `x`, row `y` (0: the top row), each wrapped into the
         /// image, finest level, row by row; `out` holds 4 times the texture's channels.
         fn texels(self: &TextureSet, id: u32, x: i64, y: i64, out: &mut [f32]) -> bool;
+        /// What the textures added hold in the cache when all of it is in memory.
+        fn cache_bytes(self: &TextureSet) -> u64;
+        /// The cache's limit (OIIO's `max_memory_MB`; 1024 at first).
+        fn set_cache_mb(self: Pin<&mut TextureSet>, mb: f32);
         fn info(self: &ImageReader) -> ImageInfo;
         /// Every attribute of the first subimage's spec.
         fn attributes(self: &ImageReader) -> Vec<Attribute>;

@@ -38,6 +38,16 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// Most texels of one texture (8192 x 8192): each is decoded once when the scene loads.
 pub const MAX_TEXELS: u64 = 1 << 26;
 
+/// The texture cache's need and its limit, in MB, for textures of `bytes` in memory and
+/// `available` bytes of memory (`None`: unknown): all of them and a margin, within three
+/// quarters of the memory available, and never below OpenImageIO's default of 1024.
+fn cache_limit(bytes: u64, available: Option<u64>) -> (f64, f64) {
+    const MB: f64 = 1e6;
+    let need = bytes as f64 * 1.05 / MB + 64.0;
+    let cap = available.map_or(f64::INFINITY, |a| 0.75 * a as f64 / MB);
+    (need, need.min(cap).max(1024.0))
+}
+
 /// A texture of a `Textures`, by index.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct TextureId(u32);
@@ -222,6 +232,32 @@ impl Textures {
         id
     }
 
+    /// Size the texture cache to hold every texture opened (OpenImageIO's default of 1 GB made
+    /// a scene of eight 8K textures read them from disk again and again while rendering, ten
+    /// times slower, and a texture file replaced during the render showed in the later
+    /// frames), within three quarters of the memory `available` (bytes, `None`: unknown). A
+    /// warning where they do not fit.
+    pub fn size_cache(&mut self, available: Option<u64>) -> Option<String> {
+        let (need, mb) = cache_limit(self.set.cache_bytes(), available);
+        self.set.pin_mut().set_cache_mb(mb as f32);
+        (need > mb).then(|| {
+            format!(
+                "the scene's textures take about {} MB in the texture cache, more than the {} MB \
+                 it may use (three quarters of the memory available): they are read from disk \
+                 again while rendering, which is slower, and a texture file replaced during the \
+                 render would show in the later frames",
+                need.round(),
+                mb.round()
+            )
+        })
+    }
+
+    /// What the textures opened hold in the cache when all of it is in memory (bytes: their
+    /// pixels in the files' own channel formats).
+    pub fn cache_bytes(&self) -> u64 {
+        self.set.cache_bytes()
+    }
+
     /// The images the file of texture `id` holds: more than 1 for a multi-part EXR, of which
     /// the first part is read.
     pub fn parts(&self, id: TextureId) -> u32 {
@@ -310,5 +346,24 @@ impl Textures {
     /// Lookups that failed so far (each returned black).
     pub fn failures(&self) -> u64 {
         self.failures.load(Ordering::Relaxed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::cache_limit;
+
+    #[test]
+    fn the_cache_holds_every_texture_within_the_memory_available() {
+        let gb = 1_000_000_000u64;
+        // Two GB of textures with eight available: all of them (and a margin).
+        let (need, mb) = cache_limit(2 * gb, Some(8 * gb));
+        assert!(mb >= 2000.0 && mb == need, "{need} {mb}");
+        // With two available: three quarters of them, short of the need (a warning).
+        let (need, mb) = cache_limit(2 * gb, Some(2 * gb));
+        assert!(mb == 1500.0 && need > mb, "{need} {mb}");
+        // Little texture, or little memory: never below the default of 1 GB.
+        assert_eq!(cache_limit(10_000_000, None).1, 1024.0);
+        assert_eq!(cache_limit(2 * gb, Some(gb / 2)).1, 1024.0);
     }
 }

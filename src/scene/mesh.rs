@@ -231,6 +231,13 @@ pub fn measure(a: Vec3, b: Vec3, c: Vec3) -> (Vec3, f32, bool) {
     }
 }
 
+/// Room for one more element of `v`, taken fallibly (doubling as `push` does): false where the
+/// memory left does not hold it.
+#[inline]
+fn grow<T>(v: &mut Vec<T>) -> bool {
+    v.len() < v.capacity() || v.try_reserve(v.capacity().max(64)).is_ok()
+}
+
 pub fn build(
     label: &str,
     bytes: &[u8],
@@ -259,34 +266,51 @@ pub fn build(
     let mut skipped = 0usize;
     let mut first_skipped = 0usize;
     let mut pts = Vec::new();
+    let mut ids: Vec<u32> = Vec::new();
+    // The mesh's lists grow fallibly (`grow`): an allocation that fails aborts the process (a
+    // 26 MB OBJ of triangles under a tight `ulimit -v`: a backtrace, exit 134).
     for f in &obj.faces {
         let corners = &obj.corners[f.corners.clone()];
         // Smooth only if every corner has a usable normal: interpolating a normal with the face
         // normal of a neighbour would shade a seam.
         let smooth = corners.iter().all(|c| c.vn.is_some());
-        let ids: Vec<u32> = corners
-            .iter()
-            .map(|&Corner { v, vt, vn }| {
-                let n = if smooth { vn.unwrap() } else { u32::MAX };
-                let key = (v, n, vt.unwrap_or(u32::MAX));
-                *vertex.entry(key).or_insert_with(|| {
-                    mesh.positions.push(obj.positions[v as usize]);
-                    if any_smooth {
-                        let n = key.1;
-                        mesh.normals.push(if n == u32::MAX {
-                            Vec3::ZERO
-                        } else {
-                            obj.normals[n as usize].unwrap()
-                        });
-                    }
-                    if any_uv {
-                        mesh.uvs
-                            .push(vt.map_or(Vec2::ZERO, |t| obj.uvs[t as usize]));
-                    }
-                    mesh.positions.len() as u32 - 1
-                })
-            })
-            .collect();
+        ids.clear();
+        for &Corner { v, vt, vn } in corners {
+            let n = if smooth { vn.unwrap() } else { u32::MAX };
+            let key = (v, n, vt.unwrap_or(u32::MAX));
+            if let Some(&id) = vertex.get(&key) {
+                ids.push(id);
+                continue;
+            }
+            let fits = vertex.try_reserve(1).is_ok()
+                && grow(&mut mesh.positions)
+                && (!any_smooth || grow(&mut mesh.normals))
+                && (!any_uv || grow(&mut mesh.uvs));
+            if !fits {
+                bail!(
+                    "{label}: line {}: building the mesh needs more memory than is left ({} \
+                     vertices so far){}",
+                    f.line,
+                    mesh.positions.len(),
+                    crate::util::mem::address_space_note()
+                );
+            }
+            mesh.positions.push(obj.positions[v as usize]);
+            if any_smooth {
+                mesh.normals.push(if n == u32::MAX {
+                    Vec3::ZERO
+                } else {
+                    obj.normals[n as usize].unwrap()
+                });
+            }
+            if any_uv {
+                mesh.uvs
+                    .push(vt.map_or(Vec2::ZERO, |t| obj.uvs[t as usize]));
+            }
+            let id = mesh.positions.len() as u32 - 1;
+            vertex.insert(key, id);
+            ids.push(id);
+        }
         pts.clear();
         pts.extend(ids.iter().map(|&i| mesh.positions[i as usize]));
         let tris = match triangulate(&pts) {
@@ -310,6 +334,19 @@ pub fn build(
                 }
                 repairs.note(label, f.line, DEGENERATE, || quote_line(bytes, f.line))?;
                 continue;
+            }
+            let fits = grow(&mut mesh.triangles)
+                && grow(&mut mesh.tri_material)
+                && grow(&mut mesh.tri_normal)
+                && grow(&mut mesh.tri_area);
+            if !fits {
+                bail!(
+                    "{label}: line {}: building the mesh needs more memory than is left ({} \
+                     triangles so far){}",
+                    f.line,
+                    mesh.triangles.len(),
+                    crate::util::mem::address_space_note()
+                );
             }
             mesh.triangles.push(tri);
             mesh.tri_material.push(mat);

@@ -53,6 +53,10 @@ const NONE_DEFINED: Kind = Kind {
     one: "texture coordinate or normal index where none is defined above: ignored (read as v)",
     many: "texture coordinate or normal indices where none is defined above: ignored (read as v)",
 };
+pub const UNKNOWN: Kind = Kind {
+    one: "statement the OBJ format does not have: ignored",
+    many: "statements the OBJ format does not have: ignored",
+};
 const COLOURS: Kind = Kind {
     one: "vertex colour ignored",
     many: "vertex colours ignored",
@@ -93,6 +97,22 @@ pub struct Obj {
     /// vertex in f64 before it is rounded to f32 (a vertex at 3x10^5 keeps its fraction; f32
     /// there rounds to 1/32 unit).
     pub anchor: DVec3,
+}
+
+/// Room for one more element of `v`, taken fallibly: the reader's lists are the first large
+/// allocations of a large scene, and one that fails aborts the process (a 26 MB OBJ under a
+/// tight `ulimit -v` ended in a backtrace, exit 134), where this is an error naming the line.
+#[inline]
+fn room<T>(v: &mut Vec<T>, label: &str, n: usize) -> Result<()> {
+    if v.len() == v.capacity() && v.try_reserve(v.capacity().max(64)).is_err() {
+        return Err(anyhow!(
+            "{label}: line {n}: reading the OBJ needs more memory than is left ({} held for its \
+             lists so far){}",
+            crate::util::mem::size((v.capacity() * std::mem::size_of::<T>()) as u64),
+            crate::util::mem::address_space_note()
+        ));
+    }
+    Ok(())
 }
 
 /// Read an OBJ file; `label` names it in errors ("label: line N: 'statement': why") and repairs.
@@ -148,6 +168,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                     let e = DVec3::from(numbers64::<3>(&args).unwrap_or(p.map(f64::from)));
                     exact.push((out.positions.len() as u32, e));
                 }
+                room(&mut out.positions, label, n)?;
                 out.positions.push(Vec3::from(p));
             }
             "vt" => {
@@ -164,6 +185,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                         count[1]
                     )));
                 }
+                room(&mut out.uvs, label, n)?;
                 out.uvs
                     .push(Vec2::new(t[0], t.get(1).copied().unwrap_or(0.0)));
             }
@@ -173,6 +195,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                 // In f64: a finite normal of huge components still has a direction.
                 let d = glam::DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64);
                 let len = d.length();
+                room(&mut out.normals, label, n)?;
                 if len.is_finite() && len > 0.0 {
                     out.normals.push(Some((d / len).as_vec3()));
                 } else {
@@ -196,6 +219,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                 for r in &args {
                     let (c, ignored) = corner(r, &count, &out.normals).map_err(&err)?;
                     none_defined |= ignored;
+                    room(&mut out.corners, label, n)?;
                     out.corners.push(c);
                 }
                 if none_defined {
@@ -212,6 +236,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                     repairs.note(label, n, SHORT_FACE, || format!("'{}'", quote(text)))?;
                     continue;
                 }
+                room(&mut out.faces, label, n)?;
                 out.faces.push(Face {
                     line: n,
                     usemtl,
@@ -222,7 +247,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
             "l" => repairs.note(label, n, POLYLINES, || format!("'{}'", quote(text)))?,
             // Free-form geometry (Rhino, Maya exports): curves and surfaces are not tessellated.
             "cstype" | "deg" | "bmat" | "step" | "curv" | "curv2" | "surf" | "parm" | "trim"
-            | "hole" | "scrv" | "sp" | "end" | "con" => {
+            | "hole" | "scrv" | "sp" | "end" | "con" | "vp" => {
                 repairs.note(label, n, FREE_FORM, || format!("'{}'", quote(text)))?
             }
             "usemtl" | "mtllib" => {
@@ -244,7 +269,14 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                     out.mtllib.push((n, bytes));
                 }
             }
-            _ => {}
+            // Groups, smoothing groups, merging groups and display and rendering attributes:
+            // nothing reframe renders differently.
+            "o" | "g" | "s" | "mg" | "bevel" | "c_interp" | "d_interp" | "lod" | "shadow_obj"
+            | "trace_obj" | "usemap" | "maplib" | "ctech" | "stech" | "call" | "csh" | "res" => {}
+            // Anything else is no OBJ statement: a misspelt `usemtl` (its faces kept the
+            // material before it, and the scene lost its light without a word), another
+            // format's line.
+            _ => repairs.note(label, n, UNKNOWN, || format!("'{}'", quote(text)))?,
         }
     }
     // The box of the vertices the faces use, in f64: an unused vertex (a stray `v 0 0 0` left
