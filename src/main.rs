@@ -59,7 +59,7 @@ fn main() {
         errln!(
             "error: argument {k} ('{}', its bytes that are not UTF-8 shown as \u{fffd}) is not UTF-8 \
              text: reframe takes file names and patterns in UTF-8; rename the file (for example \
-             `convmv -f latin1 -t utf8 FILE`) or link it under a UTF-8 name (see --help)",
+             `convmv -f latin1 -t utf8 FILE`) or link it under a UTF-8 name",
             printable(&arg.to_string_lossy())
         );
         std::process::exit(2);

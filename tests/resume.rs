@@ -177,6 +177,7 @@ fn killed_render_resumes_to_identical_frames() {
     let theirs = [
         ck.join("plan.tmp-draft.txt"),
         ck.join(".shot_0001.exr.tmp-3999999-0.exr"),
+        ck.join("state.tmp-notes"),
     ];
     for f in &theirs {
         std::fs::write(f, b"not reframe's").unwrap();

@@ -367,47 +367,6 @@ pub fn check_folder_apart(flag: &str, dir: &Path, outputs: &[(&str, PathBuf)]) -
     Ok(())
 }
 
-/// Refuse a chunk of a render (which writes no frame) whose frames, `frames` of `pattern`,
-/// which the merge of its chunks will write, include one of the render's `inputs`: the merge
-/// does not know the scene's files (without `--scene`), and wrote a frame over the scene's sky
-/// where the same command without `--chunk` was refused.
-pub fn check_merged_frames(
-    pattern: &OutputPattern,
-    frames: std::ops::RangeInclusive<u32>,
-    inputs: &[PathBuf],
-) -> Result<()> {
-    let Some(dir) =
-        resolved(&pattern.path(*frames.start())).and_then(|p| p.parent().map(Path::to_path_buf))
-    else {
-        return Ok(());
-    };
-    for input in inputs {
-        let Some(c) = input.canonicalize().ok() else {
-            continue;
-        };
-        if c.parent() != Some(dir.as_path()) {
-            continue;
-        }
-        let name = c.file_name().and_then(|n| n.to_str()).unwrap_or_default();
-        let frame = if pattern.has_frame_field() {
-            pattern.frame_named(name)
-        } else {
-            resolved(&pattern.path(*frames.start()))
-                .is_some_and(|p| p == c)
-                .then_some(*frames.start())
-        };
-        if let Some(f) = frame.filter(|f| frames.contains(f)) {
-            bail!(
-                "--out {}: frame {f}, which the merge of the chunks writes, is an input of this \
-                 command ({}); nothing was written",
-                pattern.path(f).display(),
-                input.display()
-            );
-        }
-    }
-    Ok(())
-}
-
 /// Refuse, before anything is written, any output of a command (`flag`, the path) that
 /// resolves to one of its `inputs`, that resolves to another of its outputs (`--stats` naming a
 /// frame, say), or that exists as anything but a regular file (`check_replaceable`: a device,

@@ -201,7 +201,7 @@ fn run_key(scene: &Scene, opts: &RenderOptions, plan: &Plan) -> Result<RunKey> {
         primary: opts.primary.name().into(),
         paths: opts.paths.name().into(),
         aov: opts.aov,
-        adaptive: opts.adaptive.unwrap_or(0.0),
+        adaptive: opts.effective_adaptive().unwrap_or(0.0),
         exr_float: opts.exr_float,
         denoise: match opts.denoise {
             None => "off",
@@ -243,7 +243,7 @@ fn frame_loop(
         },
         window: opts.window,
         aov: opts.aov,
-        adaptive: opts.adaptive,
+        adaptive: opts.effective_adaptive(),
         width: w,
         height: h,
         progress: opts.progress,
@@ -286,14 +286,15 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     let (out, created) = opts.check_files(&plan)?;
     // One render per output, and never over its own inputs.
     let lock = lock_path(&opts.out, opts.chunk);
-    let mut outputs: Vec<(&str, PathBuf)> = match opts.chunk {
-        Some(c) => vec![("--out", partial_path(&opts.out, c))],
-        None => plan
-            .frames
-            .clone()
-            .map(|f| ("--out", out.path(f)))
-            .collect(),
-    };
+    // A chunk writes its partial file, and its merge the frames: those are checked now too, as
+    // the same render without `--chunk` checks them (a frame that is one of the scene's files,
+    // a link or a FIFO at a frame's path), not after every chunk has rendered.
+    let mut outputs: Vec<(&str, PathBuf)> = opts
+        .chunk
+        .map(|c| ("--out", partial_path(&opts.out, c)))
+        .into_iter()
+        .chain(plan.frames.clone().map(|f| ("--out", out.path(f))))
+        .collect();
     outputs.extend(opts.stats.iter().map(|p| ("--stats", p.clone())));
     outputs.extend(
         opts.checkpoint
@@ -310,9 +311,6 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         guard::check_folder_apart("--checkpoint", d, &outputs)?;
     }
     guard::check_outputs(outputs, &scene.inputs)?;
-    if opts.chunk.is_some() {
-        guard::check_merged_frames(&out, plan.frames.clone(), &scene.inputs)?;
-    }
     let frames = opts.chunk.is_none().then(|| guard::Frames {
         pattern: &out,
         frames: plan.frames.clone(),

@@ -190,6 +190,13 @@ impl RenderOptions {
     /// Every setting checked against `scene`, before anything is traced or written: the frames,
     /// resolution, samples, window, method-specific flags, checkpoint interval and depth. The
     /// files (`--out`, `--stats`) are checked by `check_files`.
+    /// `--adaptive` as the render takes it: ignored at `--window 1` (a group of one frame lands
+    /// nothing from other frames: every pixel gets `--spp`), where it traced its pilot rays
+    /// for nothing.
+    pub fn effective_adaptive(&self) -> Option<f32> {
+        self.adaptive.filter(|_| self.window > 1)
+    }
+
     pub fn validate(&self, scene: &Scene) -> Result<Plan> {
         let range = self.frames.clone().unwrap_or(0..=scene.frames - 1);
         check_frames(scene, &range)?;
@@ -243,15 +250,14 @@ impl RenderOptions {
                 self.window
             );
         }
-        // A pixel's adaptive count (its `--spp` and its top-up, at most `n_f` times `--spp`) is
-        // held in 16 bits (a count per pixel of every frame of a group): 65536 wrapped to 0, and
-        // the pixels that see no surface rendered black.
-        if self.adaptive.is_some() && self.spp as u64 * self.window as u64 > u16::MAX as u64 {
+        // A pixel's adaptive count is held in 16 bits (a count per pixel of every frame of a
+        // group): `--spp 65536` wrapped to 0, and the pixels that see no surface rendered
+        // black. A top-up past 65535 is capped (the densities read the same counts).
+        if self.effective_adaptive().is_some() && self.spp > u16::MAX as u32 {
             bail!(
-                "--adaptive with --spp {} and --window {}: at most {} native samples per pixel \
-                 per group (--spp times --window) with adaptive counts",
+                "--adaptive with --spp {}: at most {} native samples per pixel per group with \
+                 adaptive counts",
                 self.spp,
-                self.window,
                 u16::MAX
             );
         }
@@ -308,7 +314,7 @@ impl RenderOptions {
         } else {
             12 * pixels // the frame's RGB
         };
-        let adaptive = if self.adaptive.is_some() {
+        let adaptive = if self.effective_adaptive().is_some() {
             2 * n_f * pixels
         } else {
             0
@@ -321,7 +327,7 @@ impl RenderOptions {
         let threads = threads.min(tiles.max(1));
         let workers = if self.method.reuses() {
             let samples = self.spp
-                * if self.adaptive.is_some() {
+                * if self.effective_adaptive().is_some() {
                     self.window
                 } else {
                     1

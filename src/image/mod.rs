@@ -1096,33 +1096,32 @@ pub fn read_colour(
 /// (`true`: named by `-imfchan`, an alpha or a grey channel, or an image of one or two
 /// channels) rather than the first channel of a colour image without alpha.
 pub fn mask_source(names: &[String], imfchan: Option<char>) -> Result<(usize, bool)> {
-    // A channel by its name, else (a multi-layer EXR) that channel of the layer a colour is
-    // read from (`colour_layers`), else of the first layer that has it: Blender's alpha is
-    // `ViewLayer.Combined.A`, and the first channel was its AO pass's red.
-    let layers = colour_layers(names);
-    let find = |c: &str| {
-        names.iter().position(|n| n == c).or_else(|| {
-            let in_layer = |layer: &str| names.iter().position(|n| layer_of(n) == Some((layer, c)));
-            layers.first().and_then(|l| in_layer(l)).or_else(|| {
-                names
-                    .iter()
-                    .position(|n| layer_of(n).is_some_and(|(_, k)| k == c))
-            })
-        })
-    };
     if names.is_empty() {
         bail!("the image has no channels");
     }
-    let by_place = |i: usize| (i < names.len()).then_some(i);
+    // The channels a mask is taken from: all of them, or in a multi-layer EXR without plain
+    // channels of colour those of the layer a colour is read from (`colour_layers`): Blender's
+    // alpha is `ViewLayer.Combined.A`, and the file's first channel was its AO pass's red.
+    let plain = names.iter().any(|n| layer_of(n).is_none());
+    let scope: Vec<usize> = match colour_layers(names).first() {
+        Some(layer) if !plain => (0..names.len())
+            .filter(|&i| layer_of(&names[i]).is_some_and(|(l, _)| l == layer))
+            .collect(),
+        _ => (0..names.len()).collect(),
+    };
+    let own = |i: usize| layer_of(&names[i]).map_or(names[i].as_str(), |(_, c)| c);
+    let find = |c: &str| scope.iter().copied().find(|&i| own(i) == c);
+    let by_place = |i: usize| scope.get(i).copied();
+    let first = Some(scope[0]);
     let (alpha, grey) = (find("A"), find("Y"));
     let picked = match imfchan {
-        None => alpha.or(grey).or(Some(0)),
+        None => alpha.or(grey).or(first),
         Some('r') => find("R").or_else(|| by_place(0)),
         Some('g') => find("G").or_else(|| by_place(1)),
         Some('b') => find("B").or_else(|| by_place(2)),
         Some('m') => alpha,
-        Some('l') => grey.or(Some(0)),
-        Some(_) => Some(0),
+        Some('l') => grey.or(first),
+        Some(_) => first,
     };
     let channel = picked.ok_or_else(|| {
         anyhow!(
@@ -1131,7 +1130,7 @@ pub fn mask_source(names: &[String], imfchan: Option<char>) -> Result<(usize, bo
             names.join(", ")
         )
     })?;
-    let coverage = imfchan.is_some() || alpha.is_some() || grey.is_some() || names.len() < 3;
+    let coverage = imfchan.is_some() || alpha.is_some() || grey.is_some() || scope.len() < 3;
     Ok((channel, coverage))
 }
 
@@ -1286,6 +1285,15 @@ mod tests {
         );
         assert_eq!(mask_source(&blender, None).unwrap(), (6, true));
         assert_eq!(mask_source(&blender, Some('g')).unwrap(), (4, true));
+        // Without the Combined layer's alpha: its first channel (a colour's, not a coverage),
+        // never the file's first (the AO pass's red).
+        let no_alpha: Vec<String> = blender
+            .iter()
+            .filter(|n| *n != "ViewLayer.Combined.A")
+            .cloned()
+            .collect();
+        assert_eq!(mask_source(&no_alpha, None).unwrap(), (3, false));
+        assert_eq!(mask_source(&no_alpha, Some('m')).map(|m| m.0).ok(), None);
         // One layer of colour beside one that is not: never a colour mixed across layers.
         let mixed = names(&["depth.Z", "diffuse.R", "diffuse.G", "diffuse.B"]);
         assert_eq!(

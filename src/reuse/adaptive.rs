@@ -41,7 +41,7 @@ pub fn adaptive_counts(
             let (x0, y0, x1, y1) = tile_list[t];
             let cam_m = group[m].cam;
             let mut rays = RayCounts::default();
-            // `RenderOptions::validate` keeps `n_f * spp` (the most a pixel gets) within a u16.
+            // `RenderOptions::validate` keeps `spp` within a u16.
             let base = u16::try_from(spp).expect("adaptive spp fits 16 bits");
             let mut out = vec![base; ((x1 - x0) * (y1 - y0)) as usize];
             for by in (y0..y1).step_by(PILOT_BLOCK as usize) {
@@ -73,7 +73,8 @@ pub fn adaptive_counts(
                         }
                     }
                     let n = spp + (full - expected).floor().clamp(0.0, cap) as u32;
-                    let n = u16::try_from(n).expect("adaptive counts fit 16 bits");
+                    // Capped: a count is 16 bits, and the densities read the counts stored.
+                    let n = n.min(u16::MAX as u32) as u16;
                     for y in by..ey {
                         for x in bx..ex {
                             out[((y - y0) * (x1 - x0) + x - x0) as usize] = n;

@@ -183,9 +183,11 @@ pub fn remove_stale_tmp(dir: &Path, ours: impl Fn(&str) -> bool) {
                 .split(|c: char| !c.is_ascii_digit())
                 .next()
                 .and_then(|p| p.parse().ok());
-            let running = pid.is_some_and(|p| {
-                p != std::process::id() as i32 && Path::new(&format!("/proc/{p}")).exists()
-            });
+            // A name without a pid after `.tmp-` is not one reframe writes (`state.tmp-notes`
+            // is a user's file).
+            let Some(pid) = pid else { continue };
+            let running =
+                pid != std::process::id() as i32 && Path::new(&format!("/proc/{pid}")).exists();
             if ours(base.strip_prefix('.').unwrap_or(base)) && !running {
                 let _ = std::fs::remove_file(e.path());
             }
