@@ -529,6 +529,21 @@ fn a_killed_chunk_resumes_and_merges_identically() {
         err.contains("damaged record at byte 0") && err.contains("chunk 1/2 is rendered again"),
         "{err}"
     );
+    // Cut short (its trailer gone): said so too, and rendered again.
+    let len = std::fs::metadata(&partial).unwrap().len();
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&partial)
+        .unwrap()
+        .set_len(len / 2)
+        .unwrap();
+    let o = run(&resume.iter().map(String::as_str).collect::<Vec<_>>());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("not a complete reframe state file")
+            && err.contains("chunk 1/2 is rendered again"),
+        "{err}"
+    );
     run(&[
         "merge",
         &sub.join("f.chunk-1-of-2.partial").display().to_string(),

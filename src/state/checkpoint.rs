@@ -261,7 +261,16 @@ impl Checkpointer {
                 // (which the Slurm scripts always pass) it is not rendered again.
                 if let Some(c) = template.chunk {
                     let partial = partial_path(&template.out, c);
-                    if let Ok(mut sf) = StateFile::open(&partial) {
+                    let opened = StateFile::open(&partial);
+                    if let (Err(e), true) = (&opened, partial.exists()) {
+                        // Cut short, or its trailer damaged: not this run's complete result.
+                        errln!(
+                            "note: {}: chunk {c} is rendered again (its partial file is \
+                             replaced when it is done)",
+                            crate::util::text::printable(&format!("{e:#}"))
+                        );
+                    }
+                    if let Ok(mut sf) = opened {
                         let t = sf.trailer.clone();
                         if t.kind == Kind::Partial
                             && t.key.difference(&template.key).is_none()
