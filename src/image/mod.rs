@@ -299,6 +299,23 @@ impl OutputPattern {
         let ext = target
             .extension()
             .map_or("".into(), |e| e.to_string_lossy());
+        // Formats whose size fields are narrower than a frame can be: libjpeg ends the process
+        // on its own past 65500 (no error line, lock files left), and the TGA writer accepted
+        // the probe and failed after the first frame had rendered.
+        let lower = ext.to_ascii_lowercase();
+        let most = match lower.as_str() {
+            "jpg" | "jpeg" | "jpe" | "jfif" => Some(65_500),
+            "tga" | "tpic" | "gif" => Some(65_535),
+            "webp" => Some(16_383),
+            _ => None,
+        };
+        if let Some(m) = most.filter(|&m| width.max(height) > m) {
+            bail!(
+                "cannot write {}: a .{ext} file holds at most {m} pixels a side, and the frames \
+                 are {width}x{height} (write EXR, PNG or TIFF)",
+                self.original
+            );
+        }
         let probe = parent_dir(&target).join(format!(
             ".{name}.probe-{}-{}.{ext}",
             std::process::id(),
