@@ -182,6 +182,35 @@ fn png_output_gets_the_denoised_frame_and_a_missing_library_is_one_line() {
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(err.contains("cannot load Open Image Denoise"), "{err}");
     assert!(!d.path().join("missing").exists());
+    // A bare name is a file in the current folder, checked as such (the loader searched its
+    // library path for it, and a FIFO of that name was "No such file").
+    assert!(std::process::Command::new("mkfifo")
+        .arg(d.path().join("libx.so"))
+        .status()
+        .unwrap()
+        .success());
+    let o = common::reframe(&[
+        "render",
+        "furnace",
+        "--spp",
+        "1",
+        "--frames",
+        "0",
+        "--res",
+        "32x32",
+        "--denoise",
+        "--out",
+        "bare/f_####.exr",
+    ])
+    .current_dir(d.path())
+    .env("REFRAME_OIDN_LIB", "libx.so")
+    .output()
+    .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("'./libx.so': is a named pipe (FIFO)"),
+        "{err}"
+    );
     // `compare` names its own flag, the method that asked for the denoiser.
     let o = common::reframe(&[
         "compare",

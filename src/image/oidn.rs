@@ -91,7 +91,16 @@ fn candidates() -> Vec<PathBuf> {
     // Set but empty counts as unset: an empty name would make the loader return the program
     // itself.
     if let Some(p) = std::env::var_os("REFRAME_OIDN_LIB").filter(|p| !p.is_empty()) {
-        c.push(PathBuf::from(p));
+        // A bare name that is a file in the current folder is that file, checked as one (the
+        // loader would search its library path for it instead: a FIFO of that name was "No such
+        // file"); one that is not there is left to the loader's search (`libm.so.6`).
+        let p = PathBuf::from(p);
+        let bare = p.components().count() == 1 && p.is_relative();
+        c.push(if bare && std::fs::symlink_metadata(&p).is_ok() {
+            std::path::Path::new(".").join(p)
+        } else {
+            p
+        });
         return c;
     }
     if let Some(dir) = option_env!("REFRAME_OIDN_DIR") {
