@@ -414,6 +414,8 @@ ImageInfo ImageReader::info() const {
     info.format_name = rust::String::lossy(in_->format_name());
     info.integer = !spec_.format.is_floating_point();
     info.images = uint32_t(subimages_);
+    info.tile_width = uint32_t(std::max(spec_.tile_width, 0));
+    info.tile_height = uint32_t(std::max(spec_.tile_height, 0));
     return info;
 }
 

@@ -68,6 +68,9 @@ pub(crate) mod ffi {
         /// The images the file holds (found by seeking: a multi-page TIFF's pages, an
         /// animated GIF's frames; counted up to 65: 65 means more than 64).
         images: u32,
+        /// A tiled file's tile size (0 x 0 for a scanline file).
+        tile_width: u32,
+        tile_height: u32,
     }
 
     unsafe extern "C++" {

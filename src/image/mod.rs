@@ -829,6 +829,19 @@ fn open_input_image(
     if pixels == 0 || info.channels.is_empty() {
         bail!("the image has no pixels");
     }
+    // The reader holds a tile whole: a 1 KB EXR of 8 x 8 pixels that claimed tiles of 8192 x
+    // 8192 took 780 MB to read (or failed with a bare `std::bad_alloc` under `ulimit -v`).
+    let tile = info.tile_width as u64 * info.tile_height as u64;
+    if tile > 4 * pixels.max(4096) {
+        bail!(
+            "its tiles of {}x{} pixels are far larger than its {}x{} pixels (a damaged or \
+             hostile file): re-save it untiled or with tiles of 64 x 64",
+            info.tile_width,
+            info.tile_height,
+            info.width,
+            info.height
+        );
+    }
     Ok((reader, info, pixels))
 }
 
