@@ -269,6 +269,13 @@ pub fn build(
     let mut ids: Vec<u32> = Vec::new();
     // The mesh's lists grow fallibly (`grow`): an allocation that fails aborts the process (a
     // 26 MB OBJ of triangles under a tight `ulimit -v`: a backtrace, exit 134).
+    let no_room = |line: usize, made: usize, what: &str| {
+        anyhow::anyhow!(
+            "{label}: line {line}: building the mesh needs more memory than is left ({made} \
+             {what} so far){}",
+            crate::util::mem::address_space_note()
+        )
+    };
     for f in &obj.faces {
         let corners = &obj.corners[f.corners.clone()];
         // Smooth only if every corner has a usable normal: interpolating a normal with the face
@@ -287,13 +294,7 @@ pub fn build(
                 && (!any_smooth || grow(&mut mesh.normals))
                 && (!any_uv || grow(&mut mesh.uvs));
             if !fits {
-                bail!(
-                    "{label}: line {}: building the mesh needs more memory than is left ({} \
-                     vertices so far){}",
-                    f.line,
-                    mesh.positions.len(),
-                    crate::util::mem::address_space_note()
-                );
+                return Err(no_room(f.line, mesh.positions.len(), "vertices"));
             }
             mesh.positions.push(obj.positions[v as usize]);
             if any_smooth {
@@ -340,13 +341,7 @@ pub fn build(
                 && grow(&mut mesh.tri_normal)
                 && grow(&mut mesh.tri_area);
             if !fits {
-                bail!(
-                    "{label}: line {}: building the mesh needs more memory than is left ({} \
-                     triangles so far){}",
-                    f.line,
-                    mesh.triangles.len(),
-                    crate::util::mem::address_space_note()
-                );
+                return Err(no_room(f.line, mesh.triangles.len(), "triangles"));
             }
             mesh.triangles.push(tri);
             mesh.tri_material.push(mat);
