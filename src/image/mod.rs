@@ -752,7 +752,19 @@ fn open_checked(
     path: &Path,
     max_pixels: u64,
 ) -> Result<(cxx::UniquePtr<ffi::ImageReader>, ffi::ImageInfo)> {
-    let reader = ffi::open_reader(path_bytes(path)).map_err(|e| anyhow!("{}", e.what()))?;
+    let reader = ffi::open_reader(path_bytes(path)).map_err(|e| {
+        let msg = e.what();
+        // OpenImageIO reads Radiance files of RGBE pixels only, and says of the others that
+        // their header has no FORMAT line, which misleads for an XYZE file (a valid one).
+        if msg.contains("no FORMAT specifier found") {
+            anyhow!(
+                "{msg} (OpenImageIO reads Radiance HDR files of RGBE pixels with a FORMAT line; \
+                 an XYZE file, or one without that line, must be converted to RGBE or OpenEXR)"
+            )
+        } else {
+            anyhow!("{msg}")
+        }
+    })?;
     let info = reader.info();
     // A LogLuv TIFF (SGI's log-encoded HDR) comes out of this OpenImageIO as 8-bit codes of
     // another meaning, which would light a scene with the wrong values without a word.
