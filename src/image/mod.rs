@@ -843,8 +843,9 @@ fn open_input_image(
     }
     // The reader holds a tile whole: a 1 KB EXR of 8 x 8 pixels that claimed tiles of 8192 x
     // 8192 took 780 MB to read (or failed with a bare `std::bad_alloc` under `ulimit -v`).
+    // Tiles up to 1024 x 1024 are always taken (a small texture saved with large tiles).
     let tile = info.tile_width as u64 * info.tile_height as u64;
-    if tile > 4 * pixels.max(4096) {
+    if tile > (4 * pixels).max(1 << 20) {
         bail!(
             "its tiles of {}x{} pixels are far larger than its {}x{} pixels (a damaged or \
              hostile file): re-save it untiled or with tiles of 64 x 64",
