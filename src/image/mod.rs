@@ -904,12 +904,12 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
     // the layer `colour_layers` picks, never the first three across layers (the AO pass read
     // for the Combined one, or a depth channel mixed with a colour's red and green).
     if let Some(layer) = colour_layers(names).first() {
-        let find = |c: &str| {
-            names
-                .iter()
-                .position(|n| layer_of(n) == Some((layer.as_str(), c)))
+        let find = |c: char| {
+            names.iter().position(|n| {
+                layer_of(n).is_some_and(|(l, k)| l == layer.as_str() && role(k) == Some(c))
+            })
         };
-        return Ok(Colour::Rgb(["R", "G", "B"].map(find)));
+        return Ok(Colour::Rgb(['R', 'G', 'B'].map(find)));
     }
     // Printers' inks (a CMYK TIFF as OpenImageIO hands it over: C, M, Y, K, or ink0..), whose
     // first three read as RGB would turn red into cyan, and whose Y is yellow, not grey.
@@ -963,22 +963,37 @@ pub fn colour_layers(names: &[String]) -> Vec<String> {
     let mut layers: Vec<String> = Vec::new();
     for n in names {
         if let Some((layer, c)) = layer_of(n) {
-            if matches!(c, "R" | "G" | "B") && !layers.iter().any(|l| l == layer) {
+            if matches!(role(c), Some('R' | 'G' | 'B')) && !layers.iter().any(|l| l == layer) {
                 layers.push(layer.to_string());
             }
         }
     }
-    let rank = |l: &String| {
-        let last = l.rsplit('.').next().unwrap_or(l).to_ascii_lowercase();
-        match last.as_str() {
-            "combined" => 0,
-            "beauty" | "rgba" | "rgb" | "color" | "colour" => 1,
-            _ => 2,
-        }
-    };
     // Stable: the file's order within a rank.
-    layers.sort_by_key(rank);
+    layers.sort_by_key(|l| layer_rank(l));
     layers
+}
+
+/// How surely a layer named `l` is a file's colour: 0 for Blender's Combined, 1 for another
+/// program's beauty pass (beauty, rgba, rgb, color, colour), 2 for any other.
+fn layer_rank(l: &str) -> u8 {
+    let last = l.rsplit('.').next().unwrap_or(l).to_ascii_lowercase();
+    match last.as_str() {
+        "combined" => 0,
+        "beauty" | "rgba" | "rgb" | "color" | "colour" => 1,
+        _ => 2,
+    }
+}
+
+/// What a layer's channel named `c` holds, in any case and spelled out as Nuke spells it
+/// (`diffuse.r`, `diffuse.red`): red, green, blue or alpha.
+fn role(c: &str) -> Option<char> {
+    match c.to_ascii_lowercase().as_str() {
+        "r" | "red" => Some('R'),
+        "g" | "green" => Some('G'),
+        "b" | "blue" => Some('B'),
+        "a" | "alpha" => Some('A'),
+        _ => None,
+    }
 }
 
 /// Whether a colour file's values are sRGB-encoded, from the colour space the file names
@@ -1063,7 +1078,9 @@ pub struct ColourLayout {
 fn several_layers(names: &[String]) -> Vec<String> {
     let plain = names.iter().any(|n| matches!(n.as_str(), "R" | "G" | "B"));
     let layers = colour_layers(names);
-    if plain || layers.len() < 2 {
+    // A beauty pass by name (Blender's Combined, `rgba`, ...) is the colour without a doubt:
+    // no warning, which `--strict` would turn into a refusal of every Blender MultiLayer file.
+    if plain || layers.len() < 2 || layer_rank(&layers[0]) < 2 {
         Vec::new()
     } else {
         layers
@@ -1152,8 +1169,12 @@ pub fn mask_source(names: &[String], imfchan: Option<char>) -> Result<(usize, bo
             .collect(),
         _ => (0..names.len()).collect(),
     };
-    let own = |i: usize| layer_of(&names[i]).map_or(names[i].as_str(), |(_, c)| c);
-    let find = |c: &str| scope.iter().copied().find(|&i| own(i) == c);
+    // A channel by its name, in a layer also by its role (`diffuse.a`, `diffuse.alpha`).
+    let is = |i: usize, c: &str| match layer_of(&names[i]) {
+        None => names[i] == c,
+        Some((_, k)) => k == c || (c.len() == 1 && role(k) == c.chars().next()),
+    };
+    let find = |c: &str| scope.iter().copied().find(|&i| is(i, c));
     let by_place = |i: usize| scope.get(i).copied();
     let first = Some(scope[0]);
     let (alpha, grey) = (find("A"), find("Y"));
@@ -1344,13 +1365,41 @@ mod tests {
             Colour::Rgb([Some(1), Some(2), Some(3)])
         );
         assert!(several_layers(&mixed).is_empty());
-        assert_eq!(several_layers(&blender).len(), 2);
-        // Several layers of colour, none named as a beauty pass: the first in the file's order.
+        // Blender's Combined is the colour without a doubt: nothing to warn of.
+        assert!(several_layers(&blender).is_empty());
+        // Lower case and spelled out (Nuke's `diffuse.red`), for colour and for a mask.
+        let lower = names(&[
+            "depth.Z",
+            "diffuse.r",
+            "diffuse.g",
+            "diffuse.b",
+            "diffuse.a",
+        ]);
+        assert_eq!(
+            colour_channels(&lower).unwrap(),
+            Colour::Rgb([Some(1), Some(2), Some(3)])
+        );
+        assert_eq!(mask_source(&lower, None).unwrap(), (4, true));
+        let nuke = names(&[
+            "aa.red",
+            "aa.green",
+            "aa.blue",
+            "rgba.red",
+            "rgba.green",
+            "rgba.blue",
+        ]);
+        assert_eq!(
+            colour_channels(&nuke).unwrap(),
+            Colour::Rgb([Some(3), Some(4), Some(5)])
+        );
+        // Several layers of colour, none named as a beauty pass: the first in the file's order,
+        // with a warning.
         let passes = names(&["spec.R", "spec.G", "spec.B", "diff.R", "diff.G", "diff.B"]);
         assert_eq!(
             colour_channels(&passes).unwrap(),
             Colour::Rgb([Some(0), Some(1), Some(2)])
         );
+        assert_eq!(several_layers(&passes), ["spec", "diff"]);
         // Plain R, G, B beside layers are the colour, and nothing is said of the layers.
         let plain = names(&["R", "G", "B", "A", "N.R", "N.G", "N.B"]);
         assert_eq!(
