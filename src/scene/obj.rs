@@ -245,9 +245,10 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
             }
             "p" => repairs.note(label, n, POINTS, || format!("'{}'", quote(text)))?,
             "l" => repairs.note(label, n, POLYLINES, || format!("'{}'", quote(text)))?,
-            // Free-form geometry (Rhino, Maya exports): curves and surfaces are not tessellated.
+            // Free-form geometry (Rhino, Maya exports; `bsp`, `bzp`, `cdc` and `cdp` are the
+            // format's older patches): curves and surfaces are not tessellated.
             "cstype" | "deg" | "bmat" | "step" | "curv" | "curv2" | "surf" | "parm" | "trim"
-            | "hole" | "scrv" | "sp" | "end" | "con" | "vp" => {
+            | "hole" | "scrv" | "sp" | "end" | "con" | "vp" | "bsp" | "bzp" | "cdc" | "cdp" => {
                 repairs.note(label, n, FREE_FORM, || format!("'{}'", quote(text)))?
             }
             "usemtl" | "mtllib" => {
