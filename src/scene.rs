@@ -1349,6 +1349,7 @@ fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
         // An OBJ or MTL given as the scene (a first try with a model): said so, not a TOML
         // syntax error on its first statement.
         let first = text
+            .trim_start_matches('\u{feff}')
             .lines()
             .map(str::trim)
             .find(|l| !l.is_empty() && !l.starts_with('#'))
