@@ -55,8 +55,15 @@ pub fn fov_fault(fov: f64) -> Option<String> {
     }
 }
 
+/// `bytes` without the end-of-file mark (0x1a, Ctrl-Z) that DOS-era tools put after the last
+/// line: refused as a binary file's control character otherwise.
+fn without_eof_mark(bytes: &[u8]) -> &[u8] {
+    bytes.strip_suffix(b"\x1a").unwrap_or(bytes)
+}
+
 /// `bytes` as text, or an error naming the line of the first byte that is not text.
 pub fn as_text(bytes: &[u8]) -> Result<&str> {
+    let bytes = without_eof_mark(bytes);
     utf16(bytes)?;
     let text = std::str::from_utf8(bytes).map_err(|e| {
         anyhow!(
@@ -120,6 +127,7 @@ pub struct Line<'a> {
 /// of a file with LF ends a statement too, the parts keeping the line's number), one at a time
 /// (a large OBJ is not copied).
 pub fn lines(bytes: &[u8]) -> Result<impl Iterator<Item = Line<'_>>> {
+    let bytes = without_eof_mark(bytes);
     binary(bytes)?;
     let bytes = bytes.strip_prefix(b"\xef\xbb\xbf").unwrap_or(bytes);
     let end = if !bytes.contains(&b'\n') && bytes.contains(&b'\r') {
@@ -361,6 +369,11 @@ mod tests {
     #[test]
     fn text_names_the_line_of_binary_data() {
         assert_eq!(as_text(b"a\nb\n").unwrap(), "a\nb\n");
+        // A DOS end-of-file mark after the last line is no part of the text; elsewhere it is
+        // a control character.
+        assert_eq!(as_text(b"a\nb\n\x1a").unwrap(), "a\nb\n");
+        assert_eq!(lines(b"v 1 2 3\n\x1a").unwrap().count(), 2);
+        assert!(as_text(b"a\x1a\nb\n").is_err());
         let e = as_text(b"a\nb\n\xff\xfe").unwrap_err().to_string();
         assert!(e.starts_with("line 3: not UTF-8"), "{e}");
         let e = as_text(b"a\n\0").unwrap_err().to_string();
