@@ -187,9 +187,6 @@ pub fn check_max_depth(max_depth: u32) -> Result<()> {
 }
 
 impl RenderOptions {
-    /// Every setting checked against `scene`, before anything is traced or written: the frames,
-    /// resolution, samples, window, method-specific flags, checkpoint interval and depth. The
-    /// files (`--out`, `--stats`) are checked by `check_files`.
     /// `--adaptive` as the render takes it: ignored at `--window 1` (a group of one frame lands
     /// nothing from other frames: every pixel gets `--spp`), where it traced its pilot rays
     /// for nothing.
@@ -197,6 +194,9 @@ impl RenderOptions {
         self.adaptive.filter(|_| self.window > 1)
     }
 
+    /// Every setting checked against `scene`, before anything is traced or written: the frames,
+    /// resolution, samples, window, method-specific flags, checkpoint interval and depth. The
+    /// files (`--out`, `--stats`) are checked by `check_files`.
     pub fn validate(&self, scene: &Scene) -> Result<Plan> {
         let range = self.frames.clone().unwrap_or(0..=scene.frames - 1);
         check_frames(scene, &range)?;

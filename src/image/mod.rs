@@ -1159,8 +1159,8 @@ pub fn mask_source(names: &[String], imfchan: Option<char>) -> Result<(usize, bo
     if names.is_empty() {
         bail!("the image has no channels");
     }
-    // The channels a mask is taken from: all of them, or in a multi-layer EXR without plain
-    // channels of colour those of the layer a colour is read from (`colour_layers`): Blender's
+    // The channels a mask is taken from: all of them, or in a multi-layer EXR all of whose
+    // channels are in layers those of the layer a colour is read from (`colour_layers`): Blender's
     // alpha is `ViewLayer.Combined.A`, and the file's first channel was its AO pass's red.
     let plain = names.iter().any(|n| layer_of(n).is_none());
     let scope: Vec<usize> = match colour_layers(names).first() {

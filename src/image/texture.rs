@@ -71,7 +71,7 @@ struct Info {
     /// The file's layers of colour where it holds several, the one read first
     /// (`ColourLayout::layers`).
     layers: Vec<String>,
-    /// The images its file holds (`ColourLayout::parts`); 1 for a mask.
+    /// The images its file holds (`ColourLayout::parts`, `MaskLayout::parts`).
     parts: u32,
     /// The file, and for a mask whether it reads the first channel of a colour image without
     /// alpha (`image::mask_source`).
@@ -158,9 +158,13 @@ impl Textures {
             Colour::Grey(c) => [Some(c - first); 3],
             Colour::Rgb(c) => c.map(|c| c.map(|c| c - first)),
         };
-        let id = self.add(key, id, &img, (last - first + 1, pick, srgb, parts), false);
-        self.info[id.0 as usize].layers = layers;
-        Ok(id)
+        Ok(self.add(
+            key,
+            id,
+            &img,
+            (last - first + 1, pick, srgb, parts, layers),
+            false,
+        ))
     }
 
     /// Open the texture at `path` as a cut-out mask (once: a second time gives the same id):
@@ -187,26 +191,24 @@ impl Textures {
             .pin_mut()
             .add(path_bytes(path), channel as u32, channel as u32 + 1)
             .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
-        let id = self.add(
+        Ok(self.add(
             key,
             id,
             &img,
-            (1, [Some(0), None, None], false, parts),
+            (1, [Some(0), None, None], false, parts, layers),
             !coverage,
-        );
-        self.info[id.0 as usize].layers = layers;
-        Ok(id)
+        ))
     }
 
     /// Record texture `id` of the texture set, opened as `key` and read as `img` (what its
-    /// identity hashes), fetched as `(channels, pick, srgb)` (`Info`); `colour_mask`: a mask
-    /// that reads a colour image's first channel.
+    /// identity hashes), fetched as `(channels, pick, srgb)`, with its file's images and layers
+    /// of colour (`Info`); `colour_mask`: a mask that reads a colour image's first channel.
     fn add(
         &mut self,
         key: (PathBuf, Option<Option<char>>),
         id: u32,
         img: &super::Image,
-        (fetched, pick, srgb, parts): (usize, [Option<usize>; 3], bool, u32),
+        (fetched, pick, srgb, parts, layers): (usize, [Option<usize>; 3], bool, u32, Vec<String>),
         colour_mask: bool,
     ) -> TextureId {
         let mut f = Fnv::default();
@@ -225,7 +227,7 @@ impl Textures {
             }),
             path: key.0.clone(),
             colour_mask,
-            layers: Vec::new(),
+            layers,
         });
         let id = TextureId(id);
         self.by_path.insert(key, id);

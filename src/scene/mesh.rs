@@ -231,13 +231,6 @@ pub fn measure(a: Vec3, b: Vec3, c: Vec3) -> (Vec3, f32, bool) {
     }
 }
 
-/// Room for one more element of `v`, taken fallibly (doubling as `push` does): false where the
-/// memory left does not hold it.
-#[inline]
-fn grow<T>(v: &mut Vec<T>) -> bool {
-    v.len() < v.capacity() || v.try_reserve(v.capacity().max(64)).is_ok()
-}
-
 pub fn build(
     label: &str,
     bytes: &[u8],
@@ -267,7 +260,8 @@ pub fn build(
     let mut first_skipped = 0usize;
     let mut pts = Vec::new();
     let mut ids: Vec<u32> = Vec::new();
-    // The mesh's lists grow fallibly (`grow`): an allocation that fails aborts the process (a
+    use crate::util::mem::grow;
+    // The mesh's lists grow fallibly (`util::mem::grow`): an allocation that fails aborts the process (a
     // 26 MB OBJ of triangles under a tight `ulimit -v`: a backtrace, exit 134).
     let no_room = |line: usize, made: usize, what: &str| {
         anyhow::anyhow!(

@@ -99,12 +99,12 @@ pub struct Obj {
     pub anchor: DVec3,
 }
 
-/// Room for one more element of `v`, taken fallibly: the reader's lists are the first large
+/// Room for one more element of `v` (`util::mem::grow`): the reader's lists are the first large
 /// allocations of a large scene, and one that fails aborts the process (a 26 MB OBJ under a
 /// tight `ulimit -v` ended in a backtrace, exit 134), where this is an error naming the line.
 #[inline]
 fn room<T>(v: &mut Vec<T>, label: &str, n: usize) -> Result<()> {
-    if v.len() == v.capacity() && v.try_reserve(v.capacity().max(64)).is_err() {
+    if !crate::util::mem::grow(v) {
         return Err(anyhow!(
             "{label}: line {n}: reading the OBJ needs more memory than is left ({} held for its \
              lists so far){}",

@@ -261,42 +261,41 @@ impl Checkpointer {
                 // (which the Slurm scripts always pass) it is not rendered again.
                 if let Some(c) = template.chunk {
                     let partial = partial_path(&template.out, c);
-                    let opened = StateFile::open(&partial);
-                    if let (Err(e), true) = (&opened, partial.exists()) {
-                        // Cut short, or its trailer damaged: not this run's complete result.
-                        errln!(
-                            "note: {}: chunk {c} is rendered again (its partial file is \
-                             replaced when it is done)",
-                            crate::util::text::printable(&format!("{e:#}"))
-                        );
-                    }
-                    if let Ok(mut sf) = opened {
+                    // Complete only if this run's, and every record reads back whole, as
+                    // `merge` reads them: a damaged one was called complete, and the merge that
+                    // refused it could never be mended by running the chunk again. One cut
+                    // short, or with its trailer damaged, is no complete result either.
+                    let complete = || -> Result<bool> {
+                        let mut sf = StateFile::open(&partial)?;
                         let t = sf.trailer.clone();
-                        if t.kind == Kind::Partial
-                            && t.key.difference(&template.key).is_none()
-                            && t.chunk == template.chunk
-                            && t.units == template.units
-                            && t.next_unit == template.units[1] + 1
+                        if t.kind != Kind::Partial
+                            || t.key.difference(&template.key).is_some()
+                            || t.chunk != template.chunk
+                            || t.units != template.units
+                            || t.next_unit != template.units[1] + 1
                         {
-                            // Complete only if every record reads back whole, as `merge` reads
-                            // them: a damaged one was called complete, and the merge that
-                            // refused it could never be mended by running the chunk again.
-                            let damaged = t
-                                .records
-                                .iter()
-                                .find_map(|&(_, off)| sf.record(off, norm).err());
-                            let Some(e) = damaged else {
+                            return Ok(false);
+                        }
+                        for &(_, off) in &t.records {
+                            sf.record(off, norm)?;
+                        }
+                        Ok(true)
+                    };
+                    if partial.exists() {
+                        match complete() {
+                            Ok(true) => {
                                 return Err(ChunkComplete {
                                     chunk: c.to_string(),
                                     partial,
                                 }
-                                .into());
-                            };
-                            errln!(
+                                .into())
+                            }
+                            Ok(false) => {}
+                            Err(e) => errln!(
                                 "note: {}: chunk {c} is rendered again (its partial file is \
                                  replaced when it is done)",
                                 crate::util::text::printable(&format!("{e:#}"))
-                            );
+                            ),
                         }
                     }
                 }

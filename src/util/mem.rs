@@ -103,6 +103,14 @@ pub fn size(bytes: u64) -> String {
     }
 }
 
+/// Room for one more element of `v`, taken fallibly (doubling as `push` does): false where the
+/// memory left does not hold it. An allocation that fails aborts the process; the lists a large
+/// OBJ grows (its reader's, its mesh's) use this to fail in one line instead.
+#[inline]
+pub fn grow<T>(v: &mut Vec<T>) -> bool {
+    v.len() < v.capacity() || v.try_reserve(v.capacity().max(64)).is_ok()
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
