@@ -520,6 +520,12 @@ enum Source {
 }
 
 impl Scene {
+    /// Bytes the texture cache will hold while rendering (0 without textures): memory the
+    /// render's frames cannot have (`RenderOptions::check_memory`).
+    pub fn texture_cache_bytes(&self) -> u64 {
+        self.textures.as_ref().map_or(0, |t| t.cache_use_bytes())
+    }
+
     /// Load a scene by file path, or by the name of a shipped scene (`vase`, `cornell`,
     /// `furnace`) when no such file exists; repairs are warnings (`LoadOptions::default()`).
     pub fn load(name_or_path: &str, device: &Device) -> Result<Scene> {

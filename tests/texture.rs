@@ -1016,3 +1016,62 @@ fn the_texture_cache_counts_the_files_own_formats() {
     // Little: the default of 1 GB holds them, whatever the memory; no warning.
     assert_eq!(t.size_cache(Some(1 << 20)), None);
 }
+
+/// The texture cache is memory the frames cannot have: a render that fits beside the scene's
+/// textures runs, and one that would fit only without them is refused with a line that names
+/// them (the cache, filled while rendering, was left out, and such a render ran out of memory
+/// hours in).
+#[test]
+fn the_texture_cache_counts_against_the_memory_a_render_may_take() {
+    use reframe::driver::RenderOptions;
+    let d = tempfile::tempdir().unwrap();
+    // 1024 x 1024 float RGB: 12.6 MB of texels.
+    write_texture(
+        &d.path().join("t.exr"),
+        1024,
+        |x, y| Vec3::splat(((x ^ y) & 1) as f32),
+        true,
+    );
+    let p = write_scene(
+        d.path(),
+        QUAD,
+        "newmtl q\nKd 1 1 1\nmap_Kd t.exr\n",
+        &toml(
+            8,
+            8,
+            [0.0, 0.0, 3.0],
+            60.0,
+            "[environment]\nradiance = [1, 1, 1]",
+        ),
+    );
+    let device = Device::new().unwrap();
+    let scene = Scene::load(&p, &device).unwrap();
+    let cache = scene.texture_cache_bytes();
+    assert!(cache >= 1024 * 1024 * 12, "{cache} bytes");
+    let opts = RenderOptions::default();
+    let frames = opts.memory_estimate((8, 8));
+    opts.check_memory((8, 8), Some(frames + cache), cache)
+        .unwrap();
+    let err = opts
+        .check_memory((8, 8), Some(frames + cache - 1), cache)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("the scene's textures about"), "{err}");
+    // Without textures the same memory is enough.
+    opts.check_memory((8, 8), Some(frames + cache - 1), 0)
+        .unwrap();
+    // An untextured scene holds no cache.
+    let q = write_scene(
+        d.path(),
+        QUAD,
+        "newmtl q\nKd 1 1 1\n",
+        &toml(
+            8,
+            8,
+            [0.0, 0.0, 3.0],
+            60.0,
+            "[environment]\nradiance = [1, 1, 1]",
+        ),
+    );
+    assert_eq!(Scene::load(&q, &device).unwrap().texture_cache_bytes(), 0);
+}

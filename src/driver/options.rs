@@ -263,7 +263,11 @@ impl RenderOptions {
         }
         check_threads(self.threads)?;
         check_max_depth(self.max_depth)?;
-        self.check_memory((w, h), crate::util::mem::available_bytes())?;
+        self.check_memory(
+            (w, h),
+            crate::util::mem::available_bytes(),
+            scene.texture_cache_bytes(),
+        )?;
         let all_units = run_units(*range.start(), *range.end(), self.window);
         let units = match self.chunk {
             Some(c) => c.share(all_units.clone()).with_context(|| {
@@ -350,14 +354,21 @@ impl RenderOptions {
         frames + adaptive + workers + develop + denoise + rest
     }
 
-    /// Refuse a render whose `memory_estimate` passes `available` (where known), naming the
-    /// flags that change it.
-    pub fn check_memory(&self, (w, h): (u32, u32), available: Option<u64>) -> Result<()> {
+    /// Refuse a render whose `memory_estimate` and the scene's texture cache (`textures`
+    /// bytes, filled while rendering) pass `available` (where known), naming the flags that
+    /// change it.
+    pub fn check_memory(
+        &self,
+        (w, h): (u32, u32),
+        available: Option<u64>,
+        textures: u64,
+    ) -> Result<()> {
         let need = self.memory_estimate((w, h));
+        let size = crate::util::mem::size;
         match available {
-            Some(a) if need > a => bail!(
+            Some(a) if need.saturating_add(textures) > a => bail!(
                 "--res {w}x{h} with --method {} --window {}{}: the frames in flight need \
-                 about {}, but {} of memory is available; lower --res{}",
+                 about {}{}, but {} of memory is available; lower --res{}",
                 self.method.name(),
                 self.window,
                 if self.denoise.is_some() {
@@ -365,8 +376,16 @@ impl RenderOptions {
                 } else {
                     ""
                 },
-                crate::util::mem::size(need),
-                crate::util::mem::size(a),
+                size(need),
+                if textures > 0 {
+                    format!(
+                        " and the scene's textures about {} in their cache",
+                        size(textures)
+                    )
+                } else {
+                    String::new()
+                },
+                size(a),
                 if self.method.reuses() {
                     " or --window or --spp, or use fewer --threads"
                 } else {

@@ -99,6 +99,8 @@ pub struct Textures {
     /// Lookups the texture system failed (a file changed or vanished during the render); they
     /// return black.
     failures: AtomicU64,
+    /// Bytes the cache holds once every texture is read, within its limit (`size_cache`).
+    cache_use: u64,
 }
 
 impl Textures {
@@ -109,6 +111,7 @@ impl Textures {
             info: Vec::new(),
             by_path: HashMap::new(),
             failures: AtomicU64::new(0),
+            cache_use: 0,
         })
     }
 
@@ -242,6 +245,7 @@ impl Textures {
     pub fn size_cache(&mut self, available: Option<u64>) -> Option<String> {
         let (need, mb) = cache_limit(self.set.cache_bytes(), available);
         self.set.pin_mut().set_cache_mb(mb as f32);
+        self.cache_use = (need.min(mb) * 1e6) as u64;
         (need > mb).then(|| {
             format!(
                 "the scene's textures take about {} MB in the texture cache, more than the {} MB \
@@ -252,6 +256,12 @@ impl Textures {
                 mb.round()
             )
         })
+    }
+
+    /// Bytes the texture cache holds once the render has read every texture (within the limit
+    /// `size_cache` set; 0 before it): memory a render's frames cannot have.
+    pub fn cache_use_bytes(&self) -> u64 {
+        self.cache_use
     }
 
     /// What the textures opened hold in the cache when all of it is in memory (bytes: their

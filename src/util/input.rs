@@ -130,10 +130,12 @@ pub fn read_input_or_missing(
     // `ulimit -v` ended in a backtrace, exit 134).
     let mut bytes = Vec::new();
     if bytes.try_reserve_exact(len as usize).is_err() {
+        let left = crate::util::mem::available_bytes().map_or(String::new(), |a| {
+            format!(" ({})", crate::util::mem::size(a))
+        });
         return Err(refuse(format!(
-            "its {} MB do not fit in the memory left ({} MB){}",
-            len.div_ceil(1_000_000),
-            crate::util::mem::available_bytes().unwrap_or(0) / 1_000_000,
+            "its {} do not fit in the memory left{left}{}",
+            crate::util::mem::size(len),
             crate::util::mem::address_space_note()
         )));
     }
