@@ -1752,24 +1752,13 @@ fn load_environment(
             // each per pixel), then its texels and its sampling tables (12 more): 24 at most.
             let (image, layout) = crate::image::read_colour(&path, MAX_ENV_TEXELS, 24)
                 .map_err(|e| anyhow!("{at}: environment image: {e}"))?;
-            if layout.parts > 1 {
-                repairs.note(label, table_line, maps::MULTI_PART, || {
-                    format!(
-                        "environment image '{}': the file holds {} images",
-                        quote(img.get_ref()),
-                        crate::image::images_in_words(layout.parts)
-                    )
-                })?;
-            }
-            if !layout.layers.is_empty() {
-                repairs.note(label, table_line, maps::MULTI_LAYER, || {
-                    format!(
-                        "environment image '{}': {}",
-                        quote(img.get_ref()),
-                        maps::layers_read(&layout.layers)
-                    )
-                })?;
-            }
+            maps::note_images_read(
+                repairs,
+                (label, table_line),
+                &format!("environment image '{}'", quote(img.get_ref())),
+                layout.parts,
+                &layout.layers,
+            )?;
             let at = format!("{at}: environment image {}", path.display());
             let (width, height) = (image.width, image.height);
             // 2:1 within a pixel or 1% (4000 x 2001 is a lat-long map rounded).

@@ -80,6 +80,32 @@ pub fn layers_read(layers: &[String]) -> String {
     )
 }
 
+/// Note that the image file `what` (at `file`'s `line`) holds several images (`parts`, of
+/// which the first is read) or several layers of colour (`layers`, the one read first), where
+/// it does: a texture's and an environment's alike.
+pub fn note_images_read(
+    repairs: &mut Repairs,
+    (file, line): (&str, usize),
+    what: &str,
+    parts: u32,
+    layers: &[String],
+) -> Result<()> {
+    if parts > 1 {
+        repairs.note(file, line, MULTI_PART, || {
+            format!(
+                "{what}: the file holds {} images",
+                crate::image::images_in_words(parts)
+            )
+        })?;
+    }
+    if !layers.is_empty() {
+        repairs.note(file, line, MULTI_LAYER, || {
+            format!("{what}: {}", layers_read(layers))
+        })?;
+    }
+    Ok(())
+}
+
 const KE_MAP_CAPPED: Kind = Kind {
     one: "emission map capped at 1e9 (radiance sums would overflow above it)",
     many: "emission maps capped at 1e9 (radiance sums would overflow above it)",
@@ -199,22 +225,13 @@ impl Maps {
             if let (Some(map), Some(t), Some(spec)) =
                 (map, textures.as_ref(), &m.maps[slot as usize])
             {
-                let parts = t.parts(map.tex);
-                if parts > 1 {
-                    repairs.note(mtl_label, spec.line, MULTI_PART, || {
-                        format!(
-                            "'{}': the file holds {} images",
-                            quote(&spec.statement),
-                            crate::image::images_in_words(parts)
-                        )
-                    })?;
-                }
-                let layers = t.layers(map.tex);
-                if !layers.is_empty() {
-                    repairs.note(mtl_label, spec.line, MULTI_LAYER, || {
-                        format!("'{}': {}", quote(&spec.statement), layers_read(layers))
-                    })?;
-                }
+                note_images_read(
+                    repairs,
+                    (mtl_label, spec.line),
+                    &format!("'{}'", quote(&spec.statement)),
+                    t.parts(map.tex),
+                    t.layers(map.tex),
+                )?;
             }
         }
         if let (Some(map), Some(t), Some(spec)) =
