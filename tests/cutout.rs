@@ -443,3 +443,76 @@ fn maps_that_are_not_rendered_are_never_written_over() {
         );
     }
 }
+
+/// A mask saved in the colour of an RGBA file whose alpha was filled (opaque everywhere: the
+/// DDS and TGA masks of Crytek's Sponza) is read from its colour, with a warning, and cuts out
+/// exactly what the same mask in a grey file does; its alpha was read, and nothing was cut
+/// out. An opaque alpha over a colour that would cut nothing, or `-imfchan m`, still reads the
+/// alpha; and a `map_d` naming the material's own `map_Kd` with an opaque alpha still cuts
+/// nothing out, without a word, as before.
+#[test]
+fn a_mask_in_the_colour_of_a_file_with_an_opaque_alpha_is_read_from_its_colour() {
+    let device = Device::new().unwrap();
+    let d = tempfile::tempdir().unwrap();
+    let filled = d.path().join("filled.tga");
+    write_tga(&filled, 8, 4, |x, y| {
+        [checker(x, y), checker(x, y), checker(x, y), 255]
+    });
+    let white = d.path().join("white.tga");
+    write_tga(&white, 8, 4, |_, _| [255, 255, 255, 255]);
+    let mut t = Textures::new().unwrap();
+    let m = t.open_mask(&filled, None).unwrap();
+    assert!(t.mask_alpha_opaque(m));
+    // Texel centres of the kept top-left quarter (v = 1 is row 0) and of a cut-out quarter.
+    assert_eq!(t.value(m, Vec2::new(0.2, 0.8)), 1.0);
+    assert_eq!(t.value(m, Vec2::new(0.8, 0.8)), 0.0);
+    let a = t.open_mask(&filled, Some('m')).unwrap();
+    assert!(!t.mask_alpha_opaque(a));
+    assert_eq!(t.value(a, Vec2::new(0.8, 0.8)), 1.0);
+    let w = t.open_mask(&white, None).unwrap();
+    assert!(!t.mask_alpha_opaque(w));
+
+    // The scene: the quad cut by the filled RGBA file renders the frames of the grey mask's.
+    let cam = camera(1, 24, 24);
+    let files = [("cut.obj", format!("mtllib s.mtl\n{QUAD}{ROOM}"))];
+    let path = write_scene(d.path(), "obj = \"cut.obj\"", &cam, &files);
+    let grey = Scene::load(&path, &device).unwrap();
+    assert!(grey.warnings.is_empty(), "{:?}", grey.warnings);
+    let want = renders(&grey, 0, (24, 24), 1, 7);
+    std::fs::write(
+        d.path().join("s.mtl"),
+        MTL.replace("map_d mask.tga", "map_d filled.tga"),
+    )
+    .unwrap();
+    let scene = Scene::load(&path, &device).unwrap();
+    assert!(
+        scene.warnings.iter().any(|x| x.contains(
+            "line 3: 'map_d filled.tga' in 'leaf': mask whose alpha is opaque everywhere read \
+             from its grey or first colour channel"
+        )),
+        "{:?}",
+        scene.warnings
+    );
+    assert_eq!(renders(&scene, 0, (24, 24), 1, 7), want);
+    // Refused with --strict, as every repair.
+    let strict = LoadOptions { strict: true };
+    assert!(Scene::load_with(&path, &device, &strict).is_err());
+    // The material's own map_Kd as its map_d, with an opaque alpha: nothing cut out, no word.
+    std::fs::write(
+        d.path().join("s.mtl"),
+        MTL.replace("map_d mask.tga", "map_Kd filled.tga\nmap_d filled.tga"),
+    )
+    .unwrap();
+    let solid = Scene::load(&path, &device).unwrap();
+    assert!(solid.warnings.is_empty(), "{:?}", solid.warnings);
+    std::fs::write(
+        d.path().join("s.mtl"),
+        MTL.replace("map_d mask.tga", "map_Kd filled.tga"),
+    )
+    .unwrap();
+    let unmasked = Scene::load(&path, &device).unwrap();
+    assert_eq!(
+        renders(&solid, 0, (24, 24), 1, 7),
+        renders(&unmasked, 0, (24, 24), 1, 7)
+    );
+}

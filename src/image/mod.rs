@@ -1156,6 +1156,21 @@ pub fn read_colour(
 /// (`true`: named by `-imfchan`, an alpha or a grey channel, or an image of one or two
 /// channels) rather than the first channel of a colour image without alpha.
 pub fn mask_source(names: &[String], imfchan: Option<char>) -> Result<(usize, bool)> {
+    mask_pick(names, imfchan).map(|p| (p.channel, p.coverage))
+}
+
+/// Where a mask is read from (`mask_pick`).
+struct MaskPick {
+    channel: usize,
+    coverage: bool,
+    /// With no `-imfchan` and an alpha channel read: the channel (and whether it holds a
+    /// coverage) to read instead if the alpha is opaque everywhere (a mask saved in the colour
+    /// of an RGBA file whose alpha was filled), its grey channel or else its first other one.
+    if_opaque: Option<(usize, bool)>,
+}
+
+/// `mask_source`, and the channel to read instead where the alpha it picks is opaque.
+fn mask_pick(names: &[String], imfchan: Option<char>) -> Result<MaskPick> {
     if names.is_empty() {
         bail!("the image has no channels");
     }
@@ -1195,7 +1210,17 @@ pub fn mask_source(names: &[String], imfchan: Option<char>) -> Result<(usize, bo
         )
     })?;
     let coverage = imfchan.is_some() || alpha.is_some() || grey.is_some() || scope.len() < 3;
-    Ok((channel, coverage))
+    let if_opaque = match (imfchan, alpha) {
+        (None, Some(a)) => grey
+            .or_else(|| scope.iter().copied().find(|&i| i != a))
+            .map(|c| (c, grey.is_some() || scope.len() < 3)),
+        _ => None,
+    };
+    Ok(MaskPick {
+        channel,
+        coverage,
+        if_opaque,
+    })
 }
 
 /// Where a cut-out mask's file holds its coverage (`read_mask`).
@@ -1208,6 +1233,9 @@ pub struct MaskLayout {
     /// As `ColourLayout`'s: the images the file holds, and its layers of colour where several.
     pub parts: u32,
     pub layers: Vec<String>,
+    /// Whether the alpha the mask would have been read from is opaque everywhere, so that
+    /// `channel` is the grey or first other channel instead (`MaskPick::if_opaque`).
+    pub alpha_opaque: bool,
 }
 
 /// The images a file holds, from its reader's attributes (`oiio:subimages`, which OIIO sets for
@@ -1233,10 +1261,22 @@ pub fn read_mask(
         let (mut reader, info, pixels) = open_input_image(path, max_pixels)?;
         let parts = parts_of(&reader, &info);
         let nch = info.channels.len();
-        let (channel, coverage) = mask_source(&info.channels, imfchan)?;
+        let pick = mask_pick(&info.channels, imfchan)?;
         let need = pixels * (4 * nch as u64 + 4);
         check_room(&info, need)?;
         let data = read_all(&mut reader, &info)?;
+        // An alpha that is opaque everywhere holds no mask: where another channel would cut
+        // something out (below one half somewhere), the mask is in it (a DDS or TGA mask of
+        // grey in RGB, saved with a filled alpha; the chains of Crytek's Sponza were solid).
+        let texels = |c: usize| data.chunks_exact(nch).map(move |px| px[c]);
+        let (channel, coverage, alpha_opaque) = match pick.if_opaque {
+            Some((c, cov))
+                if texels(pick.channel).all(|a| a >= 1.0) && texels(c).any(|v| v < 0.5) =>
+            {
+                (c, cov, true)
+            }
+            _ => (pick.channel, pick.coverage, false),
+        };
         let img = Image {
             width: info.width,
             height: info.height,
@@ -1248,6 +1288,7 @@ pub fn read_mask(
             coverage,
             parts,
             layers: several_layers(&info.channels),
+            alpha_opaque,
         };
         Ok((img, layout))
     };

@@ -74,9 +74,11 @@ struct Info {
     /// The images its file holds (`ColourLayout::parts`, `MaskLayout::parts`).
     parts: u32,
     /// The file, and for a mask whether it reads the first channel of a colour image without
-    /// alpha (`image::mask_source`).
+    /// alpha (`image::mask_source`) and whether it does so because the alpha is opaque
+    /// everywhere (`MaskLayout::alpha_opaque`).
     path: PathBuf,
     colour_mask: bool,
+    alpha_opaque: bool,
 }
 
 /// Refuses a texture with a texel that is negative or not finite.
@@ -166,7 +168,7 @@ impl Textures {
             id,
             &img,
             (last - first + 1, pick, srgb, parts, layers),
-            false,
+            (false, false),
         ))
     }
 
@@ -186,6 +188,7 @@ impl Textures {
                 coverage,
                 parts,
                 layers,
+                alpha_opaque,
             },
         ) = read_mask(path, MAX_TEXELS, imfchan)?;
         check_texels(path, &img.data)?;
@@ -199,20 +202,21 @@ impl Textures {
             id,
             &img,
             (1, [Some(0), None, None], false, parts, layers),
-            !coverage,
+            (!coverage, alpha_opaque),
         ))
     }
 
     /// Record texture `id` of the texture set, opened as `key` and read as `img` (what its
     /// identity hashes), fetched as `(channels, pick, srgb)`, with its file's images and layers
-    /// of colour (`Info`); `colour_mask`: a mask that reads a colour image's first channel.
+    /// of colour (`Info`); `colour_mask`: a mask that reads a colour image's first channel,
+    /// `alpha_opaque`: in place of its opaque alpha.
     fn add(
         &mut self,
         key: (PathBuf, Option<Option<char>>),
         id: u32,
         img: &super::Image,
         (fetched, pick, srgb, parts, layers): (usize, [Option<usize>; 3], bool, u32, Vec<String>),
-        colour_mask: bool,
+        (colour_mask, alpha_opaque): (bool, bool),
     ) -> TextureId {
         let mut f = Fnv::default();
         f.bytes(&[img.width.to_le_bytes(), img.height.to_le_bytes()].concat());
@@ -230,6 +234,7 @@ impl Textures {
             }),
             path: key.0.clone(),
             colour_mask,
+            alpha_opaque,
             layers,
         });
         let id = TextureId(id);
@@ -300,6 +305,12 @@ impl Textures {
     pub fn is_colour_mask_of(&self, id: TextureId, colour: TextureId) -> bool {
         let (m, c) = (&self.info[id.0 as usize], &self.info[colour.0 as usize]);
         m.colour_mask && m.path == c.path
+    }
+
+    /// Whether mask `id` is read from its file's grey or first colour channel because the
+    /// file's alpha is opaque everywhere (`image::MaskLayout::alpha_opaque`).
+    pub fn mask_alpha_opaque(&self, id: TextureId) -> bool {
+        self.info[id.0 as usize].alpha_opaque
     }
 
     /// The value of mask `id` (`open_mask`) at texture coordinates `uv`: bilinear between the

@@ -55,6 +55,13 @@ const COLOUR_AS_MASK: Kind = Kind {
     many: "map_d names the colour texture (map_Kd), which has no alpha: no cut-outs",
 };
 
+/// A mask file whose alpha is opaque everywhere, with the mask in its colour (`map_d` of a
+/// DDS or TGA saved with a filled alpha).
+const MASK_IN_COLOUR: Kind = Kind {
+    one: "mask whose alpha is opaque everywhere read from its grey or first colour channel (add -imfchan to choose)",
+    many: "masks whose alpha is opaque everywhere read from their grey or first colour channel (add -imfchan to choose)",
+};
+
 /// An image file of several images (a multi-part EXR's parts, a multi-page TIFF's pages, an
 /// animated GIF's frames): the first is read.
 pub const MULTI_PART: Kind = Kind {
@@ -204,16 +211,28 @@ impl Maps {
         };
         let cutout = match (cutout, &kd, textures.as_ref()) {
             (Some(c), Some(kd), Some(t)) if t.is_colour_mask_of(c.tex, kd.tex) => {
-                let spec = m.maps[Slot::D as usize]
-                    .as_ref()
-                    .expect("the mask's statement");
-                repairs.note(mtl_label, spec.line, COLOUR_AS_MASK, || {
-                    format!("'{}' in '{}'", quote(&spec.statement), m.name)
-                })?;
+                // With an opaque alpha the file holds no mask either: as it always read.
+                if !t.mask_alpha_opaque(c.tex) {
+                    let spec = m.maps[Slot::D as usize]
+                        .as_ref()
+                        .expect("the mask's statement");
+                    repairs.note(mtl_label, spec.line, COLOUR_AS_MASK, || {
+                        format!("'{}' in '{}'", quote(&spec.statement), m.name)
+                    })?;
+                }
                 None
             }
             (c, ..) => c,
         };
+        if let (Some(c), Some(t), Some(spec)) =
+            (&cutout, textures.as_ref(), &m.maps[Slot::D as usize])
+        {
+            if t.mask_alpha_opaque(c.tex) {
+                repairs.note(mtl_label, spec.line, MASK_IN_COLOUR, || {
+                    format!("'{}' in '{}'", quote(&spec.statement), m.name)
+                })?;
+            }
+        }
         // A multi-part file (an EXR of several layers as parts): its first part is read; a
         // multi-layer one (layers in one part): the layer `image::colour_layers` picks.
         for (map, slot) in [
