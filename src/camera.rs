@@ -174,6 +174,13 @@ impl Camera {
             .map(|r| r.y as u32 * self.width + r.x as u32)
     }
 
+    /// How far the film's corner is from its centre at focal distance 1 (`tan(fov/2)` times the
+    /// half-diagonal over the half-height): `1/cos^3` of the widest angle off the axis, which
+    /// the film densities (`jacobian`) reach, is about its cube.
+    pub fn film_extent(&self) -> f32 {
+        self.tan_half_fov * (1.0 + self.aspect * self.aspect).sqrt()
+    }
+
     /// Film area at focal distance 1 (`A_m`).
     pub fn film_area(&self) -> f32 {
         4.0 * self.tan_half_fov * self.tan_half_fov * self.aspect

@@ -869,3 +869,98 @@ fn a_half_float_clamp_is_warned_of() {
         assert_eq!(said, warned, "{extra:?}: {err}");
     }
 }
+
+/// The reuse methods weigh by film densities up to `1/cos^3` of the widest angle off the
+/// camera's axis: at a field of view near 180 degrees (or a moderate one on a film of extreme
+/// aspect) those overflowed single precision and `mis-exact` wrote pixels of -8.8e12 with exit
+/// 0. A film wider than `MAX_REUSE_FILM_EXTENT` is refused by `render`, `compare` and `bench`
+/// before anything is traced, the independent tracer renders it, and just inside the limit, on
+/// a 200:1 film, the reuse methods' frames are finite and agree with the independent tracer's.
+#[test]
+fn reuse_methods_refuse_a_film_too_wide_for_their_densities_and_agree_inside_it() {
+    use reframe::driver::options::MAX_REUSE_FILM_EXTENT;
+    use reframe::reuse::Method;
+    let d = tempfile::tempdir().unwrap();
+    let scenes = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    for f in ["cornell.obj", "cornell.mtl"] {
+        std::fs::copy(scenes.join(f), d.path().join(f)).unwrap();
+    }
+    let write = |name: &str, fov: f64, (w, h): (u32, u32), (z0, z2): (f32, f32)| {
+        let key = |frame: u32, z: f32| {
+            format!(
+                "[[keyframe]]\nframe = {frame}\nposition = [0.0, 1.0, {z}]\n\
+                 look_at = [0.0, 1.0, 0.0]\nup = [0.0, 1.0, 0.0]\nfov = {fov}\n"
+            )
+        };
+        let p = d.path().join(name);
+        std::fs::write(
+            &p,
+            format!(
+                "obj = \"cornell.obj\"\nframes = 3\nresolution = [{w}, {h}]\n{}{}",
+                key(0, z0),
+                key(2, z2)
+            ),
+        )
+        .unwrap();
+        p.display().to_string()
+    };
+    let wide = write("wide.toml", 179.99998, (32, 24), (3.9, 0.9));
+    let out = d.path().join("o/f_####.exr").display().to_string();
+    for args in [
+        vec![
+            "render",
+            &wide,
+            "--method",
+            "mis-exact",
+            "--window",
+            "3",
+            "--out",
+            &out,
+        ],
+        vec!["compare", &wide, "--out", &out],
+        vec!["bench", &wide, "--windows", "3"],
+    ] {
+        let o = common::reframe(&args).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.contains("frame 0's field of view (179.99998 degrees vertical at 32x24)"),
+            "{args:?}: {err}"
+        );
+    }
+    assert!(!d.path().join("o").exists());
+    common::reframe_ok(&[
+        "render", &wide, "--frames", "0", "--spp", "1", "--out", &out,
+    ]);
+
+    // 200:1, the film's corner 0.99 of the limit from its centre, inside the box.
+    let (w, h) = (400, 2);
+    let aspect = (w / h) as f64;
+    let tan = 0.99 * MAX_REUSE_FILM_EXTENT as f64 / (1.0 + aspect * aspect).sqrt();
+    let fov = 2.0 * tan.atan().to_degrees();
+    let device = Device::new().unwrap();
+    let scene = Scene::load(&write("strip.toml", fov, (w, h), (0.8, 0.2)), &device).unwrap();
+    let integ = Integrator::new(&scene, 8);
+    let mean = |method: Method, window: u32| {
+        let opts = RenderOptions {
+            method,
+            window,
+            spp: 64,
+            frames: Some(0..=2),
+            resolution: Some((w, h)),
+            threads: 2,
+            ..RenderOptions::default()
+        };
+        let (frames, _) = common::render_in_memory(&integ, &opts);
+        let f = &frames[&1];
+        f.data.iter().sum::<f32>() as f64 / f.data.len() as f64
+    };
+    let reference = mean(Method::Independent, 1);
+    for method in [Method::MisExact, Method::MisCv] {
+        let m = mean(method, 3);
+        assert!(
+            (m / reference - 1.0).abs() < 0.05,
+            "{method:?}: mean {m}, independent {reference}"
+        );
+    }
+}

@@ -110,6 +110,38 @@ impl Plan {
 }
 
 /// A frame range must be non-empty and inside the scene's animation.
+/// The widest film the reuse methods take (`Camera::film_extent`: its corner, in focal
+/// lengths from its centre; 179.98 degrees of vertical fov at 4:3, 11.4 degrees at 100000:1).
+/// Their weights multiply film densities of up to its cube, and sum them over a group's
+/// counts: at 1e4 every such product stays far inside single precision, where a film of 5e6
+/// (179.99998 degrees at 4:3, or 179.99 at 1000:1) overflowed it into frames of -9e12.
+pub const MAX_REUSE_FILM_EXTENT: f32 = 1e4;
+
+/// Refuse a reuse render whose camera's film, in some frame of `range` at `(w, h)`, is wider
+/// than `MAX_REUSE_FILM_EXTENT` (the independent tracer takes any fov below 180 degrees).
+pub fn check_reuse_film(
+    scene: &Scene,
+    range: &RangeInclusive<u32>,
+    (w, h): (u32, u32),
+    method: &str,
+) -> Result<()> {
+    for f in range.clone() {
+        let cam = scene.camera(f, w, h);
+        let extent = cam.film_extent();
+        if extent.is_nan() || extent > MAX_REUSE_FILM_EXTENT {
+            bail!(
+                "--method {method}: frame {f}'s field of view ({} degrees vertical at {w}x{h}) \
+                 puts the film's corner {extent:.3e} focal lengths from its centre, wider than \
+                 the reuse methods take (at most {MAX_REUSE_FILM_EXTENT:e}: their weights \
+                 multiply the film densities, 1/cos^3 of the angle off the axis, which would \
+                 overflow); narrow the fov or the aspect, or use --method independent",
+                (2.0 * (cam.tan_half_fov as f64).atan()).to_degrees() as f32
+            );
+        }
+    }
+    Ok(())
+}
+
 pub fn check_frames(scene: &Scene, range: &RangeInclusive<u32>) -> Result<()> {
     let last = scene.frames - 1;
     if range.start() > range.end() || *range.end() > last {
@@ -230,6 +262,9 @@ impl RenderOptions {
             if !(t > 0.0 && t <= 1.0) {
                 bail!("--adaptive {t}: the target share of n_f n_r must be in (0, 1]");
             }
+        }
+        if self.method.reuses() {
+            check_reuse_film(scene, &range, (w, h), self.method.name())?;
         }
         if !self.method.reuses() && self.window != 1 {
             bail!(

@@ -36,7 +36,7 @@
 //! # anyhow::Ok(())
 //! ```
 use crate::camera::Camera;
-use crate::driver::options::{check_max_depth, check_resolution, check_spp};
+use crate::driver::options::{check_max_depth, check_resolution, check_reuse_film, check_spp};
 use crate::driver::{
     render_frame_independent, render_frames, thread_pool, FrameResult, RenderOptions,
 };
@@ -344,6 +344,12 @@ fn per_core_ns(seconds: f64, threads: usize, items: u64) -> f64 {
 /// steadier than this machine's noise; more is a typo, and each run can take seconds).
 pub const MAX_REPEATS: usize = 101;
 
+/// The group of `n_f` frames a speed-up run renders: centred on `frame`, within the scene.
+fn window_frames(scene: &Scene, frame: u32, n_f: u32) -> std::ops::RangeInclusive<u32> {
+    let first = (frame.saturating_sub(n_f / 2)).min(scene.frames - n_f);
+    first..=first + n_f - 1
+}
+
 pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     let (w, h) = opts.res.unwrap_or((scene.width, scene.height));
     check_resolution((w, h))?;
@@ -380,6 +386,15 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
             scene.frames
         );
     }
+    // The groups of the speed-up runs (`window_frames`), checked before anything is timed.
+    for &n_f in &opts.windows {
+        check_reuse_film(
+            scene,
+            &window_frames(scene, frame, n_f),
+            (w, h),
+            opts.speedup_method.name(),
+        )?;
+    }
     let pool = thread_pool(opts.threads)?;
     let threads = pool.current_num_threads();
     check_max_depth(opts.max_depth)?;
@@ -402,8 +417,8 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     let mut runs = Vec::new();
     let mut report_maps: [BTreeMap<String, f64>; 4] = Default::default();
     for &n_f in &opts.windows {
-        let first = (frame.saturating_sub(n_f / 2)).min(scene.frames - n_f);
-        let last = first + n_f - 1;
+        let frames = window_frames(scene, frame, n_f);
+        let (first, last) = (*frames.start(), *frames.end());
         let ropts = RenderOptions {
             method: opts.speedup_method,
             spp: opts.speedup_spp,

@@ -9,7 +9,9 @@ use super::errors::{
 use super::reference::{reference, PASSES};
 use crate::driver::denoise::{denoise_frame, Layers};
 use crate::driver::guard::{check_outputs, OutputLock};
-use crate::driver::options::{check_max_depth, check_resolution, check_spp, check_threads};
+use crate::driver::options::{
+    check_max_depth, check_resolution, check_reuse_film, check_spp, check_threads,
+};
 use crate::driver::{check_frames, progress_bar, render_frames, thread_pool, RenderOptions};
 use crate::film::Developed;
 use crate::image::oidn::Denoiser;
@@ -290,6 +292,9 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         crate::image::oidn::check_size(&format!("--methods {}", c.name()), (w, h))?;
     }
     check_max_depth(opts.max_depth)?;
+    if let Some(c) = opts.methods.iter().find(|c| c.method.reuses()) {
+        check_reuse_film(scene, &range, (w, h), c.method.name())?;
+    }
     let n_frames = last - first + 1;
     for &b in &opts.budgets {
         check_spp("--budgets", b)?;

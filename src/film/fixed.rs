@@ -112,14 +112,20 @@ impl FixedSums {
     #[inline]
     pub fn add(&self, i: usize, q: i64) {
         // |q| beyond 2^31 (a single splat over 2048) goes to the carry table whole.
+        // The carries saturate: a sum past 2^63 steps (8.8e12 units, only ever absurd splats)
+        // stays at the end of the range it ran over instead of wrapping to the other sign.
+        let carry = |c: i64| {
+            let mut table = self.carry.lock().unwrap();
+            let e = table.entry(i).or_default();
+            *e = e.saturating_add(c);
+        };
         let Ok(q32) = i32::try_from(q) else {
-            *self.carry.lock().unwrap().entry(i).or_default() += q;
+            carry(q);
             return;
         };
         let old = self.cells[i].fetch_add(q32, Relaxed);
         if old.overflowing_add(q32).1 {
-            let wrap = if q32 > 0 { 1i64 << 32 } else { -(1i64 << 32) };
-            *self.carry.lock().unwrap().entry(i).or_default() += wrap;
+            carry(if q32 > 0 { 1i64 << 32 } else { -(1i64 << 32) });
         }
     }
 
@@ -145,7 +151,7 @@ impl FixedSums {
     pub fn totals(&self) -> Vec<i64> {
         let mut t: Vec<i64> = self.cells().map(i64::from).collect();
         for (i, c) in self.carries() {
-            t[i as usize] += c;
+            t[i as usize] = t[i as usize].saturating_add(c);
         }
         t
     }
@@ -185,6 +191,30 @@ mod tests {
         let c = FixedSums::from_parts(vec![i32::MAX], &[(0, -(1 << 32))]);
         c.absorb(&a);
         assert_eq!(c.totals()[0], exact + i32::MAX as i64 - (1 << 32));
+    }
+
+    /// Sums past 2^63 steps (only absurd splats get there: a camera whose film densities
+    /// overflowed wrote pixels of exactly -2^43 units) stay at the end of the range they ran
+    /// over, in either order, instead of wrapping to the other sign.
+    #[test]
+    fn sums_past_the_range_saturate_instead_of_wrapping() {
+        for order in [[i64::MAX, i64::MAX, 1], [1, i64::MAX, i64::MAX]] {
+            let s = FixedSums::new(1);
+            for q in order {
+                s.add(0, q);
+            }
+            assert_eq!(s.totals()[0], i64::MAX);
+        }
+        let s = FixedSums::new(2);
+        s.add(1, i64::MIN);
+        s.add(1, -(1 << 40));
+        assert_eq!(s.totals(), [0, i64::MIN]);
+        // A cell that wraps on top of a saturated carry stays near the top: the cell's own
+        // value is added to the saturated carry.
+        s.add(0, i64::MAX);
+        s.add(0, i32::MAX as i64);
+        s.add(0, i32::MAX as i64);
+        assert!(s.totals()[0] > i64::MAX - (1 << 32));
     }
 
     #[test]
