@@ -405,7 +405,33 @@ mod tests {
         assert!(number("-1.#SNAN").unwrap().is_nan());
         assert!(number("-1.#IND").unwrap().is_nan());
         assert_eq!(number("1.5"), Some(1.5));
-        for bad in ["#IND", "1.#", "1.#FOO", "x.#INF", "1#2"] {
+        // Visual Studio 2015 and later (the Universal CRT: instant-ngp's marching-cubes OBJs
+        // hold `vn -nan(ind) -nan(ind) -nan(ind)`), and the C standard's `nan(chars)`.
+        for nan in [
+            "-nan(ind)",
+            "nan(ind)",
+            "nan(snan)",
+            "-NAN(IND)",
+            "+nan(0x7fc)",
+            "nan()",
+        ] {
+            assert!(number(nan).is_some_and(f32::is_nan), "{nan}");
+        }
+        let (o, w) = parse_ok(&obj.replace("-1.#IND00", "-nan(ind)"));
+        assert_eq!(o.normals, vec![None, Some(Vec3::Z)]);
+        assert_eq!(w.len(), 1, "{w:?}");
+        for bad in [
+            "#IND",
+            "1.#",
+            "1.#FOO",
+            "x.#INF",
+            "1#2",
+            "nan(",
+            "nan(a b)",
+            "nan(-)",
+            "--nan(ind)",
+            "nanx)",
+        ] {
             assert_eq!(number(bad), None, "{bad}");
         }
     }

@@ -269,13 +269,26 @@ pub fn numbers<const N: usize>(words: &[&str]) -> Option<[f32; N]> {
 }
 
 /// One number of an OBJ or MTL statement: as Rust reads it, or a non-finite value as
-/// Microsoft's C library writes it (`1.#INF00`, `-1.#IND00`, `1.#QNAN0`, `1.#SNAN0`), which old
+/// Microsoft's C library writes it (`1.#INF00`, `-1.#IND00`, `1.#QNAN0`, `1.#SNAN0` before
+/// Visual Studio 2015, `-nan(ind)` and `nan(snan)` since, the C standard's `nan(chars)`), which
 /// 3ds Max and other Windows exporters put in files; the loader then treats it as it treats
 /// `inf` and `nan` (a normal that is not finite flat-shades its triangles, a position is
 /// refused).
 pub fn number(word: &str) -> Option<f32> {
     if let Ok(x) = word.parse() {
         return Some(x);
+    }
+    // The C standard's `nan(n-char-sequence)`: letters, digits and underscores in brackets.
+    let unsigned = word.strip_prefix(['+', '-']).unwrap_or(word);
+    if let Some(chars) = unsigned
+        .get(..4)
+        .filter(|nan| nan.eq_ignore_ascii_case("nan("))
+        .and_then(|_| unsigned[4..].strip_suffix(')'))
+    {
+        return chars
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_')
+            .then_some(f32::NAN);
     }
     let (mantissa, kind) = word.split_once('#')?;
     let negative = mantissa.starts_with('-');
