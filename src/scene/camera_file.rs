@@ -318,7 +318,8 @@ struct JsonFile<'a> {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct JsonEntry<'a> {
-    frame: u32,
+    #[serde(borrow)]
+    frame: Num<'a>,
     #[serde(borrow)]
     fov: Num<'a>,
     #[serde(borrow)]
@@ -452,6 +453,12 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
                 json_message(&e)
             )
         })?;
+        let frame = frame_number(e.frame.0).ok_or_else(|| {
+            anyhow!(
+                "{label}: {at}: frame '{}' is not a frame number (a whole number from 0)",
+                quote(e.frame.0)
+            )
+        })?;
         let form = (|| match (&e.matrix, &e.position, &e.look_at, &e.up) {
             (Some(m), None, None, None) => {
                 let m = matrix_rows(m)?;
@@ -476,18 +483,33 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
         let (form, fov) = match (form, fov) {
             (Ok(f), Ok(v)) => (f, v),
             (Err(why), _) | (_, Err(why)) => {
-                bail!("{label}: {at}: frame {}: {why}", e.frame)
+                bail!("{label}: {at}: frame {frame}: {why}")
             }
         };
         entries.push(Entry {
             at,
             line,
-            frame: e.frame,
+            frame,
             fov,
             form,
         });
     }
     Ok(entries)
+}
+
+/// A frame number as a file writes it: a whole number from 0, as an integer or as a number
+/// whose value is one (`0.0`, `1e0`, `0.000000000000000000e+00`: a frame column that went
+/// through floating point, as numpy's `savetxt` and `tolist()` write it).
+fn frame_number(text: &str) -> Option<u32> {
+    if let Ok(n) = text.parse::<u32>() {
+        return Some(n);
+    }
+    // Not a JSON string or a word Rust reads as a number (`inf`, `nan`).
+    if !text.starts_with(|c: char| c.is_ascii_digit() || c == '+' || c == '-' || c == '.') {
+        return None;
+    }
+    let x: f64 = text.parse().ok()?;
+    (x.fract() == 0.0 && (0.0..=u32::MAX as f64).contains(&x)).then_some(x as u32)
 }
 
 /// The CSV headers, one per form.
@@ -515,7 +537,13 @@ fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
         .map(|(i, l)| (i + 1, l.trim_end_matches('\r')))
         .filter(|(_, l)| !l.trim().is_empty());
     let (hline, header) = rows.next().expect("the text is not blank");
-    let names: Vec<&str> = header.split(',').map(str::trim).collect();
+    // numpy's `savetxt(..., header=...)` writes the header as a comment: `# frame,fov,...`.
+    let names: Vec<&str> = header
+        .trim_start()
+        .trim_start_matches('#')
+        .split(',')
+        .map(str::trim)
+        .collect();
     let matrix = matrix_header();
     let is_matrix = names == matrix;
     if !is_matrix && names != LOOK_AT_HEADER {
@@ -537,7 +565,7 @@ fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
                 names.len()
             );
         }
-        let frame: u32 = fields[0].parse().map_err(|_| {
+        let frame = frame_number(fields[0]).ok_or_else(|| {
             anyhow!(
                 "{label}: {at}: frame '{}' is not a frame number (a whole number from 0)",
                 quote(fields[0])
@@ -673,6 +701,36 @@ mod tests {
             .unwrap(),
             poses[..1]
         );
+        // A frame column that went through floating point, and numpy's `savetxt` header (a
+        // comment) and numbers: the same cameras.
+        let numpy = |x: &str| format!("{:.18e}", x.trim().parse::<f64>().unwrap());
+        let csv = format!(
+            "# {}\n{},{},{}\n",
+            m.join(","),
+            numpy("0"),
+            numpy("40"),
+            row.split(',').map(numpy).collect::<Vec<_>>().join(",")
+        );
+        let p = parse(
+            "c.csv",
+            csv.as_bytes(),
+            Format::Csv,
+            1,
+            &mut Repairs::new(false),
+        );
+        assert_eq!(p.unwrap_or_else(|e| panic!("{csv}: {e:#}")), poses[..1]);
+        let text = json(&[
+            entry(0, ID).replace("\"frame\": 0", "\"frame\": 0.0"),
+            entry(1, ID).replace("\"frame\": 1", "\"frame\": 1e0"),
+        ]);
+        let p = parse(
+            "c.json",
+            text.as_bytes(),
+            Format::Json,
+            2,
+            &mut Repairs::new(false),
+        );
+        assert_eq!(p.unwrap()[..1], poses[..1]);
     }
 
     #[test]
@@ -906,7 +964,9 @@ mod tests {
                 "c.json: line 1: the file is an array: a camera file is an object, {\"frames\": [...]}",
             ),
             (json(&[entry(0, ID).replace("fov", "fvo")]), "c.json: line 2 (entry 1): unknown field `fvo`"),
-            (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 0.0")]), "c.json: line 2 (entry 1): invalid type: floating point `0.0`, expected u32"),
+            (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 0.5")]), "c.json: line 2 (entry 1): frame '0.5' is not a frame number (a whole number from 0)"),
+            (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": \"0\"")]), "c.json: line 2 (entry 1): frame '\"0\"' is not a frame number"),
+            (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": -1.0")]), "c.json: line 2 (entry 1): frame '-1.0' is not a frame number"),
             (json(&[entry(0, ID).replace("40.0", "180")]), "c.json: line 2 (entry 1): frame 0: fov 180 must be in (0, 180) degrees"),
             (json(&[entry(0, ID).replace("40.0", "179.9999999")]), "frame 0: fov 179.9999999 rounds to 180 degrees in single precision: at most 179.99998"),
             (
