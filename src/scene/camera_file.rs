@@ -16,7 +16,7 @@
 //!
 //! Every refusal is one line naming the file, the line and the frame (for JSON also the entry).
 use super::repairs::{Kind, Repairs};
-use super::text::{fov_fault, line_at, quote, Lines, MAX_COORD};
+use super::text::{fov_fault, line_at, quote, Lines, MAX_COORD, MAX_COORD_F64};
 use crate::camera::Pose;
 use anyhow::{anyhow, bail, Result};
 use glam::DVec3;
@@ -233,7 +233,7 @@ fn check_matrix(m: &[f64; 16]) -> Result<(), String> {
         if !v.is_finite() {
             return Err(format!("matrix element {} = {v} is not finite", name(i)));
         }
-        if v.abs() > MAX_COORD as f64 {
+        if v.abs() > MAX_COORD_F64 {
             return Err(format!(
                 "matrix element {} = {v:e} is too large (at most {MAX_COORD:e})",
                 name(i)
@@ -866,6 +866,10 @@ mod tests {
             (
                 "[1, 0, 0, 1e19, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]",
                 "matrix element m03 = 1e19 is too large",
+            ),
+            (
+                "[1, 0, 0, 1.0000001e18, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]",
+                "matrix element m03 = 1.0000001e18 is too large (at most 1e18)",
             ),
             (
                 "[1, 0, 0, 1e400, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]",

@@ -9,6 +9,11 @@ use std::borrow::Cow;
 /// Largest coordinate accepted for a vertex or the camera: products of two edge vectors (areas,
 /// squared distances) must stay finite in f32, and 4 * (2e18)^2 < 3.4e38.
 pub const MAX_COORD: f32 = 1e18;
+/// `MAX_COORD` for numbers checked in double precision (transforms, camera matrices): 1e18 as
+/// written, so that a number of exactly 1e18 is taken everywhere (`MAX_COORD as f64` is the
+/// float just below it, 999999984306749440, which refused a translation of 1e18 that a vertex
+/// could have).
+pub const MAX_COORD_F64: f64 = 1e18;
 
 /// The largest angle, in degrees, a scene may give (an object's `rotate`, the environment's
 /// `rotation`): past it an angle's sine and cosine keep few correct digits in f64, none in f32.
