@@ -23,7 +23,8 @@
 //! spline in docs/camera.md). Every frame's camera is checked either way.
 //!
 //! Materials: `Kd` Lambertian, `Ks`/`Ns` modified Phong, `Ke` emission (one-sided, to the
-//! side of the counter-clockwise face normal). Every triangle with `Ke > 0` is an area light.
+//! side its vertex normals point to, else to the side of the counter-clockwise face normal:
+//! `mesh::orient_emitters`). Every triangle with `Ke > 0` is an area light.
 //! `map_Kd`, `map_Ks` and `map_Ke` multiply their colour by a texture at the OBJ's `vt`
 //! coordinates (`scene/maps.rs`, looked up through `image::Textures`); `Scene::material` gives
 //! the material at a point with its textures applied. `map_d` cuts a surface out where its mask
@@ -675,13 +676,15 @@ impl Scene {
         // offset that grows with the coordinates); its cameras follow.
         let Objects {
             label: obj_label,
-            mesh,
+            mut mesh,
             prototypes,
             instances,
             inputs: object_inputs,
             origin,
             notes: object_notes,
         } = loaded;
+        // Every light is in the scene's own mesh, placed: each emits to its normals' side.
+        mesh::orient_emitters(&mut mesh);
         let (width, height, cameras) = if origin == DVec3::ZERO {
             first_cameras?
         } else {
@@ -1916,11 +1919,22 @@ fn load_objects(
             .tri_material
             .iter()
             .any(|&m| mesh.materials[m as usize].is_emissive());
-        // A mirror turns the counter-clockwise side over, and a light emits from that side (as in
-        // Mitsuba 3, whose OBJ reader also takes the winding after the transform): a lamp
-        // mirrored to make a symmetric copy shines the other way, which is easy to miss.
+        // A mirror turns the counter-clockwise side over, and a light without vertex normals
+        // emits from that side (as in Mitsuba 3, whose OBJ reader also takes the winding after
+        // the transform): a lamp mirrored to make a symmetric copy shines the other way, which
+        // is easy to miss. One with vertex normals emits where they point
+        // (`mesh::orient_emitters`), which a mirror maps as it maps the lamp.
         let mirrored = placements.iter().filter(|m| m.determinant() < 0.0).count();
-        if emits && mirrored > 0 {
+        let by_winding = mesh
+            .triangles
+            .iter()
+            .zip(&mesh.tri_material)
+            .any(|(t, &m)| {
+                mesh.materials[m as usize].is_emissive()
+                    && (mesh.normals.is_empty()
+                        || t.iter().any(|&i| mesh.normals[i as usize] == Vec3::ZERO))
+            });
+        if by_winding && mirrored > 0 {
             notes.push(format!(
                 "{at}: placed mirrored (a transform of negative determinant) {mirrored} time(s), and \
                  it emits: a mirror turns the emitting (counter-clockwise) side of its triangles \

@@ -338,6 +338,80 @@ fn a_mirrored_emitting_placement_turns_its_light_over_and_says_so() {
     }
 }
 
+/// A light emits to the side its vertex normals point to, where its triangles have them, as in
+/// pbrt-v4 and Mitsuba 3: a lamp quad wound to face down with normals pointing up lights what is
+/// above it (it lit the floor below, and Mitsuba the ceiling); without normals the winding
+/// decides. Mirrored, a lamp with normals shines as its mirror image would, unwarned.
+#[test]
+fn a_light_emits_to_the_side_of_its_vertex_normals() {
+    let d = tempfile::tempdir().unwrap();
+    // Wound clockwise seen from above (faces down); `vn 0 1 0`: normals up.
+    let lamp = |vn: &str| {
+        format!(
+            "mtllib s.mtl\nv -0.2 0 -0.2\nv 0.2 0 -0.2\nv 0.2 0 0.2\nv -0.2 0 0.2\n{}\
+             usemtl light\n{}\n",
+            if vn.is_empty() {
+                String::new()
+            } else {
+                format!("vn {vn}\n")
+            },
+            if vn.is_empty() {
+                "f 1 2 3 4"
+            } else {
+                "f 1//1 2//1 3//1 4//1"
+            }
+        )
+    };
+    let floor = "mtllib s.mtl\nv -4 -0.5 -4\nv 4 -0.5 -4\nv 4 -0.5 4\nv -4 -0.5 4\n\
+                 usemtl floor\nf 1 4 3 2\n";
+    let mtl = "newmtl light\nKe 5 5 5\nnewmtl floor\nKd 0.5 0.5 0.5\n";
+    let device = Device::new().unwrap();
+    for (vn, scale, lit_below) in [
+        ("", "[1, 1, 1]", true),
+        ("0 1 0", "[1, 1, 1]", false),
+        ("0 -1 0", "[1, 1, 1]", true),
+        // Mirrored in x: the normals still point up (the winding turned over twice).
+        ("0 1 0", "[-1, 1, 1]", false),
+        ("0 -1 0", "[-1, 1, 1]", true),
+        // Mirrored in y: the normals turn down with the lamp.
+        ("0 1 0", "[1, -1, 1]", true),
+    ] {
+        let objects = format!(
+            "[[object]]\nobj = \"floor.obj\"\n\
+             [[object]]\nobj = \"lamp.obj\"\ntranslate = [0, 2, 0]\nscale = {scale}\n"
+        );
+        let path = write(
+            d.path(),
+            &[
+                ("lamp.obj", &lamp(vn)),
+                ("floor.obj", floor),
+                ("s.mtl", mtl),
+                (
+                    "s.toml",
+                    &toml(&objects).replace("[environment]\nradiance = [0.6, 0.7, 0.9]\n", ""),
+                ),
+            ],
+        );
+        let s = Scene::load(&path, &device).unwrap();
+        let lit = |p: Vec3| {
+            (0..64).any(|k| {
+                let u = Vec2::new((k as f32 + 0.5) / 64.0, 0.3);
+                s.sample_light(p, u).is_some_and(|ls| ls.le != Vec3::ZERO)
+            })
+        };
+        let case = format!("vn '{vn}', scale {scale}");
+        assert_eq!(lit(Vec3::new(0.0, -0.5, 0.0)), lit_below, "{case}");
+        assert_eq!(lit(Vec3::new(0.0, 3.0, 0.0)), !lit_below, "{case}");
+        if !vn.is_empty() {
+            assert!(
+                s.warnings.iter().all(|w| !w.contains("placed mirrored")),
+                "{case}: {:?}",
+                s.warnings
+            );
+        }
+    }
+}
+
 #[test]
 fn object_tables_are_checked() {
     let d = tempfile::tempdir().unwrap();

@@ -46,6 +46,32 @@ pub struct Mesh {
     pub material_names: Vec<String>,
 }
 
+/// Wind each emitting triangle of `mesh` whose three corners have vertex normals so that it
+/// faces where they point together (their sum), turning it over where they point against its
+/// winding: a light emits to its front (`tri_normal`), and pbrt-v4 and Mitsuba 3 both emit to
+/// the side of the shading normal, so that a lamp exported with outward normals but faces
+/// wound inward lit the other side than in them (and a mirrored placement of a lamp with
+/// normals shines as the mirror image of it, as in them). Without vertex normals the winding
+/// decides. Other triangles keep their winding (their shading follows it).
+pub fn orient_emitters(mesh: &mut Mesh) {
+    if mesh.normals.is_empty() {
+        return;
+    }
+    for (t, tri) in mesh.triangles.iter_mut().enumerate() {
+        if !mesh.materials[mesh.tri_material[t] as usize].is_emissive() {
+            continue;
+        }
+        let n = tri.map(|i| mesh.normals[i as usize]);
+        if n.contains(&Vec3::ZERO) {
+            continue;
+        }
+        if (n[0] + n[1] + n[2]).dot(mesh.tri_normal[t]) < 0.0 {
+            tri.swap(1, 2);
+            mesh.tri_normal[t] = -mesh.tri_normal[t];
+        }
+    }
+}
+
 /// Polygons of at most this many corners go to ear clipping unchecked (its slow passes cost
 /// little there).
 const MAX_UNCHECKED_CORNERS: usize = 32;
