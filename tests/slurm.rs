@@ -276,3 +276,65 @@ fn a_merge_into_rgb_frames_says_it_drops_the_aov_channels() {
         "{err}"
     );
 }
+
+/// A merge has no scene to ask (without `--scene`, as every merge of undenoised chunks runs),
+/// so the chunks record the scene's files: an `--out` that names one of them (the environment
+/// image, a texture) is refused and the file left as it was, as `render` refuses it. The merge
+/// wrote a frame over the scene's sky, exit 0.
+#[test]
+fn a_merge_never_writes_over_a_file_of_the_scene_the_chunks_rendered() {
+    let d = tempfile::tempdir().unwrap();
+    let base = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/base");
+    for f in ["s.obj", "s.mtl"] {
+        std::fs::copy(base.join(f), d.path().join(f)).unwrap();
+    }
+    let toml = std::fs::read_to_string(base.join("s.toml")).unwrap();
+    std::fs::write(
+        d.path().join("s.toml"),
+        format!("{toml}[environment]\nimage = \"e_0000.exr\"\n"),
+    )
+    .unwrap();
+    let mut sky = reframe::image::Image::new(4, 2, &["R", "G", "B"]);
+    sky.data.fill(0.5);
+    let env = d.path().join("e_0000.exr");
+    reframe::image::write_image(
+        &env,
+        &sky,
+        &reframe::image::Metadata::default(),
+        &reframe::image::WriteOptions::default(),
+    )
+    .unwrap();
+    let before = std::fs::read(&env).unwrap();
+    let at = |name: &str| d.path().join(name).to_str().unwrap().to_string();
+    common::reframe_ok(&[
+        "render",
+        &at("s.toml"),
+        "--spp",
+        "1",
+        "--frames",
+        "0",
+        "--chunk",
+        "1/1",
+        "--threads",
+        "1",
+        "--out",
+        &at("o/f_####.exr"),
+    ]);
+    let partial = at("o/f.chunk-1-of-1.partial");
+    // From another folder, by a relative path through a link: the same file.
+    std::os::unix::fs::symlink(d.path(), d.path().join("link")).unwrap();
+    for out in [at("e_####.exr"), at("link/e_####.exr")] {
+        let o = common::reframe(&["merge", &partial, "--out", &out])
+            .current_dir("/")
+            .output()
+            .unwrap();
+        common::assert_refused(&o, "that is an input of this command");
+    }
+    assert_eq!(
+        std::fs::read(&env).unwrap(),
+        before,
+        "the sky was written over"
+    );
+    common::reframe_ok(&["merge", &partial]);
+    assert!(d.path().join("o/f_0000.exr").exists());
+}

@@ -213,12 +213,17 @@ pub fn merge(
         ));
     }
     let lock = super::lock_path(pattern, None);
-    // The partials, and with --scene every file of the scene (its textures too): none may be
-    // written over.
+    // The partials, every file of the scene the chunks recorded (its textures too), and with
+    // --scene that scene's: none may be written over.
     let scene_inputs = denoising.map_or(&[][..], |d| &d.scene.inputs[..]);
     let inputs: Vec<PathBuf> = files
         .iter()
         .map(|f| f.path.clone())
+        .chain(
+            files
+                .iter()
+                .flat_map(|f| f.trailer.inputs.iter().map(PathBuf::from)),
+        )
         .chain(scene_inputs.iter().cloned())
         .collect();
     let outputs = range

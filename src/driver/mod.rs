@@ -328,13 +328,18 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     };
     let (ckpt, resumed) = if opts.checkpoint.is_some() || opts.chunk.is_some() {
         let key = run_key(scene, opts, &plan)?;
-        let template = Trailer::new(
+        let mut template = Trailer::new(
             key,
             opts.chunk,
             &plan.units,
             opts.out.clone(),
             opts.exr_float,
         );
+        template.inputs = scene
+            .inputs
+            .iter()
+            .filter_map(|p| p.canonicalize().ok()?.to_str().map(String::from))
+            .collect();
         let every = Duration::from_secs_f64(opts.checkpoint_every);
         Checkpointer::open(
             opts.checkpoint.clone(),

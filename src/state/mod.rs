@@ -85,6 +85,10 @@ pub struct Trailer {
     /// The output pattern and EXR precision the frames are (to be) written with.
     pub out: String,
     pub exr_float: bool,
+    /// The scene's files (canonical paths, those in UTF-8): a merge, which has no scene to ask,
+    /// must not write a frame over one (absent in older files: nothing to check).
+    #[serde(default)]
+    pub inputs: Vec<String>,
 }
 
 impl Trailer {
@@ -111,6 +115,7 @@ impl Trailer {
             progress: Counters::default(),
             out,
             exr_float,
+            inputs: vec![],
         }
     }
 }
