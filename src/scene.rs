@@ -1997,7 +1997,7 @@ enum MtlSource {
 
 const MTL_MISSING: Kind = Kind {
     one: "mtllib names a missing file: its materials get the grey default (Kd 0.5)",
-    many: "mtllib lines name missing files: their materials get the grey default (Kd 0.5)",
+    many: "missing files named by mtllib: their materials get the grey default (Kd 0.5)",
 };
 const NO_MTLLIB: Kind = Kind {
     one: "usemtl without any mtllib: grey default material (Kd 0.5)",
@@ -2040,12 +2040,47 @@ fn mtl_paths(dir: &Path, rest: &[u8]) -> Vec<(PathBuf, bool)> {
     if !rest.iter().any(|b| b.is_ascii_whitespace()) {
         return vec![(whole, false)];
     }
-    // The list ends at a comment (`mtllib a.mtl b.mtl # materials`).
-    rest.split(|b| b.is_ascii_whitespace())
-        .filter(|w| !w.is_empty())
+    // The list ends at a comment (`mtllib a.mtl b.mtl # materials`); each name found as one
+    // name alone is.
+    mtllib_words(rest)
+        .into_iter()
         .take_while(|w| !w.starts_with(b"#"))
-        .map(|w| (dir.join(std::ffi::OsStr::from_bytes(w)), false))
+        .map(|w| {
+            let path = dir.join(std::ffi::OsStr::from_bytes(&w));
+            if path.exists() {
+                return (path, false);
+            }
+            match std::str::from_utf8(&w)
+                .ok()
+                .and_then(|n| find_named_file(dir, n))
+            {
+                Some(found) => (found, true),
+                None => (path, false),
+            }
+        })
         .collect()
+}
+
+/// The names of an `mtllib` list: split at white space, where a backslash before a space or
+/// tab escapes it (`mtl\ file\ with\ spaces.mtl`, as tinyobjloader reads it).
+fn mtllib_words(rest: &[u8]) -> Vec<Vec<u8>> {
+    let mut words = vec![Vec::new()];
+    let mut bytes = rest.iter().copied().peekable();
+    while let Some(b) = bytes.next() {
+        match b {
+            b'\\' if bytes.peek().is_some_and(|c| *c == b' ' || *c == b'\t') => {
+                words.last_mut().unwrap().push(bytes.next().unwrap());
+            }
+            b if b.is_ascii_whitespace() => {
+                if !words.last().unwrap().is_empty() {
+                    words.push(Vec::new());
+                }
+            }
+            b => words.last_mut().unwrap().push(b),
+        }
+    }
+    words.retain(|w| !w.is_empty());
+    words
 }
 
 /// The file that an OBJ or MTL in `dir` names as `name`: as written if it is there, else where
@@ -2352,6 +2387,41 @@ fn load_obj_files(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An `mtllib` list: names split at white space, a backslash escaping a space or a tab
+    /// (tinyobjloader's `mtl\ filename\ with\ whitespace\ issue46.mtl`, which was split into
+    /// four missing names, and the MTL beside the OBJ never read), a trailing comment; the
+    /// whole rest of the line where that is a file.
+    #[test]
+    fn mtllib_names_split_at_unescaped_white_space() {
+        let d = tempfile::tempdir().unwrap();
+        let dir = d.path();
+        std::fs::write(dir.join("with spaces.mtl"), "").unwrap();
+        std::fs::write(dir.join("a.mtl"), "").unwrap();
+        let names = |line: &str| -> Vec<(String, bool)> {
+            mtl_paths(dir, line.as_bytes())
+                .into_iter()
+                .map(|(p, found)| (p.strip_prefix(dir).unwrap().display().to_string(), found))
+                .collect()
+        };
+        let plain = |n: &[&str]| -> Vec<(String, bool)> {
+            n.iter().map(|n| (n.to_string(), false)).collect()
+        };
+        assert_eq!(
+            names("missing.mtl with\\ spaces.mtl  a.mtl # comment"),
+            plain(&["missing.mtl", "with spaces.mtl", "a.mtl"])
+        );
+        assert_eq!(names("with spaces.mtl"), plain(&["with spaces.mtl"]));
+        assert_eq!(
+            names("x\\\ty.mtl A.MTL"),
+            [("x\ty.mtl".into(), false), ("a.mtl".into(), true)]
+        );
+        // A backslash before anything else is kept (a Windows path, found by its file name).
+        assert_eq!(
+            names("sub\\a.mtl b.mtl"),
+            [("a.mtl".into(), true), ("b.mtl".into(), false)]
+        );
+    }
 
     #[test]
     fn shipped_scenes_load() {
