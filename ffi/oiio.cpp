@@ -542,8 +542,11 @@ uint32_t TextureSet::add(rust::Slice<const uint8_t> path, uint32_t chbegin, uint
             format = name.string();
         }
     }
-    cache_bytes_ += uint64_t(spec->width) * uint64_t(spec->height) * uint64_t(spec->nchannels) *
-                    uint64_t(spec->format.size());
+    // The cache holds a file once, however many times it is added.
+    if (counted_.insert(handle).second) {
+        cache_bytes_ += uint64_t(spec->width) * uint64_t(spec->height) *
+                        uint64_t(spec->nchannels) * uint64_t(spec->format.size());
+    }
     if (windowed(*spec, format)) {
         textures_.push_back(Texture{handle, spec->full_x, spec->full_y, spec->full_width,
                                     spec->full_height, int(chbegin), int(chend)});

@@ -11,6 +11,7 @@
 
 #include <OpenImageIO/imageio.h>
 #include <OpenImageIO/texture.h>
+#include <unordered_set>
 #include <vector>
 
 #include "rust/cxx.h"
@@ -54,7 +55,8 @@ public:
     // if the texture system failed.
     bool texels(uint32_t id, int64_t x, int64_t y, rust::Slice<float> out) const;
     // What the textures added hold in the cache when all of it is in memory (their pixels in
-    // the files' own channel formats), and the cache's limit in MB (1024 at first).
+    // the files' own channel formats; a file added twice, as a colour and as a mask, once),
+    // and the cache's limit in MB (1024 at first).
     uint64_t cache_bytes() const;
     void set_cache_mb(float mb);
 
@@ -66,6 +68,7 @@ private:
     };
     OIIO::TextureSystem* ts_;
     std::vector<Texture> textures_;
+    std::unordered_set<OIIO::TextureSystem::TextureHandle*> counted_;
     uint64_t cache_bytes_ = 0;
 };
 

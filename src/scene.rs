@@ -684,7 +684,7 @@ impl Scene {
             notes: object_notes,
         } = loaded;
         // Every light is in the scene's own mesh, placed: each emits to its normals' side.
-        mesh::orient_emitters(&mut mesh);
+        let turned = mesh::orient_emitters(&mut mesh);
         let (width, height, cameras) = if origin == DVec3::ZERO {
             first_cameras?
         } else {
@@ -773,6 +773,14 @@ impl Scene {
         let mut warnings = repairs.into_warnings();
         warnings.extend(object_notes);
         warnings.extend(cache_note);
+        if turned > 0 {
+            warnings.push(format!(
+                "{obj_label}: {turned} emitting triangle(s) wound against their vertex normals \
+                 emit to the side the normals point to, as pbrt-v4 and Mitsuba 3 take them (a \
+                 light made two-sided by a reversed copy of its faces that shares their normals \
+                 emits to that side twice: give the copy its own normals)"
+            ));
+        }
         if lights.black_maps > 0 && !lights.tris.is_empty() {
             warnings.push(format!(
                 "{obj_label}: {} triangle(s) of materials with a positive Ke have an emission \

@@ -515,4 +515,38 @@ fn a_mask_in_the_colour_of_a_file_with_an_opaque_alpha_is_read_from_its_colour()
         renders(&solid, 0, (24, 24), 1, 7),
         renders(&unmasked, 0, (24, 24), 1, 7)
     );
+    // The same with a grey and alpha file (two channels): read from its grey as a mask, and as
+    // its own map_Kd's map_d nothing cut out, without a word (it was cut by its grey).
+    let mut ya = Image::new(8, 8, &["Y", "A"]);
+    for (i, px) in ya.data.chunks_exact_mut(2).enumerate() {
+        px.copy_from_slice(&[checker(i as u16 % 8, i as u16 / 8) as f32 / 255.0, 1.0]);
+    }
+    let grey_alpha = d.path().join("ya.exr");
+    write_image(
+        &grey_alpha,
+        &ya,
+        &Metadata::default(),
+        &WriteOptions { exr_float: true },
+    )
+    .unwrap();
+    let m = t.open_mask(&grey_alpha, None).unwrap();
+    assert!(t.mask_alpha_opaque(m));
+    assert_eq!(t.value(m, Vec2::new(0.8, 0.8)), 0.0);
+    std::fs::write(
+        d.path().join("s.mtl"),
+        MTL.replace("map_d mask.tga", "map_Kd ya.exr\nmap_d ya.exr"),
+    )
+    .unwrap();
+    let solid = Scene::load(&path, &device).unwrap();
+    assert!(solid.warnings.is_empty(), "{:?}", solid.warnings);
+    std::fs::write(
+        d.path().join("s.mtl"),
+        MTL.replace("map_d mask.tga", "map_Kd ya.exr"),
+    )
+    .unwrap();
+    let unmasked = Scene::load(&path, &device).unwrap();
+    assert_eq!(
+        renders(&solid, 0, (24, 24), 1, 7),
+        renders(&unmasked, 0, (24, 24), 1, 7)
+    );
 }

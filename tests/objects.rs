@@ -366,15 +366,16 @@ fn a_light_emits_to_the_side_of_its_vertex_normals() {
                  usemtl floor\nf 1 4 3 2\n";
     let mtl = "newmtl light\nKe 5 5 5\nnewmtl floor\nKd 0.5 0.5 0.5\n";
     let device = Device::new().unwrap();
-    for (vn, scale, lit_below) in [
-        ("", "[1, 1, 1]", true),
-        ("0 1 0", "[1, 1, 1]", false),
-        ("0 -1 0", "[1, 1, 1]", true),
-        // Mirrored in x: the normals still point up (the winding turned over twice).
-        ("0 1 0", "[-1, 1, 1]", false),
-        ("0 -1 0", "[-1, 1, 1]", true),
-        // Mirrored in y: the normals turn down with the lamp.
-        ("0 1 0", "[1, -1, 1]", true),
+    // (vn, scale, lit below, turned over: the placed winding and normals disagree)
+    for (vn, scale, lit_below, turned) in [
+        ("", "[1, 1, 1]", true, false),
+        ("0 1 0", "[1, 1, 1]", false, true),
+        ("0 -1 0", "[1, 1, 1]", true, false),
+        // Mirrored in x: the winding turns up, the normals stay.
+        ("0 1 0", "[-1, 1, 1]", false, false),
+        ("0 -1 0", "[-1, 1, 1]", true, true),
+        // Mirrored in y: the flat lamp's corners stay, the normals turn down.
+        ("0 1 0", "[1, -1, 1]", true, false),
     ] {
         let objects = format!(
             "[[object]]\nobj = \"floor.obj\"\n\
@@ -400,6 +401,11 @@ fn a_light_emits_to_the_side_of_its_vertex_normals() {
             })
         };
         let case = format!("vn '{vn}', scale {scale}");
+        // Said where the placed winding and the normals disagree.
+        let said = s.warnings.iter().any(|w| {
+            w.contains("2 emitting triangle(s) wound against their vertex normals emit to the side")
+        });
+        assert_eq!(said, turned, "{case}: {:?}", s.warnings);
         assert_eq!(lit(Vec3::new(0.0, -0.5, 0.0)), lit_below, "{case}");
         assert_eq!(lit(Vec3::new(0.0, 3.0, 0.0)), !lit_below, "{case}");
         if !vn.is_empty() {

@@ -1013,8 +1013,12 @@ fn the_texture_cache_counts_the_files_own_formats() {
         want += bytes;
         assert_eq!(t.cache_bytes(), want, "{name}");
     }
-    // Little: the default of 1 GB holds them, whatever the memory; no warning.
-    assert_eq!(t.size_cache(Some(1 << 20)), None);
+    // A file opened again as a mask is in the cache once.
+    t.open_mask(&tmp.path().join("a.png"), None).unwrap();
+    assert_eq!(t.cache_bytes(), want);
+    // Little: the default of 1 GB holds them; no warning.
+    assert_eq!(t.size_cache(Some(1 << 30)), None);
+    assert_eq!(t.size_cache(None), None);
 }
 
 /// The texture cache is memory the frames cannot have: a render that fits beside the scene's

@@ -109,9 +109,9 @@ impl Plan {
     }
 }
 
-/// A frame range must be non-empty and inside the scene's animation.
 /// The widest film the reuse methods take (`Camera::film_extent`: its corner, in focal
-/// lengths from its centre; 179.98 degrees of vertical fov at 4:3, 11.4 degrees at 100000:1).
+/// lengths from its centre; about 179.98 degrees of vertical fov at 4:3, 11.4 degrees at
+/// 100000:1).
 /// Their weights multiply film densities of up to its cube, and sum them over a group's
 /// counts: at 1e4 every such product stays far inside single precision, where a film of 5e6
 /// (179.99998 degrees at 4:3, or 179.99 at 1000:1) overflowed it into frames of -9e12.
@@ -142,6 +142,7 @@ pub fn check_reuse_film(
     Ok(())
 }
 
+/// A frame range must be non-empty and inside the scene's animation.
 pub fn check_frames(scene: &Scene, range: &RangeInclusive<u32>) -> Result<()> {
     let last = scene.frames - 1;
     if range.start() > range.end() || *range.end() > last {

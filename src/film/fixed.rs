@@ -72,9 +72,16 @@ pub fn quantize3(v: [f32; 3], u: [f64; 3]) -> [i64; 3] {
     ]
 }
 
+/// `v` within i64, at its ends where past them.
+fn clamp(v: i128) -> i64 {
+    v.clamp(i64::MIN as i128, i64::MAX as i128) as i64
+}
+
 pub struct FixedSums {
     cells: Vec<AtomicI32>,
-    carry: Mutex<HashMap<usize, i64>>,
+    /// Wider than a total, so that carries add exactly in any order even past i64 (only absurd
+    /// splats get there); a total is clamped to i64 once, when read.
+    carry: Mutex<HashMap<usize, i128>>,
 }
 
 impl FixedSums {
@@ -90,7 +97,12 @@ impl FixedSums {
     pub fn from_parts(cells: Vec<i32>, carry: &[(u64, i64)]) -> FixedSums {
         FixedSums {
             cells: cells.into_iter().map(AtomicI32::new).collect(),
-            carry: Mutex::new(carry.iter().map(|&(i, c)| (i as usize, c)).collect()),
+            carry: Mutex::new(
+                carry
+                    .iter()
+                    .map(|&(i, c)| (i as usize, c as i128))
+                    .collect(),
+            ),
         }
     }
 
@@ -112,12 +124,8 @@ impl FixedSums {
     #[inline]
     pub fn add(&self, i: usize, q: i64) {
         // |q| beyond 2^31 (a single splat over 2048) goes to the carry table whole.
-        // The carries saturate: a sum past 2^63 steps (8.8e12 units, only ever absurd splats)
-        // stays at the end of the range it ran over instead of wrapping to the other sign.
         let carry = |c: i64| {
-            let mut table = self.carry.lock().unwrap();
-            let e = table.entry(i).or_default();
-            *e = e.saturating_add(c);
+            *self.carry.lock().unwrap().entry(i).or_default() += c as i128;
         };
         let Ok(q32) = i32::try_from(q) else {
             carry(q);
@@ -134,24 +142,26 @@ impl FixedSums {
         self.cells.iter().map(|c| c.load(Relaxed))
     }
 
-    /// The carries (cell index, value in steps), sorted by index.
+    /// The carries (cell index, value in steps), sorted by index: past i64 (a sum past 2^63
+    /// steps, 8.8e12 units: only ever absurd splats), at its end.
     pub fn carries(&self) -> Vec<(u64, i64)> {
         let mut v: Vec<(u64, i64)> = self
             .carry
             .lock()
             .unwrap()
             .iter()
-            .map(|(&i, &c)| (i as u64, c))
+            .map(|(&i, &c)| (i as u64, clamp(c)))
             .collect();
         v.sort_unstable();
         v
     }
 
-    /// The exact sum of every cell, in steps (cell plus carry).
+    /// The exact sum of every cell, in steps (cell plus carry); a sum past i64 at the end of
+    /// the range it ran over, never wrapped to the other sign.
     pub fn totals(&self) -> Vec<i64> {
         let mut t: Vec<i64> = self.cells().map(i64::from).collect();
-        for (i, c) in self.carries() {
-            t[i as usize] = t[i as usize].saturating_add(c);
+        for (&i, &c) in self.carry.lock().unwrap().iter() {
+            t[i] = clamp(t[i] as i128 + c);
         }
         t
     }
@@ -194,10 +204,11 @@ mod tests {
     }
 
     /// Sums past 2^63 steps (only absurd splats get there: a camera whose film densities
-    /// overflowed wrote pixels of exactly -2^43 units) stay at the end of the range they ran
-    /// over, in either order, instead of wrapping to the other sign.
+    /// overflowed wrote pixels of exactly -2^43 units) end at the end of the range they ran
+    /// over instead of wrapping to the other sign, and partial sums past it add exactly, in any
+    /// order.
     #[test]
-    fn sums_past_the_range_saturate_instead_of_wrapping() {
+    fn sums_past_the_range_clamp_instead_of_wrapping() {
         for order in [[i64::MAX, i64::MAX, 1], [1, i64::MAX, i64::MAX]] {
             let s = FixedSums::new(1);
             for q in order {
@@ -209,12 +220,18 @@ mod tests {
         s.add(1, i64::MIN);
         s.add(1, -(1 << 40));
         assert_eq!(s.totals(), [0, i64::MIN]);
-        // A cell that wraps on top of a saturated carry stays near the top: the cell's own
-        // value is added to the saturated carry.
-        s.add(0, i64::MAX);
-        s.add(0, i32::MAX as i64);
-        s.add(0, i32::MAX as i64);
-        assert!(s.totals()[0] > i64::MAX - (1 << 32));
+        // Past the top and back within it: exact, whatever the order of the additions (cells
+        // that wrap among carries past i64 too).
+        let values = [i64::MAX, i64::MAX, -i64::MAX, i32::MAX as i64, -i64::MAX, 7];
+        let (a, b) = (FixedSums::new(1), FixedSums::new(1));
+        for q in values {
+            a.add(0, q);
+        }
+        for q in values.into_iter().rev() {
+            b.add(0, q);
+        }
+        assert_eq!(a.totals(), [i32::MAX as i64 + 7]);
+        assert_eq!(b.totals(), a.totals());
     }
 
     #[test]

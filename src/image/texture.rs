@@ -45,7 +45,8 @@ fn cache_limit(bytes: u64, available: Option<u64>) -> (f64, f64) {
     const MB: f64 = 1e6;
     let need = bytes as f64 * 1.05 / MB + 64.0;
     let cap = available.map_or(f64::INFINITY, |a| 0.75 * a as f64 / MB);
-    (need, need.min(cap).max(1024.0))
+    // Never below OpenImageIO's default of 1 GB, unless that passes the cap.
+    (need, need.min(cap).max(1024f64.min(cap)))
 }
 
 /// A texture of a `Textures`, by index.
@@ -299,12 +300,12 @@ impl Textures {
     }
 
     /// Whether mask `id` reads the first channel of a colour image without alpha (no `-imfchan`,
-    /// no alpha or grey channel) from the file that texture `colour` was opened from: a `map_d`
-    /// that names the material's own `map_Kd` without alpha, which exporters write where they
-    /// mean no mask.
+    /// no alpha or grey channel), or a channel in place of an opaque alpha, from the file that
+    /// texture `colour` was opened from: a `map_d` that names the material's own `map_Kd`
+    /// without alpha (or with an opaque one), which exporters write where they mean no mask.
     pub fn is_colour_mask_of(&self, id: TextureId, colour: TextureId) -> bool {
         let (m, c) = (&self.info[id.0 as usize], &self.info[colour.0 as usize]);
-        m.colour_mask && m.path == c.path
+        (m.colour_mask || m.alpha_opaque) && m.path == c.path
     }
 
     /// Whether mask `id` is read from its file's grey or first colour channel because the
@@ -385,8 +386,11 @@ mod tests {
         // With two available: three quarters of them, short of the need (a warning).
         let (need, mb) = cache_limit(2 * gb, Some(2 * gb));
         assert!(mb == 1500.0 && need > mb, "{need} {mb}");
-        // Little texture, or little memory: never below the default of 1 GB.
+        // Little texture: never below the default of 1 GB, unless that passes three quarters
+        // of the memory available (the cache counts against what the frames may take, and a
+        // floor of 1 GB above it refused every render with less than 1.37 GB available).
         assert_eq!(cache_limit(10_000_000, None).1, 1024.0);
-        assert_eq!(cache_limit(2 * gb, Some(gb / 2)).1, 1024.0);
+        assert_eq!(cache_limit(10_000_000, Some(8 * gb)).1, 1024.0);
+        assert_eq!(cache_limit(2 * gb, Some(gb / 2)).1, 375.0);
     }
 }

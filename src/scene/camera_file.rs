@@ -16,7 +16,7 @@
 //!
 //! Every refusal is one line naming the file, the line and the frame (for JSON also the entry).
 use super::repairs::{Kind, Repairs};
-use super::text::{fov_fault, line_at, quote, Lines, MAX_COORD, MAX_COORD_F64};
+use super::text::{fov_fault, line_at, past_max_coord, quote, Lines, MAX_COORD};
 use crate::camera::Pose;
 use anyhow::{anyhow, bail, Result};
 use glam::DVec3;
@@ -233,7 +233,7 @@ fn check_matrix(m: &[f64; 16]) -> Result<(), String> {
         if !v.is_finite() {
             return Err(format!("matrix element {} = {v} is not finite", name(i)));
         }
-        if v.abs() > MAX_COORD_F64 {
+        if past_max_coord(*v) {
             return Err(format!(
                 "matrix element {} = {v:e} is too large (at most {MAX_COORD:e})",
                 name(i)
@@ -455,7 +455,8 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
         })?;
         let frame = frame_number(e.frame.0).ok_or_else(|| {
             anyhow!(
-                "{label}: {at}: frame '{}' is not a frame number (a whole number from 0)",
+                "{label}: {at}: frame '{}' is not a frame number (a whole number from 0 to \
+                 4294967295)",
                 quote(e.frame.0)
             )
         })?;
@@ -504,12 +505,26 @@ fn frame_number(text: &str) -> Option<u32> {
     if let Ok(n) = text.parse::<u32>() {
         return Some(n);
     }
-    // Not a JSON string or a word Rust reads as a number (`inf`, `nan`).
-    if !text.starts_with(|c: char| c.is_ascii_digit() || c == '+' || c == '-' || c == '.') {
+    // Digits with a point and an exponent, whole as written: every digit past the point's
+    // place after the exponent moves it is a zero (`1e-400` and `0.99999999999999999` are not
+    // frames, though they read as the floats 0 and 1).
+    let unsigned = text.strip_prefix('+').unwrap_or(text);
+    let (mantissa, exponent) = match unsigned.split_once(['e', 'E']) {
+        Some((m, e)) => (m, e.parse::<i32>().ok()?),
+        None => (unsigned, 0),
+    };
+    let (int, frac) = mantissa.split_once('.').unwrap_or((mantissa, ""));
+    let digits = format!("{int}{frac}");
+    if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
         return None;
     }
-    let x: f64 = text.parse().ok()?;
-    (x.fract() == 0.0 && (0.0..=u32::MAX as f64).contains(&x)).then_some(x as u32)
+    let point = int.len() as i64 + exponent as i64;
+    let whole = digits
+        .bytes()
+        .enumerate()
+        .all(|(i, b)| (i as i64) < point || b == b'0');
+    let x: f64 = unsigned.parse().ok()?;
+    (whole && x <= u32::MAX as f64).then_some(x as u32)
 }
 
 /// The CSV headers, one per form.
@@ -567,7 +582,8 @@ fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
         }
         let frame = frame_number(fields[0]).ok_or_else(|| {
             anyhow!(
-                "{label}: {at}: frame '{}' is not a frame number (a whole number from 0)",
+                "{label}: {at}: frame '{}' is not a frame number (a whole number from 0 to \
+                 4294967295)",
                 quote(fields[0])
             )
         })?;
@@ -968,7 +984,10 @@ mod tests {
                 "c.json: line 1: the file is an array: a camera file is an object, {\"frames\": [...]}",
             ),
             (json(&[entry(0, ID).replace("fov", "fvo")]), "c.json: line 2 (entry 1): unknown field `fvo`"),
-            (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 0.5")]), "c.json: line 2 (entry 1): frame '0.5' is not a frame number (a whole number from 0)"),
+            (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 0.5")]), "c.json: line 2 (entry 1): frame '0.5' is not a frame number (a whole number from 0 to 4294967295)"),
+            (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 1e-400")]), "c.json: line 2 (entry 1): frame '1e-400' is not a frame number"),
+            (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 0.99999999999999999")]), "c.json: line 2 (entry 1): frame '0.99999999999999999' is not a frame number"),
+            (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 4294967296.0")]), "c.json: line 2 (entry 1): frame '4294967296.0' is not a frame number (a whole number from 0 to 4294967295)"),
             (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": \"0\"")]), "c.json: line 2 (entry 1): frame '\"0\"' is not a frame number"),
             (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": -1.0")]), "c.json: line 2 (entry 1): frame '-1.0' is not a frame number"),
             (json(&[entry(0, ID).replace("40.0", "180")]), "c.json: line 2 (entry 1): frame 0: fov 180 must be in (0, 180) degrees"),

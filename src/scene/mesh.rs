@@ -52,10 +52,12 @@ pub struct Mesh {
 /// the side of the shading normal, so that a lamp exported with outward normals but faces
 /// wound inward lit the other side than in them (and a mirrored placement of a lamp with
 /// normals shines as the mirror image of it, as in them). Without vertex normals the winding
-/// decides. Other triangles keep their winding (their shading follows it).
-pub fn orient_emitters(mesh: &mut Mesh) {
+/// decides. Other triangles keep their winding (their shading follows it). Returns how many
+/// were turned over.
+pub fn orient_emitters(mesh: &mut Mesh) -> usize {
+    let mut turned = 0;
     if mesh.normals.is_empty() {
-        return;
+        return turned;
     }
     for (t, tri) in mesh.triangles.iter_mut().enumerate() {
         if !mesh.materials[mesh.tri_material[t] as usize].is_emissive() {
@@ -68,8 +70,10 @@ pub fn orient_emitters(mesh: &mut Mesh) {
         if (n[0] + n[1] + n[2]).dot(mesh.tri_normal[t]) < 0.0 {
             tri.swap(1, 2);
             mesh.tri_normal[t] = -mesh.tri_normal[t];
+            turned += 1;
         }
     }
+    turned
 }
 
 /// Polygons of at most this many corners go to ear clipping unchecked (its slow passes cost

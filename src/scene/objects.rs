@@ -19,7 +19,7 @@
 //! instanced, because light sampling picks points of the lights in world space.
 use super::maps::Maps;
 use super::mesh::Mesh;
-use super::text::{quote, Lines, MAX_COORD, MAX_COORD_F64, MAX_DEGREES};
+use super::text::{past_max_coord, quote, Lines, MAX_COORD, MAX_DEGREES};
 use anyhow::{bail, Result};
 use glam::{DMat3, DMat4, DVec3, Mat3, Mat4, Vec2, Vec3};
 use serde::Deserialize;
@@ -99,7 +99,7 @@ impl ObjectFile {
                 * DMat4::from_mat3(rot)
                 * DMat4::from_scale(DVec3::from(s))
         };
-        if m.to_cols_array().iter().any(|x| x.abs() > MAX_COORD_F64) {
+        if m.to_cols_array().into_iter().any(past_max_coord) {
             bail!("{at}: a transform entry is over {MAX_COORD:e}");
         }
         let a = DMat3::from_mat4(m);

@@ -9,11 +9,14 @@ use std::borrow::Cow;
 /// Largest coordinate accepted for a vertex or the camera: products of two edge vectors (areas,
 /// squared distances) must stay finite in f32, and 4 * (2e18)^2 < 3.4e38.
 pub const MAX_COORD: f32 = 1e18;
-/// `MAX_COORD` for numbers checked in double precision (transforms, camera matrices): 1e18 as
-/// written, so that a number of exactly 1e18 is taken everywhere (`MAX_COORD as f64` is the
-/// float just below it, 999999984306749440, which refused a translation of 1e18 that a vertex
-/// could have).
-pub const MAX_COORD_F64: f64 = 1e18;
+
+/// Whether a number checked in double precision (a transform, a camera matrix) is past
+/// `MAX_COORD` as one read in single precision (a vertex) is: rounded to f32 first, so that
+/// every input takes the same numbers (`MAX_COORD as f64` is the float just below 1e18, which
+/// refused a translation of 1e18 that a vertex could have).
+pub fn past_max_coord(x: f64) -> bool {
+    (x as f32).abs() > MAX_COORD
+}
 
 /// The largest angle, in degrees, a scene may give (an object's `rotate`, the environment's
 /// `rotation`): past it an angle's sine and cosine keep few correct digits in f64, none in f32.
