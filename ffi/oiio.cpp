@@ -471,17 +471,50 @@ void ImageReader::read_f32(rust::Slice<float> out) {
         // where it belongs (rows and columns outside it are not kept: an overscan frame's
         // margin, or a hostile file's huge data window, costs one row of memory).
         std::fill(out.begin(), out.end(), 0.0f);
-        std::vector<float> row(size_t(spec_.width) * nch);
+        // The stored columns inside the display window: `x0..x1` of the file's.
+        const int x0 = std::max(spec_.x, spec_.full_x);
+        const int x1 = std::min(spec_.x + spec_.width, spec_.full_x + spec_.full_width);
         QuietStderr quiet;
+        if (spec_.tile_width > 0 && spec_.tile_height > 0) {
+            // A tiled file has no scanlines to read: a band of tiles at a time, over the tiles'
+            // columns that meet the display window (a band is a tile high).
+            const int tw = spec_.tile_width, th = spec_.tile_height;
+            const int xb = spec_.x + (std::max(x0 - spec_.x, 0) / tw) * tw;
+            const int xe = std::min(spec_.x + ((x1 - spec_.x + tw - 1) / tw) * tw,
+                                    spec_.x + spec_.width);
+            if (x0 >= x1 || xb >= xe) {
+                return;
+            }
+            std::vector<float> band(size_t(xe - xb) * size_t(th) * nch);
+            for (int y0 = spec_.y; y0 < spec_.y + spec_.height && ok; y0 += th) {
+                const int y1 = std::min(y0 + th, spec_.y + spec_.height);
+                if (y1 <= spec_.full_y || y0 >= spec_.full_y + spec_.full_height) {
+                    continue;
+                }
+                ok = in_->read_tiles(0, 0, xb, xe, y0, y1, spec_.z, spec_.z + std::max(spec_.depth, 1),
+                                     0, spec_.nchannels, OIIO::TypeDesc::FLOAT, band.data());
+                for (int y = y0; y < y1 && ok; ++y) {
+                    const int dy = y - spec_.full_y;
+                    if (dy < 0 || dy >= spec_.full_height) {
+                        continue;
+                    }
+                    const float* src = band.data() + (size_t(y - y0) * size_t(xe - xb) + size_t(x0 - xb)) * nch;
+                    std::copy(src, src + size_t(x1 - x0) * nch,
+                              out.data() + (size_t(dy) * spec_.full_width + (x0 - spec_.full_x)) * nch);
+                }
+            }
+            if (!ok || in_->has_error()) {
+                throw_input_error(*in_, "cannot read pixels");
+            }
+            return;
+        }
+        std::vector<float> row(size_t(spec_.width) * nch);
         for (int y = 0; y < spec_.height && ok; ++y) {
             const int dy = spec_.y + y - spec_.full_y;
             if (dy < 0 || dy >= spec_.full_height) {
                 continue;
             }
             ok = in_->read_scanline(spec_.y + y, 0, OIIO::TypeDesc::FLOAT, row.data());
-            // The stored columns inside the display window: `x0..x1` of the file's.
-            const int x0 = std::max(spec_.x, spec_.full_x);
-            const int x1 = std::min(spec_.x + spec_.width, spec_.full_x + spec_.full_width);
             if (ok && x0 < x1) {
                 std::copy(row.data() + size_t(x0 - spec_.x) * nch,
                           row.data() + size_t(x1 - spec_.x) * nch,

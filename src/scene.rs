@@ -1763,6 +1763,14 @@ fn load_environment(
             // each per pixel), then its texels and its sampling tables (12 more): 24 at most.
             let (image, layout) = crate::image::read_colour(&path, MAX_ENV_TEXELS, 24)
                 .map_err(|e| anyhow!("{at}: environment image: {e}"))?;
+            if layout.cube_faces {
+                bail!(
+                    "{at}: environment image {}: a cube-face environment map (its six faces \
+                     stacked), but an environment is a lat-long (equirectangular) map: convert \
+                     it to one",
+                    path.display()
+                );
+            }
             maps::note_images_read(
                 repairs,
                 (label, table_line),

@@ -745,6 +745,47 @@ fn a_cropped_exr_is_its_display_window() {
     }
 }
 
+/// The same for tiled EXRs (a tiled overscan or cropped render, as renderers and Nuke write
+/// them), which have no scanlines to read: they were refused with OpenImageIO's "called
+/// OpenEXRInput::read_native_scanlines without an open file". `overscan-tiled.exr`: 12x10
+/// stored from (-2, -1) in 4x4 tiles around an 8x8 image; `cropped-tiled.exr`: 3x4 stored at
+/// (3, 2) in 2x2 tiles; each stored pixel is (its column and row in the stored data, 1).
+#[test]
+fn a_tiled_exr_is_its_display_window_too() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/images");
+    let overscan = |x: u32, y: u32| Vec3::new(x as f32 + 2.0, y as f32 + 1.0, 1.0);
+    let cropped = |x: u32, y: u32| {
+        if (3..6).contains(&x) && (2..6).contains(&y) {
+            Vec3::new(x as f32 - 3.0, y as f32 - 2.0, 1.0)
+        } else {
+            Vec3::ZERO
+        }
+    };
+    let mut t = Textures::new().unwrap();
+    for (name, want) in [
+        ("overscan-tiled.exr", &overscan as &dyn Fn(u32, u32) -> Vec3),
+        ("cropped-tiled.exr", &cropped),
+    ] {
+        let path = dir.join(name);
+        let img = reframe::image::read_linear_rgb(&path, 1 << 20, 0).unwrap();
+        assert_eq!((img.width, img.height), (8, 8), "{name}");
+        let id = t.open(&path).unwrap();
+        for y in 0..8 {
+            for x in 0..8 {
+                let i = ((y * 8 + x) * 3) as usize;
+                let read = Vec3::new(img.data[i], img.data[i + 1], img.data[i + 2]);
+                assert_eq!(read, want(x, y), "{name}: read, pixel ({x}, {y})");
+                let uv = Vec2::new((x as f32 + 0.5) / 8.0, 1.0 - (y as f32 + 0.5) / 8.0);
+                let looked = t.rgb(id, uv);
+                assert!(
+                    (looked - want(x, y)).abs().max_element() < 1e-5,
+                    "{name}: looked up, texel ({x}, {y}): {looked}"
+                );
+            }
+        }
+    }
+}
+
 /// A textured emitter lights a white floor (direct light only): the floor's radiance against
 /// the integral of the map over the emitter, by quadrature, region by region over seeds; and
 /// the light samples go to the map's bright texels, so that the noise per sample stays far

@@ -1071,6 +1071,9 @@ pub struct ColourLayout {
     /// The layers of colour the file holds where it holds more than one (a multi-layer EXR), the
     /// one read first (`colour_layers`); empty otherwise.
     pub layers: Vec<String>,
+    /// Whether the file says it is a cube-face environment map (`textureformat` "CubeFace
+    /// Environment": OpenEXR's `envmap` of cube faces, six faces stacked).
+    pub cube_faces: bool,
 }
 
 /// The layers of colour of channels `names` where there are several (`ColourLayout::layers`),
@@ -1102,6 +1105,10 @@ pub fn read_colour(
             .find(|a| a.name.eq_ignore_ascii_case("oiio:ColorSpace"))
             .map(|a| a.text.as_str());
         let srgb = srgb_encoded(space, info.integer, &info.format_name);
+        let cube_faces = attrs.iter().any(|a| {
+            a.name.eq_ignore_ascii_case("textureformat")
+                && a.text.to_ascii_lowercase().starts_with("cubeface")
+        });
         let parts = parts_of(&reader, &info);
         let nch = info.channels.len();
         let colour = colour_channels(&info.channels)?;
@@ -1143,6 +1150,7 @@ pub fn read_colour(
                 srgb,
                 parts,
                 layers: several_layers(&info.channels),
+                cube_faces,
             },
         ))
     };

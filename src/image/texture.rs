@@ -143,6 +143,7 @@ impl Textures {
                 srgb,
                 parts,
                 layers,
+                ..
             },
         ) = read_colour(path, MAX_TEXELS, 0)?;
         check_texels(path, &img.data)?;
