@@ -1581,6 +1581,10 @@ const ENV_CLAMPED: Kind = Kind {
 /// An environment image that is not twice as wide as it is high: read as a lat-long map all
 /// the same, but a mirror ball, an angular map or a cube cross (square or 4:3 images) lights
 /// the scene wrongly that way.
+const ENV_NEGATIVE: Kind = Kind {
+    one: "environment pixel with a value below 0 read as 0",
+    many: "environment pixels with values below 0 read as 0",
+};
 const ENV_NOT_LATLONG: Kind = Kind {
     one: "not twice as wide as high: read as a lat-long (equirectangular) map all the same (a \
           mirror-ball, angular or cube-cross image lights the scene wrongly)",
@@ -1793,13 +1797,21 @@ fn load_environment(
             let data = image.data;
             let mut texels = Vec::with_capacity(data.len() / 3);
             for (i, c) in data.chunks_exact(3).enumerate() {
-                let t = Vec3::new(c[0], c[1], c[2]);
-                if !t.is_finite() || t.min_element() < 0.0 {
-                    let (x, y) = (i as u32 % width, i as u32 / width);
-                    bail!(
-                        "{at}: pixel ({x}, {y}) is {t}: environment radiance must be finite and \
-                         non-negative"
-                    );
+                let mut t = Vec3::new(c[0], c[1], c[2]);
+                let (x, y) = (i as u32 % width, i as u32 / width);
+                if !t.is_finite() {
+                    bail!("{at}: pixel ({x}, {y}) is {t}: environment radiance must be finite");
+                }
+                // A photograph's small negatives (debayering, a change of colour space, lossy
+                // compression): read as zero; such files were refused whole.
+                if t.min_element() < 0.0 {
+                    repairs.note(label, table_line, ENV_NEGATIVE, || {
+                        format!(
+                            "environment image {}: pixel ({x}, {y}) is {t}",
+                            path.display()
+                        )
+                    })?;
+                    t = t.max(Vec3::ZERO);
                 }
                 let l = t * intensity;
                 if l.max_element() > MAX_KE {

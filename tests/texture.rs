@@ -508,6 +508,48 @@ fn damaged_textures_are_refused_before_anything_is_written() {
     );
 }
 
+/// A photograph's small negative values (debayering, a change of colour space, lossy EXR
+/// compression: OpenEXR's own `CandleGlass.exr` and `Desk.exr` hold them) read as zero, with
+/// one warning per kind that counts them, in a texture and in an environment; such files were
+/// refused whole. `--strict` refuses them, as every repair.
+#[test]
+fn negative_texels_read_as_zero_with_a_warning() {
+    let d = tempfile::tempdir().unwrap();
+    // Texel x = 1 of each row is below zero; the rest 0.5.
+    let texel = |x: u32, _| Vec3::splat(if x == 1 { -0.01 } else { 0.5 });
+    write_texture(&d.path().join("t.exr"), 4, texel, true);
+    let mut t = Textures::new().unwrap();
+    let id = t.open(&d.path().join("t.exr")).unwrap();
+    assert_eq!(t.negative_texels(id), 4 * 3);
+    // At the negative texel's centre, zero; between it and a 0.5 texel, half of 0.5 less a bit.
+    assert_eq!(t.rgb(id, Vec2::new(1.5 / 4.0, 0.5)), Vec3::ZERO);
+    let between = t.rgb(id, Vec2::new(1.0 / 4.0, 0.5 / 4.0));
+    assert!((between.x - 0.5 * (0.5 - 0.01)).abs() < 1e-6, "{between}");
+    let scene = write_scene(
+        d.path(),
+        QUAD,
+        "newmtl q\nKd 1 1 1\nmap_Kd t.exr\n",
+        &toml(
+            8,
+            8,
+            [0.0, 0.0, 3.0],
+            60.0,
+            "[environment]\nimage = \"t.exr\"",
+        ),
+    );
+    let device = Device::new().unwrap();
+    let s = Scene::load(&scene, &device).unwrap();
+    let dir = d.path().display();
+    for want in [
+        format!("{dir}/s.toml: 4 environment pixels with values below 0 read as 0 (first at line"),
+        format!("{dir}/s.mtl: line 3: 'map_Kd t.exr': 12 value(s) below 0: texture with values below 0 (read as 0)"),
+    ] {
+        assert!(s.warnings.iter().any(|w| w.contains(&want)), "{want}: {:?}", s.warnings);
+    }
+    let strict = reframe::scene::LoadOptions { strict: true };
+    assert!(Scene::load_with(&scene, &device, &strict).is_err());
+}
+
 #[test]
 fn a_texture_larger_than_the_memory_left_is_one_line() {
     // An 8192 x 8192 texture is within MAX_TEXELS but needs about 1.6 GB to decode: under a

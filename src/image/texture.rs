@@ -80,17 +80,21 @@ struct Info {
     path: PathBuf,
     colour_mask: bool,
     alpha_opaque: bool,
+    /// Values below zero in the texels read (`check_texels`), which lookups read as zero.
+    negatives: u64,
 }
 
-/// Refuses a texture with a texel that is negative or not finite.
-fn check_texels(path: &Path, data: &[f32]) -> Result<()> {
-    if let Some(v) = data.iter().find(|v| !v.is_finite() || **v < 0.0) {
+/// Refuses a texture with a texel that is not finite; the texels below zero, which lookups read
+/// as zero (a photograph's: debayering, a change of colour space and lossy EXR compression leave
+/// small negative values, and such files were refused whole).
+fn check_texels(path: &Path, data: &[f32]) -> Result<u64> {
+    if let Some(v) = data.iter().find(|v| !v.is_finite()) {
         bail!(
-            "cannot use {}: it has a texel of {v} (textures must be finite and non-negative)",
+            "cannot use {}: it has a texel of {v} (textures must be finite)",
             path.display()
         );
     }
-    Ok(())
+    Ok(data.iter().filter(|v| **v < 0.0).count() as u64)
 }
 
 /// The textures of a scene and the texture system they are looked up through.
@@ -146,7 +150,7 @@ impl Textures {
                 ..
             },
         ) = read_colour(path, MAX_TEXELS, 0)?;
-        check_texels(path, &img.data)?;
+        let negatives = check_texels(path, &img.data)?;
         let used = colour.indices().into_iter().flatten();
         let (first, last) = (used.clone().min().unwrap_or(0), used.max().unwrap_or(0));
         if last - first >= MAX_SPREAD {
@@ -171,6 +175,7 @@ impl Textures {
             &img,
             (last - first + 1, pick, srgb, parts, layers),
             (false, false),
+            negatives,
         ))
     }
 
@@ -193,7 +198,7 @@ impl Textures {
                 alpha_opaque,
             },
         ) = read_mask(path, MAX_TEXELS, imfchan)?;
-        check_texels(path, &img.data)?;
+        let negatives = check_texels(path, &img.data)?;
         let id = self
             .set
             .pin_mut()
@@ -205,6 +210,7 @@ impl Textures {
             &img,
             (1, [Some(0), None, None], false, parts, layers),
             (!coverage, alpha_opaque),
+            negatives,
         ))
     }
 
@@ -219,6 +225,7 @@ impl Textures {
         img: &super::Image,
         (fetched, pick, srgb, parts, layers): (usize, [Option<usize>; 3], bool, u32, Vec<String>),
         (colour_mask, alpha_opaque): (bool, bool),
+        negatives: u64,
     ) -> TextureId {
         let mut f = Fnv::default();
         f.bytes(&[img.width.to_le_bytes(), img.height.to_le_bytes()].concat());
@@ -237,6 +244,7 @@ impl Textures {
             path: key.0.clone(),
             colour_mask,
             alpha_opaque,
+            negatives,
             layers,
         });
         let id = TextureId(id);
@@ -358,7 +366,14 @@ impl Textures {
         };
         let top = texel(0) * (1.0 - fx) + texel(1) * fx;
         let bottom = texel(2) * (1.0 - fx) + texel(3) * fx;
-        top * (1.0 - fy) + bottom * fy
+        // Texels below zero read as zero (`check_texels`).
+        (top * (1.0 - fy) + bottom * fy).max(Vec3::ZERO)
+    }
+
+    /// How many values below zero texture `id`'s file holds in the channels read (they read as
+    /// zero).
+    pub fn negative_texels(&self, id: TextureId) -> u64 {
+        self.info[id.0 as usize].negatives
     }
 
     /// Each texture's content hash (decoded texels and size), in id order: what a scene's hash

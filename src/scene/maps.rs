@@ -55,6 +55,13 @@ const COLOUR_AS_MASK: Kind = Kind {
     many: "map_d names the colour texture (map_Kd), which has no alpha: no cut-outs",
 };
 
+/// A texture with values below zero (a photograph's small negatives from debayering, a change
+/// of colour space or lossy EXR compression): read as zero.
+const NEGATIVE_TEXELS: Kind = Kind {
+    one: "texture with values below 0 (read as 0)",
+    many: "textures with values below 0 (read as 0)",
+};
+
 /// A mask file whose alpha is opaque everywhere, with the mask in its colour (`map_d` of a
 /// DDS or TGA saved with a filled alpha).
 const MASK_IN_COLOUR: Kind = Kind {
@@ -251,6 +258,12 @@ impl Maps {
                     t.parts(map.tex),
                     t.layers(map.tex),
                 )?;
+                let negatives = t.negative_texels(map.tex);
+                if negatives > 0 {
+                    repairs.note(mtl_label, spec.line, NEGATIVE_TEXELS, || {
+                        format!("'{}': {negatives} value(s) below 0", quote(&spec.statement))
+                    })?;
+                }
             }
         }
         if let (Some(map), Some(t), Some(spec)) =
