@@ -59,6 +59,10 @@ const DISSOLVE: Kind = Kind {
     one: "dissolve (d) not rendered: the surface is opaque (map_d cut-outs are rendered)",
     many: "materials with dissolve (d) rendered opaque (map_d cut-outs are rendered)",
 };
+const METALLIC: Kind = Kind {
+    one: "metallic (Pm) not rendered: the surface is its Kd diffuse and Ks Phong lobes",
+    many: "materials with metallic (Pm) rendered as their Kd diffuse and Ks Phong lobes",
+};
 const UNRENDERED_MAP: Kind = Kind {
     one: "texture map not rendered (reframe renders map_Kd, map_Ks, map_Ke and map_d)",
     many: "texture maps not rendered (reframe renders map_Kd, map_Ks, map_Ke and map_d)",
@@ -106,6 +110,9 @@ pub struct MtlMaterial {
     ks: Option<(Vec3, usize)>,
     ke: Option<(Vec3, usize)>,
     ns: Option<(f32, usize)>,
+    /// `Pr`: the PBR roughness, which gives `Ns` where the MTL has none (Blender's export with
+    /// PBR extensions writes it instead).
+    pr: Option<(f32, usize)>,
     /// `map_Kd`, `map_Ks`, `map_Ke`, `map_d`, in that order.
     pub maps: [Option<MapSpec>; 4],
 }
@@ -223,7 +230,18 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
             }
             continue;
         }
-        if !matches!(key, "Kd" | "Ks" | "Ke" | "Ns") {
+        if key == "Pm" {
+            // Metallic (PBR extensions): the surface stays Kd diffuse and Ks Phong; say so
+            // where it would show.
+            let pm = args.first().and_then(|a| number(a));
+            if let (true, Some(m)) = (pm.is_some_and(|v| v > 0.0), out.materials.last()) {
+                repairs.note(label, n, METALLIC, || {
+                    format!("'{}' in '{}'", quote(text), m.name)
+                })?;
+            }
+            continue;
+        }
+        if !matches!(key, "Kd" | "Ks" | "Ke" | "Ns" | "Pr") {
             continue;
         }
         let Some(m) = out.materials.last_mut() else {
@@ -240,6 +258,17 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
                 return Err(err("Ns must be finite and non-negative".into()));
             }
             m.ns = Some((x, n));
+            continue;
+        }
+        if key == "Pr" {
+            let [x] = parsed
+                .as_deref()
+                .and_then(|p| p.get(..1)?.try_into().ok())
+                .ok_or_else(|| err("expected 'Pr roughness'".into()))?;
+            if !(0.0..=1.0).contains(&x) {
+                return Err(err("Pr (roughness) must be from 0 to 1".into()));
+            }
+            m.pr = Some((x, n));
             continue;
         }
         // `Kd r [g b]`: one number is a grey. Two are neither a grey nor a colour.
@@ -281,7 +310,13 @@ impl MtlMaterial {
             get(self.ks, Slot::Ks),
             get(self.ke, Slot::Ke),
         );
-        let mut ns = self.ns.map_or(0.0, |v| v.0);
+        // Without `Ns`, Blender's exponent for a roughness `Pr` (what it writes as `Ns` without
+        // its PBR extensions, and reads `Ns` back as): 1000 (1 - Pr)^2.
+        let mut ns = match (self.ns, self.pr) {
+            (Some((ns, _)), _) => ns,
+            (None, Some((pr, _))) => 1000.0 * (1.0 - pr) * (1.0 - pr),
+            (None, None) => 0.0,
+        };
         let name = &self.name;
         // In f64: Kd + Ks of two values near f32::MAX is not finite in f32.
         let sum = kd.as_dvec3() + ks.as_dvec3();
@@ -519,6 +554,36 @@ mod tests {
         );
         let e = parse("a.mtl", text.as_bytes(), &mut Repairs::new(true)).unwrap_err();
         assert!(e.to_string().contains("line 3"), "{e}");
+    }
+
+    /// Blender's MTL export with PBR extensions writes the roughness as `Pr` and no `Ns`: the
+    /// exponent is Blender's for that roughness, 1000 (1 - Pr)^2 (it was 0, a lobe with no
+    /// highlight); an `Ns` wins over it; a metallic `Pm` is said not to be rendered.
+    #[test]
+    fn pbr_roughness_gives_the_exponent_and_metallic_is_said() {
+        let text = "newmtl a\nKd 0.5 0.2 0.1\nKs 0.25 0.25 0.25\nPr 0.4\nPm 0.9\nPs 0.06\n\
+                    newmtl b\nKs 0.5\nPr 0.4\nNs 50\nPm 0\nnewmtl c\nKs 0.5\n";
+        let mut r = Repairs::new(false);
+        let mtl = parse("a.mtl", text.as_bytes(), &mut r).unwrap();
+        let ns: Vec<f32> = mtl
+            .materials
+            .iter()
+            .map(|m| m.material("a.mtl", &mut r).unwrap().ns)
+            .collect();
+        assert!((ns[0] - 360.0).abs() < 1e-3, "{ns:?}");
+        assert_eq!(ns[1..], [50.0, 0.0]);
+        assert_eq!(
+            r.into_warnings(),
+            ["a.mtl: line 5: 'Pm 0.9' in 'a': metallic (Pm) not rendered: the surface is its Kd \
+              diffuse and Ks Phong lobes"]
+        );
+        for bad in ["Pr 1.5", "Pr -0.1", "Pr x"] {
+            let text = format!("newmtl a\n{bad}\n");
+            assert!(
+                parse("a.mtl", text.as_bytes(), &mut Repairs::new(false)).is_err(),
+                "{bad}"
+            );
+        }
     }
 
     #[test]
