@@ -77,20 +77,42 @@ impl Repairs {
         ))
     }
 
-    /// One line per kind and file, for `Scene::warnings`.
+    /// One line per kind and file, for `Scene::warnings`; a kind seen in more than
+    /// `MAX_FILES_APART` files is one line for all of them (a kit of 40 props, each with its
+    /// own MTL from one exporter, said the same 40 times).
     pub fn into_warnings(self) -> Vec<String> {
-        self.seen
-            .into_iter()
-            .map(|s| match s.count {
-                1 => format!("{}: line {}: {}: {}", s.file, s.line, s.detail, s.kind.one),
-                n => format!(
-                    "{}: {n} {} (first at line {}: {})",
-                    s.file, s.kind.many, s.line, s.detail
-                ),
-            })
-            .collect()
+        // Per kind (by its text): the files it was seen in, and how many times in all.
+        let mut per_kind: std::collections::HashMap<&str, (usize, usize)> = Default::default();
+        for s in &self.seen {
+            let e = per_kind.entry(s.kind.one).or_default();
+            *e = (e.0 + 1, e.1 + s.count);
+        }
+        let mut said = std::collections::HashSet::new();
+        let mut out = Vec::new();
+        for s in &self.seen {
+            let (files, total) = per_kind[s.kind.one];
+            if files <= MAX_FILES_APART {
+                out.push(match s.count {
+                    1 => format!("{}: line {}: {}: {}", s.file, s.line, s.detail, s.kind.one),
+                    n => format!(
+                        "{}: {n} {} (first at line {}: {})",
+                        s.file, s.kind.many, s.line, s.detail
+                    ),
+                });
+            } else if said.insert(s.kind.one) {
+                // Said once, at its first file.
+                out.push(format!(
+                    "{total} {} in {files} files (first in {} at line {}: {})",
+                    s.kind.many, s.file, s.line, s.detail
+                ));
+            }
+        }
+        out
     }
 }
+
+/// The most files a kind of repair is said for one by one (`Repairs::into_warnings`).
+const MAX_FILES_APART: usize = 3;
 
 #[cfg(test)]
 mod tests {
@@ -114,6 +136,17 @@ mod tests {
                 "a.obj: 2 degenerate triangles skipped (first at line 40: 'f 1 2 9')",
                 "b.obj: line 3: 'f 1 1 2': degenerate triangle skipped",
             ]
+        );
+        // In more than three files: one line for them all.
+        let mut r = Repairs::new(false);
+        for k in 0..40 {
+            let file = format!("p{k}/prop.mtl");
+            r.note(&file, 4, K, || format!("'f {k}'")).unwrap();
+            r.note(&file, 5, K, || unreachable!("built once")).unwrap();
+        }
+        assert_eq!(
+            r.into_warnings(),
+            ["80 degenerate triangles skipped in 40 files (first in p0/prop.mtl at line 4: 'f 0')"]
         );
         let e = Repairs::new(true)
             .note("a.obj", 40, K, || "'f 1 2 9'".into())
