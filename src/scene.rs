@@ -2249,6 +2249,8 @@ fn load_obj_files(
     let mut texture_seen: HashSet<PathBuf> = HashSet::new();
     let mut names = Vec::new();
     let mut by_name: HashMap<String, u32> = HashMap::new();
+    let used: std::collections::HashSet<&str> =
+        parsed.usemtl.iter().map(|(_, name)| name.as_str()).collect();
     let mut read: HashSet<PathBuf> = HashSet::new();
     for (line, rest) in &parsed.mtllib {
         let shown = String::from_utf8_lossy(rest);
@@ -2311,16 +2313,26 @@ fn load_obj_files(
                     continue;
                 }
                 by_name.insert(m.name.clone(), materials.len() as u32);
-                let material = m.material(&mtl_label, repairs)?;
+                // A material no `usemtl` names colours nothing: its maps are not opened (a
+                // library MTL naming textures that are not shipped refused the scene) and its
+                // repairs are not said.
+                let used = used.contains(m.name.as_str());
+                let mut unsaid = Repairs::new(false);
+                let notes = if used { &mut *repairs } else { &mut unsaid };
+                let material = m.material(&mtl_label, notes)?;
                 materials.push(material);
-                maps.push(Maps::open(
-                    &mtl_label,
-                    mtl_dir.as_deref(),
-                    (m, material.ke),
-                    textures,
-                    &mut texture_files,
-                    repairs,
-                )?);
+                maps.push(if used {
+                    Maps::open(
+                        &mtl_label,
+                        mtl_dir.as_deref(),
+                        (m, material.ke),
+                        textures,
+                        &mut texture_files,
+                        repairs,
+                    )?
+                } else {
+                    Maps::default()
+                });
                 names.push(m.name.clone());
             }
         }
