@@ -1775,13 +1775,15 @@ fn load_environment(
                     path.display()
                 );
             }
+            let what = format!("environment image '{}'", quote(img.get_ref()));
             maps::note_images_read(
                 repairs,
                 (label, table_line),
-                &format!("environment image '{}'", quote(img.get_ref())),
+                &what,
                 layout.parts,
                 &layout.layers,
             )?;
+            maps::note_meaning(repairs, (label, table_line), &what, &layout.meaning)?;
             let at = format!("{at}: environment image {}", path.display());
             let (width, height) = (image.width, image.height);
             // 2:1 within a pixel or 1% (4000 x 2001 is a lat-long map rounded).

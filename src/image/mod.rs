@@ -1074,6 +1074,58 @@ pub struct ColourLayout {
     /// Whether the file says it is a cube-face environment map (`textureformat` "CubeFace
     /// Environment": OpenEXR's `envmap` of cube faces, six faces stacked).
     pub cube_faces: bool,
+    /// What the file says of its pixels that reframe does not apply (`Meaning`).
+    pub meaning: Meaning,
+}
+
+/// What an image file says of its pixels beyond their values, which reframe does not apply:
+/// pixels are read as stored and as Rec.709 primaries, as Mitsuba 3, pbrt-v4 and Blender read
+/// textures (a model's texture coordinates were made against the stored image).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Meaning {
+    /// The orientation it says its image is stored in (EXIF's 1-8, OpenImageIO's
+    /// `Orientation`; a Radiance file's `+Y` or `-X` resolution line), where not the usual
+    /// top-down, left-to-right (1).
+    pub orientation: Option<i32>,
+    /// Its EXR `chromaticities` (red, green, blue and white x, y), where not Rec.709's.
+    pub chromaticities: Option<String>,
+}
+
+/// EXIF's names of the orientations (`Meaning::orientation`).
+pub fn orientation_in_words(o: i32) -> &'static str {
+    match o {
+        2 => "mirrored left to right",
+        3 => "turned 180 degrees",
+        4 => "upside down (rows bottom to top)",
+        5 => "transposed",
+        6 => "turned 90 degrees (to be shown turned clockwise)",
+        7 => "transposed and turned",
+        8 => "turned 90 degrees (to be shown turned anticlockwise)",
+        _ => "in an unknown orientation",
+    }
+}
+
+/// `Meaning` from a reader's attributes.
+fn meaning(attrs: &[ffi::Attribute]) -> Meaning {
+    let find = |name: &str| attrs.iter().find(|a| a.name.eq_ignore_ascii_case(name));
+    let orientation = find("Orientation")
+        .filter(|a| a.kind == ffi::AttrKind::Int && a.int_value != 1)
+        .map(|a| a.int_value);
+    // Rec.709 (and sRGB): red (0.64, 0.33), green (0.3, 0.6), blue (0.15, 0.06), D65 white.
+    const REC709: [f32; 8] = [0.64, 0.33, 0.3, 0.6, 0.15, 0.06, 0.3127, 0.329];
+    let chromaticities = find("chromaticities").and_then(|a| {
+        let v: Vec<f32> = a
+            .text
+            .split(|c: char| c == ',' || c.is_whitespace() || c == '(' || c == ')')
+            .filter_map(|w| w.parse().ok())
+            .collect();
+        let rec709 = v.len() == 8 && v.iter().zip(REC709).all(|(a, b)| (a - b).abs() < 2e-3);
+        (!rec709).then(|| a.text.clone())
+    });
+    Meaning {
+        orientation,
+        chromaticities,
+    }
 }
 
 /// The layers of colour of channels `names` where there are several (`ColourLayout::layers`),
@@ -1105,6 +1157,7 @@ pub fn read_colour(
             .find(|a| a.name.eq_ignore_ascii_case("oiio:ColorSpace"))
             .map(|a| a.text.as_str());
         let srgb = srgb_encoded(space, info.integer, &info.format_name);
+        let meaning = meaning(&attrs);
         let cube_faces = attrs.iter().any(|a| {
             a.name.eq_ignore_ascii_case("textureformat")
                 && a.text.to_ascii_lowercase().starts_with("cubeface")
@@ -1151,6 +1204,7 @@ pub fn read_colour(
                 parts,
                 layers: several_layers(&info.channels),
                 cube_faces,
+                meaning,
             },
         ))
     };
@@ -1244,6 +1298,8 @@ pub struct MaskLayout {
     /// Whether the alpha the mask would have been read from is opaque everywhere, so that
     /// `channel` is the grey or first other channel instead (`MaskPick::if_opaque`).
     pub alpha_opaque: bool,
+    /// As `ColourLayout`'s.
+    pub meaning: Meaning,
 }
 
 /// The images a file holds, from its reader's attributes (`oiio:subimages`, which OIIO sets for
@@ -1269,6 +1325,7 @@ pub fn read_mask(
         let (mut reader, info, pixels) = open_input_image(path, max_pixels)?;
         let parts = parts_of(&reader, &info);
         let nch = info.channels.len();
+        let meaning = meaning(&reader.attributes());
         let pick = mask_pick(&info.channels, imfchan)?;
         let need = pixels * (4 * nch as u64 + 4);
         check_room(&info, need)?;
@@ -1297,6 +1354,7 @@ pub fn read_mask(
             parts,
             layers: several_layers(&info.channels),
             alpha_opaque,
+            meaning,
         };
         Ok((img, layout))
     };

@@ -82,6 +82,8 @@ struct Info {
     alpha_opaque: bool,
     /// Values below zero in the texels read (`check_texels`), which lookups read as zero.
     negatives: u64,
+    /// What its file says of its pixels that is not applied (`image::Meaning`).
+    meaning: super::Meaning,
 }
 
 /// Refuses a texture with a texel that is not finite; the texels below zero, which lookups read
@@ -147,6 +149,7 @@ impl Textures {
                 srgb,
                 parts,
                 layers,
+                meaning,
                 ..
             },
         ) = read_colour(path, MAX_TEXELS, 0)?;
@@ -169,14 +172,16 @@ impl Textures {
             Colour::Grey(c) => [Some(c - first); 3],
             Colour::Rgb(c) => c.map(|c| c.map(|c| c - first)),
         };
-        Ok(self.add(
+        let id = self.add(
             key,
             id,
             &img,
             (last - first + 1, pick, srgb, parts, layers),
             (false, false),
             negatives,
-        ))
+        );
+        self.info[id.0 as usize].meaning = meaning;
+        Ok(id)
     }
 
     /// Open the texture at `path` as a cut-out mask (once: a second time gives the same id):
@@ -196,6 +201,7 @@ impl Textures {
                 parts,
                 layers,
                 alpha_opaque,
+                meaning,
             },
         ) = read_mask(path, MAX_TEXELS, imfchan)?;
         let negatives = check_texels(path, &img.data)?;
@@ -204,14 +210,16 @@ impl Textures {
             .pin_mut()
             .add(path_bytes(path), channel as u32, channel as u32 + 1)
             .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
-        Ok(self.add(
+        let id = self.add(
             key,
             id,
             &img,
             (1, [Some(0), None, None], false, parts, layers),
             (!coverage, alpha_opaque),
             negatives,
-        ))
+        );
+        self.info[id.0 as usize].meaning = meaning;
+        Ok(id)
     }
 
     /// Record texture `id` of the texture set, opened as `key` and read as `img` (what its
@@ -246,6 +254,7 @@ impl Textures {
             alpha_opaque,
             negatives,
             layers,
+            meaning: super::Meaning::default(),
         });
         let id = TextureId(id);
         self.by_path.insert(key, id);
@@ -368,6 +377,11 @@ impl Textures {
         let bottom = texel(2) * (1.0 - fx) + texel(3) * fx;
         // Texels below zero read as zero (`check_texels`).
         (top * (1.0 - fy) + bottom * fy).max(Vec3::ZERO)
+    }
+
+    /// What texture `id`'s file says of its pixels that is not applied (`image::Meaning`).
+    pub fn meaning(&self, id: TextureId) -> &super::Meaning {
+        &self.info[id.0 as usize].meaning
     }
 
     /// How many values below zero texture `id`'s file holds in the channels read (they read as

@@ -94,6 +94,42 @@ pub fn layers_read(layers: &[String]) -> String {
     )
 }
 
+/// A file that says its image is stored rotated or mirrored (EXIF, a Radiance `+Y` line).
+const ORIENTED: Kind = Kind {
+    one: "image file that says it is stored turned or mirrored read as stored (as Mitsuba 3, pbrt-v4 and Blender read textures; turn the file itself if it is meant so)",
+    many: "image files that say they are stored turned or mirrored read as stored (as Mitsuba 3, pbrt-v4 and Blender read textures; turn the files themselves if they are meant so)",
+};
+
+/// An EXR whose primaries are not Rec.709's (XYZ, ACES, a wide gamut).
+const PRIMARIES: Kind = Kind {
+    one: "image with other primaries than Rec.709 read as Rec.709 (convert it, e.g. with oiiotool --colorconvert)",
+    many: "images with other primaries than Rec.709 read as Rec.709 (convert them, e.g. with oiiotool --colorconvert)",
+};
+
+/// Note what the image file `what` (at `file`'s `line`) says of its pixels that reframe does
+/// not apply (`image::Meaning`): an orientation, other primaries.
+pub fn note_meaning(
+    repairs: &mut Repairs,
+    (file, line): (&str, usize),
+    what: &str,
+    meaning: &crate::image::Meaning,
+) -> Result<()> {
+    if let Some(o) = meaning.orientation {
+        repairs.note(file, line, ORIENTED, || {
+            format!(
+                "{what}: the file says it is stored {} (orientation {o})",
+                crate::image::orientation_in_words(o)
+            )
+        })?;
+    }
+    if let Some(c) = &meaning.chromaticities {
+        repairs.note(file, line, PRIMARIES, || {
+            format!("{what}: its chromaticities are {}", quote(c))
+        })?;
+    }
+    Ok(())
+}
+
 /// Note that the image file `what` (at `file`'s `line`) holds several images (`parts`, of
 /// which the first is read) or several layers of colour (`layers`, the one read first), where
 /// it does: a texture's and an environment's alike.
@@ -251,13 +287,15 @@ impl Maps {
             if let (Some(map), Some(t), Some(spec)) =
                 (map, textures.as_ref(), &m.maps[slot as usize])
             {
+                let what = format!("'{}'", quote(&spec.statement));
                 note_images_read(
                     repairs,
                     (mtl_label, spec.line),
-                    &format!("'{}'", quote(&spec.statement)),
+                    &what,
                     t.parts(map.tex),
                     t.layers(map.tex),
                 )?;
+                note_meaning(repairs, (mtl_label, spec.line), &what, t.meaning(map.tex))?;
                 let negatives = t.negative_texels(map.tex);
                 if negatives > 0 {
                     repairs.note(mtl_label, spec.line, NEGATIVE_TEXELS, || {
