@@ -2251,8 +2251,11 @@ fn load_obj_files(
     let mut texture_seen: HashSet<PathBuf> = HashSet::new();
     let mut names = Vec::new();
     let mut by_name: HashMap<String, u32> = HashMap::new();
-    let used: std::collections::HashSet<&str> =
-        parsed.usemtl.iter().map(|(_, name)| name.as_str()).collect();
+    let used: std::collections::HashSet<&str> = parsed
+        .usemtl
+        .iter()
+        .map(|(_, name)| name.as_str())
+        .collect();
     let mut read: HashSet<PathBuf> = HashSet::new();
     for (line, rest) in &parsed.mtllib {
         let shown = String::from_utf8_lossy(rest);

@@ -493,6 +493,27 @@ fn a_killed_chunk_resumes_and_merges_identically() {
     );
     bytes[1000] ^= 0x40;
     std::fs::write(&log, &bytes).unwrap();
+    // Another run's log of the same frames and sizes in its place (another seed's chunk 1/2,
+    // whose partial file begins with its log): its records read back whole, but they are not
+    // the ones the checkpoint counted (it was resumed and merged as this run's, exit 0).
+    let mut other = base.clone();
+    other.extend(
+        ["--chunk", "1/2", "--seed", "7", "--out"]
+            .map(String::from)
+            .into_iter()
+            .chain([format!("{}/f_####.exr", d.join("other").display())]),
+    );
+    run(&other.iter().map(String::as_str).collect::<Vec<_>>());
+    let theirs = std::fs::read(d.join("other/f.chunk-1-of-2.partial")).unwrap();
+    std::fs::write(&log, &theirs[..bytes.len().min(theirs.len())]).unwrap();
+    let o = reframe().args(&resume).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.code() == Some(1)
+            && err.contains("is not the one its checkpoint counted (the log of another run?)"),
+        "{err}"
+    );
+    std::fs::write(&log, &bytes).unwrap();
     run(&resume.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(!log.exists() && !state.exists());
     // Resumed again once complete (a Slurm array resubmitted whole): nothing to do, and the

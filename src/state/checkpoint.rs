@@ -71,8 +71,16 @@ pub struct Resumed {
 }
 
 /// A chunk's append-only log of finished records: (file, path, valid length, (frame, offset) of
-/// each record).
-type ChunkLog = (File, PathBuf, u64, Vec<(u32, u64)>);
+/// each record, each record's CRC-32).
+type ChunkLog = (File, PathBuf, u64, Vec<(u32, u64)>, Vec<u32>);
+
+/// The CRC-32 a record of `f` ends in (the record ends at byte `end`).
+fn record_crc(f: &File, end: u64) -> std::io::Result<u32> {
+    use std::os::unix::fs::FileExt;
+    let mut b = [0u8; 4];
+    f.read_exact_at(&mut b, end.saturating_sub(4))?;
+    Ok(u32::from_le_bytes(b))
+}
 
 /// Checkpoints and the chunk log of one render.
 pub struct Checkpointer {
@@ -92,13 +100,34 @@ pub struct Checkpointer {
 }
 
 /// Read back every record of a chunk's log that a checkpoint counts (`recs`: frame and offset,
-/// in file order; the last ends at `len`): each must pass its checksum and be of its frame.
-fn check_log(lp: &Path, recs: &[(u32, u64)], len: u64, norm: Norm) -> Result<()> {
+/// in file order; the last ends at `len`): each must pass its checksum, be of its frame, and
+/// end in the CRC the checkpoint has for it (`crcs`, where it has them: another run's log).
+fn check_log(lp: &Path, recs: &[(u32, u64)], crcs: &[u32], len: u64, norm: Norm) -> Result<()> {
     if recs.is_empty() {
         return Ok(());
     }
-    let mut r =
-        BufReader::new(File::open(lp).with_context(|| format!("opening {}", lp.display()))?);
+    if !crcs.is_empty() && crcs.len() != recs.len() {
+        bail!(
+            "{}: its checkpoint counts {} records but has the checksums of {}: the checkpoint is \
+             damaged; delete the checkpoint and the log to start the chunk over",
+            lp.display(),
+            recs.len(),
+            crcs.len()
+        );
+    }
+    let file = File::open(lp).with_context(|| format!("opening {}", lp.display()))?;
+    for (k, (&(frame, off), want)) in recs.iter().zip(crcs).enumerate() {
+        let end = recs.get(k + 1).map_or(len, |n| n.1);
+        if record_crc(&file, end)? != *want {
+            bail!(
+                "{}: the record of frame {frame} at byte {off} is not the one its checkpoint \
+                 counted (the log of another run?); delete the checkpoint and the log to start \
+                 the chunk over",
+                lp.display()
+            );
+        }
+    }
+    let mut r = BufReader::new(file);
     for (k, &(frame, off)) in recs.iter().enumerate() {
         let end = recs.get(k + 1).map_or(len, |n| n.1);
         let damaged = |why: String| {
@@ -330,9 +359,13 @@ impl Checkpointer {
                 // As the lock file is opened (a link planted there to the scene's OBJ had the
                 // OBJ overwritten; a FIFO blocked the open).
                 let f = open_own_file(&lp, "the chunk log")?;
-                let (len, recs) = match &resumed {
-                    Some(r) => (r.trailer.log_len, r.trailer.log_records.clone()),
-                    None => (0, Vec::new()),
+                let (len, recs, crcs) = match &resumed {
+                    Some(r) => (
+                        r.trailer.log_len,
+                        r.trailer.log_records.clone(),
+                        r.trailer.log_crcs.clone(),
+                    ),
+                    None => (0, Vec::new(), Vec::new()),
                 };
                 if f.metadata()?.len() < len {
                     bail!("{}: shorter than its checkpoint says; delete the checkpoint and the log to start the chunk over", lp.display());
@@ -340,11 +373,20 @@ impl Checkpointer {
                 // The frames the log holds are not rendered again: each must read back whole
                 // (its checksum), or the chunk would finish on a damaged record that only
                 // `merge` would find.
-                check_log(&lp, &recs, len, norm)?;
+                check_log(&lp, &recs, &crcs, len, norm)?;
                 f.set_len(len)?;
                 let mut f = f;
                 f.seek(SeekFrom::Start(len))?;
-                Some((f, lp, len, recs))
+                // An older checkpoint without the records' checksums: take them from the log,
+                // which has just read back whole.
+                let crcs = if crcs.len() == recs.len() {
+                    crcs
+                } else {
+                    let ends = recs.iter().skip(1).map(|r| r.1).chain([len]);
+                    ends.map(|end| record_crc(&f, end))
+                        .collect::<std::io::Result<_>>()?
+                };
+                Some((f, lp, len, recs, crcs))
             }
         };
         Ok((
@@ -387,11 +429,12 @@ impl Checkpointer {
         t.kind = Kind::Checkpoint;
         t.next_unit = next_unit;
         t.progress = progress.clone();
-        if let Some((f, _, len, recs)) = &mut self.log {
+        if let Some((f, _, len, recs, crcs)) = &mut self.log {
             // The log's records must be on disk before a checkpoint counts them.
             f.sync_data()?;
             t.log_len = *len;
             t.log_records = recs.clone();
+            t.log_crcs = crcs.clone();
         }
         write_state(&dir.join("state"), &mut t, active)?;
         self.spent += t0.elapsed();
@@ -402,7 +445,7 @@ impl Checkpointer {
 
     /// A chunk's frame that no later group of the chunk touches: append it to the log.
     pub fn retire(&mut self, r: &Record) -> Result<()> {
-        let (f, lp, len, recs) = self.log.as_mut().expect("retire is only called for chunks");
+        let (f, lp, len, recs, crcs) = self.log.as_mut().expect("retire is only called for chunks");
         let mut w = BufWriter::new(&mut *f);
         match r {
             Record::Sums(a) => write_accum(a, &mut w),
@@ -410,11 +453,13 @@ impl Checkpointer {
         }
         .and_then(|_| std::io::Write::flush(&mut w))
         .with_context(|| format!("writing {}", lp.display()))?;
+        drop(w);
         recs.push((r.frame(), *len));
         *len += match r {
             Record::Sums(a) => accum_bytes(a),
             Record::Pixels(d) => pixels_bytes(d),
         };
+        crcs.push(record_crc(f, *len).with_context(|| format!("reading {}", lp.display()))?);
         Ok(())
     }
 
@@ -422,7 +467,7 @@ impl Checkpointer {
     /// Returns the partial file of a chunk.
     pub fn finish(&mut self, next_unit: u32, progress: &Counters) -> Result<Option<PathBuf>> {
         let mut out = None;
-        if let (Some((f, lp, _, recs)), Some(partial)) = (self.log.take(), &self.partial) {
+        if let (Some((f, lp, _, recs, _)), Some(partial)) = (self.log.take(), &self.partial) {
             let mut t = self.template.clone();
             t.kind = Kind::Partial;
             t.next_unit = next_unit;

@@ -78,6 +78,11 @@ pub struct Trailer {
     pub log_len: u64,
     /// A chunk's checkpoint: the frames finished in the log and where their records start.
     pub log_records: Vec<(u32, u64)>,
+    /// A chunk's checkpoint: each of those records' CRC-32 (its last four bytes), which ties
+    /// the log to this run: another run's log of the same frames and sizes read back whole
+    /// and was merged (absent in older files: not checked).
+    #[serde(default)]
+    pub log_crcs: Vec<u32>,
     /// Where this file's own records start (a checkpoint: the frames in flight; a partial: every
     /// frame the chunk touched).
     pub records: Vec<(u32, u64)>,
@@ -111,6 +116,7 @@ impl Trailer {
             next_unit: *units.start(),
             log_len: 0,
             log_records: vec![],
+            log_crcs: vec![],
             records: vec![],
             progress: Counters::default(),
             out,
