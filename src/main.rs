@@ -28,6 +28,7 @@ use std::sync::Arc;
 
 fn main() {
     reframe::sys::keep_stderr();
+    reframe::sys::ignore_file_size_signal();
     // A panic's message goes to standard error as the process started with it, like every
     // other line: the default hook writes to descriptor 2, which a reader may have pointed at
     // /dev/null for a moment (`QuietStderr`), and the message was lost.

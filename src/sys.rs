@@ -15,6 +15,16 @@ pub fn exit_now(code: i32) -> ! {
     unsafe { libc::_exit(code) }
 }
 
+/// Ignore SIGXFSZ, so that a write past the file size limit (`ulimit -f`, which Slurm passes
+/// on to jobs) fails with EFBIG and takes the error path that names the file and removes the
+/// temporaries, as a full disk does; its default action killed the process silently (exit
+/// 153), leaving temporaries, locks and an empty checkpoint folder.
+pub fn ignore_file_size_signal() {
+    // SAFETY: setting a signal's disposition to "ignore" runs no handler and touches no Rust
+    // state.
+    unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
+}
+
 /// Let the C library's allocator keep at most `n` arenas. Each arena a thread opens reserves
 /// 64 MB of address space up front (glibc), and with one per thread of Embree's, rayon's and
 /// OpenImageIO's pools the address space a run maps moves by hundreds of megabytes with the

@@ -719,7 +719,8 @@ fn under_an_address_space_limit_a_render_runs_or_says_why() {
 }
 
 /// A frame whose bytes cannot all be written (a full disk, a quota; here a file size limit of
-/// 4 KiB, with SIGXFSZ ignored so that the write fails with EFBIG) is an error naming the frame,
+/// 4 KiB, as Slurm passes it on to jobs: reframe ignores SIGXFSZ, whose default action killed it
+/// silently with exit 153, so that the write fails with EFBIG) is an error naming the frame,
 /// and leaves no file behind: no frame, no temporary, no lock, no empty checkpoint folder. (The
 /// formats OpenImageIO writes to disk itself, such as SGI and FITS, are read back before the
 /// rename; their probe at start would fail first under this limit.)
@@ -731,8 +732,8 @@ fn a_frame_that_cannot_be_written_is_an_error_and_leaves_nothing() {
     for ext in ["png", "jpg", "exr", "tif"] {
         let out = dir.path().join(ext);
         let cmd = format!(
-            "trap '' XFSZ; ulimit -f 4; exec '{}' render vase --res 256x192 --spp 1 \
-             --frames 0-0 --out '{}/f_####.{ext}'",
+            "ulimit -f 4; exec '{}' render vase --res 256x192 --spp 1 --frames 0-0 --out \
+             '{}/f_####.{ext}'",
             env!("CARGO_BIN_EXE_reframe"),
             out.display()
         );

@@ -827,3 +827,55 @@ fn a_running_chunks_state_is_never_replaced_or_taken_for_its_own() {
     );
     assert!(!sub.join("f.chunk-1-of-2.partial").exists());
 }
+
+/// A process killed while writing its first checkpoint leaves only `state.tmp-PID` in the
+/// folder: the next run (with or without `--resume`) removes it, and the folder goes when the
+/// render completes (no later run removed it, and the folder outlived every render). A user's
+/// file there stays, and so does the folder.
+#[test]
+fn a_first_checkpoint_left_half_written_is_swept() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ck = d.join("o/f.checkpoint");
+    let args = |resume: bool| {
+        let mut a = with(
+            &[
+                "render",
+                "cornell",
+                "--res",
+                "32x24",
+                "--spp",
+                "1",
+                "--frames",
+                "0-1",
+                "--checkpoint-every",
+                "0",
+            ],
+            &["--out", &format!("{}/o/f_####.exr", d.display())],
+        );
+        if resume {
+            a.push("--resume".into());
+        }
+        a
+    };
+    for resume in [false, true] {
+        std::fs::create_dir_all(&ck).unwrap();
+        // A pid no process has (above the largest the kernel gives, 2^22).
+        std::fs::write(ck.join("state.tmp-2147483646"), "half a checkpoint").unwrap();
+        run(&args(resume).iter().map(String::as_str).collect::<Vec<_>>());
+        assert!(
+            !ck.exists(),
+            "resume {resume}: {:?}",
+            common::files_under(&ck)
+        );
+    }
+    std::fs::create_dir_all(&ck).unwrap();
+    std::fs::write(ck.join("state.tmp-2147483646"), "half a checkpoint").unwrap();
+    std::fs::write(ck.join("notes.txt"), "mine").unwrap();
+    run(&args(false).iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(
+        common::files_under(&ck),
+        [ck.join("notes.txt")],
+        "the user's file stays, the temporary goes"
+    );
+}

@@ -235,6 +235,11 @@ impl Checkpointer {
                 }
             }
             let state = d.join("state");
+            if !state.exists() {
+                // A temporary of the first checkpoint, which a process killed while writing it
+                // left: no later run removed it, and the folder outlived the render.
+                remove_stale_tmp(d, |n| n == "state");
+            }
             if state.exists() && !resume && !super::is_state_file(&state) {
                 bail!(
                     "--checkpoint {}: the folder holds a file named 'state' that is not a \
