@@ -879,3 +879,55 @@ fn a_first_checkpoint_left_half_written_is_swept() {
         "the user's file stays, the temporary goes"
     );
 }
+
+/// A chunk's partial file that cannot be opened (another user's in a shared folder, mode 600)
+/// is refused in one line by `--resume`, as `merge` refuses it: it is not damaged, and the chunk
+/// rendered again failed only at its end, on the rename. Run as root (as CI runs), the refused
+/// user is `nobody` (`setpriv`).
+#[test]
+fn a_partial_that_cannot_be_opened_is_refused_not_rendered_again() {
+    use std::os::unix::fs::PermissionsExt;
+    let root = std::process::Command::new("id")
+        .arg("-u")
+        .output()
+        .unwrap()
+        .stdout
+        == b"0\n";
+    // `nobody` must be able to run the binary (a checkout under /root is not theirs to enter).
+    let as_nobody = std::process::Command::new("setpriv")
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups"])
+        .arg(env!("CARGO_BIN_EXE_reframe"))
+        .arg("--version")
+        .output();
+    if !root || !as_nobody.is_ok_and(|o| o.status.success()) {
+        eprintln!("skipped: needs root, setpriv, and a binary that another user can run");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::set_permissions(d, std::fs::Permissions::from_mode(0o1777)).unwrap();
+    let out = format!("{}/o/f_####.exr", d.display());
+    let args = with(
+        &[
+            "render", "cornell", "--res", "16x12", "--spp", "1", "--frames", "0-3",
+        ],
+        &["--chunk", "1/2", "--out", &out],
+    );
+    run(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    std::fs::set_permissions(d.join("o"), std::fs::Permissions::from_mode(0o1777)).unwrap();
+    let partial = d.join("o/f.chunk-1-of-2.partial");
+    std::fs::set_permissions(&partial, std::fs::Permissions::from_mode(0o600)).unwrap();
+    let before = std::fs::read(&partial).unwrap();
+    let o = std::process::Command::new("setpriv")
+        .args(["--reuid=65534", "--regid=65534", "--clear-groups"])
+        .arg(env!("CARGO_BIN_EXE_reframe"))
+        .args(&args)
+        .arg("--resume")
+        .output()
+        .unwrap();
+    common::assert_refused(
+        &o,
+        "cannot read the chunk's partial file (Permission denied",
+    );
+    assert_eq!(std::fs::read(&partial).unwrap(), before);
+}

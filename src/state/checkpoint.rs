@@ -315,6 +315,17 @@ impl Checkpointer {
                         }
                         Ok(true)
                     };
+                    // One that cannot be opened (another user's, in a shared folder) is not
+                    // damaged: rendered again, the chunk failed only at its end, on the rename.
+                    if let Err(e) = File::open(&partial) {
+                        if e.kind() != std::io::ErrorKind::NotFound {
+                            bail!(
+                                "{}: cannot read the chunk's partial file ({e}); make it \
+                                 readable, or remove it to render the chunk again",
+                                partial.display()
+                            );
+                        }
+                    }
                     if partial.exists() {
                         match complete() {
                             Ok(true) => {
