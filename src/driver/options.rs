@@ -281,9 +281,11 @@ impl RenderOptions {
         }
         if self.spp as u64 * self.window as u64 > MAX_SPP as u64 {
             bail!(
-                "--spp {} with --window {}: at most {MAX_SPP} samples per pixel per group",
+                "--spp {} with --window {}: {} samples per pixel per group (--spp times \
+                 --window), at most {MAX_SPP}",
                 self.spp,
-                self.window
+                self.window,
+                self.spp as u64 * self.window as u64
             );
         }
         // A pixel's adaptive count is held in 16 bits (a count per pixel of every frame of a

@@ -235,6 +235,15 @@ impl Checkpointer {
                 }
             }
             let state = d.join("state");
+            // A folder that cannot be searched (mode 000) reads as one without a checkpoint:
+            // said as what it is (it said "no checkpoint", then could not create files).
+            if let Err(e) = state.try_exists() {
+                bail!(
+                    "--checkpoint {}: cannot look into the folder ({e}); make it readable, or \
+                     name another folder",
+                    d.display()
+                );
+            }
             if !state.exists() {
                 // A temporary of the first checkpoint, which a process killed while writing it
                 // left: no later run removed it, and the folder outlived the render.

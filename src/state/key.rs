@@ -148,10 +148,11 @@ impl Chunk {
         let (a, count) = (*units.start(), units.end() - units.start() + 1);
         if self.n > count {
             bail!(
-                "--chunk {}/{}: only {count} {} to split; use at most {count} chunks",
+                "--chunk {}/{}: only {count} {} to split; use at most {count} {}",
                 self.k,
                 self.n,
-                if count == 1 { "unit" } else { "units" }
+                if count == 1 { "unit" } else { "units" },
+                if count == 1 { "chunk" } else { "chunks" }
             );
         }
         let lo = (self.k - 1) as u64 * count as u64 / self.n as u64;
