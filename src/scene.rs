@@ -2300,7 +2300,7 @@ fn load_obj_files(
             }
         };
         for (mtl_label, mtl_dir, b) in loaded {
-            let mtl = mtl::parse(&mtl_label, &b, repairs)?;
+            let mtl = mtl::parse_for(&mtl_label, &b, repairs, &|name| used.contains(name))?;
             // The maps reframe does not render are inputs too: never written over.
             if let Some(dir) = &mtl_dir {
                 for f in mtl.other_files.iter().filter(|f| !f.is_empty()) {
@@ -2336,6 +2336,13 @@ fn load_obj_files(
                         repairs,
                     )?
                 } else {
+                    // Its files are still the scene's inputs, never written over.
+                    if let Some(dir) = &mtl_dir {
+                        for spec in m.maps.iter().flatten() {
+                            let (path, _) = locate_named_file(dir, &spec.file);
+                            texture_files.push(path);
+                        }
+                    }
                     Maps::default()
                 });
                 names.push(m.name.clone());

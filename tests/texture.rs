@@ -521,10 +521,11 @@ fn negative_texels_read_as_zero_with_a_warning() {
     let mut t = Textures::new().unwrap();
     let id = t.open(&d.path().join("t.exr")).unwrap();
     assert_eq!(t.negative_texels(id), 4 * 3);
-    // At the negative texel's centre, zero; between it and a 0.5 texel, half of 0.5 less a bit.
+    // At the negative texel's centre, zero; between it and a 0.5 texel, half of 0.5 (it is
+    // zero before the two are interpolated).
     assert_eq!(t.rgb(id, Vec2::new(1.5 / 4.0, 0.5)), Vec3::ZERO);
     let between = t.rgb(id, Vec2::new(1.0 / 4.0, 0.5 / 4.0));
-    assert!((between.x - 0.5 * (0.5 - 0.01)).abs() < 1e-6, "{between}");
+    assert!((between.x - 0.25).abs() < 1e-6, "{between}");
     let scene = write_scene(
         d.path(),
         QUAD,
@@ -548,6 +549,49 @@ fn negative_texels_read_as_zero_with_a_warning() {
     }
     let strict = reframe::scene::LoadOptions { strict: true };
     assert!(Scene::load_with(&scene, &device, &strict).is_err());
+}
+
+/// The texture files of a material that no `usemtl` names are not opened, but they are still
+/// the scene's inputs: a render's `--out` that names one is refused, as for a material in use
+/// (it was written over).
+#[test]
+fn an_unused_materials_texture_is_never_written_over() {
+    let d = tempfile::tempdir().unwrap();
+    write_texture(
+        &d.path().join("wood_0000.png"),
+        4,
+        |_, _| Vec3::splat(0.5),
+        false,
+    );
+    let before = std::fs::read(d.path().join("wood_0000.png")).unwrap();
+    let scene = write_scene(
+        d.path(),
+        QUAD,
+        "newmtl q\nKd 1 1 1\nnewmtl spare\nKd 1 1 1\nmap_Kd wood_0000.png\n",
+        &toml(
+            8,
+            8,
+            [0.0, 0.0, 3.0],
+            60.0,
+            "[environment]\nradiance = [1, 1, 1]",
+        ),
+    );
+    let out = d.path().join("wood_####.png");
+    let o = common::reframe(&[
+        "render",
+        &scene,
+        "--spp",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ])
+    .output()
+    .unwrap();
+    common::assert_refused(&o, "that is an input of this command");
+    assert_eq!(
+        std::fs::read(d.path().join("wood_0000.png")).unwrap(),
+        before
+    );
 }
 
 #[test]

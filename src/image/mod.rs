@@ -743,7 +743,57 @@ pub fn read_image(path: &Path) -> Result<Image> {
             data,
         })
     };
-    read().map_err(|e| anyhow!("cannot read {}: {e}", path.display()))
+    read().map_err(|e| read_error(path, e))
+}
+
+/// The error of a file that could not be read, with what a Radiance file's bytes say of why
+/// where OpenImageIO's words mislead (`radiance_hint`).
+fn read_error(path: &Path, e: anyhow::Error) -> anyhow::Error {
+    match radiance_hint(path).filter(|h| !format!("{e:#}").contains(h)) {
+        Some(hint) => anyhow!("cannot read {}: {e} ({hint})", path.display()),
+        None => anyhow!("cannot read {}: {e}", path.display()),
+    }
+}
+
+/// Why OpenImageIO 2.4 cannot read a valid Radiance file, from its first bytes: its header's
+/// lines end in CR LF (written in text mode on Windows: "no FORMAT specifier found" of a header
+/// that has the line), or its pixels are in the old run-length encoding of before 1991 ("Read
+/// error reading pixels on scanline 2", as if it were cut short). `None` for anything else.
+fn radiance_hint(path: &Path) -> Option<&'static str> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(path).ok()?;
+    let len = f.metadata().ok()?.len();
+    let mut head = vec![0u8; 65536];
+    let n = f.read(&mut head).ok()?;
+    let head = &head[..n];
+    if !head.starts_with(b"#?") {
+        return None;
+    }
+    let blank = head.windows(2).position(|w| w == b"\n\n");
+    let crlf = head.windows(4).position(|w| w == b"\r\n\r\n");
+    if crlf.is_some_and(|c| blank.is_none_or(|b| c < b)) {
+        return Some(
+            "its header's lines end in CR LF, as a file written in text mode on Windows has \
+             them, which OpenImageIO does not read: remove the CRs, or convert it to OpenEXR",
+        );
+    }
+    // The resolution line after the header, `-Y H +X W`, then the pixels.
+    let start = blank? + 2;
+    let end = start + head[start..].iter().position(|&b| b == b'\n')?;
+    let words: Vec<&str> = std::str::from_utf8(&head[start..end])
+        .ok()?
+        .split_whitespace()
+        .collect();
+    let [_, h, _, w] = words[..] else { return None };
+    let (w, h): (u64, u64) = (w.parse().ok()?, h.parse().ok()?);
+    let data = head.get(end + 1..end + 3)?;
+    let flat = w * h * 4;
+    (data != [2, 2] && len - (end as u64 + 1) < flat).then_some(
+        "its pixels are not in the run-length encoding OpenImageIO reads, and fewer than a flat \
+         file holds: Radiance's old run-length encoding (before 1991), which OpenImageIO does \
+         not read, or a file cut short; convert it to the new encoding (Radiance's ra_rgbe) or \
+         to OpenEXR",
+    )
 }
 
 /// `path` opened for reading, with its description; more than `max_pixels` pixels are refused
@@ -756,7 +806,9 @@ fn open_checked(
         let msg = e.what();
         // OpenImageIO reads Radiance files of RGBE pixels only, and says of the others that
         // their header has no FORMAT line, which misleads for an XYZE file (a valid one).
-        if msg.contains("no FORMAT specifier found") {
+        if let Some(hint) = radiance_hint(path) {
+            anyhow!("{msg} ({hint})")
+        } else if msg.contains("no FORMAT specifier found") {
             anyhow!(
                 "{msg} (OpenImageIO reads Radiance HDR files of RGBE pixels with a FORMAT line; \
                  an XYZE file, or one without that line, must be converted to RGBE or OpenEXR)"
@@ -1108,9 +1160,13 @@ pub fn orientation_in_words(o: i32) -> &'static str {
 /// `Meaning` from a reader's attributes.
 fn meaning(attrs: &[ffi::Attribute]) -> Meaning {
     let find = |name: &str| attrs.iter().find(|a| a.name.eq_ignore_ascii_case(name));
+    // An int, or (a JPEG's EXIF) a uint16 the bridge gives as text; 0 is no orientation.
     let orientation = find("Orientation")
-        .filter(|a| a.kind == ffi::AttrKind::Int && a.int_value != 1)
-        .map(|a| a.int_value);
+        .and_then(|a| match a.kind {
+            ffi::AttrKind::Int => Some(a.int_value),
+            _ => a.text.trim().parse().ok(),
+        })
+        .filter(|o| !matches!(o, 0 | 1));
     // Rec.709 (and sRGB): red (0.64, 0.33), green (0.3, 0.6), blue (0.15, 0.06), D65 white.
     const REC709: [f32; 8] = [0.64, 0.33, 0.3, 0.6, 0.15, 0.06, 0.3127, 0.329];
     let chromaticities = find("chromaticities").and_then(|a| {
@@ -1208,7 +1264,7 @@ pub fn read_colour(
             },
         ))
     };
-    read().map_err(|e| anyhow!("cannot read {}: {e}", path.display()))
+    read().map_err(|e| read_error(path, e))
 }
 
 /// The channel of an image (channels `names`, as OIIO names them) that a cut-out mask
@@ -1358,7 +1414,7 @@ pub fn read_mask(
         };
         Ok((img, layout))
     };
-    read().map_err(|e| anyhow!("cannot read {}: {e}", path.display()))
+    read().map_err(|e| read_error(path, e))
 }
 
 /// reframe's metadata as found in the file, as (name, value) pairs: the "reframe:*" attributes

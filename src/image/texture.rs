@@ -366,17 +366,18 @@ impl Textures {
         {
             self.failures.fetch_add(1, Ordering::Relaxed);
         }
+        // Texels below zero read as zero (`check_texels`), before they are interpolated.
         let texel = |k: usize| {
             let px = &out[k * n..(k + 1) * n];
             Vec3::from(
                 info.pick
                     .map(|c| c.map_or(0.0, |c| if info.srgb { decode_srgb(px[c]) } else { px[c] })),
             )
+            .max(Vec3::ZERO)
         };
         let top = texel(0) * (1.0 - fx) + texel(1) * fx;
         let bottom = texel(2) * (1.0 - fx) + texel(3) * fx;
-        // Texels below zero read as zero (`check_texels`).
-        (top * (1.0 - fy) + bottom * fy).max(Vec3::ZERO)
+        top * (1.0 - fy) + bottom * fy
     }
 
     /// What texture `id`'s file says of its pixels that is not applied (`image::Meaning`).

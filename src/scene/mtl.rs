@@ -151,7 +151,19 @@ pub struct Mtl {
 }
 
 /// Read an MTL file; `label` names it in errors ("label: line N: 'statement': why") and repairs.
+#[cfg(test)]
 pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
+    parse_for(label, bytes, repairs, &|_| true)
+}
+
+/// `parse`, saying what is not rendered only of the materials `used` (by name): a material no
+/// `usemtl` names shows nothing of it.
+pub fn parse_for(
+    label: &str,
+    bytes: &[u8],
+    repairs: &mut Repairs,
+    used: &dyn Fn(&str) -> bool,
+) -> Result<Mtl> {
     let mut out = Mtl::default();
     for line in joined(lines(bytes).map_err(|e| anyhow!("{label}: {e}"))?) {
         let (n, text) = (line.n, line.text.as_ref());
@@ -160,6 +172,12 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
             continue;
         };
         let key = canonical(key);
+        // What a statement of a material no face uses would say goes nowhere.
+        let mut unsaid = Repairs::new(false);
+        let notes = match out.materials.last() {
+            Some(m) if !used(&m.name) => &mut unsaid,
+            _ => &mut *repairs,
+        };
         if key == "newmtl" {
             // An empty name is a name (Blender 2.61 wrote one; `usemtl` with none uses it).
             let name = rest(text);
@@ -190,11 +208,11 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
             };
             let (spec, ignored) = map_spec(n, text, &args, slot == Slot::D).map_err(err)?;
             if let Some(opt) = ignored.unknown {
-                repairs.note(label, n, UNKNOWN_MAP_OPTION, || {
+                notes.note(label, n, UNKNOWN_MAP_OPTION, || {
                     format!("'{}': '{}'", quote(text), quote(opt))
                 })?;
             } else if ignored.known {
-                repairs.note(label, n, MAP_OPTION, || format!("'{}'", quote(text)))?;
+                notes.note(label, n, MAP_OPTION, || format!("'{}'", quote(text)))?;
             }
             m.maps[slot as usize] = Some(spec);
             continue;
@@ -209,7 +227,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
                     .extend([args.join(" "), args.last().unwrap_or(&"").to_string()]),
             }
             if let (true, Some(m)) = (said, out.materials.last()) {
-                repairs.note(label, n, UNRENDERED_MAP, || {
+                notes.note(label, n, UNRENDERED_MAP, || {
                     format!("'{}' in '{}'", quote(text), m.name)
                 })?;
             }
@@ -223,7 +241,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
                 // Anything but a number of at least 1 (opaque): below 1, negative, not a
                 // number, a decimal comma.
                 if !d.is_some_and(|d| d >= 1.0) {
-                    repairs.note(label, n, DISSOLVE, || {
+                    notes.note(label, n, DISSOLVE, || {
                         format!("'{}' in '{}'", quote(text), m.name)
                     })?;
                 }
@@ -235,7 +253,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
             // where it would show.
             let pm = args.first().and_then(|a| number(a));
             if let (true, Some(m)) = (pm.is_some_and(|v| v > 0.0), out.materials.last()) {
-                repairs.note(label, n, METALLIC, || {
+                notes.note(label, n, METALLIC, || {
                     format!("'{}' in '{}'", quote(text), m.name)
                 })?;
             }
@@ -265,10 +283,11 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Mtl> {
                 .as_deref()
                 .and_then(|p| p.get(..1)?.try_into().ok())
                 .ok_or_else(|| err("expected 'Pr roughness'".into()))?;
-            if !(0.0..=1.0).contains(&x) {
-                return Err(err("Pr (roughness) must be from 0 to 1".into()));
+            if !x.is_finite() {
+                return Err(err("Pr (roughness) must be finite".into()));
             }
-            m.pr = Some((x, n));
+            // An extension's value: outside 0..1 taken at the nearest end.
+            m.pr = Some((x.clamp(0.0, 1.0), n));
             continue;
         }
         // `Kd r [g b]`: one number is a grey. Two are neither a grey nor a colour.
@@ -556,6 +575,28 @@ mod tests {
         assert!(e.to_string().contains("line 3"), "{e}");
     }
 
+    /// What is not rendered is said only of materials in use: a library MTL's unused
+    /// materials say nothing (their `d`, `Pm`, `bump` reached the warnings and `--strict`).
+    #[test]
+    fn only_materials_in_use_say_what_is_not_rendered() {
+        let text = "newmtl used\nd 0.5\nPm 1\nnewmtl spare\nd 0.5\nPm 1\nbump b.png\n\
+                    map_Kd -bm 2 k.png\n";
+        let mut r = Repairs::new(false);
+        let mtl = parse_for("a.mtl", text.as_bytes(), &mut r, &|n| n == "used").unwrap();
+        assert_eq!(mtl.materials.len(), 2);
+        let w = r.into_warnings();
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(w.iter().all(|w| w.contains("in 'used'")), "{w:?}");
+        // Under strict loading the unused material refuses nothing.
+        let strict = parse_for(
+            "a.mtl",
+            b"newmtl used\nnewmtl spare\nd 0.5\n",
+            &mut Repairs::new(true),
+            &|n| n == "used",
+        );
+        assert!(strict.is_ok());
+    }
+
     /// Blender's MTL export with PBR extensions writes the roughness as `Pr` and no `Ns`: the
     /// exponent is Blender's for that roughness, 1000 (1 - Pr)^2 (it was 0, a lobe with no
     /// highlight); an `Ns` wins over it; a metallic `Pm` is said not to be rendered.
@@ -577,7 +618,7 @@ mod tests {
             ["a.mtl: line 5: 'Pm 0.9' in 'a': metallic (Pm) not rendered: the surface is its Kd \
               diffuse and Ks Phong lobes"]
         );
-        for bad in ["Pr 1.5", "Pr -0.1", "Pr x"] {
+        for bad in ["Pr inf", "Pr x"] {
             let text = format!("newmtl a\n{bad}\n");
             assert!(
                 parse("a.mtl", text.as_bytes(), &mut Repairs::new(false)).is_err(),

@@ -179,10 +179,22 @@ pub fn remove_stale_tmp(dir: &Path, ours: impl Fn(&str) -> bool) {
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
         if let Some((base, rest)) = name.split_once(".tmp-") {
-            let pid: Option<i32> = rest
+            // `state.tmp-PID` is all digits after `.tmp-`; a frame's temporary goes on after
+            // its pid (`.f_0001.exr.tmp-PID-N.exr`), at a `-` or a `.`.
+            let digits = rest
                 .split(|c: char| !c.is_ascii_digit())
                 .next()
-                .and_then(|p| p.parse().ok());
+                .unwrap_or("");
+            let after = &rest[digits.len()..];
+            let written_by_us = if base == "state" {
+                after.is_empty()
+            } else {
+                after.is_empty() || after.starts_with(['-', '.'])
+            };
+            if !written_by_us {
+                continue;
+            }
+            let pid: Option<i32> = digits.parse().ok();
             // A name without a pid after `.tmp-` is not one reframe writes (`state.tmp-notes`
             // is a user's file).
             let Some(pid) = pid else { continue };
@@ -336,5 +348,18 @@ mod tests {
         remove_stale_tmp(d.path(), |n| n.starts_with("f_"));
         let left: Vec<bool> = names.iter().map(|n| d.path().join(n).exists()).collect();
         assert_eq!(left, [true, false, false, true]);
+        // A checkpoint's temporary is `state.tmp-PID` exactly: a user's `state.tmp-2024-notes`
+        // in a folder named by --checkpoint stays.
+        let names = [
+            "state.tmp-4194303",
+            "state.tmp-2024-notes",
+            "state.tmp-4194303.bak",
+        ];
+        for n in names {
+            std::fs::write(d.path().join(n), b"").unwrap();
+        }
+        remove_stale_tmp(d.path(), |n| n == "state");
+        let left: Vec<bool> = names.iter().map(|n| d.path().join(n).exists()).collect();
+        assert_eq!(left, [false, true, true]);
     }
 }
