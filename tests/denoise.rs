@@ -8,7 +8,7 @@ mod common;
 use reframe::driver::denoise::Layers;
 use reframe::driver::{render, RenderOptions};
 use reframe::embree::Device;
-use reframe::image::{read_image, write_image, Image, Metadata, WriteOptions};
+use reframe::image::{read_image, Image};
 use reframe::reuse::Method;
 use reframe::scene::Scene;
 use std::path::Path;
@@ -447,20 +447,9 @@ fn merge_never_writes_over_the_scene_it_denoises_with() {
     // the environment image, e_0000.exr) is refused and the file left as it was (the merge
     // wrote the frame over it, exit 0, before the check took the scene's files).
     let d = tempfile::tempdir().unwrap();
-    let base = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/base");
-    for f in ["s.obj", "s.mtl"] {
-        std::fs::copy(base.join(f), d.path().join(f)).unwrap();
-    }
-    let toml = std::fs::read_to_string(base.join("s.toml")).unwrap();
-    let toml = format!("{toml}[environment]\nimage = \"e_0000.exr\"\n");
-    std::fs::write(d.path().join("s.toml"), toml).unwrap();
-    let mut sky = Image::new(4, 2, &["R", "G", "B"]);
-    sky.data.fill(0.5);
-    let env = d.path().join("e_0000.exr");
-    write_image(&env, &sky, &Metadata::default(), &WriteOptions::default()).unwrap();
+    let (scene, env) = common::base_scene_with_sky(d.path());
     let before = std::fs::read(&env).unwrap();
     let at = |name: &str| d.path().join(name).to_str().unwrap().to_string();
-    let scene = at("s.toml");
     let out = at("o/f_####.exr");
     common::reframe_ok(&[
         "render",

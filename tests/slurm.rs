@@ -284,31 +284,12 @@ fn a_merge_into_rgb_frames_says_it_drops_the_aov_channels() {
 #[test]
 fn a_merge_never_writes_over_a_file_of_the_scene_the_chunks_rendered() {
     let d = tempfile::tempdir().unwrap();
-    let base = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/base");
-    for f in ["s.obj", "s.mtl"] {
-        std::fs::copy(base.join(f), d.path().join(f)).unwrap();
-    }
-    let toml = std::fs::read_to_string(base.join("s.toml")).unwrap();
-    std::fs::write(
-        d.path().join("s.toml"),
-        format!("{toml}[environment]\nimage = \"e_0000.exr\"\n"),
-    )
-    .unwrap();
-    let mut sky = reframe::image::Image::new(4, 2, &["R", "G", "B"]);
-    sky.data.fill(0.5);
-    let env = d.path().join("e_0000.exr");
-    reframe::image::write_image(
-        &env,
-        &sky,
-        &reframe::image::Metadata::default(),
-        &reframe::image::WriteOptions::default(),
-    )
-    .unwrap();
+    let (scene, env) = common::base_scene_with_sky(d.path());
     let before = std::fs::read(&env).unwrap();
     let at = |name: &str| d.path().join(name).to_str().unwrap().to_string();
     common::reframe_ok(&[
         "render",
-        &at("s.toml"),
+        &scene,
         "--spp",
         "1",
         "--frames",

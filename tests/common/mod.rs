@@ -293,3 +293,31 @@ pub fn assert_identical(a: &Path, b: &Path, names: impl IntoIterator<Item = Stri
     }
     assert!(n > 0, "no frames compared");
 }
+
+/// The corpus's small valid scene (`tests/corpus/base`) in `d`, lit by a grey environment image
+/// `e_0000.exr` beside it (named like a frame of `e_####.exr`): the scene file's path and the
+/// image's.
+#[allow(dead_code)]
+pub fn base_scene_with_sky(d: &Path) -> (String, PathBuf) {
+    let base = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/base");
+    for f in ["s.obj", "s.mtl"] {
+        std::fs::copy(base.join(f), d.join(f)).unwrap();
+    }
+    let toml = std::fs::read_to_string(base.join("s.toml")).unwrap();
+    std::fs::write(
+        d.join("s.toml"),
+        format!("{toml}[environment]\nimage = \"e_0000.exr\"\n"),
+    )
+    .unwrap();
+    let mut sky = reframe::image::Image::new(4, 2, &["R", "G", "B"]);
+    sky.data.fill(0.5);
+    let env = d.join("e_0000.exr");
+    reframe::image::write_image(
+        &env,
+        &sky,
+        &reframe::image::Metadata::default(),
+        &reframe::image::WriteOptions::default(),
+    )
+    .unwrap();
+    (d.join("s.toml").to_str().unwrap().to_string(), env)
+}
