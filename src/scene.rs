@@ -2050,45 +2050,39 @@ const DEFINED_AGAIN: Kind = Kind {
 /// with spaces are common in exports), or found from it as `find_named_file` finds a path written
 /// on another machine (then `true`); otherwise each word (the OBJ format's list).
 fn mtl_paths(dir: &Path, rest: &[u8]) -> Vec<(PathBuf, bool)> {
-    let whole = dir.join(std::ffi::OsStr::from_bytes(rest));
-    if whole.exists() {
-        return vec![(whole, false)];
+    if let Some(found) = find_mtl(dir, rest) {
+        return vec![found];
     }
-    // A name that is not UTF-8 (a line read as Latin-1) may be stored in UTF-8, as an archive
-    // unpacked on another system writes it: found either way, as a map's file name is.
-    let name = match std::str::from_utf8(rest) {
-        Ok(name) => Cow::Borrowed(name),
-        Err(_) => Cow::Owned(rest.iter().map(|&b| b as char).collect::<String>()),
-    };
-    let utf8 = dir.join(name.as_ref());
-    if utf8 != whole && utf8.is_file() {
-        return vec![(utf8, true)];
-    }
-    if let Some(found) = find_named_file(dir, &name) {
-        return vec![(found, true)];
-    }
+    let as_written = |name: &[u8]| (dir.join(std::ffi::OsStr::from_bytes(name)), false);
     if !rest.iter().any(|b| b.is_ascii_whitespace()) {
-        return vec![(whole, false)];
+        return vec![as_written(rest)];
     }
     // The list ends at a comment (`mtllib a.mtl b.mtl # materials`); each name found as one
     // name alone is.
     mtllib_words(rest)
         .into_iter()
         .take_while(|w| !w.starts_with(b"#"))
-        .map(|w| {
-            let path = dir.join(std::ffi::OsStr::from_bytes(&w));
-            if path.exists() {
-                return (path, false);
-            }
-            match std::str::from_utf8(&w)
-                .ok()
-                .and_then(|n| find_named_file(dir, n))
-            {
-                Some(found) => (found, true),
-                None => (path, false),
-            }
-        })
+        .map(|w| find_mtl(dir, &w).unwrap_or_else(|| as_written(&w)))
         .collect()
+}
+
+/// The file an `mtllib` name (`name`, its bytes) is, where there is one: as written, or found
+/// from it (then `true`) in UTF-8 where it is not (a line read as Latin-1, stored as an
+/// archive unpacked on another system writes it) or as `find_named_file` finds it.
+fn find_mtl(dir: &Path, name: &[u8]) -> Option<(PathBuf, bool)> {
+    let whole = dir.join(std::ffi::OsStr::from_bytes(name));
+    if whole.exists() {
+        return Some((whole, false));
+    }
+    let name = match std::str::from_utf8(name) {
+        Ok(name) => Cow::Borrowed(name),
+        Err(_) => Cow::Owned(name.iter().map(|&b| b as char).collect::<String>()),
+    };
+    let utf8 = dir.join(name.as_ref());
+    if utf8 != whole && utf8.is_file() {
+        return Some((utf8, true));
+    }
+    find_named_file(dir, &name).map(|found| (found, true))
 }
 
 /// The names of an `mtllib` list: split at white space, where a backslash before a space or
@@ -2301,9 +2295,20 @@ fn load_obj_files(
         };
         for (mtl_label, mtl_dir, b) in loaded {
             let mtl = mtl::parse_for(&mtl_label, &b, repairs, &|name| used.contains(name))?;
-            // The maps reframe does not render are inputs too: never written over.
+            // The maps reframe does not open are inputs too, never written over: those it does
+            // not render, and those of the materials no `usemtl` names.
             if let Some(dir) = &mtl_dir {
-                for f in mtl.other_files.iter().filter(|f| !f.is_empty()) {
+                let unused = mtl
+                    .materials
+                    .iter()
+                    .filter(|m| !used.contains(m.name.as_str()))
+                    .flat_map(|m| m.maps.iter().flatten().map(|spec| &spec.file));
+                for f in mtl
+                    .other_files
+                    .iter()
+                    .chain(unused)
+                    .filter(|f| !f.is_empty())
+                {
                     let (path, _) = locate_named_file(dir, f);
                     if texture_seen.insert(path.clone()) {
                         texture_files.push(path);
@@ -2321,12 +2326,12 @@ fn load_obj_files(
                 // A material no `usemtl` names colours nothing: its maps are not opened (a
                 // library MTL naming textures that are not shipped refused the scene) and its
                 // repairs are not said.
-                let used = used.contains(m.name.as_str());
+                let in_use = used.contains(m.name.as_str());
                 let mut unsaid = Repairs::new(false);
-                let notes = if used { &mut *repairs } else { &mut unsaid };
+                let notes = if in_use { &mut *repairs } else { &mut unsaid };
                 let material = m.material(&mtl_label, notes)?;
                 materials.push(material);
-                maps.push(if used {
+                maps.push(if in_use {
                     Maps::open(
                         &mtl_label,
                         mtl_dir.as_deref(),
@@ -2336,13 +2341,6 @@ fn load_obj_files(
                         repairs,
                     )?
                 } else {
-                    // Its files are still the scene's inputs, never written over.
-                    if let Some(dir) = &mtl_dir {
-                        for spec in m.maps.iter().flatten() {
-                            let (path, _) = locate_named_file(dir, &spec.file);
-                            texture_files.push(path);
-                        }
-                    }
                     Maps::default()
                 });
                 names.push(m.name.clone());

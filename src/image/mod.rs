@@ -746,10 +746,11 @@ pub fn read_image(path: &Path) -> Result<Image> {
     read().map_err(|e| read_error(path, e))
 }
 
-/// The error of a file that could not be read, with what a Radiance file's bytes say of why
-/// where OpenImageIO's words mislead (`radiance_hint`).
+/// The error of a file that could not be read (every reader's: `read_image`, `read_colour`,
+/// `read_mask`), with what a Radiance file's bytes say of why where OpenImageIO's words mislead
+/// (`radiance_hint`).
 fn read_error(path: &Path, e: anyhow::Error) -> anyhow::Error {
-    match radiance_hint(path).filter(|h| !format!("{e:#}").contains(h)) {
+    match radiance_hint(path) {
         Some(hint) => anyhow!("cannot read {}: {e} ({hint})", path.display()),
         None => anyhow!("cannot read {}: {e}", path.display()),
     }
@@ -757,8 +758,10 @@ fn read_error(path: &Path, e: anyhow::Error) -> anyhow::Error {
 
 /// Why OpenImageIO 2.4 cannot read a valid Radiance file, from its first bytes: its header's
 /// lines end in CR LF (written in text mode on Windows: "no FORMAT specifier found" of a header
-/// that has the line), or its pixels are in the old run-length encoding of before 1991 ("Read
-/// error reading pixels on scanline 2", as if it were cut short). `None` for anything else.
+/// that has the line), its pixels are not RGBE (an XYZE file, or a header without the FORMAT
+/// line: "no FORMAT specifier found" too), or they are in the old run-length encoding of before
+/// 1991 ("Read error reading pixels on scanline 2", as if it were cut short). `None` for
+/// anything else.
 fn radiance_hint(path: &Path) -> Option<&'static str> {
     use std::io::Read;
     let mut f = std::fs::File::open(path).ok()?;
@@ -775,6 +778,16 @@ fn radiance_hint(path: &Path) -> Option<&'static str> {
         return Some(
             "its header's lines end in CR LF, as a file written in text mode on Windows has \
              them, which OpenImageIO does not read: remove the CRs, or convert it to OpenEXR",
+        );
+    }
+    let header = &head[..blank.unwrap_or(head.len())];
+    if !header
+        .windows(22)
+        .any(|w| w.eq_ignore_ascii_case(b"FORMAT=32-bit_rle_rgbe"))
+    {
+        return Some(
+            "OpenImageIO reads Radiance HDR files of RGBE pixels with a FORMAT line; an XYZE \
+             file, or one without that line, must be converted to RGBE or OpenEXR",
         );
     }
     // The resolution line after the header, `-Y H +X W`, then the pixels.
@@ -802,21 +815,8 @@ fn open_checked(
     path: &Path,
     max_pixels: u64,
 ) -> Result<(cxx::UniquePtr<ffi::ImageReader>, ffi::ImageInfo)> {
-    let reader = ffi::open_reader(path_bytes(path)).map_err(|e| {
-        let msg = e.what();
-        // OpenImageIO reads Radiance files of RGBE pixels only, and says of the others that
-        // their header has no FORMAT line, which misleads for an XYZE file (a valid one).
-        if let Some(hint) = radiance_hint(path) {
-            anyhow!("{msg} ({hint})")
-        } else if msg.contains("no FORMAT specifier found") {
-            anyhow!(
-                "{msg} (OpenImageIO reads Radiance HDR files of RGBE pixels with a FORMAT line; \
-                 an XYZE file, or one without that line, must be converted to RGBE or OpenEXR)"
-            )
-        } else {
-            anyhow!("{msg}")
-        }
-    })?;
+    // What OpenImageIO's words leave out of a Radiance file is added by `read_error`.
+    let reader = ffi::open_reader(path_bytes(path)).map_err(|e| anyhow!("{}", e.what()))?;
     let info = reader.info();
     // A LogLuv TIFF (SGI's log-encoded HDR) comes out of this OpenImageIO as 8-bit codes of
     // another meaning, which would light a scene with the wrong values without a word.

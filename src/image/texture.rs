@@ -172,16 +172,14 @@ impl Textures {
             Colour::Grey(c) => [Some(c - first); 3],
             Colour::Rgb(c) => c.map(|c| c.map(|c| c - first)),
         };
-        let id = self.add(
+        Ok(self.add(
             key,
             id,
             &img,
             (last - first + 1, pick, srgb, parts, layers),
             (false, false),
-            negatives,
-        );
-        self.info[id.0 as usize].meaning = meaning;
-        Ok(id)
+            (negatives, meaning),
+        ))
     }
 
     /// Open the texture at `path` as a cut-out mask (once: a second time gives the same id):
@@ -210,22 +208,21 @@ impl Textures {
             .pin_mut()
             .add(path_bytes(path), channel as u32, channel as u32 + 1)
             .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
-        let id = self.add(
+        Ok(self.add(
             key,
             id,
             &img,
             (1, [Some(0), None, None], false, parts, layers),
             (!coverage, alpha_opaque),
-            negatives,
-        );
-        self.info[id.0 as usize].meaning = meaning;
-        Ok(id)
+            (negatives, meaning),
+        ))
     }
 
     /// Record texture `id` of the texture set, opened as `key` and read as `img` (what its
     /// identity hashes), fetched as `(channels, pick, srgb)`, with its file's images and layers
     /// of colour (`Info`); `colour_mask`: a mask that reads a colour image's first channel,
-    /// `alpha_opaque`: in place of its opaque alpha.
+    /// `alpha_opaque`: in place of its opaque alpha; what the file holds below zero and says of
+    /// its pixels (`check_texels`, `image::Meaning`).
     fn add(
         &mut self,
         key: (PathBuf, Option<Option<char>>),
@@ -233,7 +230,7 @@ impl Textures {
         img: &super::Image,
         (fetched, pick, srgb, parts, layers): (usize, [Option<usize>; 3], bool, u32, Vec<String>),
         (colour_mask, alpha_opaque): (bool, bool),
-        negatives: u64,
+        (negatives, meaning): (u64, super::Meaning),
     ) -> TextureId {
         let mut f = Fnv::default();
         f.bytes(&[img.width.to_le_bytes(), img.height.to_le_bytes()].concat());
@@ -254,7 +251,7 @@ impl Textures {
             alpha_opaque,
             negatives,
             layers,
-            meaning: super::Meaning::default(),
+            meaning,
         });
         let id = TextureId(id);
         self.by_path.insert(key, id);

@@ -267,11 +267,16 @@ pub fn parse_for(
         };
         let parsed: Option<Vec<f32>> = args.iter().map(|a| number(a)).collect();
         let bad = |v: f32| !v.is_finite() || v < 0.0;
-        if key == "Ns" {
+        // `Ns value`, `Pr roughness`: one number.
+        let one = |what: &str| {
             let [x] = parsed
                 .as_deref()
                 .and_then(|p| p.get(..1)?.try_into().ok())
-                .ok_or_else(|| err("expected 'Ns value'".into()))?;
+                .ok_or_else(|| err(format!("expected '{key} {what}'")))?;
+            Ok::<f32, anyhow::Error>(x)
+        };
+        if key == "Ns" {
+            let x = one("value")?;
             if bad(x) {
                 return Err(err("Ns must be finite and non-negative".into()));
             }
@@ -279,10 +284,7 @@ pub fn parse_for(
             continue;
         }
         if key == "Pr" {
-            let [x] = parsed
-                .as_deref()
-                .and_then(|p| p.get(..1)?.try_into().ok())
-                .ok_or_else(|| err("expected 'Pr roughness'".into()))?;
+            let x = one("roughness")?;
             if !x.is_finite() {
                 return Err(err("Pr (roughness) must be finite".into()));
             }

@@ -100,12 +100,17 @@ pub struct Checkpointer {
 }
 
 /// Read back every record of a chunk's log that a checkpoint counts (`recs`: frame and offset,
-/// in file order; the last ends at `len`): each must pass its checksum, be of its frame, and
-/// end in the CRC the checkpoint has for it (`crcs`, where it has them: another run's log).
-fn check_log(lp: &Path, recs: &[(u32, u64)], crcs: &[u32], len: u64, norm: Norm) -> Result<()> {
-    if recs.is_empty() {
-        return Ok(());
-    }
+/// in file order; the last ends at `len`): each must end in the CRC the checkpoint has for it
+/// (`crcs`, where it has them: another run's log), pass its checksum and be of its frame.
+/// Returns each record's CRC (an older checkpoint's are taken from the log, which read back
+/// whole).
+fn check_log(
+    lp: &Path,
+    recs: &[(u32, u64)],
+    crcs: &[u32],
+    len: u64,
+    norm: Norm,
+) -> Result<Vec<u32>> {
     if !crcs.is_empty() && crcs.len() != recs.len() {
         bail!(
             "{}: its checkpoint counts {} records but has the checksums of {}: the checkpoint is \
@@ -115,10 +120,16 @@ fn check_log(lp: &Path, recs: &[(u32, u64)], crcs: &[u32], len: u64, norm: Norm)
             crcs.len()
         );
     }
-    let file = File::open(lp).with_context(|| format!("opening {}", lp.display()))?;
-    for (k, (&(frame, off), want)) in recs.iter().zip(crcs).enumerate() {
+    if recs.is_empty() {
+        return Ok(Vec::new());
+    }
+    let mut r =
+        BufReader::new(File::open(lp).with_context(|| format!("opening {}", lp.display()))?);
+    let mut read = Vec::with_capacity(recs.len());
+    for (k, &(frame, off)) in recs.iter().enumerate() {
         let end = recs.get(k + 1).map_or(len, |n| n.1);
-        if record_crc(&file, end)? != *want {
+        let crc = record_crc(r.get_ref(), end)?;
+        if crcs.get(k).is_some_and(|&want| want != crc) {
             bail!(
                 "{}: the record of frame {frame} at byte {off} is not the one its checkpoint \
                  counted (the log of another run?); delete the checkpoint and the log to start \
@@ -126,10 +137,6 @@ fn check_log(lp: &Path, recs: &[(u32, u64)], crcs: &[u32], len: u64, norm: Norm)
                 lp.display()
             );
         }
-    }
-    let mut r = BufReader::new(file);
-    for (k, &(frame, off)) in recs.iter().enumerate() {
-        let end = recs.get(k + 1).map_or(len, |n| n.1);
         let damaged = |why: String| {
             anyhow!(
                 "{}: the record of frame {frame} at byte {off} is damaged ({why}); delete the \
@@ -143,8 +150,9 @@ fn check_log(lp: &Path, recs: &[(u32, u64)], crcs: &[u32], len: u64, norm: Norm)
         if rec.frame() != frame {
             return Err(damaged(format!("it holds frame {}", rec.frame())));
         }
+        read.push(crc);
     }
-    Ok(())
+    Ok(read)
 }
 
 impl Checkpointer {
@@ -324,19 +332,17 @@ impl Checkpointer {
                         }
                         Ok(true)
                     };
-                    // One that cannot be opened (another user's, in a shared folder) is not
-                    // damaged: rendered again, the chunk failed only at its end, on the rename.
-                    if let Err(e) = File::open(&partial) {
-                        if e.kind() != std::io::ErrorKind::NotFound {
-                            bail!(
-                                "{}: cannot read the chunk's partial file ({e}); make it \
-                                 readable, or remove it to render the chunk again",
-                                partial.display()
-                            );
-                        }
-                    }
-                    if partial.exists() {
-                        match complete() {
+                    match File::open(&partial) {
+                        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                        // One that cannot be opened (another user's, in a shared folder) is not
+                        // damaged: rendered again, the chunk failed only at its end, on the
+                        // rename.
+                        Err(e) => bail!(
+                            "{}: cannot read the chunk's partial file ({e}); make it readable, \
+                             or remove it to render the chunk again",
+                            partial.display()
+                        ),
+                        Ok(_) => match complete() {
                             Ok(true) => {
                                 return Err(ChunkComplete {
                                     chunk: c.to_string(),
@@ -350,7 +356,7 @@ impl Checkpointer {
                                  replaced when it is done)",
                                 crate::util::text::printable(&format!("{e:#}"))
                             ),
-                        }
+                        },
                     }
                 }
                 errln!(
@@ -398,19 +404,10 @@ impl Checkpointer {
                 // The frames the log holds are not rendered again: each must read back whole
                 // (its checksum), or the chunk would finish on a damaged record that only
                 // `merge` would find.
-                check_log(&lp, &recs, &crcs, len, norm)?;
+                let crcs = check_log(&lp, &recs, &crcs, len, norm)?;
                 f.set_len(len)?;
                 let mut f = f;
                 f.seek(SeekFrom::Start(len))?;
-                // An older checkpoint without the records' checksums: take them from the log,
-                // which has just read back whole.
-                let crcs = if crcs.len() == recs.len() {
-                    crcs
-                } else {
-                    let ends = recs.iter().skip(1).map(|r| r.1).chain([len]);
-                    ends.map(|end| record_crc(&f, end))
-                        .collect::<std::io::Result<_>>()?
-                };
                 Some((f, lp, len, recs, crcs))
             }
         };

@@ -179,25 +179,22 @@ pub fn remove_stale_tmp(dir: &Path, ours: impl Fn(&str) -> bool) {
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
         if let Some((base, rest)) = name.split_once(".tmp-") {
-            // `state.tmp-PID` is all digits after `.tmp-`; a frame's temporary goes on after
-            // its pid (`.f_0001.exr.tmp-PID-N.exr`), at a `-` or a `.`.
+            // Only the names reframe writes: `NAME.tmp-PID` (`tmp_name`) and a frame's
+            // `.NAME.tmp-PID-N.ext`; a user's `state.tmp-notes`, `state.tmp-2024-notes` or
+            // `state.tmp-17.bak` is not one of them.
             let digits = rest
                 .split(|c: char| !c.is_ascii_digit())
                 .next()
                 .unwrap_or("");
             let after = &rest[digits.len()..];
-            let written_by_us = if base == "state" {
-                after.is_empty()
-            } else {
-                after.is_empty() || after.starts_with(['-', '.'])
-            };
-            if !written_by_us {
+            let counter = after
+                .strip_prefix('-')
+                .map(|a| a.split('.').next().unwrap_or(""));
+            let ours_shape = after.is_empty()
+                || counter.is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()));
+            let Some(pid) = digits.parse::<i32>().ok().filter(|_| ours_shape) else {
                 continue;
-            }
-            let pid: Option<i32> = digits.parse().ok();
-            // A name without a pid after `.tmp-` is not one reframe writes (`state.tmp-notes`
-            // is a user's file).
-            let Some(pid) = pid else { continue };
+            };
             let running =
                 pid != std::process::id() as i32 && Path::new(&format!("/proc/{pid}")).exists();
             if ours(base.strip_prefix('.').unwrap_or(base)) && !running {
