@@ -232,11 +232,45 @@ impl<'de, T: Deserialize<'de>, const N: usize> Deserialize<'de> for Exactly<T, N
     }
 }
 
+/// A keyframe's frame: a whole number from 0, written as an integer or as a float (`frame =
+/// 12.0`, as a script that computes its frames writes them), as a camera file's frame may be.
+struct FrameNumber(u32);
+
+impl<'de> Deserialize<'de> for FrameNumber {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl de::Visitor<'_> for V {
+            type Value = FrameNumber;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                write!(f, "a frame number (a whole number from 0 to {})", u32::MAX)
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> Result<FrameNumber, E> {
+                u32::try_from(v)
+                    .map(FrameNumber)
+                    .map_err(|_| E::invalid_value(de::Unexpected::Signed(v), &self))
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> Result<FrameNumber, E> {
+                u32::try_from(v)
+                    .map(FrameNumber)
+                    .map_err(|_| E::invalid_value(de::Unexpected::Unsigned(v), &self))
+            }
+            fn visit_f64<E: de::Error>(self, v: f64) -> Result<FrameNumber, E> {
+                if v.fract() == 0.0 && (0.0..=u32::MAX as f64).contains(&v) {
+                    Ok(FrameNumber(v as u32))
+                } else {
+                    Err(E::invalid_value(de::Unexpected::Float(v), &self))
+                }
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
 /// Every value keeps its place in the file, so that an error can name its line.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct KeyframeFile {
-    frame: Spanned<u32>,
+    frame: Spanned<FrameNumber>,
     /// Read in double precision for a scene moved to its origin (`check_camera`); checked and
     /// used as f32 otherwise.
     position: Spanned<Exactly<f64, 3>>,
@@ -1463,7 +1497,7 @@ fn check_camera(
     let mut keys = Vec::new();
     let mut key_line = Vec::new();
     for (i, k) in keyframes.iter().enumerate() {
-        let frame = *k.frame.get_ref();
+        let frame = k.frame.get_ref().0;
         let at = |span: Range<usize>| format!("{label}: line {}: keyframe {}", line(span), i + 1);
         if i == 0 && frame != 0 {
             bail!(
@@ -1471,11 +1505,11 @@ fn check_camera(
                 at(k.frame.span())
             );
         }
-        if i > 0 && frame <= *keyframes[i - 1].frame.get_ref() {
+        if i > 0 && frame <= keyframes[i - 1].frame.get_ref().0 {
             bail!(
                 "{}: frame {frame}: keyframe frames must increase strictly (the one before is at {})",
                 at(k.frame.span()),
-                keyframes[i - 1].frame.get_ref()
+                keyframes[i - 1].frame.get_ref().0
             );
         }
         if frame >= frames {

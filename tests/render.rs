@@ -760,6 +760,28 @@ fn a_frame_that_cannot_be_written_is_an_error_and_leaves_nothing() {
             .unwrap_or_default();
         assert!(left.is_empty(), "{ext}: left {left:?}");
     }
+    // A chunk's frames go to its log as they finish: a log that no checkpoint counts is of no
+    // use to a later run, and goes too (a 4 KiB NAME.chunk-1-of-1.partial.log was left).
+    let out = dir.path().join("chunk");
+    let cmd = format!(
+        "ulimit -f 4; exec '{}' render vase --res 256x192 --spp 1 --frames 0-1 --chunk 1/1 \
+         --out '{}/f_####.exr'",
+        env!("CARGO_BIN_EXE_reframe"),
+        out.display()
+    );
+    let o = std::process::Command::new("bash")
+        .args(["-c", &cmd])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.code() == Some(1) && err.contains("File too large"),
+        "{err}"
+    );
+    let left: Vec<_> = std::fs::read_dir(&out)
+        .map(|d| d.map(|e| e.unwrap().file_name()).collect())
+        .unwrap_or_default();
+    assert!(left.is_empty(), "chunk: left {left:?}");
 }
 
 /// A render whose standard output and error are closed by their reader (piped into `head -1`,

@@ -159,6 +159,8 @@ fn killed_render_resumes_to_identical_frames() {
                 && err.contains(&f0.display().to_string()),
             "{err}"
         );
+        // A deleted frame is said to be gone (OpenImageIO's words for it named no reason).
+        assert_eq!(damage.is_none(), err.contains("is gone"), "{err}");
     }
     std::fs::write(&f0, kept).unwrap();
     let mut png = args.clone();
@@ -930,4 +932,73 @@ fn a_partial_that_cannot_be_opened_is_refused_not_rendered_again() {
         "cannot read the chunk's partial file (Permission denied",
     );
     assert_eq!(std::fs::read(&partial).unwrap(), before);
+}
+
+/// A finished frame that cannot be opened at a resume (another user's, mode 600 in a shared
+/// folder) is refused saying so, and what mends it: OpenImageIO's words for it were "not an
+/// OpenEXR file", and the advice was to render every frame again. Run as root (as CI runs), the
+/// render and its resume are `nobody`'s (`setpriv`).
+#[test]
+fn a_finished_frame_that_cannot_be_opened_is_refused_saying_so() {
+    use std::os::unix::fs::PermissionsExt;
+    let nobody = || {
+        let mut c = std::process::Command::new("setpriv");
+        c.args(["--reuid=65534", "--regid=65534", "--clear-groups"])
+            .arg(env!("CARGO_BIN_EXE_reframe"));
+        c
+    };
+    let root = std::process::Command::new("id")
+        .arg("-u")
+        .output()
+        .unwrap()
+        .stdout
+        == b"0\n";
+    if !root
+        || !nobody()
+            .arg("--version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+    {
+        eprintln!("skipped: needs root, setpriv, and a binary that another user can run");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::set_permissions(d, std::fs::Permissions::from_mode(0o1777)).unwrap();
+    let out = format!("{}/f_####.exr", d.display());
+    let args = [
+        "render",
+        "cornell",
+        "--res",
+        "64x48",
+        "--spp",
+        "64",
+        "--frames",
+        "0-23",
+        "--threads",
+        "1",
+        "--checkpoint-every",
+        "0",
+        "--out",
+        &out,
+    ];
+    let mut child = nobody().args(args).spawn().unwrap();
+    let state = d.join("f.checkpoint/state");
+    interrupt_when(&mut child, "KILL", || {
+        state.exists() && d.join("f_0001.exr").exists()
+    });
+    child.wait().unwrap();
+    let f0 = d.join("f_0000.exr");
+    std::fs::set_permissions(&f0, std::fs::Permissions::from_mode(0o000)).unwrap();
+    let o = nobody().args(args).arg("--resume").output().unwrap();
+    common::assert_refused(&o, "cannot read: Permission denied");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("frame 0 was finished before the stop")
+            && err.contains("make it a readable file again"),
+        "{err}"
+    );
+    std::fs::set_permissions(&f0, std::fs::Permissions::from_mode(0o644)).unwrap();
+    let o = nobody().args(args).arg("--resume").output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }

@@ -786,3 +786,95 @@ fn control_variate_is_unbiased_at_the_ends_of_a_run() {
         );
     }
 }
+
+/// The reuse films sum in fixed point, in a unit that follows the scene's brightness
+/// (`reuse::radiance_unit`), so that a scene lit a billion times more dimly renders the same
+/// frames, scaled: bit for bit between two dim scenes a power of two apart, and within the
+/// rounding of the sums of the bright one. With a fixed unit (steps of 2^-20 of radiance) a dim
+/// scene's splats were as small as a step: still unbiased, but 623 of 768 pixels of `cornell`
+/// at Ke 1.6e-5 came out black, and its error was nine times the bright scene's. Chunks and
+/// their merge find the same unit, so they give one process's frames.
+#[test]
+fn a_dim_scene_renders_as_a_bright_one_scaled() {
+    let device = Device::new().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let src = |ext: &str| {
+        std::fs::read_to_string(format!(
+            "{}/scenes/cornell.{ext}",
+            env!("CARGO_MANIFEST_DIR")
+        ))
+        .unwrap()
+    };
+    let (obj, mtl, toml) = (src("obj"), src("mtl"), src("toml"));
+    // The light's Ke 16 times 2^-k: exact in decimal and in single precision.
+    let scene = |k: i32| {
+        let d = dir.path().join(format!("k{k}"));
+        std::fs::create_dir(&d).unwrap();
+        let ke = 16f64 * 2f64.powi(-k);
+        let mtl = mtl.replace("Ke 16 16 16", &format!("Ke {ke:e} {ke:e} {ke:e}"));
+        assert_ne!(mtl, src("mtl"));
+        scene_in(&d, "cornell", [&obj, &mtl, &toml], &device)
+    };
+    let scenes = [scene(0), scene(30), scene(40)];
+    let pool = thread_pool(2).unwrap();
+    for method in [Method::MisExact, Method::MisCv, Method::Havran] {
+        let [bright, dim, dimmer] = scenes.each_ref().map(|s| {
+            let integ = Integrator::new(s, 16);
+            pool.install(|| reuse_frames(&integ, method, 3, 4, 7, 0, 2, 48, 36))
+        });
+        for f in 0..=2 {
+            let (a, b, c) = (&bright[&f], &dim[&f], &dimmer[&f]);
+            // Bit for bit: the dimmer scene's frame is the dim one's times 2^-10.
+            assert!(
+                b.iter().zip(c).all(|(b, c)| *c * 1024.0 == *b),
+                "{method:?} frame {f}: not the dim frame scaled"
+            );
+            let mean = a.iter().map(|v| v.element_sum() as f64).sum::<f64>() / a.len() as f64;
+            let err = a
+                .iter()
+                .zip(b)
+                .map(|(a, b)| (*a - *b * 2f32.powi(30)).abs().element_sum() as f64)
+                .sum::<f64>()
+                / a.len() as f64;
+            assert!(
+                mean > 0.1 && err < 1e-3 * mean,
+                "{method:?} frame {f}: the dim frame (x 2^30) is {err} from the bright one, \
+                 whose mean is {mean}"
+            );
+        }
+    }
+    // Two chunks and their merge: one process's frames, on the dim scene.
+    let at = |s: &str| dir.path().join(s).to_str().unwrap().to_string();
+    let args = |out: &str| {
+        [
+            "render",
+            &at("k30/cornell.toml"),
+            "--method",
+            "mis-cv",
+            "--window",
+            "3",
+            "--spp",
+            "2",
+            "--res",
+            "32x24",
+            "--frames",
+            "0-4",
+            "--exr-float",
+            "--out",
+            out,
+        ]
+        .map(str::to_string)
+    };
+    common::reframe_ok(&args(&at("one/f_####.exr")));
+    for k in ["1/2", "2/2"] {
+        let mut a = args(&at("two/f_####.exr")).to_vec();
+        a.extend(["--chunk".into(), k.into()]);
+        common::reframe_ok(&a);
+    }
+    common::reframe_ok(&["merge", "--chunks", "2", "--out", &at("two/f_####.exr")]);
+    common::assert_identical(
+        &dir.path().join("one"),
+        &dir.path().join("two"),
+        (0..=4).map(|f| format!("f_{f:04}.exr")),
+    );
+}

@@ -318,4 +318,26 @@ fn a_merge_never_writes_over_a_file_of_the_scene_the_chunks_rendered() {
     );
     common::reframe_ok(&["merge", &partial]);
     assert!(d.path().join("o/f_0000.exr").exists());
+    // A link to nothing in a partial's place: the merge says so (it said "no such partial
+    // file; render its chunk"), and a chunk's render names the path as its partial file (it
+    // named it as the user's --out, which was o/g_####.exr).
+    let dangling = at("o/g.chunk-1-of-1.partial");
+    std::os::unix::fs::symlink(at("nowhere"), &dangling).unwrap();
+    let o = common::reframe(&["merge", &dangling]).output().unwrap();
+    common::assert_refused(&o, "a symbolic link to nothing");
+    let o = common::reframe(&[
+        "render",
+        &scene,
+        "--spp",
+        "1",
+        "--frames",
+        "0",
+        "--chunk",
+        "1/1",
+        "--out",
+        &at("o/g_####.exr"),
+    ])
+    .output()
+    .unwrap();
+    common::assert_refused(&o, "the chunk's partial file of --out");
 }

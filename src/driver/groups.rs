@@ -33,6 +33,8 @@ pub struct GroupSettings {
     /// Every group of the run, of which `run.units` may be a chunk's share: whether a frame is
     /// reached by one group only depends on the whole run (`Method::sample_folds`).
     pub all_groups: RangeInclusive<u32>,
+    /// What one unit of the films' sums is worth in radiance (`reuse::radiance_unit`).
+    pub radiance_unit: f32,
 }
 
 /// How many groups of `all` (first frames, `n_f` frames each) contain frame `f`.
@@ -54,7 +56,10 @@ pub fn run_groups(
 ) -> Result<bool> {
     let scene = integrator.scene;
     let (w, h, n_f) = (s.width, s.height, s.window);
-    let layout: Layout = s.params.method.layout(s.params.spp, n_f, s.aov);
+    let layout: Layout = s
+        .params
+        .method
+        .layout(s.params.spp, n_f, s.aov, s.radiance_unit);
     let sample_folds = s
         .params
         .method

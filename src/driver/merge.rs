@@ -67,7 +67,9 @@ pub fn merge(
     let mut files = partials
         .iter()
         .map(|p| {
-            if !p.exists() {
+            // Not there at all: a link to nothing (or a loop of links) is left to `open`,
+            // which says what it is.
+            if p.symlink_metadata().is_err() {
                 bail!(
                     "{}: no such partial file; render its chunk (--chunk K/N) and merge again; \
                      no frame was written",
@@ -362,7 +364,9 @@ fn check_record(r: &Record, frame: u32, key: &RunKey, method: Method) -> Result<
             Record::Sums(_) if !method.reuses() => {
                 format!("sums, where {} keeps finished pixels", key.method)
             }
-            Record::Sums(a) if a.layout != method.layout(key.spp, key.window, key.aov) => {
+            Record::Sums(a)
+                if a.layout != method.layout(key.spp, key.window, key.aov, key.radiance_unit) =>
+            {
                 format!(
                     "its sums' layout (unit {}, {:?}, landed counts {}, loss counts {}) is not \
                      the render's",

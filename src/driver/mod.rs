@@ -111,6 +111,23 @@ fn check_resumed_outputs(
         // where reading its header alone passed), its size this render's, and what its
         // metadata names (frame, seed, scene, method, samples, window) this render's where the
         // format keeps them: another file in its place, or another run's frame, is refused.
+        // A file that cannot be opened (another user's, a directory or a link to nothing in
+        // its place) is said to be so, and how to mend it: OpenImageIO's words for it ("not
+        // an OpenEXR file") hid the reason, and a chmod mends what a new render would redo.
+        use crate::util::input::{open_input_or_missing, InputError};
+        match open_input_or_missing(&p, "frame", u64::MAX) {
+            Ok(_) => {}
+            Err(InputError::NotFound(_)) => bail!(
+                "--resume: frame {f} was finished before the stop, but {} is gone; delete \
+                 the checkpoint folder to render every frame again",
+                p.display()
+            ),
+            Err(InputError::Refused(why)) => bail!(
+                "--resume: frame {f} was finished before the stop, but {why}; make it a \
+                 readable file again, or delete the checkpoint folder to render every frame \
+                 again"
+            ),
+        }
         let why = match crate::image::read_image(&p) {
             Err(e) => Some(format!("it cannot be read ({e:#})")),
             Ok(img) if (img.width, img.height) != (plan.width, plan.height) => Some(format!(
@@ -203,6 +220,7 @@ fn run_key(scene: &Scene, opts: &RenderOptions, plan: &Plan) -> Result<RunKey> {
         aov: opts.aov,
         adaptive: opts.effective_adaptive().unwrap_or(0.0),
         exr_float: opts.exr_float,
+        radiance_unit: plan.radiance_unit,
         denoise: match opts.denoise {
             None => "off",
             Some(denoise::Layers::None) => "rgb",
@@ -248,6 +266,7 @@ fn frame_loop(
         height: h,
         progress: opts.progress,
         all_groups: plan.all_units.clone(),
+        radiance_unit: plan.radiance_unit,
     };
     run_groups(integrator, &settings, run, active, sink)
 }
@@ -291,7 +310,12 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     // a link or a FIFO at a frame's path), not after every chunk has rendered.
     let mut outputs: Vec<(&str, PathBuf)> = opts
         .chunk
-        .map(|c| ("--out", partial_path(&opts.out, c)))
+        .map(|c| {
+            (
+                "the chunk's partial file of --out",
+                partial_path(&opts.out, c),
+            )
+        })
         .into_iter()
         .chain(plan.frames.clone().map(|f| ("--out", out.path(f))))
         .collect();

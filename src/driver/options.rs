@@ -101,6 +101,9 @@ pub struct Plan {
     pub units: RangeInclusive<u32>,
     /// Every unit of the run (`units` for a render that is not a chunk).
     pub all_units: RangeInclusive<u32>,
+    /// What one unit of a reuse film's sums is worth (`reuse::radiance_unit`; 1 for the
+    /// independent tracer).
+    pub radiance_unit: f32,
 }
 
 impl Plan {
@@ -322,12 +325,24 @@ impl RenderOptions {
             })?,
             None => all_units.clone(),
         };
+        // The reuse films' unit, from a pilot of the run's first frame (every chunk of the run
+        // renders the same range, so every chunk finds the same unit).
+        let radiance_unit = if self.method.reuses() {
+            let mut integrator = crate::integrator::Integrator::new(scene, self.max_depth);
+            integrator.primary = self.primary;
+            integrator.paths = self.paths;
+            let f = *range.start();
+            crate::reuse::radiance_unit(&integrator, &scene.camera(f, w, h), f, self.seed)
+        } else {
+            1.0
+        };
         Ok(Plan {
             frames: range,
             width: w,
             height: h,
             units,
             all_units,
+            radiance_unit,
         })
     }
 
@@ -343,7 +358,7 @@ impl RenderOptions {
         let pixels = w as u64 * h as u64;
         let per_pixel = self
             .method
-            .layout(self.spp, self.window, self.aov)
+            .layout(self.spp, self.window, self.aov, 1.0)
             .bytes_per_pixel() as u64;
         let n_f = self.window as u64;
         let threads = match self.threads {

@@ -124,13 +124,18 @@ impl Method {
         Some([spp.div_ceil(2) as f64 / n, (spp / 2) as f64 / n])
     }
 
-    /// The accumulator layout of a frame for `n_r` native samples and `n_f` frames per group:
-    /// the methods that average by count splat whole radiance estimates, so one unit of their
-    /// sums is worth `n_r n_f` (the count expected without losses) to keep the sums small.
-    pub fn layout(&self, spp: u32, window: u32, aov: bool) -> Layout {
+    /// The accumulator layout of a frame for `n_r` native samples and `n_f` frames per group,
+    /// in sums whose unit is worth `radiance` (`radiance_unit`, the scene's scale): the methods
+    /// that average by count splat whole radiance estimates, so one unit of their sums is worth
+    /// `n_r n_f` times that (the count expected without losses) to keep the sums small.
+    pub fn layout(&self, spp: u32, window: u32, aov: bool, radiance: f32) -> Layout {
         let by_count = self.norm() == Norm::Count;
         Layout {
-            unit: if by_count { (spp * window) as f32 } else { 1.0 },
+            unit: if by_count {
+                (spp * window) as f32 * radiance
+            } else {
+                radiance
+            },
             norm: self.norm(),
             landed: by_count || aov,
             loss: aov,
@@ -147,4 +152,63 @@ pub struct Params {
     pub seed: u64,
     /// Visibility tests in 16-wide packets (else single rays).
     pub packets: bool,
+}
+
+/// Camera samples of the pilot that sets `radiance_unit`: a grid over the film of at most this
+/// many columns and rows.
+const PILOT_GRID: (u32, u32) = (32, 24);
+
+/// What one unit of a reuse film's sums is worth in radiance: a power of two, from the
+/// brightest of a fixed grid of independent samples of frame `frame` through `cam` (a pilot, the
+/// same for every chunk and resume of a run: it depends only on the scene, the frame, the
+/// resolution, the depth and the seed).
+///
+/// Why: the sums are fixed point with steps of 2^-20 units (`film::fixed`), so with a fixed unit
+/// a dim scene (radiance of 1e-5, as a small lamp in a large room, or a scene in other units
+/// gives) was summed in steps as large as its splats: unbiased, but most pixels came out black
+/// or a single step. The unit follows the scene down, so that its brightest sample is between
+/// one half and one unit, and up past 2^20 units, so that a pixel's total stays inside the 63
+/// bits of a sum (docs/estimators.md, "Fixed-point accumulation"); in between it is 1 (the
+/// shipped scenes). A power of two divides exactly, so a scene scaled by one renders frames
+/// scaled by it, bit for bit.
+pub fn radiance_unit(
+    integrator: &crate::integrator::Integrator,
+    cam: &crate::camera::Camera,
+    frame: u32,
+    seed: u64,
+) -> f32 {
+    use crate::integrator::Tally;
+    use crate::sampling::Sampler;
+    let (gx, gy) = (PILOT_GRID.0.min(cam.width), PILOT_GRID.1.min(cam.height));
+    let mut t = Tally::default();
+    let mut brightest = 0.0f32;
+    for j in 0..gy {
+        for i in 0..gx {
+            // Cell centres, in raster coordinates of the film.
+            let r = glam::Vec2::new(
+                (i as f32 + 0.5) * cam.width as f32 / gx as f32,
+                (j as f32 + 0.5) * cam.height as f32 / gy as f32,
+            );
+            let mut s = Sampler::new(seed ^ PILOT_SALT, frame, j * gx + i, 0);
+            let v = integrator.sample_pixel(cam, r, &mut s, &mut t);
+            if v.is_finite() {
+                brightest = brightest.max(v.max_element());
+            }
+        }
+    }
+    unit_for(brightest)
+}
+
+/// Salt of the pilot's random numbers, so that they are not a frame's own samples.
+const PILOT_SALT: u64 = 0x7069_6c6f_7475_6e69;
+
+/// The unit for a brightest sample of `b`: `2^e` with `e = ceil(log2 b)` where that is below 0,
+/// `e - 20` where it is above 20, else 1; 1 for a black or unreadable pilot.
+fn unit_for(b: f32) -> f32 {
+    if !(b > 0.0 && b.is_finite()) {
+        return 1.0;
+    }
+    let e = b.log2().ceil() as i32;
+    let e = (e.min(0) + (e - 20).max(0)).clamp(-120, 120);
+    2f32.powi(e)
 }

@@ -97,6 +97,21 @@ pub struct Checkpointer {
     pub written: u32,
     /// The checkpoint folder, registered while this process may leave it empty (it created it).
     _made: Option<MadeFolder>,
+    /// Whether a checkpoint counts the chunk log (one was resumed or written): a log that none
+    /// counts is of no use to a later run, which starts it over, and is removed if the run
+    /// fails (a full disk at the first checkpoint left an empty log beside the outputs).
+    log_counted: bool,
+}
+
+impl Drop for Checkpointer {
+    fn drop(&mut self) {
+        // `finish` takes the log; one still here belongs to a run that did not complete.
+        if let Some((f, lp, ..)) = &self.log {
+            if !self.log_counted && same_file(f, lp) {
+                let _ = std::fs::remove_file(lp);
+            }
+        }
+    }
 }
 
 /// Read back every record of a chunk's log that a checkpoint counts (`recs`: frame and offset,
@@ -168,6 +183,7 @@ impl Checkpointer {
             spent: Duration::ZERO,
             written: 0,
             _made: None,
+            log_counted: false,
         }
     }
 
@@ -422,6 +438,7 @@ impl Checkpointer {
                 spent: Duration::ZERO,
                 written: 0,
                 _made: made,
+                log_counted: resumed.is_some(),
             },
             resumed,
         ))
@@ -459,6 +476,7 @@ impl Checkpointer {
             t.log_crcs = crcs.clone();
         }
         write_state(&dir.join("state"), &mut t, active)?;
+        self.log_counted = true;
         self.spent += t0.elapsed();
         self.written += 1;
         self.last = Instant::now();

@@ -97,10 +97,18 @@ pub struct RunKey {
     pub adaptive: f32,
     /// EXR pixels as float: a resume or a merge must not mix half and float frames.
     pub exr_float: bool,
+    /// What one unit of a reuse film's sums is worth (`reuse::radiance_unit`), which a merge
+    /// checks its records against; 1 for the independent tracer.
+    #[serde(default = "one")]
+    pub radiance_unit: f32,
     /// `--denoise`: "off", "rgb" or "rgb+layers" (a resume must not mix denoised frames with
     /// raw ones).
     #[serde(default)]
     pub denoise: String,
+}
+
+fn one() -> f32 {
+    1.0
 }
 
 impl RunKey {

@@ -964,6 +964,7 @@ mod tests {
             aov: false,
             adaptive: 0.0,
             exr_float: false,
+            radiance_unit: 1.0,
             denoise: "off".into(),
         };
         let mut t = Trailer::new(key.clone(), None, &(0..=7), "o_####.exr".into(), false);

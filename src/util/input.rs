@@ -77,7 +77,10 @@ pub fn open_input_or_missing(path: &Path, what: &str, max_bytes: u64) -> Result<
     let p = path.display();
     let refuse = |why: String| InputError::Refused(format!("{what} '{p}': {why}"));
     let io = |e: std::io::Error| match e.kind() {
-        ErrorKind::NotFound => InputError::NotFound(format!("{what} '{p}': no such file")),
+        ErrorKind::NotFound => InputError::NotFound(match path.symlink_metadata() {
+            Ok(_) => format!("{what} '{p}': a symbolic link to nothing"),
+            Err(_) => format!("{what} '{p}': no such file"),
+        }),
         _ => refuse(format!("cannot read: {e}")),
     };
     let check = |t: FileType, len: u64| -> Result<(), InputError> {
@@ -202,9 +205,14 @@ mod tests {
             read_input_or_missing(&gone, "MTL", 9),
             Err(InputError::NotFound(_))
         ));
-        // A dangling symlink is a missing file.
+        // A dangling symlink is a missing file, said to be a link.
         std::os::unix::fs::symlink(&gone, dir.path().join("d.mtl")).unwrap();
-        let e = read_input(&dir.path().join("d.mtl"), "MTL", 9).unwrap_err();
-        assert!(e.to_string().ends_with("d.mtl': no such file"), "{e}");
+        let e = read_input_or_missing(&dir.path().join("d.mtl"), "MTL", 9).unwrap_err();
+        assert!(matches!(e, InputError::NotFound(_)));
+        assert!(
+            e.to_string()
+                .ends_with("d.mtl': a symbolic link to nothing"),
+            "{e}"
+        );
     }
 }
