@@ -142,17 +142,95 @@ pub struct LoadOptions {
 struct SceneFile {
     /// One OBJ as it is, or else `[[object]]` tables (objects placed by transforms).
     obj: Option<Spanned<String>>,
-    object: Option<Vec<objects::ObjectFile>>,
+    object: Option<Tables<objects::ObjectFile>>,
     frames: Spanned<u32>,
     resolution: Spanned<Exactly<u32, 2>>,
     /// `[[keyframe]]` tables, or else `camera`: a camera file.
-    keyframe: Option<Vec<KeyframeFile>>,
+    keyframe: Option<Tables<KeyframeFile>>,
     camera: Option<Spanned<String>>,
     /// How the keyframes are interpolated (linear if not given).
     interpolation: Option<Spanned<Interpolation>>,
     /// Not `Spanned`: the toml crate cannot give the span of a table written with dotted keys
     /// (`environment.radiance = [1, 1, 1]`), and refused it (`EnvironmentFile::line`).
-    environment: Option<EnvironmentFile>,
+    environment: Option<Table<EnvironmentFile>>,
+}
+
+/// What a table of the scene file is, in a message about what was written in its place.
+trait TableName {
+    const WHAT: &'static str;
+}
+
+impl TableName for EnvironmentFile {
+    const WHAT: &'static str =
+        "the [environment] table (image = \"sky.exr\" or radiance = [r, g, b], with intensity \
+         and rotation)";
+}
+
+impl TableName for KeyframeFile {
+    const WHAT: &'static str = "[[keyframe]] tables, one per keyframe";
+}
+
+impl TableName for objects::ObjectFile {
+    const WHAT: &'static str = "[[object]] tables, one per object";
+}
+
+/// A table written as one (`[environment]`). serde's derived structs also take an array, their
+/// fields in order: `[[environment]]` was refused as "invalid type: map, expected a string"
+/// (of its first field), and a string in its place as "expected struct EnvironmentFile".
+struct Table<T>(T);
+
+impl<'de, T: Deserialize<'de> + TableName> Deserialize<'de> for Table<T> {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V<T>(std::marker::PhantomData<T>);
+        impl<'de, T: Deserialize<'de> + TableName> de::Visitor<'de> for V<T> {
+            type Value = Table<T>;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str(T::WHAT)
+            }
+            fn visit_map<A: de::MapAccess<'de>>(self, m: A) -> Result<Table<T>, A::Error> {
+                T::deserialize(de::value::MapAccessDeserializer::new(m)).map(Table)
+            }
+        }
+        d.deserialize_map(V(std::marker::PhantomData))
+    }
+}
+
+impl<T> std::ops::Deref for Table<T> {
+    type Target = T;
+    fn deref(&self) -> &T {
+        &self.0
+    }
+}
+
+impl<T> std::ops::Deref for Tables<T> {
+    type Target = [T];
+    fn deref(&self) -> &[T] {
+        &self.0
+    }
+}
+
+/// Tables written as an array of tables (`[[keyframe]]`): `[keyframe]` was refused as
+/// "invalid type: map, expected a sequence".
+struct Tables<T>(Vec<T>);
+
+impl<'de, T: Deserialize<'de> + TableName> Deserialize<'de> for Tables<T> {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V<T>(std::marker::PhantomData<T>);
+        impl<'de, T: Deserialize<'de> + TableName> de::Visitor<'de> for V<T> {
+            type Value = Tables<T>;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str(T::WHAT)
+            }
+            fn visit_seq<A: de::SeqAccess<'de>>(self, mut seq: A) -> Result<Tables<T>, A::Error> {
+                let mut v = Vec::new();
+                while let Some(t) = seq.next_element::<Table<T>>()? {
+                    v.push(t.0);
+                }
+                Ok(Tables(v))
+            }
+        }
+        d.deserialize_seq(V(std::marker::PhantomData))
+    }
 }
 
 /// `[environment]`: a lat-long image or one colour, scaled and turned about +Y.
@@ -160,8 +238,10 @@ struct SceneFile {
 #[serde(deny_unknown_fields)]
 struct EnvironmentFile {
     image: Option<Spanned<String>>,
-    radiance: Option<Spanned<Exactly<f32, 3>>>,
-    intensity: Option<Spanned<f32>>,
+    /// Read in double precision (as the file's numbers are), so that a refusal names the value
+    /// given: `intensity = 1e39` was named as `inf`.
+    radiance: Option<Spanned<Exactly<f64, 3>>>,
+    intensity: Option<Spanned<f64>>,
     rotation: Option<Spanned<f64>>,
 }
 
@@ -1740,13 +1820,14 @@ fn load_environment(
     let intensity = match &f.intensity {
         Some(i) => {
             let v = *i.get_ref();
-            if !((0.0..=MAX_KE).contains(&v)) {
+            if !((0.0..=MAX_KE as f64).contains(&v)) {
                 bail!(
-                    "{} {v}: must be a finite number in [0, {MAX_KE:e}]",
-                    at(i.span(), "intensity")
+                    "{} {}: must be a finite number in [0, {MAX_KE:e}]",
+                    at(i.span(), "intensity"),
+                    text::shown(v)
                 );
             }
-            v
+            v as f32
         }
         None => 1.0,
     };
@@ -1777,12 +1858,14 @@ fn load_environment(
         ),
         (None, Some(r)) => {
             let c = r.get_ref().0;
-            if !c.iter().all(|c| c.is_finite() && *c >= 0.0 && *c <= MAX_KE) {
+            if !c.iter().all(|c| (0.0..=MAX_KE as f64).contains(c)) {
                 bail!(
-                    "{} {c:?}: each must be a finite number in [0, {MAX_KE:e}]",
-                    at(r.span(), "radiance")
+                    "{} [{}]: each must be a finite number in [0, {MAX_KE:e}]",
+                    at(r.span(), "radiance"),
+                    c.map(text::shown).join(", ")
                 );
             }
+            let c = c.map(|c| c as f32);
             Ok((Environment::uniform(Vec3::from(c) * intensity), None))
         }
         (Some(img), None) => {

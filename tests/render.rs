@@ -987,3 +987,41 @@ fn reuse_methods_refuse_a_film_too_wide_for_their_densities_and_agree_inside_it(
         );
     }
 }
+
+/// A frame whose values are mostly below half float's normal range (a scene lit at 1e-8), written
+/// as a half EXR (the default), says that they keep fewer digits there and that `--exr-float`
+/// keeps them: a scene lit at 1e-5 lost a tenth of half its pixels, and its darkest became 0,
+/// without a word. The shipped scenes say nothing, and neither does `--exr-float`.
+#[test]
+fn a_dim_frame_in_half_floats_is_said_to_lose_digits() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for ext in ["obj", "mtl", "toml"] {
+        let text = std::fs::read_to_string(format!(
+            "{}/scenes/cornell.{ext}",
+            env!("CARGO_MANIFEST_DIR")
+        ))
+        .unwrap();
+        std::fs::write(
+            d.join(format!("cornell.{ext}")),
+            text.replace("Ke 16 16 16", "Ke 1.6e-7 1.6e-7 1.6e-7"),
+        )
+        .unwrap();
+    }
+    let scene = d.join("cornell.toml").to_str().unwrap().to_string();
+    let render = |scene: &str, more: &[&str]| {
+        let o = common::reframe(&[
+            "render", scene, "--spp", "1", "--res", "32x24", "--frames", "0",
+        ])
+        .args(more)
+        .arg("--out")
+        .arg(d.join("f_####.exr"))
+        .output()
+        .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stderr).contains("are below 6.1e-5, where half floats")
+    };
+    assert!(render(&scene, &[]));
+    assert!(!render(&scene, &["--exr-float"]));
+    assert!(!render("cornell", &[]));
+}

@@ -124,9 +124,13 @@ const BUILTIN_KEYS: [&str; 5] = ["method", "spp", "window", "seed", "render_seco
 
 /// Largest finite half; larger values would become infinity in a half EXR.
 const HALF_MAX: f32 = 65504.0;
+/// Half float's smallest normal number, 2^-14: below it a value keeps fewer digits.
+const HALF_MIN_NORMAL: f32 = 6.103_515_6e-5;
 
 /// Whether the clamp to `HALF_MAX` has been said (once a process).
 static HALF_CLAMP_SAID: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+/// Whether the warning of values below half's normal range was given (once a process).
+static HALF_SMALL_SAID: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
 /// How a file extension is written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -457,6 +461,32 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
                      (--exr-float keeps them)",
                     crate::util::text::printable(&path.display().to_string())
                 );
+            }
+            if !opts.exr_float && !HALF_SMALL_SAID.load(std::sync::atomic::Ordering::Relaxed) {
+                // Below half's smallest normal number a value keeps fewer digits, and below
+                // 3e-8 none (a scene lit at 1e-5 lost a tenth of half its pixels, and its
+                // darkest became 0, without a word).
+                let (small, nonzero) = img
+                    .data
+                    .par_iter()
+                    .map(|v| (v.abs() < HALF_MIN_NORMAL && *v != 0.0, *v != 0.0))
+                    .fold(
+                        || (0u64, 0u64),
+                        |(s, n), (a, b)| (s + a as u64, n + b as u64),
+                    )
+                    .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+                if small * 100 >= nonzero
+                    && small > 0
+                    && !HALF_SMALL_SAID.swap(true, std::sync::atomic::Ordering::Relaxed)
+                {
+                    errln!(
+                        "warning: {}: {:.0}% of the values that are not 0 are below 6.1e-5, \
+                         where half floats keep fewer digits (and none below 3e-8): \
+                         --exr-float keeps them",
+                        crate::util::text::printable(&path.display().to_string()),
+                        (100 * small) as f64 / nonzero as f64
+                    );
+                }
             }
             if needs_clamp {
                 let clamped: Vec<f32> = img

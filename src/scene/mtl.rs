@@ -26,7 +26,7 @@
 //! lobes keep their colour), `Ns` above `MAX_NS`, `Ke` above
 //! `MAX_KE`.
 use super::repairs::{Kind, Repairs};
-use super::text::{joined, lines, number, quote, rest};
+use super::text::{joined, lines, number, number_saturating, quote, rest};
 use crate::bsdf::Material;
 /// Largest Phong exponent: the BSDF's own bound (`bsdf::MAX_NS`).
 pub use crate::bsdf::MAX_NS;
@@ -62,6 +62,10 @@ const DISSOLVE: Kind = Kind {
 const METALLIC: Kind = Kind {
     one: "metallic (Pm) not rendered: the surface is its Kd diffuse and Ks Phong lobes",
     many: "materials with metallic (Pm) rendered as their Kd diffuse and Ks Phong lobes",
+};
+const EXTRA_NUMBERS: Kind = Kind {
+    one: "numbers past a statement's ignored",
+    many: "statements with numbers past their own ignored",
 };
 const UNRENDERED_MAP: Kind = Kind {
     one: "texture map not rendered (reframe renders map_Kd, map_Ks, map_Ke and map_d)",
@@ -265,7 +269,26 @@ pub fn parse_for(
         let Some(m) = out.materials.last_mut() else {
             return Err(err(format!("'{key}' before any newmtl")));
         };
-        let parsed: Option<Vec<f32>> = args.iter().map(|a| number(a)).collect();
+        // A number written finite but past single precision (`Ke 1e39`) is the largest single
+        // (then capped, clamped or scaled as any large value is), not the infinity it reads as:
+        // `Ke 1e38` was capped at 1e9 with a warning and `Ke 1e39` refused as not finite.
+        let parsed: Option<Vec<f32>> = args.iter().map(|a| number_saturating(a)).collect();
+        // Numbers past the statement's (`Kd 0.2 0.3 0.4 0.9`, `Ns 10 20`): ignored, and said.
+        let most = if matches!(key, "Ns" | "Pr") { 1 } else { 3 };
+        if let Some(extra) = parsed.as_ref().filter(|p| p.len() > most) {
+            let name = &m.name;
+            notes.note(label, n, EXTRA_NUMBERS, || {
+                format!(
+                    "'{}' in '{name}': the {} after the {most} of {key}",
+                    quote(text),
+                    if extra.len() - most == 1 {
+                        "number"
+                    } else {
+                        "numbers"
+                    }
+                )
+            })?;
+        }
         let bad = |v: f32| !v.is_finite() || v < 0.0;
         // `Ns value`, `Pr roughness`: one number.
         let one = |what: &str| {
@@ -485,7 +508,11 @@ fn map_spec<'a>(
 
 /// A number as a message shows it: short, in exponent form when large.
 fn num(x: f32) -> String {
-    if x.abs() >= 1e6 {
+    // A number written past single precision is read as its largest (`number_saturating`).
+    if x.abs() == f32::MAX {
+        let sign = if x < 0.0 { "-" } else { "" };
+        format!("{sign}(past 3.4e38)")
+    } else if x.abs() >= 1e6 {
         format!("{x:e}")
     } else {
         format!("{}", (x * 1e4).round() / 1e4)

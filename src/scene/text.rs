@@ -276,6 +276,27 @@ pub fn numbers<const N: usize>(words: &[&str]) -> Option<[f32; N]> {
     Some(v)
 }
 
+/// A number of a scene file as a message shows it: as Rust writes it, in exponent form where
+/// that would be long (`1e39`, not forty digits).
+pub fn shown(x: f64) -> String {
+    if x != 0.0 && !(1e-4..1e6).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
+}
+
+/// `number`, with a number written finite but past single precision (`1e39`, which reads as
+/// infinite) taken as the largest single of its sign, for values that are capped or clamped
+/// anyway (an MTL's `Ke`, `Ns`, `Pr`): an infinity or NaN as written stays what it is.
+pub fn number_saturating(word: &str) -> Option<f32> {
+    let x = number(word)?;
+    if x.is_infinite() && word.parse::<f64>().is_ok_and(f64::is_finite) {
+        return Some(f32::MAX.copysign(x));
+    }
+    Some(x)
+}
+
 /// One number of an OBJ or MTL statement: as Rust reads it, or a non-finite value as
 /// Microsoft's C library writes it (`1.#INF00`, `-1.#IND00`, `1.#QNAN0`, `1.#SNAN0` before
 /// Visual Studio 2015, `-nan(ind)` and `nan(snan)` since, the C standard's `nan(chars)`), which
