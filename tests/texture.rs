@@ -1206,3 +1206,52 @@ fn the_texture_cache_counts_against_the_memory_a_render_may_take() {
     );
     assert_eq!(Scene::load(&q, &device).unwrap().texture_cache_bytes(), 0);
 }
+
+/// `Kd 0` beside a `map_Kd` (Maya's export of a colour connected to a file texture, whose own
+/// value is unused) is read as `Kd 1`, the texture as it is, with a warning: the surface rendered
+/// black without a word, where Maya and Blender show the texture. The frame is the one of
+/// `Kd 1`, bit for bit.
+#[test]
+fn kd_zero_beside_a_colour_map_is_the_texture() {
+    let dir = tempfile::tempdir().unwrap();
+    write_texture(
+        &dir.path().join("checker.png"),
+        32,
+        |x, y| square(y / 8, x / 8),
+        false,
+    );
+    let device = Device::new().unwrap();
+    let pool = thread_pool(1).unwrap();
+    let frame = |kd: &str| {
+        let path = write_scene(
+            dir.path(),
+            QUAD,
+            &format!("newmtl q\nKd {kd}\nmap_Kd checker.png\n"),
+            &toml(
+                16,
+                16,
+                [0.0, 0.0, 2.0],
+                40.0,
+                "[environment]\nradiance = [1, 1, 1]",
+            ),
+        );
+        let scene = Scene::load(&path, &device).unwrap();
+        let integ = Integrator::new(&scene, 2);
+        let px = pool
+            .install(|| {
+                render_frame_independent(&integ, &scene.camera(0, 16, 16), 0, 4, 1, false, &|_| {})
+            })
+            .pixels;
+        (px, scene.warnings)
+    };
+    let (zero, said) = frame("0.00 0.00 0.00");
+    let (one, none) = frame("1 1 1");
+    assert!(none.is_empty(), "{none:?}");
+    assert!(
+        said.len() == 1
+            && said[0].contains("line 2: material 'q': Kd 0 beside a map_Kd read as Kd 1"),
+        "{said:?}"
+    );
+    assert!(one.iter().map(|p| p.x).sum::<f32>() > 1.0);
+    assert!(zero.iter().zip(&one).all(|(a, b)| a == b));
+}

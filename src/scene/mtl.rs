@@ -63,6 +63,11 @@ const METALLIC: Kind = Kind {
     one: "metallic (Pm) not rendered: the surface is its Kd diffuse and Ks Phong lobes",
     many: "materials with metallic (Pm) rendered as their Kd diffuse and Ks Phong lobes",
 };
+const KD_ZERO_MAP: Kind = Kind {
+    one: "Kd 0 beside a map_Kd read as Kd 1, the texture as it is (as Maya writes it)",
+    many:
+        "materials with Kd 0 beside a map_Kd read as Kd 1, the texture as it is (as Maya writes it)",
+};
 const EXTRA_NUMBERS: Kind = Kind {
     one: "numbers past a statement's ignored",
     many: "statements with numbers past their own ignored",
@@ -354,6 +359,15 @@ impl MtlMaterial {
             get(self.ks, Slot::Ks),
             get(self.ke, Slot::Ke),
         );
+        let name = &self.name;
+        // `Kd 0` beside a `map_Kd`: Maya writes it for a colour connected to a file texture (its
+        // own value unused), and Blender and Maya show the texture. As the format reads it (the
+        // texture times Kd) the surface was black, without a word.
+        if kd == Vec3::ZERO && self.maps[Slot::Kd as usize].is_some() {
+            kd = Vec3::ONE;
+            let line = self.kd.map_or(self.line, |v| v.1);
+            repairs.note(label, line, KD_ZERO_MAP, || format!("material '{name}'"))?;
+        }
         // Without `Ns`, Blender's exponent for a roughness `Pr` (what it writes as `Ns` without
         // its PBR extensions, and reads `Ns` back as): 1000 (1 - Pr)^2.
         let mut ns = match (self.ns, self.pr) {
@@ -361,7 +375,6 @@ impl MtlMaterial {
             (None, Some((pr, _))) => 1000.0 * (1.0 - pr) * (1.0 - pr),
             (None, None) => 0.0,
         };
-        let name = &self.name;
         // In f64: Kd + Ks of two values near f32::MAX is not finite in f32.
         let sum = kd.as_dvec3() + ks.as_dvec3();
         // A lobe with a map is the constant times the texel, and the pair is scaled where that
