@@ -9,7 +9,8 @@
 //!   leaves the straight lines between them;
 //! - Blender's camera exporter (`scripts/blender/export_camera.py`, run on a stand-in for
 //!   Blender) turns the camera into the Y-up axes of Blender's OBJ exporter, or keeps Blender's
-//!   with `--axes z-up`;
+//!   with `--axes z-up`, and prints the `[environment]` lines that show a world's sky as Cycles
+//!   maps it;
 //! - the scene TOML's misuses (both `camera` and `[[keyframe]]`, neither, `interpolation` with a
 //!   camera file, another extension, a missing file, a FIFO) are refused with one line naming
 //!   the file and line. Malformed camera files themselves are the unit tests' (in
@@ -249,6 +250,24 @@ render.pixel_aspect_x = render.pixel_aspect_y = 1.0; render.resolution_percentag
 scene = Obj(); scene.name = "Scene"; scene.camera = cam; scene.render = render
 scene.frame_start = scene.frame_end = scene.frame_step = 1; scene.frame_set = lambda f: None
 context = Obj(); context.scene = scene; context.evaluated_depsgraph_get = lambda: None
+path = Obj(); path.abspath = lambda p: p
+# A world lit by an Environment Texture, where FAKE_WORLD says so: "" (its default mapping) or
+# "ROTATION_DEGREES VECTOR_TYPE" (a Mapping node turning it about Z).
+import os, math
+if os.environ.get("FAKE_WORLD") is not None:
+    env = Obj(); env.type = "TEX_ENVIRONMENT"; env.projection = "EQUIRECTANGULAR"
+    env.image = Obj(); env.image.filepath = "//textures/labels.exr"
+    vec = Obj(); vec.links = []; env.inputs = {"Vector": vec}
+    spec = os.environ["FAKE_WORLD"].split()
+    if spec:
+        m = Obj(); m.type = "MAPPING"; m.vector_type = spec[1]
+        rot = Obj(); rot.default_value = (0.0, 0.0, math.radians(float(spec[0])))
+        m.inputs = {"Rotation": rot}
+        link = Obj(); link.from_node = m; vec.links = [link]
+    bg = Obj(); bg.type = "BACKGROUND"; st = Obj(); st.default_value = 2.0; bg.inputs = {"Strength": st}
+    tree = Obj(); tree.nodes = [bg, env]
+    world = Obj(); world.use_nodes = True; world.node_tree = tree
+    scene.world = world
 "#;
 
 /// Blender's camera exporter, run on a stand-in for Blender, lines its camera up with the axes
@@ -404,5 +423,100 @@ fn camera_key_misuse_is_refused_with_one_line() {
         let (e, dir) = refusal(&toml, &device);
         let want = want.replace("{dir}", &dir);
         assert!(e.starts_with(&want), "\n  want {want}\n  got  {e}");
+    }
+}
+
+/// The exporter's `[environment]` lines turn the sky as Blender shows it. Cycles maps a
+/// direction `d` of Blender's world to the image's `u = (atan2(d.y, d.x) - pi) / (-2 pi)`, after
+/// a world Mapping node turns `d` (by `phi` about Z for its Point type, by `-phi` for Texture);
+/// that formula, written here, names the label of a lat-long image (yellow at u = 0, green at
+/// 0.25, red at 0.5, blue at 0.75) that Blender shows along each of its four horizontal axes,
+/// and reframe, looking along those axes through the OBJ exporter's (x, z, -y), must show it.
+/// With `rotation = 0` (before the exporter printed it) the sky came out turned by 90 degrees.
+#[test]
+fn blender_worlds_sky_comes_out_turned_as_blender_shows_it() {
+    use reframe::driver::render_frame_independent;
+    use reframe::image::{write_image, Image, Metadata, WriteOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::create_dir(d.join("bpy")).unwrap();
+    std::fs::write(d.join("bpy/__init__.py"), FAKE_BPY).unwrap();
+    let labels = [
+        [1.0, 1.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0],
+    ];
+    let (w, h) = (64u32, 32u32);
+    let mut img = Image::new(w, h, &["R", "G", "B"]);
+    for y in 0..h {
+        for x in 0..w {
+            // Each label spans the eighth of the width either side of its u.
+            let u = (x as f32 + 0.5) / w as f32;
+            let k = ((u * 4.0).round() as usize) % 4;
+            let i = 3 * (y * w + x) as usize;
+            img.data[i..i + 3].copy_from_slice(&labels[k]);
+        }
+    }
+    write_image(
+        &d.join("labels.exr"),
+        &img,
+        &Metadata::default(),
+        &WriteOptions { exr_float: true },
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("t.obj"),
+        "v 100 100 100\nv 100.1 100 100\nv 100 100.1 100\nf 1 2 3\n",
+    )
+    .unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/blender/export_camera.py");
+    let device = Device::new().unwrap();
+    for (world, phi) in [
+        ("", 0.0f64),
+        ("90 POINT", 90.0),
+        ("90 TEXTURE", -90.0),
+        ("180 VECTOR", 180.0),
+    ] {
+        let o = std::process::Command::new("python3")
+            .arg(&script)
+            .args(["--", d.join("shot.json").to_str().unwrap()])
+            .arg("1 0 0 0;0 0 -1 -5;0 1 0 0;0 0 0 1")
+            .env("PYTHONPATH", d)
+            .env("FAKE_WORLD", world)
+            .output()
+            .unwrap();
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let env = &out[out.find("[environment]").expect("no [environment] printed")..];
+        assert!(
+            env.contains("image = \"labels.exr\"") && env.contains("intensity = 2"),
+            "{env}"
+        );
+        let env = env.replace("intensity = 2", "intensity = 1");
+        for (bx, by) in [(1.0f64, 0.0f64), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)] {
+            let (s, c) = phi.to_radians().sin_cos();
+            let (dx, dy) = (c * bx - s * by, s * bx + c * by);
+            let u = ((dy.atan2(dx) - std::f64::consts::PI) / (-2.0 * std::f64::consts::PI))
+                .rem_euclid(1.0);
+            let want = labels[((u * 4.0).round() as usize) % 4];
+            // Blender's (x, y, z) is the OBJ's (x, z, -y).
+            let toml = format!(
+                "obj = \"t.obj\"\nframes = 1\nresolution = [8, 8]\n{env}\n[[keyframe]]\nframe = 0\n\
+                 position = [0.0, 0.0, 0.0]\nlook_at = [{bx:?}, 0.0, {:?}]\nup = [0.0, 1.0, 0.0]\nfov = 10.0\n",
+                -by
+            );
+            std::fs::write(d.join("s.toml"), toml).unwrap();
+            let scene = Scene::load(d.join("s.toml").to_str().unwrap(), &device).unwrap();
+            let integ = Integrator::new(&scene, 1);
+            let px =
+                render_frame_independent(&integ, &scene.camera(0, 8, 8), 0, 1, 1, false, &|_| {})
+                    .pixels;
+            let mean = px.iter().sum::<glam::Vec3>() / px.len() as f32;
+            assert!(
+                (mean - glam::Vec3::from(want)).abs().max_element() < 1e-3,
+                "world '{world}', Blender's ({bx}, {by}, 0): reframe shows {mean}, Blender {want:?}"
+            );
+        }
     }
 }

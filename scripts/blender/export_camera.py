@@ -3,7 +3,7 @@
     blender scene.blend --background --python scripts/blender/export_camera.py -- out.json [--axes y-up|z-up]
 
 Axes: Blender's world is Z-up; its OBJ exporter writes Y-up by default (Forward -Z, Up Y:
-Blender's (x, y, z) becomes (x, z, -y)), and so does reframe's environment map. `--axes y-up`
+Blender's (x, y, z) becomes (x, z, -y)), and reframe's environment map is Y-up too. `--axes y-up`
 (the default) turns the camera the same way, so that it lines up with an OBJ exported with those
 defaults; `--axes z-up` keeps Blender's axes, for an OBJ exported with Up Z, Forward Y.
 
@@ -19,7 +19,9 @@ renumbered from 0:
 camera object is harmless: reframe uses only rotation and translation). "fov" is the vertical
 field of view in degrees at the scene's render aspect, from the lens, the sensor and its fit
 (reframe has no lens shift, no orthographic or panoramic camera). Then prints the lines to put
-in the scene TOML. See the README, "Scenes", and docs/camera.md.
+in the scene TOML: with a world lit by a lat-long image (an Environment Texture), its
+[environment] lines too, turned as Blender shows the sky (`rotation = 90` for its default
+mapping; see environment_lines). See the README, "Scenes", and docs/camera.md.
 """
 import json
 import math
@@ -73,6 +75,46 @@ def rows(m, axes):
     return m
 
 
+def environment_lines(world, axes):
+    """The scene TOML's [environment] lines for a world lit by a lat-long image, and notes.
+
+    Cycles maps a direction d of Blender's world to the image's u = (atan2(d.y, d.x) - pi) /
+    (-2 pi): the image's middle is Blender's +X, the OBJ's +X through the exporter's default
+    axes. reframe's middle is +Z (docs/environment.md), and `rotation` turns the sky about +Y,
+    +Z towards +X: 90 degrees lines the two up. A Mapping node in front of the texture turning
+    the lookup by phi about Blender's Z (its Point and Vector types; Texture turns it by -phi)
+    shows the sky turned by -phi about Z, which is -phi about the OBJ's +Y.
+    """
+    tree = getattr(world, "node_tree", None) if world is not None and getattr(world, "use_nodes", False) else None
+    env = next((n for n in tree.nodes if n.type == "TEX_ENVIRONMENT"), None) if tree else None
+    if env is None or env.image is None:
+        return [], []
+    notes = []
+    if env.projection != "EQUIRECTANGULAR":
+        notes.append(f"the world's Environment Texture is {env.projection}: reframe reads lat-long (equirectangular) images")
+    rotation = 90.0
+    links = env.inputs["Vector"].links
+    mapping = links[0].from_node if links else None
+    if mapping is not None and mapping.type == "MAPPING":
+        rx, ry, rz = mapping.inputs["Rotation"].default_value
+        if abs(rx) > 1e-6 or abs(ry) > 1e-6:
+            notes.append("the world's Mapping node turns the sky about X or Y: reframe turns it about the vertical only, and that part is left out")
+        phi = math.degrees(rz)
+        rotation += phi if mapping.vector_type == "TEXTURE" else -phi
+    elif mapping is not None:
+        notes.append(f"the world's Environment Texture reads its vector from a {mapping.type} node, left out")
+    if axes == "z-up":
+        notes.append("with --axes z-up the sky would lie on its side (reframe's environment is Y-up): export the OBJ and the camera Y-up to light the scene by it")
+    background = next((n for n in tree.nodes if n.type == "BACKGROUND"), None)
+    strength = background.inputs["Strength"].default_value if background is not None else 1.0
+    name = json.dumps(os.path.basename(bpy.path.abspath(env.image.filepath)), ensure_ascii=False)
+    lines = ["[environment]", f"image = {name}  # copy the image beside the scene TOML"]
+    lines.append(f"rotation = {round(rotation % 360.0, 6):g}  # Blender's world orientation")
+    if strength != 1.0:
+        lines.append(f"intensity = {strength:g}")
+    return lines, notes
+
+
 def main():
     out, axes = parse_args()
     scene = bpy.context.scene
@@ -117,6 +159,11 @@ def main():
     name = json.dumps(os.path.basename(out), ensure_ascii=False)
     print(f"frames = {len(entries)}\nresolution = [{w}, {h}]")
     print(f"camera = {name}  # read relative to the scene TOML's folder: keep the file beside it")
+    lines, notes = environment_lines(getattr(scene, "world", None), axes)
+    for n in notes:
+        print(f"export_camera: {n}", file=sys.stderr)
+    if lines:
+        print("\n".join(lines))
 
 
 main()
