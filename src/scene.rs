@@ -2282,8 +2282,18 @@ fn find_named_file(dir: &Path, name: &str) -> Option<PathBuf> {
     ignoring_case(dir, file?)
 }
 
-/// The file at relative path `rel` under `dir`, each part of it matched in any case where it is
-/// not there as written and exactly one entry of its folder matches it that way.
+/// A name as `ignoring_case` compares it: composed (Unicode NFC: an `Ö` written as one
+/// character and as `O` and its accent, as macOS stores names and archives made there keep
+/// them, are one name) and in lower case (any letter's, not only ASCII's: `Ölfass.png` is
+/// `ölfass.png`).
+fn folded(name: &str) -> String {
+    use unicode_normalization::UnicodeNormalization;
+    name.nfc().collect::<String>().to_lowercase()
+}
+
+/// The file at relative path `rel` under `dir`, each part of it matched in any case and
+/// composition of its letters (`folded`) where it is not there as written and exactly one entry
+/// of its folder matches it that way.
 fn ignoring_case(dir: &Path, rel: &str) -> Option<PathBuf> {
     let mut at = dir.to_path_buf();
     for part in rel.split('/').filter(|p| !p.is_empty() && *p != ".") {
@@ -2300,14 +2310,11 @@ fn ignoring_case(dir: &Path, rel: &str) -> Option<PathBuf> {
         } else {
             at.as_path()
         };
+        let want = folded(part);
         let mut found = std::fs::read_dir(listed)
             .ok()?
             .filter_map(|e| e.ok())
-            .filter(|e| {
-                e.file_name()
-                    .to_str()
-                    .is_some_and(|n| n.eq_ignore_ascii_case(part))
-            });
+            .filter(|e| e.file_name().to_str().is_some_and(|n| folded(n) == want));
         let one = found.next()?;
         if found.next().is_some() {
             return None;

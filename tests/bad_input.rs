@@ -274,6 +274,46 @@ fn names_in_another_case_are_found_from_the_scenes_own_folder() {
     }
 }
 
+/// A name written composed and in capitals (`ÖLFASS Holz.png`, the `Ö` one character) finds a
+/// file stored decomposed (an `O` and its accent, as macOS stores names and archives made
+/// there keep them) and in small letters: the scene was refused, naming two files whose names
+/// printed alike, and only ASCII letters were matched in another case.
+#[test]
+fn names_are_found_in_another_composition_and_case_of_their_letters() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    for f in files_under(&corpus().join("base")) {
+        std::fs::copy(&f, d.join(f.file_name().unwrap())).unwrap();
+    }
+    let case = corpus().join("cases/tex-case-mismatch");
+    std::fs::copy(case.join("s.obj"), d.join("s.obj")).unwrap();
+    std::fs::create_dir_all(d.join("mats")).unwrap();
+    let mtl = std::fs::read_to_string(case.join("mats/s.mtl")).unwrap();
+    std::fs::write(
+        d.join("mats/s.mtl"),
+        mtl.replace("Textures/Wood.PNG", "\u{d6}LFASS Holz.png"),
+    )
+    .unwrap();
+    // "ölfass holz.png" decomposed: o, combining diaeresis (U+0308), ...
+    std::fs::copy(
+        case.join("mats/textures/wood.png"),
+        d.join("mats/o\u{308}lfass holz.png"),
+    )
+    .unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
+        .current_dir(d)
+        .args(["render", "s.toml", "--spp", "1", "--threads", "1"])
+        .args(["--res", "16x12", "--out", "out/f_####.png"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("'map_Kd \u{d6}LFASS Holz.png': found 'mats/o\u{308}lfass holz.png'"),
+        "{err}"
+    );
+}
+
 #[test]
 fn an_argument_that_is_not_utf8_is_named() {
     // A Latin-1 file name from an old archive: clap's line said only "invalid UTF-8 was
