@@ -121,6 +121,9 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
     // Elements defined so far: positions, texture coordinates, normals.
     let mut count = [0usize; 3];
     let mut usemtl = None;
+    // The smoothing group in force (`s 1`; 0 for `s off` or `s 0`), and each face's.
+    let mut smooth = 0u32;
+    let mut face_smooth: Vec<u32> = Vec::new();
     // The vertices f32 rounds by more than 10^-4 (a coordinate from `ROUNDS_FROM`), read in f64
     // too, by index: for `Obj::anchor`.
     let mut exact: Vec<(u32, DVec3)> = Vec::new();
@@ -242,6 +245,8 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                     usemtl,
                     corners: start..out.corners.len(),
                 });
+                room(&mut face_smooth, label, n)?;
+                face_smooth.push(smooth);
             }
             "p" => repairs.note(label, n, POINTS, || format!("'{}'", quote(text)))?,
             "l" => repairs.note(label, n, POLYLINES, || format!("'{}'", quote(text)))?,
@@ -270,9 +275,12 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                     out.mtllib.push((n, bytes));
                 }
             }
-            // Groups, smoothing groups, merging groups and display and rendering attributes:
-            // nothing reframe renders differently.
-            "o" | "g" | "s" | "mg" | "bevel" | "c_interp" | "d_interp" | "lod" | "shadow_obj"
+            // A smoothing group: its faces' corners without normals get the group's
+            // (`smoothing_normals`). `off`, 0, or a word that is no number: none.
+            "s" => smooth = args.first().and_then(|a| a.parse().ok()).unwrap_or(0),
+            // Groups, merging groups and display and rendering attributes: nothing reframe
+            // renders differently.
+            "o" | "g" | "mg" | "bevel" | "c_interp" | "d_interp" | "lod" | "shadow_obj"
             | "trace_obj" | "usemap" | "maplib" | "ctech" | "stech" | "call" | "csh" | "res" => {}
             // Anything else is no OBJ statement: a misspelt `usemtl` (its faces kept the
             // material before it, and the scene lost its light without a word), another
@@ -297,6 +305,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
             (lo, hi) = (lo.min(e), hi.max(e));
         }
     }
+    smoothing_normals(&mut out, &face_smooth, label)?;
     out.anchor = super::render_origin(lo, hi);
     if out.anchor != DVec3::ZERO {
         for p in out.positions.iter_mut() {
@@ -307,6 +316,82 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
         }
     }
     Ok(out)
+}
+
+/// Normals for the corners without one of faces in a smoothing group (`smooth[f]`, 0 for
+/// none), as the format means `s 1` and as Blender's importer and Mitsuba 3 (which smooths every
+/// face without `vn`) read it: each vertex of a group gets the sum of the unit normals of the
+/// group's faces around it, each weighted by the face's angle at that vertex (Thürmer and
+/// Wüthrich's weights, Mitsuba's and Blender's), normalised. A low-poly sphere exported with
+/// `s 1` and no `vn` rendered faceted, without a word. A face's normal is Newell's, from its
+/// corners in order (the side its counter-clockwise winding faces, as the triangles' own);
+/// where the weighted sum is zero the corner stays flat-shaded. Faces outside any group, and
+/// corners with a `vn`, are as they were.
+fn smoothing_normals(out: &mut Obj, smooth: &[u32], label: &str) -> Result<()> {
+    use std::collections::HashMap;
+    let needs = |f: usize| {
+        smooth[f] != 0
+            && out.corners[out.faces[f].corners.clone()]
+                .iter()
+                .any(|c| c.vn.is_none())
+    };
+    if !(0..out.faces.len()).any(needs) {
+        return Ok(());
+    }
+    let mut sums: HashMap<(u32, u32), DVec3> = HashMap::new();
+    for (f, face) in out.faces.iter().enumerate() {
+        if !needs(f) {
+            continue;
+        }
+        let cs = &out.corners[face.corners.clone()];
+        let p = |i: usize| out.positions[cs[i % cs.len()].v as usize].as_dvec3();
+        let mut n = DVec3::ZERO;
+        for i in 0..cs.len() {
+            let (a, b) = (p(i), p(i + 1));
+            n += DVec3::new(
+                (a.y - b.y) * (a.z + b.z),
+                (a.z - b.z) * (a.x + b.x),
+                (a.x - b.x) * (a.y + b.y),
+            );
+        }
+        let Some(n) = n.try_normalize() else {
+            continue;
+        };
+        for (i, c) in cs.iter().enumerate() {
+            if c.vn.is_some() {
+                continue;
+            }
+            let (e1, e2) = (p(i + 1) - p(i), p(i + cs.len() - 1) - p(i));
+            let angle = e1.cross(e2).length().atan2(e1.dot(e2));
+            *sums.entry((c.v, smooth[f])).or_default() += angle * n;
+        }
+    }
+    // In the order of the vertices (not the map's), so that a file loads the same every time.
+    let mut sums: Vec<((u32, u32), DVec3)> = sums.into_iter().collect();
+    sums.sort_unstable_by_key(|(k, _)| *k);
+    let mut index: HashMap<(u32, u32), Option<u32>> = HashMap::with_capacity(sums.len());
+    for (k, sum) in sums {
+        let i = match sum.try_normalize() {
+            Some(n) => {
+                room(&mut out.normals, label, 0)?;
+                out.normals.push(Some(n.as_vec3()));
+                Some(out.normals.len() as u32 - 1)
+            }
+            None => None,
+        };
+        index.insert(k, i);
+    }
+    for (f, face) in out.faces.iter().enumerate() {
+        if smooth[f] == 0 {
+            continue;
+        }
+        for c in &mut out.corners[face.corners.clone()] {
+            if c.vn.is_none() {
+                c.vn = index.get(&(c.v, smooth[f])).copied().flatten();
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The magnitude from which f32 rounds a coordinate by more than 10^-4 (its step is 1.2x10^-4
@@ -384,6 +469,74 @@ mod tests {
         let mut r = Repairs::new(false);
         let o = parse("a.obj", text.as_bytes(), &mut r).unwrap();
         (o, r.into_warnings())
+    }
+
+    /// A unit cube's 8 corners and its 6 faces, wound counter-clockwise seen from outside, each
+    /// face after the line `groups[k]` (`s 1`, `s off`, ...).
+    fn cube(groups: [&str; 6]) -> String {
+        let mut t = String::new();
+        for z in [-1, 1] {
+            for y in [-1, 1] {
+                for x in [-1, 1] {
+                    t += &format!("v {x} {y} {z}\n");
+                }
+            }
+        }
+        // Vertex (x, y, z) is 1 + (x > 0) + 2 (y > 0) + 4 (z > 0).
+        let faces = [
+            "1 3 4 2", "5 6 8 7", "1 2 6 5", "3 7 8 4", "1 5 7 3", "2 4 8 6",
+        ];
+        for (g, f) in groups.iter().zip(faces) {
+            t += &format!("{g}\nf {f}\n");
+        }
+        t
+    }
+
+    /// The normal of each corner of face `f`, `None` where it has none.
+    fn corner_normals(o: &Obj, f: usize) -> Vec<Option<Vec3>> {
+        o.corners[o.faces[f].corners.clone()]
+            .iter()
+            .map(|c| c.vn.and_then(|i| o.normals[i as usize]))
+            .collect()
+    }
+
+    #[test]
+    fn smoothing_groups_give_faces_without_normals_smooth_ones() {
+        // One group: each corner is on three faces, at right angles: the diagonal outwards.
+        let (o, warnings) = parse_ok(&cube(["s 1"; 6]));
+        assert!(warnings.is_empty(), "{warnings:?}");
+        for f in 0..6 {
+            for (c, n) in o.corners[o.faces[f].corners.clone()]
+                .iter()
+                .zip(corner_normals(&o, f))
+            {
+                let want = o.positions[c.v as usize].normalize();
+                let n = n.expect("a normal");
+                assert!((n - want).length() < 1e-6, "face {f}: {n} against {want}");
+            }
+        }
+        // A group per face: each face its own flat normal, outwards.
+        let groups = ["s 1", "s 2", "s 3", "s 4", "s 5", "s 6"];
+        let (o, _) = parse_ok(&cube(groups));
+        let outwards = [-Vec3::Z, Vec3::Z, -Vec3::Y, Vec3::Y, -Vec3::X, Vec3::X];
+        for (f, want) in outwards.into_iter().enumerate() {
+            for n in corner_normals(&o, f) {
+                assert!((n.unwrap() - want).length() < 1e-6, "face {f}: {n:?}");
+            }
+        }
+        // Off (or 0), and faces before any `s`: no normals, flat-shaded as before; a `vn`
+        // given stays the one given.
+        let (o, _) = parse_ok(&cube(["", "s off", "s 0", "s 1", "s 1", "s 1"]));
+        for f in 0..3 {
+            assert!(
+                corner_normals(&o, f).iter().all(Option::is_none),
+                "face {f}"
+            );
+        }
+        assert!(corner_normals(&o, 3).iter().all(Option::is_some));
+        let text = cube(["s 1"; 6]).replace("f 1 3 4 2", "f 1//1 3//1 4//1 2//1");
+        let (o, _) = parse_ok(&format!("vn 0 0 1\n{text}"));
+        assert!(corner_normals(&o, 0).iter().all(|n| *n == Some(Vec3::Z)));
     }
 
     #[test]
