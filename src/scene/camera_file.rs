@@ -538,6 +538,49 @@ const LOOK_AT_HEADER: [&str; 11] = [
     "frame", "fov", "px", "py", "pz", "lx", "ly", "lz", "ux", "uy", "uz",
 ];
 
+/// The fields of a CSV line separated by `sep`, as RFC 4180 writes them (a field in double
+/// quotes may hold the separator, and `""` is a quote: R's `write.csv`, pandas' quoting),
+/// trimmed. A number with a decimal comma is read with a point: any in a file separated by
+/// semicolons or tabs (a spreadsheet in a German or French locale), and one in quotes in a file
+/// separated by commas unless three digits follow its comma (`"1,000"` may group thousands).
+fn csv_fields(line: &str, sep: char) -> Vec<String> {
+    let mut fields = vec![(String::new(), false)];
+    let mut quoted = false;
+    let mut chars = line.chars().peekable();
+    while let Some(c) = chars.next() {
+        let field = fields.last_mut().expect("one field at least");
+        match c {
+            '"' if quoted && chars.peek() == Some(&'"') => {
+                chars.next();
+                field.0.push('"');
+            }
+            '"' => {
+                quoted = !quoted;
+                field.1 = true;
+            }
+            c if c == sep && !quoted => fields.push((String::new(), false)),
+            c => field.0.push(c),
+        }
+    }
+    fields
+        .into_iter()
+        .map(|(f, was_quoted)| {
+            let f = f.trim();
+            let decimal = f.split_once(',').filter(|(_, frac)| {
+                !f.contains('.')
+                    && !frac.contains(',')
+                    && (sep != ',' || (was_quoted && frac.len() != 3))
+            });
+            match decimal {
+                Some((int, frac)) if format!("{int}.{frac}").parse::<f64>().is_ok() => {
+                    format!("{int}.{frac}")
+                }
+                _ => f.to_string(),
+            }
+        })
+        .collect()
+}
+
 fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
     // Lines end in LF or CRLF, or in a bare CR throughout (a classic Mac spreadsheet's export,
     // which was read as one line: its header).
@@ -553,17 +596,28 @@ fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
         .filter(|(_, l)| !l.trim().is_empty());
     let (hline, header) = rows.next().expect("the text is not blank");
     // numpy's `savetxt(..., header=...)` writes the header as a comment: `# frame,fov,...`.
-    let names: Vec<&str> = header
-        .trim_start()
-        .trim_start_matches('#')
-        .split(',')
-        .map(str::trim)
+    let header_text = header.trim_start().trim_start_matches('#');
+    // The separator as spreadsheets write it: a comma, or a semicolon where the locale's
+    // decimal mark is a comma (German or French Excel and LibreOffice), or a tab.
+    let sep = [',', ';', '\t']
+        .into_iter()
+        .find(|c| header_text.contains(*c))
+        .unwrap_or(',');
+    let mut names: Vec<String> = csv_fields(header_text, sep)
+        .into_iter()
+        .map(|n| n.to_ascii_lowercase())
         .collect();
+    // A separator after the last column (an empty last name): a column of nothing.
+    let trailing = names.len() > 1 && names.last().is_some_and(String::is_empty);
+    if trailing {
+        names.pop();
+    }
     let matrix = matrix_header();
     let is_matrix = names == matrix;
     if !is_matrix && names != LOOK_AT_HEADER {
         bail!(
-            "{label}: line {hline}: header '{}' is neither '{}' nor '{}'",
+            "{label}: line {hline}: header '{}' is neither '{}' nor '{}' (in any case, \
+             separated by commas, or by semicolons with decimal commas)",
             quote(header),
             "frame,fov,m00,m01,...,m33",
             LOOK_AT_HEADER.join(",")
@@ -571,7 +625,18 @@ fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
     }
     let mut entries = Vec::new();
     for (n, row) in rows {
-        let fields: Vec<&str> = row.split(',').map(str::trim).collect();
+        let mut fields = csv_fields(row, sep);
+        // A row of empty cells (a spreadsheet's last row): no frame.
+        if fields.iter().all(String::is_empty) {
+            continue;
+        }
+        if trailing
+            && fields.len() == names.len() + 1
+            && fields.last().is_some_and(String::is_empty)
+        {
+            fields.pop();
+        }
+        let fields: Vec<&str> = fields.iter().map(String::as_str).collect();
         let at = format!("line {n}");
         if fields.len() != names.len() {
             bail!(
@@ -1009,6 +1074,52 @@ mod tests {
             let e = refused("c.json", &text, 1);
             assert!(e.contains(want), "\n  want {want}\n  got  {e}");
         }
+    }
+
+    #[test]
+    fn csv_as_spreadsheets_write_it_is_read() {
+        let load = |text: &str| {
+            parse(
+                "c.csv",
+                text.as_bytes(),
+                Format::Csv,
+                2,
+                &mut Repairs::new(false),
+            )
+            .unwrap_or_else(|e| panic!("{e:#}\n{text}"))
+        };
+        let h = LOOK_AT_HEADER.join(",");
+        let plain = load(&format!(
+            "{h}\n0,40,0.5,0,3,0,0,0,0,1,0\n1,40.5,0.25,0,3,0,0,0,0,1,0\n"
+        ));
+        let quoted_header = LOOK_AT_HEADER.map(|n| format!("\"{n}\"")).join(",");
+        for text in [
+            // R's write.csv and pandas' QUOTE_NONNUMERIC: quoted names.
+            format!("{quoted_header}\n0,40,0.5,0,3,0,0,0,0,1,0\n1,40.5,0.25,0,3,0,0,0,0,1,0\n"),
+            // Excel and LibreOffice in a German or French locale: semicolons, decimal commas.
+            format!(
+                "{}\r\n0;40;0,5;0;3;0;0;0;0;1;0\r\n1;40,5;0,25;0;3;0;0;0;0;1;0\r\n",
+                LOOK_AT_HEADER.join(";")
+            ),
+            // Commas between fields, decimal commas in quotes.
+            format!("{h}\n0,40,\"0,5\",0,3,0,0,0,0,1,0\n1,\"40,5\",\"0,25\",0,3,0,0,0,0,1,0\n"),
+            // A last row of empty cells, capitals, a separator after the last column.
+            format!("{h}\n0,40,0.5,0,3,0,0,0,0,1,0\n1,40.5,0.25,0,3,0,0,0,0,1,0\n,,,,,,,,,,\n"),
+            format!(
+                "{}\n0,40,0.5,0,3,0,0,0,0,1,0\n1,40.5,0.25,0,3,0,0,0,0,1,0\n",
+                h.to_uppercase()
+            ),
+            format!("{h},\n0,40,0.5,0,3,0,0,0,0,1,0,\n1,40.5,0.25,0,3,0,0,0,0,1,0,\n"),
+        ] {
+            assert_eq!(load(&text), plain, "{text}");
+        }
+        // "1,000" may group thousands: not read as 1.
+        let e = refused(
+            "c.csv",
+            &format!("{h}\n0,40,\"1,000\",0,3,0,0,0,0,1,0\n1,40,0,0,3,0,0,0,0,1,0\n"),
+            2,
+        );
+        assert!(e.contains("px '1,000' is not a number"), "{e}");
     }
 
     #[test]
