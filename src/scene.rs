@@ -941,6 +941,31 @@ impl Scene {
 
     /// The camera of frame `frame`, at `width` x `height`: its eye where the render has it
     /// (`cameras` are given from `origin`), its matrices in the scene file's coordinates.
+    /// The largest radiance any light of the scene emits in a channel: an emitting material's
+    /// `Ke` times the largest texel of its emission map (at most `MAX_KE`, as a lookup is
+    /// capped), and the environment's brightest texel. 0 for a scene that emits nothing.
+    pub fn brightest_emission(&self) -> f32 {
+        let materials = self
+            .lights
+            .tris
+            .iter()
+            .map(|&t| self.tri_material[t as usize] as usize);
+        let mut brightest = self
+            .environment
+            .as_ref()
+            .map_or(0.0, Environment::brightest);
+        for m in materials {
+            let ke = self.materials[m].ke.max_element();
+            let map = self.maps.get(m).and_then(|maps| maps.ke.as_ref());
+            let texel = match (map, &self.textures) {
+                (Some(map), Some(t)) => t.max_rgb(map.tex).into_iter().fold(0.0, f32::max),
+                _ => 1.0,
+            };
+            brightest = brightest.max((ke * texel).min(MAX_KE));
+        }
+        brightest
+    }
+
     pub fn camera(&self, frame: u32, width: u32, height: u32) -> Camera {
         let mut cam = Camera::from_pose(&self.cameras.pose(frame), width, height);
         if self.origin != DVec3::ZERO {
@@ -1820,9 +1845,10 @@ fn load_environment(
     let intensity = match &f.intensity {
         Some(i) => {
             let v = *i.get_ref();
-            if !((0.0..=MAX_KE as f64).contains(&v)) {
+            // Below single precision's smallest it is 0, a black sky that was not given.
+            if !((0.0..=MAX_KE as f64).contains(&v)) || (v > 0.0 && v as f32 == 0.0) {
                 bail!(
-                    "{} {}: must be a finite number in [0, {MAX_KE:e}]",
+                    "{} {}: must be 0 or a finite number from 1.4e-45 to {MAX_KE:e}",
                     at(i.span(), "intensity"),
                     text::shown(v)
                 );

@@ -843,6 +843,48 @@ fn a_dim_scene_renders_as_a_bright_one_scaled() {
             );
         }
     }
+    // A night whose first frame (the pilot's) sees a sky of 1e-5, and whose later frames look
+    // down at a lamp of 1e9: the unit is kept large enough for the lamp's pixels, which came
+    // out 7.5 times too dark (their sums clipped at 2^43 units of 2^-16).
+    let night = dir.path().join("night");
+    std::fs::create_dir(&night).unwrap();
+    let obj = "mtllib night.mtl\nusemtl ground\nv -50 0 -50\nv 50 0 -50\nv 50 0 50\nv -50 0 50\n\
+               f 4 3 2 1\nusemtl lamp\nv -10.3 3 -10.3\nv -9.7 3 -10.3\nv -9.7 3 -9.7\n\
+               v -10.3 3 -9.7\nf 8 7 6 5\n";
+    let mtl = "newmtl ground\nKd 0.5 0.5 0.5\nnewmtl lamp\nKd 0 0 0\nKe 1e9 1e9 1e9\n";
+    let key = |f: u32, p: &str, l: &str| {
+        format!(
+            "[[keyframe]]\nframe = {f}\nposition = {p}\nlook_at = {l}\nup = [0.0, 0.0, -1.0]\n\
+             fov = 30.0\n"
+        )
+    };
+    let toml = format!(
+        "obj = \"night.obj\"\nframes = 5\nresolution = [24, 24]\n[environment]\n\
+         radiance = [1e-5, 1e-5, 1e-5]\n{}{}{}",
+        key(0, "[0.0, 3.0, 0.0]", "[0.0, 0.0, -0.5]"),
+        key(1, "[-10.0, 13.0, -10.0]", "[-10.0, 3.0, -10.0]"),
+        key(4, "[-10.0, 13.0, -10.0]", "[-10.0, 3.0, -10.0]")
+    );
+    let night = scene_in(&night, "night", [obj, mtl, &toml], &device);
+    let integ = Integrator::new(&night, 4);
+    let lamp = |px: &[Vec3]| {
+        (10..14)
+            .flat_map(|y| (10..14).map(move |x| px[y * 24 + x].x as f64))
+            .sum::<f64>()
+            / 16.0
+    };
+    let independent =
+        pool.install(|| reuse_frames(&integ, Method::Independent, 1, 4, 3, 0, 4, 24, 24));
+    for method in [Method::MisExact, Method::MisCv] {
+        let reused = pool.install(|| reuse_frames(&integ, method, 3, 4, 3, 0, 4, 24, 24));
+        for f in 1..=4 {
+            let (a, b) = (lamp(&independent[&f]), lamp(&reused[&f]));
+            assert!(
+                a > 1e8 && (b / a - 1.0).abs() < 0.1,
+                "{method:?} frame {f}: the lamp's pixels are {b}, the independent tracer's {a}"
+            );
+        }
+    }
     // Two chunks and their merge: one process's frames, on the dim scene.
     let at = |s: &str| dir.path().join(s).to_str().unwrap().to_string();
     let args = |out: &str| {

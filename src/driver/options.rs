@@ -332,7 +332,13 @@ impl RenderOptions {
             integrator.primary = self.primary;
             integrator.paths = self.paths;
             let f = *range.start();
-            crate::reuse::radiance_unit(&integrator, &scene.camera(f, w, h), f, self.seed)
+            crate::reuse::radiance_unit(
+                &integrator,
+                &scene.camera(f, w, h),
+                f,
+                self.seed,
+                self.spp.saturating_mul(self.window),
+            )
         } else {
             1.0
         };

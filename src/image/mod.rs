@@ -466,10 +466,16 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
                 // Below half's smallest normal number a value keeps fewer digits, and below
                 // 3e-8 none (a scene lit at 1e-5 lost a tenth of half its pixels, and its
                 // darkest became 0, without a word).
+                // Pixels, by their largest colour channel: a red pixel's green of 1e-5 loses
+                // nothing one sees (it warned of normally lit frames).
+                let nch = img.channels.len().max(1);
                 let (small, nonzero) = img
                     .data
-                    .par_iter()
-                    .map(|v| (v.abs() < HALF_MIN_NORMAL && *v != 0.0, *v != 0.0))
+                    .par_chunks(nch)
+                    .map(|px| {
+                        let v = px[..nch.min(3)].iter().fold(0.0f32, |m, v| m.max(v.abs()));
+                        (v < HALF_MIN_NORMAL && v != 0.0, v != 0.0)
+                    })
                     .fold(
                         || (0u64, 0u64),
                         |(s, n), (a, b)| (s + a as u64, n + b as u64),
@@ -480,8 +486,8 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
                     && !HALF_SMALL_SAID.swap(true, std::sync::atomic::Ordering::Relaxed)
                 {
                     errln!(
-                        "warning: {}: {:.0}% of the values that are not 0 are below 6.1e-5, \
-                         where half floats keep fewer digits (and none below 3e-8): \
+                        "warning: {}: {:.0}% of the pixels that are not black are below \
+                         6.1e-5, where half floats keep fewer digits (and none below 3e-8): \
                          --exr-float keeps them",
                         crate::util::text::printable(&path.display().to_string()),
                         (100 * small) as f64 / nonzero as f64

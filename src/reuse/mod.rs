@@ -161,7 +161,9 @@ const PILOT_GRID: (u32, u32) = (32, 24);
 /// What one unit of a reuse film's sums is worth in radiance: a power of two, from the
 /// brightest of a fixed grid of independent samples of frame `frame` through `cam` (a pilot, the
 /// same for every chunk and resume of a run: it depends only on the scene, the frame, the
-/// resolution, the depth and the seed).
+/// resolution, the depth, the seed and the samples per group), and never so small that the
+/// scene's brightest light would overflow a sum in a frame the pilot did not see
+/// (`unit_floor`).
 ///
 /// Why: the sums are fixed point with steps of 2^-20 units (`film::fixed`), so with a fixed unit
 /// a dim scene (radiance of 1e-5, as a small lamp in a large room, or a scene in other units
@@ -176,6 +178,7 @@ pub fn radiance_unit(
     cam: &crate::camera::Camera,
     frame: u32,
     seed: u64,
+    samples_per_group: u32,
 ) -> f32 {
     use crate::integrator::Tally;
     use crate::sampling::Sampler;
@@ -196,7 +199,24 @@ pub fn radiance_unit(
             }
         }
     }
-    unit_for(brightest)
+    unit_for(brightest).max(unit_floor(
+        integrator.scene.brightest_emission(),
+        samples_per_group,
+    ))
+}
+
+/// The smallest unit at which a pixel of any frame, however bright, keeps its total inside the
+/// 63 bits of a sum (2^43 units): a frame reached by `n_f` groups of `n_r` samples each sums
+/// about `n_f n_r` samples' worth, and a sample sees at most a few thousand times the brightest
+/// emission `l` (2^12: a light seen directly is `l`, one reflected near it can be more). The
+/// pilot sees one frame: a first frame lit at 1e-5 set a unit that clipped a lamp of 1e9 seen
+/// in a later frame to 1.3e8 (docs/estimators.md). A power of two, 0 where nothing emits.
+fn unit_floor(l: f32, samples_per_group: u32) -> f32 {
+    let most = l as f64 * samples_per_group as f64 * 4096.0 / 2f64.powi(43);
+    if !(most > 0.0 && most.is_finite()) {
+        return 0.0;
+    }
+    2f32.powi((most.log2().ceil() as i32).clamp(-120, 120))
 }
 
 /// Salt of the pilot's random numbers, so that they are not a frame's own samples.

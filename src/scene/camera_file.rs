@@ -623,6 +623,33 @@ fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
             LOOK_AT_HEADER.join(",")
         );
     }
+    let rows: Vec<(usize, &str)> = rows.collect();
+    // Separated by semicolons or tabs, numbers have decimal commas, or else points; a file that
+    // writes both may group thousands with one of them (`1.000` in a German locale is 1000),
+    // and is refused rather than read a thousand times off.
+    if sep != ',' {
+        let mut comma = None;
+        let mut point = None;
+        for &(n, row) in &rows {
+            for f in row.split(sep) {
+                let f = f.trim().trim_matches('"');
+                if f.contains(',') && comma.is_none() {
+                    comma = Some((n, f));
+                }
+                if f.contains('.') && point.is_none() {
+                    point = Some((n, f));
+                }
+            }
+        }
+        if let (Some((a, fa)), Some((b, fb))) = (comma, point) {
+            bail!(
+                "{label}: numbers with a decimal comma (line {a}: '{}') and with a point (line \
+                 {b}: '{}'): one of them may group thousands; write every number with a point",
+                quote(fa),
+                quote(fb)
+            );
+        }
+    }
     let mut entries = Vec::new();
     for (n, row) in rows {
         let mut fields = csv_fields(row, sep);
@@ -1120,6 +1147,19 @@ mod tests {
             2,
         );
         assert!(e.contains("px '1,000' is not a number"), "{e}");
+        // Decimal commas and points in one file separated by semicolons: `1.000` may be 1000.
+        let e = refused(
+            "c.csv",
+            &format!(
+                "{}\n0;40;0,5;0;3;0;0;0;0;1;0\n1;40;1.000;0;3;0;0;0;0;1;0\n",
+                LOOK_AT_HEADER.join(";")
+            ),
+            2,
+        );
+        assert!(
+            e.contains("decimal comma (line 2: '0,5') and with a point (line 3: '1.000')"),
+            "{e}"
+        );
     }
 
     #[test]

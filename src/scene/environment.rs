@@ -133,6 +133,14 @@ impl Environment {
         }
     }
 
+    /// The largest radiance of a texel in a channel (intensity applied).
+    pub fn brightest(&self) -> f32 {
+        self.texels
+            .iter()
+            .map(|t| t.max_element())
+            .fold(0.0, f32::max)
+    }
+
     /// Whether it emits at all (an all-black environment is never sampled).
     pub fn emits(&self) -> bool {
         self.power > 0.0

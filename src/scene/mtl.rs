@@ -69,7 +69,7 @@ const KD_ZERO_MAP: Kind = Kind {
         "materials with Kd 0 beside a map_Kd read as Kd 1, the texture as it is (as Maya writes it)",
 };
 const EXTRA_NUMBERS: Kind = Kind {
-    one: "numbers past a statement's ignored",
+    one: "numbers past a statement's own ignored",
     many: "statements with numbers past their own ignored",
 };
 const UNRENDERED_MAP: Kind = Kind {

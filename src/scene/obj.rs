@@ -277,7 +277,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
             }
             // A smoothing group: its faces' corners without normals get the group's
             // (`smoothing_normals`). `off`, 0, or a word that is no number: none.
-            "s" => smooth = args.first().and_then(|a| a.parse().ok()).unwrap_or(0),
+            "s" => smooth = smoothing_group(&args),
             // Groups, merging groups and display and rendering attributes: nothing reframe
             // renders differently.
             "o" | "g" | "mg" | "bevel" | "c_interp" | "d_interp" | "lod" | "shadow_obj"
@@ -305,7 +305,6 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
             (lo, hi) = (lo.min(e), hi.max(e));
         }
     }
-    smoothing_normals(&mut out, &face_smooth, label)?;
     out.anchor = super::render_origin(lo, hi);
     if out.anchor != DVec3::ZERO {
         for p in out.positions.iter_mut() {
@@ -315,7 +314,30 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
             out.positions[i as usize] = (e - out.anchor).as_vec3();
         }
     }
+    // From the positions as rendered (near the origin: far out, f32 rounds them to half a unit
+    // at 5e6, and the normals came out of that rounding).
+    smoothing_normals(&mut out, &face_smooth, label)?;
     Ok(out)
+}
+
+/// The smoothing group an `s` statement names: 0 for `off` and 0 (none), its number for a
+/// whole number from 1 (one written `1.0` too), 1 for `on` or a number past u32 (a group all
+/// the same), and 0 for anything else (no number), as before groups were read.
+fn smoothing_group(args: &[&str]) -> u32 {
+    let Some(a) = args.first() else { return 0 };
+    if a.eq_ignore_ascii_case("on") {
+        return 1;
+    }
+    match a.parse::<f64>() {
+        Ok(x) if x >= 1.0 && x.fract() == 0.0 => {
+            if x <= u32::MAX as f64 {
+                x as u32
+            } else {
+                1
+            }
+        }
+        _ => 0,
+    }
 }
 
 /// Normals for the corners without one of faces in a smoothing group (`smooth[f]`, 0 for
@@ -324,23 +346,44 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
 /// group's faces around it, each weighted by the face's angle at that vertex (Thürmer and
 /// Wüthrich's weights, Mitsuba's and Blender's), normalised. A low-poly sphere exported with
 /// `s 1` and no `vn` rendered faceted, without a word. A face's normal is Newell's, from its
-/// corners in order (the side its counter-clockwise winding faces, as the triangles' own);
-/// where the weighted sum is zero the corner stays flat-shaded. Faces outside any group, and
-/// corners with a `vn`, are as they were.
+/// corners in order (the side its counter-clockwise winding faces, as the triangles' own).
+/// Where the sum nearly cancels (below a millionth of its weights: a surface made two-sided by a
+/// reversed copy on the same vertices) the corner stays flat-shaded, as it does where a face
+/// has no area; faces outside any group, and corners with a `vn`, are as they were.
+///
+/// The sums are kept per vertex for the first group met there, and in a map for any other
+/// group at that vertex (rare but for files that give every face a group of its own), so that a
+/// mesh of millions of faces in one group costs two arrays the size of its vertices.
 fn smoothing_normals(out: &mut Obj, smooth: &[u32], label: &str) -> Result<()> {
     use std::collections::HashMap;
-    let needs = |f: usize| {
+    let needs = |o: &Obj, f: usize| {
         smooth[f] != 0
-            && out.corners[out.faces[f].corners.clone()]
+            && o.corners[o.faces[f].corners.clone()]
                 .iter()
                 .any(|c| c.vn.is_none())
     };
-    if !(0..out.faces.len()).any(needs) {
+    if !(0..out.faces.len()).any(|f| needs(out, f)) {
         return Ok(());
     }
-    let mut sums: HashMap<(u32, u32), DVec3> = HashMap::new();
+    let nv = out.positions.len();
+    let fallible = |what: &str| {
+        anyhow!(
+            "{label}: the smooth normals of {nv} vertices need more memory than is left ({what}){}",
+            crate::util::mem::address_space_note()
+        )
+    };
+    // Per vertex: the first group met (0: none yet), its weighted sum and its total weight.
+    let mut first: Vec<u32> = Vec::new();
+    let mut sum: Vec<(DVec3, f64)> = Vec::new();
+    first
+        .try_reserve_exact(nv)
+        .map_err(|_| fallible("groups"))?;
+    sum.try_reserve_exact(nv).map_err(|_| fallible("sums"))?;
+    first.resize(nv, 0);
+    sum.resize(nv, (DVec3::ZERO, 0.0));
+    let mut other: HashMap<(u32, u32), (DVec3, f64)> = HashMap::new();
     for (f, face) in out.faces.iter().enumerate() {
-        if !needs(f) {
+        if !needs(out, f) {
             continue;
         }
         let cs = &out.corners[face.corners.clone()];
@@ -357,37 +400,68 @@ fn smoothing_normals(out: &mut Obj, smooth: &[u32], label: &str) -> Result<()> {
         let Some(n) = n.try_normalize() else {
             continue;
         };
+        let g = smooth[f];
         for (i, c) in cs.iter().enumerate() {
             if c.vn.is_some() {
                 continue;
             }
             let (e1, e2) = (p(i + 1) - p(i), p(i + cs.len() - 1) - p(i));
             let angle = e1.cross(e2).length().atan2(e1.dot(e2));
-            *sums.entry((c.v, smooth[f])).or_default() += angle * n;
+            let v = c.v as usize;
+            if first[v] == 0 {
+                first[v] = g;
+            }
+            let s = if first[v] == g {
+                &mut sum[v]
+            } else {
+                other.entry((c.v, g)).or_default()
+            };
+            s.0 += angle * n;
+            s.1 += angle;
         }
     }
-    // In the order of the vertices (not the map's), so that a file loads the same every time.
-    let mut sums: Vec<((u32, u32), DVec3)> = sums.into_iter().collect();
-    sums.sort_unstable_by_key(|(k, _)| *k);
-    let mut index: HashMap<(u32, u32), Option<u32>> = HashMap::with_capacity(sums.len());
-    for (k, sum) in sums {
-        let i = match sum.try_normalize() {
+    // The normal of a sum, if it does not (nearly) cancel.
+    let unit = |(s, w): (DVec3, f64)| (s.length() > 1e-6 * w).then(|| s.normalize().as_vec3());
+    // Normals added in the order of the vertices, then of the other groups by vertex (not the
+    // map's order), so that a file loads the same every time.
+    let mut index: Vec<u32> = Vec::new();
+    index
+        .try_reserve_exact(nv)
+        .map_err(|_| fallible("indices"))?;
+    for v in 0..nv {
+        let i = match (first[v] != 0).then(|| unit(sum[v])).flatten() {
             Some(n) => {
                 room(&mut out.normals, label, 0)?;
-                out.normals.push(Some(n.as_vec3()));
-                Some(out.normals.len() as u32 - 1)
+                out.normals.push(Some(n));
+                out.normals.len() as u32 - 1
             }
-            None => None,
+            None => u32::MAX,
         };
-        index.insert(k, i);
+        index.push(i);
+    }
+    let mut others: Vec<((u32, u32), (DVec3, f64))> = other.into_iter().collect();
+    others.sort_unstable_by_key(|(k, _)| *k);
+    let mut other_index: HashMap<(u32, u32), u32> = HashMap::with_capacity(others.len());
+    for (k, s) in others {
+        if let Some(n) = unit(s) {
+            room(&mut out.normals, label, 0)?;
+            out.normals.push(Some(n));
+            other_index.insert(k, out.normals.len() as u32 - 1);
+        }
     }
     for (f, face) in out.faces.iter().enumerate() {
-        if smooth[f] == 0 {
+        let g = smooth[f];
+        if g == 0 {
             continue;
         }
         for c in &mut out.corners[face.corners.clone()] {
             if c.vn.is_none() {
-                c.vn = index.get(&(c.v, smooth[f])).copied().flatten();
+                let v = c.v as usize;
+                c.vn = if first[v] == g {
+                    Some(index[v]).filter(|&i| i != u32::MAX)
+                } else {
+                    other_index.get(&(c.v, g)).copied()
+                };
             }
         }
     }
@@ -537,6 +611,53 @@ mod tests {
         let text = cube(["s 1"; 6]).replace("f 1 3 4 2", "f 1//1 3//1 4//1 2//1");
         let (o, _) = parse_ok(&format!("vn 0 0 1\n{text}"));
         assert!(corner_normals(&o, 0).iter().all(|n| *n == Some(Vec3::Z)));
+        // `on`, `1.0` and a number past u32 are groups; words that are no number are not.
+        for (s, smooth) in [("s on", true), ("s 1.0", true), ("s 4294967296", true)] {
+            let (o, _) = parse_ok(&cube([s; 6]));
+            assert_eq!(corner_normals(&o, 0)[0].is_some(), smooth, "{s}");
+        }
+        let (o, _) = parse_ok(&cube(["s x"; 6]));
+        assert!(corner_normals(&o, 0).iter().all(Option::is_none));
+    }
+
+    #[test]
+    fn smooth_normals_are_of_the_positions_as_rendered_and_flat_where_they_cancel() {
+        // The cube 5e6 units out, where f32 steps are half a unit: moved to the origin first
+        // (`Obj::anchor`), its normals are the diagonals to the float, as at the origin.
+        let far: String = cube(["s 1"; 6])
+            .lines()
+            .map(|l| match l.strip_prefix("v ") {
+                Some(p) => {
+                    let c: Vec<f64> = p.split(' ').map(|x| x.parse().unwrap()).collect();
+                    format!("v {} {} {}\n", c[0] + 5e6, c[1] - 5e6, c[2] + 5e6)
+                }
+                None => format!("{l}\n"),
+            })
+            .collect();
+        let (o, _) = parse_ok(&far);
+        assert_ne!(o.anchor, DVec3::ZERO);
+        for f in 0..6 {
+            for (c, n) in o.corners[o.faces[f].corners.clone()]
+                .iter()
+                .zip(corner_normals(&o, f))
+            {
+                let want = o.positions[c.v as usize].normalize();
+                assert!(
+                    (n.unwrap() - want).length() < 1e-6,
+                    "face {f}: {n:?} against {want}"
+                );
+            }
+        }
+        // A quad made two-sided by a reversed copy on the same vertices: its normals cancel,
+        // and it stays flat-shaded (a rounding remainder was a normal pointing anywhere).
+        let quad = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\ns 1\nf 1 2 3 4\nf 4 3 2 1\n";
+        let (o, _) = parse_ok(quad);
+        for f in 0..2 {
+            assert!(
+                corner_normals(&o, f).iter().all(Option::is_none),
+                "face {f}"
+            );
+        }
     }
 
     #[test]

@@ -286,12 +286,14 @@ pub fn shown(x: f64) -> String {
     }
 }
 
-/// `number`, with a number written finite but past single precision (`1e39`, which reads as
-/// infinite) taken as the largest single of its sign, for values that are capped or clamped
+/// `number`, with a number written in digits but past single precision (`1e39`, or `1e400`
+/// past double's too, which read as infinite) taken as the largest single of its sign, for values that are capped or clamped
 /// anyway (an MTL's `Ke`, `Ns`, `Pr`): an infinity or NaN as written stays what it is.
 pub fn number_saturating(word: &str) -> Option<f32> {
     let x = number(word)?;
-    if x.is_infinite() && word.parse::<f64>().is_ok_and(f64::is_finite) {
+    // Digits (`1e39`, `1e400`), not an infinity as written (`inf`, `1.#INF`).
+    let digits = !word.to_ascii_lowercase().contains("inf") && !word.contains('#');
+    if x.is_infinite() && digits {
         return Some(f32::MAX.copysign(x));
     }
     Some(x)
