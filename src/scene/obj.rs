@@ -133,6 +133,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
         let Some((key, args)) = line.statement(label, repairs)? else {
             continue;
         };
+        let key = canonical(key);
         match key {
             "v" => {
                 let shape = "expected 'v x y z', 'v x y z w' or 'v x y z r g b'";
@@ -318,6 +319,18 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
     // at 5e6, and the normals came out of that rounding).
     smoothing_normals(&mut out, &face_smooth, label)?;
     Ok(out)
+}
+
+/// The statements reframe reads, in any case (`V`, `VT`, `F`, `Usemtl`: old exporters write
+/// capitals, which were unknown statements and the file's geometry lost), as the format writes
+/// them; other keys as they are.
+fn canonical(key: &str) -> &str {
+    const KEYS: [&str; 10] = [
+        "v", "vt", "vn", "f", "fo", "usemtl", "mtllib", "s", "l", "p",
+    ];
+    KEYS.into_iter()
+        .find(|k| k.eq_ignore_ascii_case(key))
+        .unwrap_or(key)
 }
 
 /// The smoothing group an `s` statement names: 0 for `off` and 0 (none), its number for a
@@ -618,6 +631,16 @@ mod tests {
         }
         let (o, _) = parse_ok(&cube(["s x"; 6]));
         assert!(corner_normals(&o, 0).iter().all(Option::is_none));
+    }
+
+    #[test]
+    fn statements_in_capitals_are_read() {
+        // Old exporters write capitals: the geometry and its material were unknown statements.
+        let (o, warnings) = parse_ok("MTLLIB s.mtl\nV 0 0 0\nV 1 0 0\nVT 0 1\nVn 0 0 1\nV 0 1 0\nUSEMTL m\nF 1/1/1 2/1/1 3/1/1\n");
+        assert!(warnings.is_empty(), "{warnings:?}");
+        assert_eq!((o.positions.len(), o.uvs.len(), o.faces.len()), (3, 1, 1));
+        assert_eq!(o.usemtl, vec![(7, "m".to_string())]);
+        assert_eq!(o.mtllib, vec![(1, b"s.mtl".to_vec())]);
     }
 
     #[test]
