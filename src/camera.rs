@@ -152,7 +152,28 @@ impl Camera {
     /// Raster position of `x`, if it is in front of the eye and inside the film.
     #[inline]
     pub fn project(&self, x: Vec3) -> Option<Vec2> {
-        let c = x - self.eye;
+        self.project_offset(x - self.eye)
+    }
+
+    /// Raster position of the direction `d` from the eye (a point at infinity), if it is on the
+    /// film: projected as a direction, not as the point `eye + d`, which f32 rounds by the
+    /// eye's distance from the origin (a scene scaled by 2^16 put the background of the reuse
+    /// methods in the wrong pixels, a pattern along the film's border).
+    #[inline]
+    pub fn project_dir(&self, d: Vec3) -> Option<Vec2> {
+        self.project_offset(d)
+    }
+
+    /// Index (row-major) of the pixel the direction `d` from the eye lands in (`project_dir`).
+    #[inline]
+    pub fn pixel_of_dir(&self, d: Vec3) -> Option<u32> {
+        self.project_dir(d)
+            .map(|r| r.y as u32 * self.width + r.x as u32)
+    }
+
+    /// Raster position of the point at offset `c` from the eye, if it is on the film.
+    #[inline]
+    fn project_offset(&self, c: Vec3) -> Option<Vec2> {
         let z = c.dot(self.forward);
         if z <= 0.0 {
             return None;

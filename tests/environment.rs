@@ -340,3 +340,85 @@ fn an_environment_rotation_is_taken_modulo_a_turn() {
     assert_eq!(base, hash("-340.0"));
     assert_ne!(base, hash("21.0"));
 }
+
+/// A scene and its camera path scaled by 2^16 render the frames of the unscaled scene, with the
+/// reuse methods too, where pixels see the environment: an escaped sample was projected into the
+/// other eyes as the point `eye + d`, which f32 rounds by the eye's distance from the origin (2^-6
+/// at 2.6e5), so the background landed in the wrong pixels along the film's border and frame
+/// means moved by up to 5%. Now a direction is projected as a direction.
+#[test]
+fn a_scene_scaled_up_renders_its_background_as_the_unscaled_one() {
+    let device = Device::new().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let pool = thread_pool(2).unwrap();
+    let env = "[environment]\nradiance = [0.3, 0.4, 0.5]";
+    let scaled = |s: f32| {
+        let d = dir.path().join(format!("s{s}"));
+        std::fs::create_dir(&d).unwrap();
+        let obj: String = CUBE
+            .lines()
+            .map(|l| match l.strip_prefix("v ") {
+                Some(p) => {
+                    let c: Vec<f32> = p
+                        .split(' ')
+                        .map(|x| x.parse::<f32>().unwrap() * s)
+                        .collect();
+                    format!("v {} {} {}\n", c[0], c[1], c[2])
+                }
+                None => format!("{l}\n"),
+            })
+            .collect();
+        let toml: String = camera(3, env)
+            .lines()
+            .map(|l| {
+                let key = ["position = [", "look_at = ["]
+                    .into_iter()
+                    .find(|k| l.starts_with(k));
+                match key {
+                    Some(k) => {
+                        let c: Vec<f32> = l[k.len()..l.len() - 1]
+                            .split(", ")
+                            .map(|x| x.parse::<f32>().unwrap() * s)
+                            .collect();
+                        format!("{k}{}, {}, {}]\n", c[0], c[1], c[2])
+                    }
+                    None => format!("{l}\n"),
+                }
+            })
+            .collect();
+        let path = write_scene(&d, &obj, "newmtl box\nKd 0.5 0.5 0.5\n", &toml);
+        Scene::load(&path, &device).unwrap()
+    };
+    let (a, b) = (scaled(1.0), scaled(65536.0));
+    for method in [Method::MisExact, Method::MisCv] {
+        let frames = |scene: &Scene| {
+            let integ = Integrator::new(scene, 4);
+            let opts = RenderOptions {
+                method,
+                window: 3,
+                spp: 2,
+                seed: 5,
+                frames: Some(0..=2),
+                progress: false,
+                ..RenderOptions::default()
+            };
+            pool.install(|| render_in_memory(&integ, &opts).0)
+        };
+        let (fa, fb) = (frames(&a), frames(&b));
+        for f in 0..=2 {
+            let (pa, pb) = (fa[&f].pixels(), fb[&f].pixels());
+            let mean = pa.iter().map(|p| p.element_sum() as f64).sum::<f64>() / pa.len() as f64;
+            let off = pa
+                .iter()
+                .zip(&pb)
+                .map(|(p, q)| (*p - *q).abs().element_sum() as f64)
+                .sum::<f64>()
+                / pa.len() as f64;
+            assert!(
+                off < 1e-3 * mean,
+                "{method:?} frame {f}: the scaled scene's pixels are {off} from the unscaled one's \
+                 (mean {mean})"
+            );
+        }
+    }
+}

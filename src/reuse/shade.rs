@@ -531,7 +531,7 @@ fn splat_escape(
             let i = if k == m {
                 pixel
             } else {
-                let i = t.cam.pixel_of(t.cam.eye + dir)?;
+                let i = t.cam.pixel_of_dir(dir)?;
                 tally.counts.visibility += 1;
                 if geometry.occluded1(&Ray::new(t.cam.eye, dir)) {
                     return None;
