@@ -341,6 +341,15 @@ fn an_environment_rotation_is_taken_modulo_a_turn() {
     assert_ne!(base, hash("21.0"));
 }
 
+/// The numbers of `list` (separated by `sep`) times `s`, separated alike.
+fn times(list: &str, sep: &str, s: f32) -> String {
+    let scaled: Vec<String> = list
+        .split(sep)
+        .map(|x| (x.parse::<f32>().unwrap() * s).to_string())
+        .collect();
+    scaled.join(sep)
+}
+
 /// A scene and its camera path scaled by 2^16 render the frames of the unscaled scene, with the
 /// reuse methods too, where pixels see the environment: an escaped sample was projected into the
 /// other eyes as the point `eye + d`, which f32 rounds by the eye's distance from the origin (2^-6
@@ -358,13 +367,7 @@ fn a_scene_scaled_up_renders_its_background_as_the_unscaled_one() {
         let obj: String = CUBE
             .lines()
             .map(|l| match l.strip_prefix("v ") {
-                Some(p) => {
-                    let c: Vec<f32> = p
-                        .split(' ')
-                        .map(|x| x.parse::<f32>().unwrap() * s)
-                        .collect();
-                    format!("v {} {} {}\n", c[0], c[1], c[2])
-                }
+                Some(p) => format!("v {}\n", times(p, " ", s)),
                 None => format!("{l}\n"),
             })
             .collect();
@@ -375,13 +378,7 @@ fn a_scene_scaled_up_renders_its_background_as_the_unscaled_one() {
                     .into_iter()
                     .find(|k| l.starts_with(k));
                 match key {
-                    Some(k) => {
-                        let c: Vec<f32> = l[k.len()..l.len() - 1]
-                            .split(", ")
-                            .map(|x| x.parse::<f32>().unwrap() * s)
-                            .collect();
-                        format!("{k}{}, {}, {}]\n", c[0], c[1], c[2])
-                    }
+                    Some(k) => format!("{k}{}]\n", times(&l[k.len()..l.len() - 1], ", ", s)),
                     None => format!("{l}\n"),
                 }
             })

@@ -882,6 +882,32 @@ fn a_first_checkpoint_left_half_written_is_swept() {
     );
 }
 
+/// `reframe` run as the user `nobody` (`setpriv`), for tests of files another user cannot
+/// read: `None` (the test says it is skipped) unless the tests run as root, as CI runs them,
+/// and `nobody` can run the binary (a checkout under /root is not theirs to enter).
+fn as_nobody() -> Option<impl Fn() -> std::process::Command> {
+    let nobody = || {
+        let mut c = std::process::Command::new("setpriv");
+        c.args(["--reuid=65534", "--regid=65534", "--clear-groups"])
+            .arg(env!("CARGO_BIN_EXE_reframe"));
+        c
+    };
+    let root = std::process::Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|o| o.stdout == b"0\n");
+    if !root
+        || !nobody()
+            .arg("--version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+    {
+        eprintln!("skipped: needs root, setpriv, and a binary that another user can run");
+        return None;
+    }
+    Some(nobody)
+}
+
 /// A chunk's partial file that cannot be opened (another user's in a shared folder, mode 600)
 /// is refused in one line by `--resume`, as `merge` refuses it: it is not damaged, and the chunk
 /// rendered again failed only at its end, on the rename. Run as root (as CI runs), the refused
@@ -889,22 +915,9 @@ fn a_first_checkpoint_left_half_written_is_swept() {
 #[test]
 fn a_partial_that_cannot_be_opened_is_refused_not_rendered_again() {
     use std::os::unix::fs::PermissionsExt;
-    let root = std::process::Command::new("id")
-        .arg("-u")
-        .output()
-        .unwrap()
-        .stdout
-        == b"0\n";
-    // `nobody` must be able to run the binary (a checkout under /root is not theirs to enter).
-    let as_nobody = std::process::Command::new("setpriv")
-        .args(["--reuid=65534", "--regid=65534", "--clear-groups"])
-        .arg(env!("CARGO_BIN_EXE_reframe"))
-        .arg("--version")
-        .output();
-    if !root || !as_nobody.is_ok_and(|o| o.status.success()) {
-        eprintln!("skipped: needs root, setpriv, and a binary that another user can run");
+    let Some(nobody) = as_nobody() else {
         return;
-    }
+    };
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     std::fs::set_permissions(d, std::fs::Permissions::from_mode(0o1777)).unwrap();
@@ -920,13 +933,7 @@ fn a_partial_that_cannot_be_opened_is_refused_not_rendered_again() {
     let partial = d.join("o/f.chunk-1-of-2.partial");
     std::fs::set_permissions(&partial, std::fs::Permissions::from_mode(0o600)).unwrap();
     let before = std::fs::read(&partial).unwrap();
-    let o = std::process::Command::new("setpriv")
-        .args(["--reuid=65534", "--regid=65534", "--clear-groups"])
-        .arg(env!("CARGO_BIN_EXE_reframe"))
-        .args(&args)
-        .arg("--resume")
-        .output()
-        .unwrap();
+    let o = nobody().args(&args).arg("--resume").output().unwrap();
     common::assert_refused(
         &o,
         "cannot read the chunk's partial file (Permission denied",
@@ -941,27 +948,9 @@ fn a_partial_that_cannot_be_opened_is_refused_not_rendered_again() {
 #[test]
 fn a_finished_frame_that_cannot_be_opened_is_refused_saying_so() {
     use std::os::unix::fs::PermissionsExt;
-    let nobody = || {
-        let mut c = std::process::Command::new("setpriv");
-        c.args(["--reuid=65534", "--regid=65534", "--clear-groups"])
-            .arg(env!("CARGO_BIN_EXE_reframe"));
-        c
-    };
-    let root = std::process::Command::new("id")
-        .arg("-u")
-        .output()
-        .unwrap()
-        .stdout
-        == b"0\n";
-    if !root
-        || !nobody()
-            .arg("--version")
-            .output()
-            .is_ok_and(|o| o.status.success())
-    {
-        eprintln!("skipped: needs root, setpriv, and a binary that another user can run");
+    let Some(nobody) = as_nobody() else {
         return;
-    }
+    };
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     std::fs::set_permissions(d, std::fs::Permissions::from_mode(0o1777)).unwrap();
