@@ -26,7 +26,7 @@
 //! lobes keep their colour), `Ns` above `MAX_NS`, `Ke` above
 //! `MAX_KE`.
 use super::repairs::{Kind, Repairs};
-use super::text::{joined, lines, number, number_saturating, quote, rest};
+use super::text::{canonical, joined, lines, number, number_saturating, quote, rest};
 use crate::bsdf::Material;
 /// Largest Phong exponent: the BSDF's own bound (`bsdf::MAX_NS`).
 pub use crate::bsdf::MAX_NS;
@@ -77,16 +77,11 @@ const UNRENDERED_MAP: Kind = Kind {
     many: "texture maps not rendered (reframe renders map_Kd, map_Ks, map_Ke and map_d)",
 };
 
-/// The statements reframe reads, in any case (`kd`, `KD` and `map_kd` are `Kd` and `map_Kd`:
-/// exporters differ), as written in the format; other keys as they are.
-fn canonical(key: &str) -> &str {
-    const KEYS: [&str; 10] = [
-        "newmtl", "Kd", "Ks", "Ke", "Ns", "d", "map_Kd", "map_Ks", "map_Ke", "map_d",
-    ];
-    KEYS.into_iter()
-        .find(|k| k.eq_ignore_ascii_case(key))
-        .unwrap_or(key)
-}
+/// The statements reframe reads, read in any case (`kd`, `KD` and `map_kd` are `Kd` and
+/// `map_Kd`: exporters differ; `text::canonical`).
+const KEYS: [&str; 10] = [
+    "newmtl", "Kd", "Ks", "Ke", "Ns", "d", "map_Kd", "map_Ks", "map_Ke", "map_d",
+];
 
 /// Whether `key` is a map statement that reframe does not render (any case): `Some(true)` where
 /// it would change the look and is said (bump, normal and displacement maps, maps of the
@@ -180,7 +175,7 @@ pub fn parse_for(
         let Some((key, args)) = line.statement(label, repairs)? else {
             continue;
         };
-        let key = canonical(key);
+        let key = canonical(key, &KEYS);
         // What a statement of a material no face uses would say goes nowhere.
         let mut unsaid = Repairs::new(false);
         let notes = match out.materials.last() {

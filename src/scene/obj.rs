@@ -16,7 +16,9 @@
 //! past the elements defined above it, a face of more than `MAX_CORNERS` corners, and a
 //! `usemtl` or `mtllib` without a name.
 use super::repairs::{Kind, Repairs};
-use super::text::{joined, latin1_bytes, lines, number, numbers, quote, rest, MAX_COORD};
+use super::text::{
+    canonical, joined, latin1_bytes, lines, number, numbers, quote, rest, MAX_COORD,
+};
 use anyhow::{anyhow, Result};
 use glam::{DVec3, Vec2, Vec3};
 
@@ -133,7 +135,7 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
         let Some((key, args)) = line.statement(label, repairs)? else {
             continue;
         };
-        let key = canonical(key);
+        let key = canonical(key, &KEYS);
         match key {
             "v" => {
                 let shape = "expected 'v x y z', 'v x y z w' or 'v x y z r g b'";
@@ -321,17 +323,12 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
     Ok(out)
 }
 
-/// The statements reframe reads, in any case (`V`, `VT`, `F`, `Usemtl`: old exporters write
-/// capitals, which were unknown statements and the file's geometry lost), as the format writes
-/// them; other keys as they are.
-fn canonical(key: &str) -> &str {
-    const KEYS: [&str; 10] = [
-        "v", "vt", "vn", "f", "fo", "usemtl", "mtllib", "s", "l", "p",
-    ];
-    KEYS.into_iter()
-        .find(|k| k.eq_ignore_ascii_case(key))
-        .unwrap_or(key)
-}
+/// The statements reframe reads, read in any case (`V`, `VT`, `F`, `Usemtl`: old exporters
+/// write capitals, which were unknown statements and the file's geometry lost;
+/// `text::canonical`).
+const KEYS: [&str; 10] = [
+    "v", "vt", "vn", "f", "fo", "usemtl", "mtllib", "s", "l", "p",
+];
 
 /// The smoothing group an `s` statement names: 0 for `off` and 0 (none), its number for a
 /// whole number from 1 (one written `1.0` too), 1 for `on` or a number past u32 (a group all

@@ -276,6 +276,15 @@ pub fn numbers<const N: usize>(words: &[&str]) -> Option<[f32; N]> {
     Some(v)
 }
 
+/// `key` as the format writes it where it is one of `keys` in another case (exporters differ:
+/// `kd`, `KD`, `V`, `USEMTL`), else as it is.
+pub fn canonical<'a>(key: &'a str, keys: &[&'static str]) -> &'a str {
+    keys.iter()
+        .find(|k| k.eq_ignore_ascii_case(key))
+        .copied()
+        .unwrap_or(key)
+}
+
 /// A number of a scene file as a message shows it: as Rust writes it, in exponent form where
 /// that would be long (`1e39`, not forty digits).
 pub fn shown(x: f64) -> String {
