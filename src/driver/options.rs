@@ -328,9 +328,9 @@ impl RenderOptions {
         // The reuse films' unit, from a pilot of the run's first frame (every chunk of the run
         // renders the same range, so every chunk finds the same unit).
         let radiance_unit = if self.method.reuses() {
-            let mut integrator = crate::integrator::Integrator::new(scene, self.max_depth);
-            integrator.primary = self.primary;
-            integrator.paths = self.paths;
+            // Its samples are scalar walks (`Integrator::sample_pixel`): packets or not, the
+            // same unit.
+            let integrator = crate::integrator::Integrator::new(scene, self.max_depth);
             let f = *range.start();
             crate::reuse::radiance_unit(
                 &integrator,

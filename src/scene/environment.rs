@@ -46,6 +46,8 @@ pub struct Environment {
     density: Vec<f32>,
     /// Whether any texel has power: an all-black environment is never sampled.
     power: f64,
+    /// The largest radiance of a texel in a channel (`brightest`).
+    brightest: f32,
 }
 
 /// A direction sampled towards the environment.
@@ -121,7 +123,9 @@ impl Environment {
             *row_cdf.last_mut().unwrap() = 1.0;
         }
         let a = rotation_deg.to_radians();
+        let brightest = texels.iter().map(|t| t.max_element()).fold(0.0, f32::max);
         Environment {
+            brightest,
             width,
             height,
             texels,
@@ -133,12 +137,10 @@ impl Environment {
         }
     }
 
-    /// The largest radiance of a texel in a channel (intensity applied).
+    /// The largest radiance of a texel in a channel (intensity applied), found once when it is
+    /// made: every reuse render's plan asks for it (`Scene::brightest_emission`).
     pub fn brightest(&self) -> f32 {
-        self.texels
-            .iter()
-            .map(|t| t.max_element())
-            .fold(0.0, f32::max)
+        self.brightest
     }
 
     /// Whether it emits at all (an all-black environment is never sampled).
