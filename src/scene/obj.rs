@@ -438,10 +438,13 @@ fn smoothing_normals(out: &mut Obj, smooth: &[u32], label: &str) -> Result<()> {
     index
         .try_reserve_exact(nv)
         .map_err(|_| fallible("indices"))?;
+    let most = first.iter().filter(|&&g| g != 0).count() + other.len();
+    out.normals
+        .try_reserve(most)
+        .map_err(|_| fallible("normals"))?;
     for v in 0..nv {
         let i = match (first[v] != 0).then(|| unit(sum[v])).flatten() {
             Some(n) => {
-                room(&mut out.normals, label, 0)?;
                 out.normals.push(Some(n));
                 out.normals.len() as u32 - 1
             }
@@ -454,7 +457,6 @@ fn smoothing_normals(out: &mut Obj, smooth: &[u32], label: &str) -> Result<()> {
     let mut other_index: HashMap<(u32, u32), u32> = HashMap::with_capacity(others.len());
     for (k, s) in others {
         if let Some(n) = unit(s) {
-            room(&mut out.normals, label, 0)?;
             out.normals.push(Some(n));
             other_index.insert(k, out.normals.len() as u32 - 1);
         }
