@@ -540,10 +540,8 @@ const LOOK_AT_HEADER: [&str; 11] = [
 
 /// The fields of a CSV line separated by `sep`, as RFC 4180 writes them (a field in double
 /// quotes may hold the separator, and `""` is a quote: R's `write.csv`, pandas' quoting),
-/// trimmed. A number with a decimal comma is read with a point: any in a file separated by
-/// semicolons or tabs (a spreadsheet in a German or French locale), and one in quotes in a file
-/// separated by commas unless three digits follow its comma (`"1,000"` may group thousands).
-fn csv_fields(line: &str, sep: char) -> Vec<String> {
+/// trimmed, each with whether it was quoted.
+fn csv_fields(line: &str, sep: char) -> Vec<(String, bool)> {
     let mut fields = vec![(String::new(), false)];
     let mut quoted = false;
     let mut chars = line.chars().peekable();
@@ -562,23 +560,25 @@ fn csv_fields(line: &str, sep: char) -> Vec<String> {
             c => field.0.push(c),
         }
     }
+    for f in &mut fields {
+        f.0 = f.0.trim().to_string();
+    }
     fields
-        .into_iter()
-        .map(|(f, was_quoted)| {
-            let f = f.trim();
-            let decimal = f.split_once(',').filter(|(_, frac)| {
-                !f.contains('.')
-                    && !frac.contains(',')
-                    && (sep != ',' || (was_quoted && frac.len() != 3))
-            });
-            match decimal {
-                Some((int, frac)) if format!("{int}.{frac}").parse::<f64>().is_ok() => {
-                    format!("{int}.{frac}")
-                }
-                _ => f.to_string(),
-            }
-        })
-        .collect()
+}
+
+/// A field with a number's decimal comma read as a point: any in a file separated by
+/// semicolons or tabs (a spreadsheet in a German or French locale), and one in quotes in a file
+/// separated by commas unless three digits follow its comma (`"1,000"` may group thousands).
+fn decimal_point((f, quoted): (String, bool), sep: char) -> String {
+    let decimal = f.split_once(',').filter(|(_, frac)| {
+        !f.contains('.') && !frac.contains(',') && (sep != ',' || (quoted && frac.len() != 3))
+    });
+    match decimal {
+        Some((int, frac)) if format!("{int}.{frac}").parse::<f64>().is_ok() => {
+            format!("{int}.{frac}")
+        }
+        _ => f,
+    }
 }
 
 fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
@@ -605,7 +605,7 @@ fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
         .unwrap_or(',');
     let mut names: Vec<String> = csv_fields(header_text, sep)
         .into_iter()
-        .map(|n| n.to_ascii_lowercase())
+        .map(|(n, _)| n.to_ascii_lowercase())
         .collect();
     // A separator after the last column (an empty last name): a column of nothing.
     let trailing = names.len() > 1 && names.last().is_some_and(String::is_empty);
@@ -623,36 +623,28 @@ fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
             LOOK_AT_HEADER.join(",")
         );
     }
-    let rows: Vec<(usize, &str)> = rows.collect();
+    let rows: Vec<(usize, Vec<(String, bool)>)> =
+        rows.map(|(n, row)| (n, csv_fields(row, sep))).collect();
     // Separated by semicolons or tabs, numbers have decimal commas, or else points; a file that
     // writes both may group thousands with one of them (`1.000` in a German locale is 1000),
     // and is refused rather than read a thousand times off.
     if sep != ',' {
-        let mut comma = None;
-        let mut point = None;
-        for &(n, row) in &rows {
-            for f in row.split(sep) {
-                let f = f.trim().trim_matches('"');
-                if f.contains(',') && comma.is_none() {
-                    comma = Some((n, f));
-                }
-                if f.contains('.') && point.is_none() {
-                    point = Some((n, f));
-                }
-            }
-        }
-        if let (Some((a, fa)), Some((b, fb))) = (comma, point) {
+        let with = |mark: char| {
+            rows.iter()
+                .find_map(|(n, fields)| Some((*n, fields.iter().find(|f| f.0.contains(mark))?)))
+        };
+        if let (Some((a, fa)), Some((b, fb))) = (with(','), with('.')) {
             bail!(
                 "{label}: numbers with a decimal comma (line {a}: '{}') and with a point (line \
                  {b}: '{}'): one of them may group thousands; write every number with a point",
-                quote(fa),
-                quote(fb)
+                quote(&fa.0),
+                quote(&fb.0)
             );
         }
     }
     let mut entries = Vec::new();
-    for (n, row) in rows {
-        let mut fields = csv_fields(row, sep);
+    for (n, fields) in rows {
+        let mut fields: Vec<String> = fields.into_iter().map(|f| decimal_point(f, sep)).collect();
         // A row of empty cells (a spreadsheet's last row): no frame.
         if fields.iter().all(String::is_empty) {
             continue;
