@@ -238,6 +238,20 @@ fn usage_errors_are_one_line_that_says_what_is_missing() {
     }
 }
 
+/// Render `s.toml` from its own folder `d`, by its bare name (`reframe render s.toml`, the
+/// usual way); it must succeed. Its standard error.
+fn render_from(d: &Path) -> String {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
+        .current_dir(d)
+        .args(["render", "s.toml", "--spp", "1", "--threads", "1"])
+        .args(["--res", "16x12", "--out", "out/f_####.png"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{err}");
+    err
+}
+
 /// The corpus runs every case by its absolute path; names in another case are found from the
 /// scene's own folder too, named by a bare file name (`reframe render s.toml`, the usual way):
 /// the folder of `s.mtl` is then the empty path, which could not be listed, and both the map
@@ -258,14 +272,7 @@ fn names_in_another_case_are_found_from_the_scenes_own_folder() {
             }
         }
     }
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
-        .current_dir(d)
-        .args(["render", "s.toml", "--spp", "1", "--threads", "1"])
-        .args(["--res", "16x12", "--out", "out/f_####.png"])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{err}");
+    let err = render_from(d);
     for want in [
         "s.obj: line 1: 'mtllib Mats/S.MTL': found 'mats/s.mtl'",
         "mats/s.mtl: line 3: 'map_Kd Textures/Wood.PNG': found 'mats/textures/wood.png'",
@@ -300,14 +307,7 @@ fn names_are_found_in_another_composition_and_case_of_their_letters() {
         d.join("mats/o\u{308}lfass holz.png"),
     )
     .unwrap();
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
-        .current_dir(d)
-        .args(["render", "s.toml", "--spp", "1", "--threads", "1"])
-        .args(["--res", "16x12", "--out", "out/f_####.png"])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{err}");
+    let err = render_from(d);
     assert!(
         err.contains("'map_Kd \u{d6}LFASS Holz.png': found 'mats/o\u{308}lfass holz.png'"),
         "{err}"

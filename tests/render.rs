@@ -729,10 +729,11 @@ fn under_an_address_space_limit_a_render_runs_or_says_why() {
 #[test]
 fn a_frame_that_cannot_be_written_is_an_error_and_leaves_nothing() {
     let dir = tempfile::tempdir().unwrap();
-    for ext in ["png", "jpg", "exr", "tif"] {
-        let out = dir.path().join(ext);
+    // `reframe render vase --res 256x192 --spp 1 ARGS --out OUT/f_####.EXT` under a 4 KiB file
+    // size limit: its standard error, and what it left in OUT.
+    let limited = |args: &str, out: &std::path::Path, ext: &str| {
         let cmd = format!(
-            "ulimit -f 4; exec '{}' render vase --res 256x192 --spp 1 --frames 0-0 --out \
+            "ulimit -f 4; exec '{}' render vase --res 256x192 --spp 1 {args} --out \
              '{}/f_####.{ext}'",
             env!("CARGO_BIN_EXE_reframe"),
             out.display()
@@ -741,8 +742,16 @@ fn a_frame_that_cannot_be_written_is_an_error_and_leaves_nothing() {
             .args(["-c", &cmd])
             .output()
             .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
         assert_eq!(o.status.code(), Some(1), "{ext}: {err}");
+        let left: Vec<_> = std::fs::read_dir(out)
+            .map(|d| d.map(|e| e.unwrap().file_name()).collect())
+            .unwrap_or_default();
+        (err, left)
+    };
+    for ext in ["png", "jpg", "exr", "tif"] {
+        let out = dir.path().join(ext);
+        let (err, left) = limited("--frames 0-0", &out, ext);
         // Encoded in memory, the write is reframe's and says the system's reason; TIFF is
         // written by libtiff, which says its own.
         let why = if ext == "tif" {
@@ -755,32 +764,12 @@ fn a_frame_that_cannot_be_written_is_an_error_and_leaves_nothing() {
                 && err.contains(why),
             "{ext}: {err}"
         );
-        let left: Vec<_> = std::fs::read_dir(&out)
-            .map(|d| d.map(|e| e.unwrap().file_name()).collect())
-            .unwrap_or_default();
         assert!(left.is_empty(), "{ext}: left {left:?}");
     }
     // A chunk's frames go to its log as they finish: a log that no checkpoint counts is of no
     // use to a later run, and goes too (a 4 KiB NAME.chunk-1-of-1.partial.log was left).
-    let out = dir.path().join("chunk");
-    let cmd = format!(
-        "ulimit -f 4; exec '{}' render vase --res 256x192 --spp 1 --frames 0-1 --chunk 1/1 \
-         --out '{}/f_####.exr'",
-        env!("CARGO_BIN_EXE_reframe"),
-        out.display()
-    );
-    let o = std::process::Command::new("bash")
-        .args(["-c", &cmd])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        o.status.code() == Some(1) && err.contains("File too large"),
-        "{err}"
-    );
-    let left: Vec<_> = std::fs::read_dir(&out)
-        .map(|d| d.map(|e| e.unwrap().file_name()).collect())
-        .unwrap_or_default();
+    let (err, left) = limited("--frames 0-1 --chunk 1/1", &dir.path().join("chunk"), "exr");
+    assert!(err.contains("File too large"), "{err}");
     assert!(left.is_empty(), "chunk: left {left:?}");
 }
 

@@ -287,20 +287,27 @@ fn a_merge_never_writes_over_a_file_of_the_scene_the_chunks_rendered() {
     let (scene, env) = common::base_scene_with_sky(d.path());
     let before = std::fs::read(&env).unwrap();
     let at = |name: &str| d.path().join(name).to_str().unwrap().to_string();
-    common::reframe_ok(&[
-        "render",
-        &scene,
-        "--spp",
-        "1",
-        "--frames",
-        "0",
-        "--chunk",
-        "1/1",
-        "--threads",
-        "1",
-        "--out",
-        &at("o/f_####.exr"),
-    ]);
+    // The scene's frame 0 as chunk 1 of 1, to `--out` `out`.
+    let chunk = |out: &str| {
+        common::reframe(&[
+            "render",
+            &scene,
+            "--spp",
+            "1",
+            "--frames",
+            "0",
+            "--chunk",
+            "1/1",
+            "--threads",
+            "1",
+            "--out",
+            out,
+        ])
+        .output()
+        .unwrap()
+    };
+    let o = chunk(&at("o/f_####.exr"));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let partial = at("o/f.chunk-1-of-1.partial");
     // From another folder, by a relative path through a link: the same file.
     std::os::unix::fs::symlink(d.path(), d.path().join("link")).unwrap();
@@ -325,19 +332,8 @@ fn a_merge_never_writes_over_a_file_of_the_scene_the_chunks_rendered() {
     std::os::unix::fs::symlink(at("nowhere"), &dangling).unwrap();
     let o = common::reframe(&["merge", &dangling]).output().unwrap();
     common::assert_refused(&o, "a symbolic link to nothing");
-    let o = common::reframe(&[
-        "render",
-        &scene,
-        "--spp",
-        "1",
-        "--frames",
-        "0",
-        "--chunk",
-        "1/1",
-        "--out",
-        &at("o/g_####.exr"),
-    ])
-    .output()
-    .unwrap();
-    common::assert_refused(&o, "the chunk's partial file of --out");
+    common::assert_refused(
+        &chunk(&at("o/g_####.exr")),
+        "the chunk's partial file of --out",
+    );
 }
