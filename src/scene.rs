@@ -2283,6 +2283,20 @@ pub(crate) fn locate_named_file(dir: &Path, name: &str) -> (PathBuf, bool) {
 /// often name their files in another case than they are stored). `None`: not found (the caller
 /// reports the path as written).
 fn find_named_file(dir: &Path, name: &str) -> Option<PathBuf> {
+    named_file_matches(dir, name).ok()
+}
+
+/// Where a file named `name` in `dir` that is not there as written could not be found because
+/// several entries of a folder match it in another case or composition (`Wood.png` and
+/// `wood.png` beside each other, both `wood.PNG` to Windows): those entries, for the message
+/// that says the file is missing. Empty where that is not why.
+pub(crate) fn case_ambiguities(dir: &Path, name: &str) -> Vec<PathBuf> {
+    named_file_matches(dir, name).err().unwrap_or_default()
+}
+
+/// `find_named_file`, with `Err` holding the entries of a folder that matched a part of the
+/// path equally well where nothing was found.
+fn named_file_matches(dir: &Path, name: &str) -> Result<PathBuf, Vec<PathBuf>> {
     let slashed = name.replace('\\', "/");
     let drive = slashed.len() >= 2
         && slashed.as_bytes()[1] == b':'
@@ -2291,21 +2305,28 @@ fn find_named_file(dir: &Path, name: &str) -> Option<PathBuf> {
     if slashed != name && relative {
         let p = dir.join(&slashed);
         if p.is_file() {
-            return Some(p);
+            return Ok(p);
         }
     }
     let file = slashed.rsplit('/').next().filter(|f| !f.is_empty());
     if let Some(p) = file.filter(|f| *f != name).map(|f| dir.join(f)) {
         if p.is_file() {
-            return Some(p);
+            return Ok(p);
         }
     }
+    let mut ambiguous = Vec::new();
     if relative {
-        if let Some(p) = ignoring_case(dir, &slashed) {
-            return Some(p);
+        match ignoring_case(dir, &slashed) {
+            Ok(Some(p)) => return Ok(p),
+            Ok(None) => {}
+            Err(several) => ambiguous = several,
         }
     }
-    ignoring_case(dir, file?)
+    match file.map(|f| ignoring_case(dir, f)) {
+        Some(Ok(Some(p))) => Ok(p),
+        Some(Err(several)) if ambiguous.is_empty() => Err(several),
+        _ => Err(ambiguous),
+    }
 }
 
 /// A name as `ignoring_case` compares it: composed (Unicode NFC: an `Ö` written as one
@@ -2319,8 +2340,8 @@ fn folded(name: &str) -> String {
 
 /// The file at relative path `rel` under `dir`, each part of it matched in any case and
 /// composition of its letters (`folded`) where it is not there as written and exactly one entry
-/// of its folder matches it that way.
-fn ignoring_case(dir: &Path, rel: &str) -> Option<PathBuf> {
+/// of its folder matches it that way; `Err` with the entries where several do (sorted).
+fn ignoring_case(dir: &Path, rel: &str) -> Result<Option<PathBuf>, Vec<PathBuf>> {
     let mut at = dir.to_path_buf();
     for part in rel.split('/').filter(|p| !p.is_empty() && *p != ".") {
         let exact = at.join(part);
@@ -2337,17 +2358,43 @@ fn ignoring_case(dir: &Path, rel: &str) -> Option<PathBuf> {
             at.as_path()
         };
         let want = folded(part);
-        let mut found = std::fs::read_dir(listed)
-            .ok()?
+        let Ok(entries) = std::fs::read_dir(listed) else {
+            return Ok(None);
+        };
+        let mut found: Vec<_> = entries
             .filter_map(|e| e.ok())
-            .filter(|e| e.file_name().to_str().is_some_and(|n| folded(n) == want));
-        let one = found.next()?;
-        if found.next().is_some() {
-            return None;
+            .filter(|e| e.file_name().to_str().is_some_and(|n| folded(n) == want))
+            .map(|e| at.join(e.file_name()))
+            .collect();
+        match found.len() {
+            0 => return Ok(None),
+            1 => at = found.remove(0),
+            _ => {
+                found.sort();
+                return Err(found);
+            }
         }
-        at = at.join(one.file_name());
     }
-    Some(at).filter(|p| p.is_file())
+    Ok(Some(at).filter(|p| p.is_file()))
+}
+
+/// `missing`'s message for a file named `name` in `dir` that is not there: where several files
+/// of a folder match the name in another case, they are named (none is picked: which one an
+/// exporter meant is a guess).
+pub(crate) fn missing_file_message(dir: &Path, name: &str, missing: &Path) -> String {
+    let several = case_ambiguities(dir, name);
+    if several.is_empty() {
+        return format!("no file '{}'", missing.display());
+    }
+    let list: Vec<String> = several
+        .iter()
+        .map(|p| format!("'{}'", p.display()))
+        .collect();
+    format!(
+        "no file '{}', and {} match it in another case: rename all but the one meant",
+        missing.display(),
+        list.join(" and ")
+    )
 }
 
 /// A face of a material with texture maps, in an OBJ that has texture coordinates, with corners
@@ -2434,7 +2481,10 @@ fn load_obj_files(
                         }
                         Err(InputError::NotFound(_)) => {
                             repairs.note(label, *line, MTL_MISSING, || {
-                                format!("'mtllib {}': no file '{}'", quote(&shown), path.display())
+                                let name = path.strip_prefix(dir).unwrap_or(&path);
+                                let missing =
+                                    missing_file_message(dir, &name.to_string_lossy(), &path);
+                                format!("'mtllib {}': {missing}", quote(&shown))
                             })?;
                         }
                         Err(e) => bail!("{at}: {e}"),

@@ -314,6 +314,49 @@ fn names_are_found_in_another_composition_and_case_of_their_letters() {
     );
 }
 
+/// Two files that both match a map's name in another case (`Wood.png` and `WOOD.png` for
+/// `wood.png`, one name to Windows and macOS): none is picked, and the refusal names both,
+/// where it said only that there was no file.
+#[test]
+fn two_files_matching_a_name_in_another_case_are_both_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    for f in files_under(&corpus().join("base")) {
+        std::fs::copy(&f, d.join(f.file_name().unwrap())).unwrap();
+    }
+    let case = corpus().join("cases/tex-case-mismatch");
+    std::fs::copy(case.join("s.obj"), d.join("s.obj")).unwrap();
+    std::fs::create_dir_all(d.join("mats/textures")).unwrap();
+    let mtl = std::fs::read_to_string(case.join("mats/s.mtl")).unwrap();
+    std::fs::write(
+        d.join("mats/s.mtl"),
+        mtl.replace("Textures/Wood.PNG", "wood.png"),
+    )
+    .unwrap();
+    for name in ["Wood.png", "WOOD.png"] {
+        std::fs::copy(
+            case.join("mats/textures/wood.png"),
+            d.join("mats").join(name),
+        )
+        .unwrap();
+    }
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
+        .current_dir(d)
+        .args(["render", "s.toml", "--spp", "1", "--threads", "1"])
+        .args(["--res", "16x12", "--out", "out/f_####.png"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains(
+            "'map_Kd wood.png': no file 'mats/wood.png', and 'mats/WOOD.png' and \
+             'mats/Wood.png' match it in another case"
+        ),
+        "{err}"
+    );
+}
+
 #[test]
 fn an_argument_that_is_not_utf8_is_named() {
     // A Latin-1 file name from an old archive: clap's line said only "invalid UTF-8 was

@@ -216,7 +216,8 @@ impl Maps {
                              tile's object its own material"
                         ));
                     }
-                    return Err(anyhow!("{at}: no file '{}'", path.display()));
+                    let missing = super::missing_file_message(dir, &spec.file, &path);
+                    return Err(anyhow!("{at}: {missing}"));
                 }
                 Err(e) => return Err(anyhow!("{at}: {e}")),
             }
