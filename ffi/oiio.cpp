@@ -534,7 +534,12 @@ void ImageReader::read_f32(rust::Slice<float> out) {
 
 namespace reframe {
 
-TextureSet::TextureSet() : ts_(OIIO::TextureSystem::create(/*shared=*/false)) {
+namespace {
+std::atomic<uint64_t> next_texture_set_id{1};
+}
+
+TextureSet::TextureSet()
+    : ts_(OIIO::TextureSystem::create(/*shared=*/false)), id_(next_texture_set_id++) {
     if (ts_ == nullptr) {
         throw std::runtime_error("could not create an OpenImageIO texture system");
     }
@@ -546,7 +551,42 @@ TextureSet::TextureSet() : ts_(OIIO::TextureSystem::create(/*shared=*/false)) {
     ts_->attribute("max_memory_MB", 1024.0f);
 }
 
-TextureSet::~TextureSet() { OIIO::TextureSystem::destroy(ts_, /*teardown_imagecache=*/true); }
+TextureSet::~TextureSet() {
+    {
+        std::lock_guard<std::mutex> lock(threads_mutex_);
+        for (auto* t : threads_) {
+            ts_->destroy_thread_info(t);
+        }
+        threads_.clear();
+    }
+    OIIO::TextureSystem::destroy(ts_, /*teardown_imagecache=*/true);
+}
+
+OIIO::TextureSystem::Perthread* TextureSet::thread_info() const {
+    // The last set this thread used, then every set it used (keyed by id, never by address: a
+    // set made where a destroyed one was must not find that one's state).
+    thread_local uint64_t last_id = 0;
+    thread_local OIIO::TextureSystem::Perthread* last = nullptr;
+    thread_local std::unordered_map<uint64_t, OIIO::TextureSystem::Perthread*> used;
+    if (last_id == id_) {
+        return last;
+    }
+    auto found = used.find(id_);
+    OIIO::TextureSystem::Perthread* t;
+    if (found != used.end()) {
+        t = found->second;
+    } else {
+        t = ts_->create_thread_info();
+        {
+            std::lock_guard<std::mutex> lock(threads_mutex_);
+            threads_.push_back(t);
+        }
+        used.emplace(id_, t);
+    }
+    last_id = id_;
+    last = t;
+    return t;
+}
 
 uint32_t TextureSet::add(rust::Slice<const uint8_t> path, uint32_t chbegin, uint32_t chend) {
     OIIO::ustring name{path_string(path)};
@@ -554,9 +594,9 @@ uint32_t TextureSet::add(rust::Slice<const uint8_t> path, uint32_t chbegin, uint
     const OIIO::ImageSpec* spec = nullptr;
     {
         QuietStderr quiet;
-        handle = ts_->get_texture_handle(name);
+        handle = ts_->get_texture_handle(name, thread_info());
         if (handle != nullptr && ts_->good(handle)) {
-            spec = ts_->imagespec(handle, nullptr, 0);
+            spec = ts_->imagespec(handle, thread_info(), 0);
         }
     }
     if (spec == nullptr) {
@@ -570,7 +610,7 @@ uint32_t TextureSet::add(rust::Slice<const uint8_t> path, uint32_t chbegin, uint
     std::string format;
     {
         OIIO::ustring name;
-        if (ts_->get_texture_info(handle, nullptr, 0, OIIO::ustring("fileformat"),
+        if (ts_->get_texture_info(handle, thread_info(), 0, OIIO::ustring("fileformat"),
                                   OIIO::TypeDesc::STRING, &name)) {
             format = name.string();
         }
@@ -601,7 +641,7 @@ bool TextureSet::texels(uint32_t id, int64_t x, int64_t y, rust::Slice<float> ou
     const int x0 = wrap(x, t.width), x1 = wrap(x0 + 1, t.width);
     const int y0 = wrap(y, t.height), y1 = wrap(y0 + 1, t.height);
     OIIO::TextureOpt opt;
-    OIIO::TextureSystem::Perthread* thread = ts_->get_perthread_info();
+    OIIO::TextureSystem::Perthread* thread = thread_info();
     bool ok = true;
     if (x1 == x0 + 1 && y1 == y0 + 1) {
         // The usual case, the four in one block of the cache.

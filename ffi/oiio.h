@@ -7,10 +7,13 @@
 // returning Result on the Rust side, so cxx turns the exception into an Err at the boundary.
 #pragma once
 
+#include <atomic>
 #include <memory>
+#include <mutex>
 
 #include <OpenImageIO/imageio.h>
 #include <OpenImageIO/texture.h>
+#include <unordered_map>
 #include <unordered_set>
 #include <vector>
 
@@ -66,7 +69,16 @@ private:
         int x, y, width, height;  // the data window
         int chbegin, chend;
     };
+    // This set's own per-thread state of the texture system, made for each thread on its first
+    // lookup and destroyed with the set (`thread_info`). The texture system's implicit per-thread
+    // state lives in thread-local storage that outlives the set: it holds cache tiles, and a
+    // thread that looked up texels of a set since destroyed released them when it ended, into
+    // the freed cache (OpenImageIO aborted: "decr_tiles: Assertion 'm_mem_used >= 0' failed").
+    OIIO::TextureSystem::Perthread* thread_info() const;
     OIIO::TextureSystem* ts_;
+    uint64_t id_;  // unique in the process, never reused (the key of `thread_info`'s cache)
+    mutable std::mutex threads_mutex_;
+    mutable std::vector<OIIO::TextureSystem::Perthread*> threads_;
     std::vector<Texture> textures_;
     std::unordered_set<OIIO::TextureSystem::TextureHandle*> counted_;
     uint64_t cache_bytes_ = 0;

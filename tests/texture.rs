@@ -1255,3 +1255,134 @@ fn kd_zero_beside_a_colour_map_is_the_texture() {
     assert!(one.iter().map(|p| p.x).sum::<f32>() > 1.0);
     assert!(zero.iter().zip(&one).all(|(a, b)| a == b));
 }
+
+/// Threads that looked up a scene's texels and end after the scene is gone, or go on to another
+/// scene (a glossy map under an environment here, where it showed; a test binary loads many
+/// scenes on its threads, as a program that embeds the renderer would): the
+/// texture system's per-thread state, kept in thread-local storage, held cache tiles that the
+/// ending thread released into the destroyed cache, and OpenImageIO aborted the process
+/// ("decr_tiles: Assertion 'm_mem_used >= 0' failed") as a second scene was loaded and
+/// rendered on the same threads, or as the threads ended.
+#[test]
+fn threads_that_read_textures_end_after_their_scene_without_harm() {
+    let dir = tempfile::tempdir().unwrap();
+    write_texture(
+        &dir.path().join("checker.png"),
+        32,
+        |x, y| square(y / 8, x / 8),
+        false,
+    );
+    let path = write_scene(
+        dir.path(),
+        QUAD,
+        "newmtl q\nKd 0.2\nKs 1\nNs 20\nmap_Ks checker.png\n",
+        &toml(
+            16,
+            16,
+            [0.0, 0.0, 2.0],
+            40.0,
+            "[environment]\nradiance = [1, 1, 1]",
+        ),
+    );
+    let pool = thread_pool(2).unwrap();
+    let mut frames = Vec::new();
+    for _ in 0..3 {
+        let path = path.clone();
+        let pool = &pool;
+        let px = std::thread::scope(|s| {
+            s.spawn(move || {
+                // Two scenes one after the other on this thread: the second one's cache may be
+                // made where the first one's was freed.
+                let device = Device::new().unwrap();
+                let mut px = Vec::new();
+                for _ in 0..2 {
+                    let scene = Scene::load(&path, &device).unwrap();
+                    let integ = Integrator::new(&scene, 2);
+                    let cam = scene.camera(0, 16, 16);
+                    px = pool
+                        .install(|| render_frame_independent(&integ, &cam, 0, 4, 1, false, &|_| {}))
+                        .pixels;
+                }
+                px
+            })
+            .join()
+            .unwrap()
+        });
+        frames.push(px);
+    }
+    assert!(frames[0].iter().map(|p| p.x).sum::<f32>() > 1.0);
+    assert!(frames.iter().all(|f| f == &frames[0]));
+}
+
+/// `Ke 0` (and `Ks 0`) beside its map, as Blender writes an emission colour taken from an
+/// image: the texture as it is, as with `Kd 0` beside a `map_Kd`. The lamp emitted nothing,
+/// without a word, and alone it was refused as a scene without light.
+#[test]
+fn ke_and_ks_zero_beside_their_maps_are_the_texture() {
+    let dir = tempfile::tempdir().unwrap();
+    write_texture(
+        &dir.path().join("checker.png"),
+        32,
+        |x, y| square(y / 8, x / 8),
+        false,
+    );
+    let device = Device::new().unwrap();
+    let pool = thread_pool(1).unwrap();
+    let frame = |mtl: &str| {
+        let path = write_scene(
+            dir.path(),
+            QUAD,
+            mtl,
+            &toml(16, 16, [0.0, 0.0, 2.0], 40.0, ""),
+        );
+        let scene = Scene::load(&path, &device).unwrap();
+        let integ = Integrator::new(&scene, 2);
+        let px = pool
+            .install(|| {
+                render_frame_independent(&integ, &scene.camera(0, 16, 16), 0, 4, 1, false, &|_| {})
+            })
+            .pixels;
+        (px, scene.warnings)
+    };
+    let (zero, said) = frame("newmtl q\nKd 0.5\nKe 0 0 0\nmap_Ke checker.png\n");
+    let (one, none) = frame("newmtl q\nKd 0.5\nKe 1 1 1\nmap_Ke checker.png\n");
+    assert!(none.is_empty(), "{none:?}");
+    assert!(
+        said.len() == 1
+            && said[0].contains("line 3: material 'q': Ke 0 beside a map_Ke read as Ke 1"),
+        "{said:?}"
+    );
+    assert!(one.iter().map(|p| p.x).sum::<f32>() > 1.0);
+    assert!(zero.iter().zip(&one).all(|(a, b)| a == b));
+    let ks = |k: &str| format!("newmtl q\nKd 0.2\nKs {k}\nNs 20\nmap_Ks checker.png\n");
+    let lit = |mtl: String| {
+        let path = write_scene(
+            dir.path(),
+            QUAD,
+            &mtl,
+            &toml(
+                16,
+                16,
+                [0.0, 0.0, 2.0],
+                40.0,
+                "[environment]\nradiance = [1, 1, 1]",
+            ),
+        );
+        let scene = Scene::load(&path, &device).unwrap();
+        let integ = Integrator::new(&scene, 2);
+        let px = pool
+            .install(|| {
+                render_frame_independent(&integ, &scene.camera(0, 16, 16), 0, 4, 1, false, &|_| {})
+            })
+            .pixels;
+        (px, scene.warnings)
+    };
+    let (zero, said) = lit(ks("0"));
+    let (one, _) = lit(ks("1"));
+    assert!(
+        said.iter()
+            .any(|w| w.contains("material 'q': Ks 0 beside a map_Ks read as Ks 1")),
+        "{said:?}"
+    );
+    assert!(zero.iter().zip(&one).all(|(a, b)| a == b));
+}

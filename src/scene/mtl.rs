@@ -68,6 +68,17 @@ const KD_ZERO_MAP: Kind = Kind {
     many:
         "materials with Kd 0 beside a map_Kd read as Kd 1, the texture as it is (as Maya writes it)",
 };
+const KS_ZERO_MAP: Kind = Kind {
+    one: "Ks 0 beside a map_Ks read as Ks 1, the texture as it is (as Maya writes it)",
+    many:
+        "materials with Ks 0 beside a map_Ks read as Ks 1, the texture as it is (as Maya writes it)",
+};
+const KE_ZERO_MAP: Kind = Kind {
+    one: "Ke 0 beside a map_Ke read as Ke 1, the texture as it is (as Blender writes an \
+          emission colour taken from an image)",
+    many: "materials with Ke 0 beside a map_Ke read as Ke 1, the texture as it is (as Blender \
+           writes an emission colour taken from an image)",
+};
 const EXTRA_NUMBERS: Kind = Kind {
     one: "numbers past a statement's own ignored",
     many: "statements with numbers past their own ignored",
@@ -357,11 +368,19 @@ impl MtlMaterial {
         let name = &self.name;
         // `Kd 0` beside a `map_Kd`: Maya writes it for a colour connected to a file texture (its
         // own value unused), and Blender and Maya show the texture. As the format reads it (the
-        // texture times Kd) the surface was black, without a word.
-        if kd == Vec3::ZERO && self.maps[Slot::Kd as usize].is_some() {
-            kd = Vec3::ONE;
-            let line = self.kd.map_or(self.line, |v| v.1);
-            repairs.note(label, line, KD_ZERO_MAP, || format!("material '{name}'"))?;
+        // texture times Kd) the surface was black, without a word. The same for `Ks` and `Ke`:
+        // Blender writes `Ke` as the emission socket's own colour, black where an image drives
+        // it, and a textured lamp emitted nothing (or the scene was refused as having no light).
+        for (value, given, slot, kind) in [
+            (&mut kd, self.kd, Slot::Kd, KD_ZERO_MAP),
+            (&mut ks, self.ks, Slot::Ks, KS_ZERO_MAP),
+            (&mut ke, self.ke, Slot::Ke, KE_ZERO_MAP),
+        ] {
+            if *value == Vec3::ZERO && self.maps[slot as usize].is_some() {
+                *value = Vec3::ONE;
+                let line = given.map_or(self.line, |v| v.1);
+                repairs.note(label, line, kind, || format!("material '{name}'"))?;
+            }
         }
         // Without `Ns`, Blender's exponent for a roughness `Pr` (what it writes as `Ns` without
         // its PBR extensions, and reads `Ns` back as): 1000 (1 - Pr)^2.
