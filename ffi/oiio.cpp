@@ -412,7 +412,7 @@ ImageInfo ImageReader::info() const {
     info.stored_width = uint32_t(spec_.width);
     info.stored_height = uint32_t(spec_.height);
     info.format_name = rust::String::lossy(in_->format_name());
-    info.integer = !spec_.format.is_floating_point();
+    info.codes = spec_.format == OIIO::TypeDesc::UINT8 || spec_.format == OIIO::TypeDesc::UINT16;
     info.images = uint32_t(subimages_);
     info.tile_width = uint32_t(std::max(spec_.tile_width, 0));
     info.tile_height = uint32_t(std::max(spec_.tile_height, 0));

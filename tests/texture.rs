@@ -120,6 +120,90 @@ fn eight_bit_colour_files_are_srgb_whatever_their_format() {
     }
 }
 
+/// A little-endian, uncompressed RGB TIFF of `size` x `size` texels, each channel one
+/// `bits`-bit integer (`signed`: two's complement, TIFF's `SampleFormat` 2) with code `code`.
+fn write_integer_tiff(path: &Path, size: u32, bits: u16, signed: bool, code: i64) {
+    let bytes_per = (bits / 8) as usize;
+    let mut pixels = Vec::new();
+    for _ in 0..size * size * 3 {
+        pixels.extend_from_slice(&code.to_le_bytes()[..bytes_per]);
+    }
+    // Header, then the pixels, then the directory (12 entries) and the three-value arrays.
+    let ifd = 8 + pixels.len() as u32;
+    let arrays = ifd + 2 + 12 * 12 + 4;
+    let entry = |tag: u16, kind: u16, count: u32, value: u32| {
+        let mut e = Vec::new();
+        e.extend_from_slice(&tag.to_le_bytes());
+        e.extend_from_slice(&kind.to_le_bytes());
+        e.extend_from_slice(&count.to_le_bytes());
+        e.extend_from_slice(&value.to_le_bytes());
+        e
+    };
+    const SHORT: u16 = 3;
+    const LONG: u16 = 4;
+    let entries = [
+        entry(256, LONG, 1, size),                // ImageWidth
+        entry(257, LONG, 1, size),                // ImageLength
+        entry(258, SHORT, 3, arrays),             // BitsPerSample
+        entry(259, SHORT, 1, 1),                  // Compression: none
+        entry(262, SHORT, 1, 2),                  // Photometric: RGB
+        entry(273, LONG, 1, 8),                   // StripOffsets
+        entry(277, SHORT, 1, 3),                  // SamplesPerPixel
+        entry(278, LONG, 1, size),                // RowsPerStrip
+        entry(279, LONG, 1, pixels.len() as u32), // StripByteCounts
+        entry(284, SHORT, 1, 1),                  // PlanarConfiguration: chunky
+        entry(339, SHORT, 3, arrays + 6),         // SampleFormat
+        entry(296, SHORT, 1, 1),                  // ResolutionUnit: none
+    ];
+    let mut f = b"II*\0".to_vec();
+    f.extend_from_slice(&ifd.to_le_bytes());
+    f.extend_from_slice(&pixels);
+    f.extend_from_slice(&(entries.len() as u16).to_le_bytes());
+    // Entries in ascending tag order, as TIFF asks.
+    let mut sorted = entries.to_vec();
+    sorted.sort_by_key(|e| u16::from_le_bytes([e[0], e[1]]));
+    for e in sorted {
+        f.extend_from_slice(&e);
+    }
+    f.extend_from_slice(&0u32.to_le_bytes());
+    let format: u16 = if signed { 2 } else { 1 };
+    for v in [bits, bits, bits, format, format, format] {
+        f.extend_from_slice(&v.to_le_bytes());
+    }
+    std::fs::write(path, f).unwrap();
+}
+
+/// TIFFs of 32-bit or signed integers hold data (depths, masks, measurements), not colour
+/// codes: they are linear, read as their normalised values. They were decoded as sRGB, as 8-
+/// and 16-bit files are, and a half read as 0.21. An unsigned 16-bit TIFF stays sRGB.
+#[test]
+fn thirty_two_bit_and_signed_integer_tiffs_are_linear() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        (32, false, (u32::MAX / 2) as i64, 0.5),
+        (16, true, (i16::MAX / 2) as i64, 0.5),
+        // sRGB: code 0.5 is 0.214 linear.
+        (16, false, (u16::MAX / 2) as i64, 0.214),
+    ];
+    let mut textures = Textures::new().unwrap();
+    for (bits, signed, code, want) in cases {
+        let path = dir.path().join(format!("t{bits}{signed}.tif"));
+        write_integer_tiff(&path, 4, bits, signed, code);
+        let img = reframe::image::read_linear_rgb(&path, 1 << 20, 0).unwrap();
+        assert!(
+            img.data.iter().all(|v| (v - want).abs() < 0.002),
+            "{bits}-bit, signed {signed}: {:?}, want {want}",
+            &img.data[..3]
+        );
+        let id = textures.open(&path).unwrap();
+        let v = textures.rgb(id, Vec2::new(0.5, 0.5));
+        assert!(
+            (v.x - want).abs() < 0.002,
+            "{bits}-bit through the cache: {v}"
+        );
+    }
+}
+
 #[test]
 fn textures_are_filtered_in_linear_values() {
     // A black and a white column of texels, as an 8-bit sRGB PNG and as a float EXR. Half way

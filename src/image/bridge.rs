@@ -63,8 +63,9 @@ pub(crate) mod ffi {
         stored_height: u32,
         channels: Vec<String>,
         format_name: String,
-        /// Whether the file stores its values as integers (8- or 16-bit codes), not floats.
-        integer: bool,
+        /// Whether the file stores its values as 8- or 16-bit unsigned codes (the forms sRGB
+        /// comes in), not as floats or other integers (32-bit or signed: data, not colour codes).
+        codes: bool,
         /// The images the file holds (found by seeking: a multi-page TIFF's pages, an
         /// animated GIF's frames; counted up to 65: 65 means more than 64).
         images: u32,

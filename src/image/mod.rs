@@ -984,9 +984,27 @@ impl Colour {
 /// unnamed) has no colour and is refused.
 pub fn colour_channels(names: &[String]) -> Result<Colour> {
     let find = |c: &str| names.iter().position(|n| n == c);
-    let rgb = ["R", "G", "B"].map(find);
+    // R, G and B as named, else in another case or spelled out (`R, g, b`: the G and B of a
+    // file that named them so read as zero, and it rendered red), among the channels of no
+    // layer.
+    let rgb = ['R', 'G', 'B'].map(|c| {
+        find(&c.to_string()).or_else(|| {
+            names
+                .iter()
+                .position(|n| layer_of(n).is_none() && role(n) == Some(c))
+        })
+    });
     if rgb.iter().any(Option::is_some) {
         return Ok(Colour::Rgb(rgb));
+    }
+    // Luminance and chroma (OpenEXR's Y, RY, BY): RY and BY are no colours of their own, and
+    // the image read as its Y alone would be grey without a word.
+    if find("RY").is_some() && find("BY").is_some() {
+        bail!(
+            "its channels ({}) are luminance and chroma (Y, RY, BY), not RGB: save it as RGB \
+             first (in a compositor or an image editor)",
+            names.join(", ")
+        );
     }
     // A multi-layer EXR (Blender's MultiLayer output, a compositor's AOVs): the channels of
     // the layer `colour_layers` picks, never the first three across layers (the AO pass read
@@ -1085,18 +1103,19 @@ fn role(c: &str) -> Option<char> {
 }
 
 /// Whether a colour file's values are sRGB-encoded, from the colour space the file names
-/// (`space`, OIIO's `oiio:ColorSpace`), whether it stores integers, and its format (OIIO's
+/// (`space`, OIIO's `oiio:ColorSpace`), whether it stores 8- or 16-bit unsigned codes, and its format (OIIO's
 /// name):
 /// - a file that names sRGB is sRGB, one that names a linear space (`linear`, `scene_linear`,
 ///   `lin_*`, ACES, `GammaCorrected1.0`) is linear;
 /// - a file that names another gamma (`GammaCorrected2.2` or `Gamma2.2`: a PNG with a `gAMA`
 ///   chunk and no `sRGB` chunk; `g22_rec709`) is decoded as sRGB, the curve that gamma stands
 ///   for in practice; data that is no colour (`Non-Color`, `raw`) is not decoded;
-/// - a file that names nothing is sRGB where it stores integers (TGA, BMP, 8- and 16-bit TIFF
-///   and PNG: the encoding of 8- and 16-bit colour files unless they say otherwise, as other
-///   renderers read them) and linear where it stores floats (EXR, HDR, float TIFF) or is an
-///   EXR.
-pub fn srgb_encoded(space: Option<&str>, integer: bool, format: &str) -> bool {
+/// - a file that names nothing is sRGB where it stores 8- or 16-bit unsigned codes (`codes`:
+///   TGA, BMP, 8- and 16-bit TIFF and PNG: the encoding of such colour files unless they say
+///   otherwise, as other renderers read them) and linear where it stores floats (EXR, HDR,
+///   float TIFF), 32-bit or signed integers (data, not colour codes; they were decoded as sRGB
+///   and read up to 20 times too dark) or is an EXR.
+pub fn srgb_encoded(space: Option<&str>, codes: bool, format: &str) -> bool {
     let s = space.unwrap_or("").trim().to_ascii_lowercase();
     // A gamma by number: OIIO 2.4's `GammaCorrected2.2`, later versions' `Gamma2.2`.
     let gamma = s
@@ -1119,14 +1138,14 @@ pub fn srgb_encoded(space: Option<&str>, integer: bool, format: &str) -> bool {
     } else if s.contains("srgb") {
         true
     } else {
-        integer && !format.eq_ignore_ascii_case("openexr")
+        codes && !format.eq_ignore_ascii_case("openexr")
     }
 }
 
 /// Reads a colour input (an environment map, a texture) as linear RGB: refuses images of more
 /// than `max_pixels` pixels before reading their pixels; takes its colour from the channels
 /// `colour_channels` names; decodes sRGB where the file's values are sRGB-encoded
-/// (`srgb_encoded`: 8-bit PNG and JPEG, and any integer file that does not name a linear
+/// (`srgb_encoded`: 8-bit PNG and JPEG, and any file of 8- or 16-bit codes that does not name a linear
 /// space), so that an 8-bit file gives the same linear values as the HDR it was made from.
 ///
 /// `then_per_pixel`: the bytes per pixel the caller goes on to hold beside or after the image
@@ -1248,7 +1267,7 @@ pub fn read_colour(
             .iter()
             .find(|a| a.name.eq_ignore_ascii_case("oiio:ColorSpace"))
             .map(|a| a.text.as_str());
-        let srgb = srgb_encoded(space, info.integer, &info.format_name);
+        let srgb = srgb_encoded(space, info.codes, &info.format_name);
         let meaning = meaning(&attrs);
         let cube_faces = attrs.iter().any(|a| {
             a.name.eq_ignore_ascii_case("textureformat")
@@ -1521,6 +1540,24 @@ mod tests {
             let e = colour_channels(&names(inks)).unwrap_err().to_string();
             assert!(e.contains("printing inks (CMYK)"), "{e}");
         }
+        // R, G, B in mixed case and spelled out, in any order: G and B read as zero where
+        // the case differed from R's.
+        for rgb in [
+            &["R", "g", "b"][..],
+            &["r", "G", "B", "A"],
+            &["Red", "green", "BLUE"],
+        ] {
+            assert_eq!(ok(rgb), Colour::Rgb([Some(0), Some(1), Some(2)]), "{rgb:?}");
+        }
+        assert_eq!(
+            ok(&["a", "b", "g", "r"]),
+            Colour::Rgb([Some(3), Some(2), Some(1)])
+        );
+        // Luminance and chroma read as grey Y.
+        let e = colour_channels(&names(&["BY", "RY", "Y"]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("luminance and chroma (Y, RY, BY)"), "{e}");
     }
 
     #[test]
