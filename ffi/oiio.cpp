@@ -411,6 +411,12 @@ ImageInfo ImageReader::info() const {
     }
     info.stored_width = uint32_t(spec_.width);
     info.stored_height = uint32_t(spec_.height);
+    // In 64 bits: a window's corner plus its size may pass the int range.
+    auto apart = [](int64_t a, int64_t a_size, int64_t b, int64_t b_size) {
+        return a >= b + b_size || a + a_size <= b;
+    };
+    info.stored_outside = w && (apart(spec_.x, spec_.width, spec_.full_x, spec_.full_width) ||
+                                apart(spec_.y, spec_.height, spec_.full_y, spec_.full_height));
     info.format_name = rust::String::lossy(in_->format_name());
     info.codes = spec_.format == OIIO::TypeDesc::UINT8 || spec_.format == OIIO::TypeDesc::UINT16;
     info.images = uint32_t(subimages_);

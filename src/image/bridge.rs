@@ -61,6 +61,9 @@ pub(crate) mod ffi {
         /// The pixels the file stores (its data window).
         stored_width: u32,
         stored_height: u32,
+        /// An OpenEXR file whose data window lies wholly outside its display window: not one
+        /// stored pixel is in its image.
+        stored_outside: bool,
         channels: Vec<String>,
         format_name: String,
         /// Whether the file stores its values as 8- or 16-bit unsigned codes (the forms sRGB

@@ -867,6 +867,18 @@ fn open_checked(
             ffi::oiio_version()
         );
     }
+    if info.stored_outside {
+        bail!(
+            "it stores {}x{} pixels (its data window), none of them inside its {}x{} image (its \
+             display window), which would read as black: give it a display window that holds \
+             its data (e.g. 'oiiotool {} --fullpixels -o fixed.exr')",
+            info.stored_width,
+            info.stored_height,
+            info.width,
+            info.height,
+            path.display()
+        );
+    }
     let stored = (info.stored_width, info.stored_height);
     if stored != (info.width, info.height) && stored.0 as u64 * stored.1 as u64 > max_pixels {
         bail!(

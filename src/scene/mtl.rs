@@ -744,13 +744,19 @@ mod tests {
         assert!(ke.is_none());
         let glow = mtl.materials[1].maps[Slot::Ke as usize].as_ref().unwrap();
         assert_eq!((glow.scale, glow.offset), (Vec2::ONE, Vec2::new(0.25, 0.5)));
-        // A map without its colour line is the texture as it is; with one, their product.
+        // A map without its colour line is the texture as it is; with one, their product; a
+        // colour of 0 beside its map is read as 1, with a warning.
         let a = mtl.materials[0].material("a.mtl", &mut r).unwrap();
         let b = mtl.materials[1].material("a.mtl", &mut r).unwrap();
-        assert_eq!((a.kd, a.ks), (Vec3::ONE, Vec3::ZERO));
+        assert_eq!((a.kd, a.ks), (Vec3::ONE, Vec3::ONE));
         assert_eq!((b.kd, b.ke), (Vec3::splat(0.5), Vec3::ONE));
         let w = r.into_warnings();
-        assert_eq!(w.len(), 1, "{w:?}");
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(
+            w[1].starts_with("a.mtl: line 3: material 'a': Ks 0 beside a map_Ks read as Ks 1"),
+            "{}",
+            w[1]
+        );
         assert!(
             w[0].starts_with("a.mtl: line 4: 'map_Ks -blendu off"),
             "{}",
