@@ -915,6 +915,28 @@ fn a_cropped_exr_is_its_display_window() {
     }
 }
 
+/// An EXR none of whose stored pixels lie in its image (`tests/images/disjoint.exr`: 8x4
+/// pixels stored at (5000, 5000) of an 8x4 display window at the origin, as a compositor's
+/// damaged metadata leaves it): refused, as a texture and as an environment, naming both
+/// windows; it read as black without a word (a sky lit nothing).
+#[test]
+fn an_exr_that_stores_nothing_inside_its_image_is_refused() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/images/disjoint.exr");
+    let e = reframe::image::read_linear_rgb(&path, 1 << 20, 0)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("it stores 8x4 pixels (its data window), none of them inside its 8x4 image"),
+        "{e}"
+    );
+    let e = Textures::new()
+        .unwrap()
+        .open(&path)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("none of them inside its 8x4 image"), "{e}");
+}
+
 /// The same for tiled EXRs (a tiled overscan or cropped render, as renderers and Nuke write
 /// them), which have no scanlines to read: they were refused with OpenImageIO's "called
 /// OpenEXRInput::read_native_scanlines without an open file". `overscan-tiled.exr`: 12x10
