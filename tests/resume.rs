@@ -882,6 +882,49 @@ fn a_first_checkpoint_left_half_written_is_swept() {
     );
 }
 
+/// A checkpoint folder you made for the render (empty, or with its mode or ACLs set up on
+/// purpose) is kept when the render completes: the render removes only a folder a run of it
+/// made (it removed any folder it left empty).
+#[test]
+fn a_checkpoint_folder_made_beforehand_is_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ck = d.join("mine");
+    std::fs::create_dir(&ck).unwrap();
+    let out = format!("{}/o/f_####.exr", d.display());
+    let ck_arg = ck.display().to_string();
+    let args = [
+        "render",
+        "cornell",
+        "--res",
+        "32x24",
+        "--spp",
+        "1",
+        "--frames",
+        "0-1",
+        "--checkpoint-every",
+        "0",
+        "--checkpoint",
+        &ck_arg,
+        "--out",
+        &out,
+    ];
+    run(&args);
+    assert!(ck.is_dir(), "the folder made beforehand was removed");
+    assert!(
+        common::files_under(&ck).is_empty(),
+        "{:?}",
+        common::files_under(&ck)
+    );
+    // One the render made goes.
+    let made = d.join("made");
+    let made_arg = made.display().to_string();
+    let mut args = args.to_vec();
+    args[11] = &made_arg;
+    run(&args);
+    assert!(!made.exists());
+}
+
 /// `reframe` run as the user `nobody` (`setpriv`), for tests of files another user cannot
 /// read: `None` (the test says it is skipped) unless the tests run as root, as CI runs them,
 /// and `nobody` can run the binary (a checkout under /root is not theirs to enter).

@@ -97,6 +97,10 @@ pub struct Checkpointer {
     pub written: u32,
     /// The checkpoint folder, registered while this process may leave it empty (it created it).
     _made: Option<MadeFolder>,
+    /// Whether the checkpoint folder is this render's to remove when it completes: this process
+    /// made it, or an earlier run did (it held a checkpoint, or the temporary of one). A folder
+    /// that was there before without either (one you made for it) is kept, empty or not.
+    own_dir: bool,
     /// Whether a checkpoint counts the chunk log (one was resumed or written): a log that none
     /// counts is of no use to a later run, which starts it over, and is removed if the run
     /// fails (a full disk at the first checkpoint left an empty log beside the outputs).
@@ -183,6 +187,7 @@ impl Checkpointer {
             spent: Duration::ZERO,
             written: 0,
             _made: None,
+            own_dir: false,
             log_counted: false,
         }
     }
@@ -208,6 +213,9 @@ impl Checkpointer {
     ) -> Result<(Checkpointer, Option<Resumed>)> {
         let mut resumed = None;
         let mut made = None;
+        // Whether the checkpoint folder was there with a reframe run's checkpoint or the
+        // temporary of one in it: an earlier run of the render made it (`own_dir`).
+        let mut left_by_a_run = false;
         // A chunk's log is truncated and written: refused before anything is made if something
         // other than a regular file of one name is in its place (a link planted there to the
         // scene's OBJ had the OBJ overwritten; a FIFO blocked the open).
@@ -271,7 +279,9 @@ impl Checkpointer {
             if !state.exists() {
                 // A temporary of the first checkpoint, which a process killed while writing it
                 // left: no later run removed it, and the folder outlived the render.
-                remove_stale_tmp(d, |n| n == "state");
+                left_by_a_run = remove_stale_tmp(d, |n| n == "state") > 0;
+            } else {
+                left_by_a_run = super::is_state_file(&state);
             }
             if state.exists() && !resume && !super::is_state_file(&state) {
                 bail!(
@@ -437,6 +447,7 @@ impl Checkpointer {
                 partial,
                 spent: Duration::ZERO,
                 written: 0,
+                own_dir: made.is_some() || resumed.is_some() || left_by_a_run,
                 _made: made,
                 log_counted: resumed.is_some(),
             },
@@ -533,7 +544,9 @@ impl Checkpointer {
         }
         if let Some(d) = &self.dir {
             let _ = std::fs::remove_file(d.join("state"));
-            let _ = std::fs::remove_dir(d);
+            if self.own_dir {
+                let _ = std::fs::remove_dir(d);
+            }
         }
         Ok(out)
     }

@@ -171,10 +171,11 @@ pub fn tmp_name(p: &Path) -> PathBuf {
 
 /// Remove the temporary files a killed process left in `dir` (`NAME.tmp-PID...` or
 /// `.NAME.tmp-PID...`) whose `NAME` passes `ours`; never one whose `PID` is a process that
-/// runs (another render writing that file now, on this machine).
-pub fn remove_stale_tmp(dir: &Path, ours: impl Fn(&str) -> bool) {
+/// runs (another render writing that file now, on this machine). Returns how many it removed.
+pub fn remove_stale_tmp(dir: &Path, ours: impl Fn(&str) -> bool) -> usize {
+    let mut removed = 0;
     let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
+        return 0;
     };
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
@@ -198,10 +199,11 @@ pub fn remove_stale_tmp(dir: &Path, ours: impl Fn(&str) -> bool) {
             let running =
                 pid != std::process::id() as i32 && Path::new(&format!("/proc/{pid}")).exists();
             if ours(base.strip_prefix('.').unwrap_or(base)) && !running {
-                let _ = std::fs::remove_file(e.path());
+                removed += usize::from(std::fs::remove_file(e.path()).is_ok());
             }
         }
     }
+    removed
 }
 
 /// Fail if `p` exists as anything but a regular file. Outputs are written under a temporary name
