@@ -101,7 +101,7 @@ pub fn parse_from(
     }
     let entries = match format {
         Format::Json => json_entries(label, text)?,
-        Format::Csv => csv_entries(label, text)?,
+        Format::Csv => csv_entries(label, text, repairs)?,
     };
     let mut poses: Vec<Pose> = Vec::with_capacity(entries.len());
     for (i, e) in entries.iter().enumerate() {
@@ -278,6 +278,33 @@ fn check_matrix(m: &[f64; 16]) -> Result<(), String> {
 /// image is then not the one `Pose::from_camera_to_world` makes (view kept, up made
 /// perpendicular to it, right perpendicular to both).
 pub const MAX_SHEAR_DEGREES: f64 = 0.1;
+
+/// A number like `1.000` in a file separated by semicolons or tabs, whose locale may group
+/// thousands with a point.
+const POINT_MAY_GROUP: Kind = Kind {
+    one: "a number with three digits after its point, in a file separated by semicolons or \
+          tabs, read as a decimal ('1.000' is 1): where the locale groups thousands with a point \
+          it means 1000 (write such a file with decimal commas, or without grouping)",
+    many: "numbers with three digits after their point, in a file separated by semicolons or \
+           tabs, read as decimals ('1.000' is 1): where the locale groups thousands with a \
+           point they mean 1000 (write such a file with decimal commas, or without grouping)",
+};
+
+/// Whether `f` reads as a thousands-grouped integer too: 1 to 3 digits, not starting with 0,
+/// a point, then exactly three digits (`1.000`, `-12.500`).
+fn may_group_thousands(f: &str) -> bool {
+    let f = f.trim();
+    let f = f.strip_prefix(['-', '+']).unwrap_or(f);
+    let Some((int, frac)) = f.split_once('.') else {
+        return false;
+    };
+    let digits = |s: &str| s.bytes().all(|b| b.is_ascii_digit());
+    (1..=3).contains(&int.len())
+        && !int.starts_with('0')
+        && digits(int)
+        && frac.len() == 3
+        && digits(frac)
+}
 
 const SHEARED: Kind = Kind {
     one: "sheared camera made rigid (view kept, up made perpendicular to it)",
@@ -581,7 +608,7 @@ fn decimal_point((f, quoted): (String, bool), sep: char) -> String {
     }
 }
 
-fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
+fn csv_entries(label: &str, text: &str, repairs: &mut Repairs) -> Result<Vec<Entry>> {
     // Lines end in LF or CRLF, or in a bare CR throughout (a classic Mac spreadsheet's export,
     // which was read as one line: its header).
     let bare_cr = !text.contains('\n') && text.contains('\r');
@@ -640,6 +667,13 @@ fn csv_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
                 quote(&fa.0),
                 quote(&fb.0)
             );
+        }
+        // Points alone: a spreadsheet of such a locale writes 1000 as `1.000`, which reads as
+        // 1 (a camera a thousand times nearer, without a word).
+        for (n, fields) in &rows {
+            for f in fields.iter().filter(|f| may_group_thousands(&f.0)) {
+                repairs.note(label, *n, POINT_MAY_GROUP, || format!("'{}'", quote(&f.0)))?;
+            }
         }
     }
     let mut entries = Vec::new();
@@ -1151,6 +1185,21 @@ mod tests {
         assert!(
             e.contains("decimal comma (line 2: '0,5') and with a point (line 3: '1.000')"),
             "{e}"
+        );
+        // Points alone in a file separated by semicolons: `1.000` is read as 1, with a
+        // warning (it was read so without one); `0.125` and `1.25` cannot group thousands.
+        let text = format!(
+            "{}\n0;40;0.125;0;3;0;0;0;0;1;0\n1;40;1.000;1.25;3;0;0;0;0;1;0\n",
+            LOOK_AT_HEADER.join(";")
+        );
+        let mut r = Repairs::new(false);
+        let poses = parse("c.csv", text.as_bytes(), Format::Csv, 2, &mut r).unwrap();
+        assert_eq!(poses[1].eye, Vec3::new(1.0, 1.25, 3.0));
+        let w = r.into_warnings();
+        assert!(
+            w.len() == 1
+                && w[0].starts_with("c.csv: line 3: '1.000': a number with three digits after"),
+            "{w:?}"
         );
     }
 
