@@ -143,8 +143,8 @@ struct SceneFile {
     /// One OBJ as it is, or else `[[object]]` tables (objects placed by transforms).
     obj: Option<Spanned<String>>,
     object: Option<Tables<objects::ObjectFile>>,
-    frames: Spanned<u32>,
-    resolution: Spanned<Exactly<u32, 2>>,
+    frames: Spanned<Whole>,
+    resolution: Spanned<Exactly<Whole, 2>>,
     /// `[[keyframe]]` tables, or else `camera`: a camera file.
     keyframe: Option<Tables<KeyframeFile>>,
     camera: Option<Spanned<String>>,
@@ -337,6 +337,43 @@ impl<'de> Deserialize<'de> for FrameNumber {
             fn visit_f64<E: de::Error>(self, v: f64) -> Result<FrameNumber, E> {
                 if v.fract() == 0.0 && (0.0..=u32::MAX as f64).contains(&v) {
                     Ok(FrameNumber(v as u32))
+                } else {
+                    Err(E::invalid_value(de::Unexpected::Float(v), &self))
+                }
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+/// A count or size (`frames`, `resolution`): a whole number from 0 to 2^32 - 1, written as an
+/// integer or as a float whose value is whole (`frames = 48.0`, as a script that computes it
+/// writes it; it was refused as "invalid type: floating point `48.0`, expected u32", though a
+/// keyframe's `frame = 12.0` was read).
+#[derive(Clone, Copy)]
+struct Whole(u32);
+
+impl<'de> Deserialize<'de> for Whole {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl de::Visitor<'_> for V {
+            type Value = Whole;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                write!(f, "a whole number from 0 to {}", u32::MAX)
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> Result<Whole, E> {
+                u32::try_from(v)
+                    .map(Whole)
+                    .map_err(|_| E::invalid_value(de::Unexpected::Signed(v), &self))
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> Result<Whole, E> {
+                u32::try_from(v)
+                    .map(Whole)
+                    .map_err(|_| E::invalid_value(de::Unexpected::Unsigned(v), &self))
+            }
+            fn visit_f64<E: de::Error>(self, v: f64) -> Result<Whole, E> {
+                if v.fract() == 0.0 && (0.0..=u32::MAX as f64).contains(&v) {
+                    Ok(Whole(v as u32))
                 } else {
                     Err(E::invalid_value(de::Unexpected::Float(v), &self))
                 }
@@ -913,7 +950,7 @@ impl Scene {
             inputs,
             warnings,
             name,
-            frames: *file.frames.get_ref(),
+            frames: file.frames.get_ref().0,
             width,
             height,
             cameras,
@@ -1609,7 +1646,7 @@ fn check_camera(
 ) -> Result<(u32, u32, Cameras)> {
     let lines = Lines::new(text.as_bytes());
     let line = |span: Range<usize>| lines.at(span.start);
-    let [w, h] = f.resolution.get_ref().0;
+    let [Whole(w), Whole(h)] = f.resolution.get_ref().0;
     let at = format!("{label}: line {}: resolution", line(f.resolution.span()));
     if w == 0 || h == 0 {
         bail!("{at} {w}x{h}: width and height must be positive");
@@ -1617,7 +1654,7 @@ fn check_camera(
     if w as u64 * h as u64 > MAX_PIXELS {
         bail!("{at} {w}x{h}: more than {MAX_PIXELS} pixels");
     }
-    let frames = *f.frames.get_ref();
+    let frames = f.frames.get_ref().0;
     let at = format!("{label}: line {}: frames = {frames}", line(f.frames.span()));
     if frames == 0 {
         bail!("{at}: a scene needs at least one frame");

@@ -241,6 +241,8 @@ fn png_output_gets_the_denoised_frame_and_a_missing_library_is_one_line() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert!(err.contains("is not Open Image Denoise 2"), "{err}");
+    // The missing function named as such, without the C string's NUL (`oidnNewDevice\u{0}`).
+    assert!(err.contains(": oidnNewDevice: "), "{err}");
     assert!(!d.path().join("missing").exists());
     // A FIFO in its place is refused at once (the loader would wait on it forever).
     let fifo = d.path().join("oidn-fifo");

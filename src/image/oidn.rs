@@ -454,8 +454,11 @@ fn resolve(lib: &Library) -> Result<Api> {
     unsafe {
         macro_rules! f {
             ($name:literal) => {
-                *lib.get($name)
-                    .map_err(|e| anyhow!("{}: {e}", String::from_utf8_lossy($name)))?
+                *lib.get($name).map_err(|e| {
+                    // The name without the C string's terminating NUL.
+                    let name = $name.strip_suffix(b"\0").unwrap_or($name);
+                    anyhow!("{}: {e}", String::from_utf8_lossy(name))
+                })?
             };
         }
         Ok(Api {
