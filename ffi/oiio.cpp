@@ -558,6 +558,16 @@ TextureSet::TextureSet()
 }
 
 TextureSet::~TextureSet() {
+    // With statistics asked for (OPENIMAGEIO_IMAGECACHE_OPTIONS=statistics:level=1), the cache
+    // prints them as it goes, reading every per-thread record, and OpenImageIO 2.4 leaves an
+    // empty slot where `destroy_thread_info` took one: printed here first, then turned off (the
+    // process crashed at exit).
+    int level = 0;
+    ts_->getattribute("statistics:level", level);
+    if (level > 0) {
+        std::fputs(ts_->getstats(level).c_str(), stdout);
+        ts_->attribute("statistics:level", 0);
+    }
     {
         std::lock_guard<std::mutex> lock(threads_mutex_);
         for (auto* t : threads_) {

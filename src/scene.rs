@@ -90,7 +90,7 @@ pub use crate::util::input::{read_input, read_input_or_missing, InputError, MAX_
 use mesh::Mesh;
 pub use mtl::{MAX_KE, MAX_NS};
 use repairs::{Kind, Repairs};
-use text::{as_text, fov_fault, line_at, quote, Lines, MAX_COORD, MAX_DEGREES};
+use text::{as_text, fov_fault, line_at, quote, quote_name, Lines, MAX_COORD, MAX_DEGREES};
 
 /// Most frames a scene may have: every frame of the camera path is checked when it loads.
 pub const MAX_FRAMES: u32 = 1_000_000;
@@ -397,7 +397,8 @@ struct KeyframeFile {
     fov: Spanned<f64>,
 }
 
-/// Emitting triangles, sampled in proportion to their power (area times luminance of `Ke`).
+/// Emitting triangles, sampled in proportion to their power (area times luminance of `Ke`),
+/// with a share `LIGHT_UNIFORM` of the picks even between lights (`light_groups`).
 /// A triangle with an emission map (`map_Ke`) is sampled through a regular subdivision of it
 /// into `n^2` equal parts, each picked in proportion to the map's radiance over it, so that the
 /// bright texels of a map get the samples (docs/light-sampling.md).
@@ -738,7 +739,7 @@ impl Scene {
             let at = format!(
                 "{label}: line {}: camera '{}'",
                 line_at(toml_text.as_bytes(), name.span().start),
-                quote(name.get_ref())
+                quote_name(name.get_ref())
             );
             let Some(format) = camera_file::Format::of(name.get_ref()) else {
                 bail!("{at}: a camera file's name ends in .json or .csv");
@@ -775,12 +776,13 @@ impl Scene {
                 let obj_at = format!(
                     "{label}: line {}: obj '{}'",
                     line_at(toml_text.as_bytes(), obj.span().start),
-                    quote(obj.get_ref())
+                    quote_name(obj.get_ref())
                 );
                 let (obj_label, obj_bytes, files) = match &source {
                     Source::Files { toml } => {
                         let dir = toml.parent().unwrap_or(Path::new(".")).to_path_buf();
                         let obj = dir.join(obj.get_ref());
+                        refuse_scene_as_obj(&obj, toml, &obj_at)?;
                         let bytes = read_input(&obj, "OBJ", MAX_INPUT_BYTES)
                             .map_err(|e| anyhow!("{obj_at}: {e}"))?;
                         let mtl_dir = obj.parent().unwrap_or(&dir).to_path_buf();
@@ -1149,7 +1151,8 @@ impl Scene {
     }
 
     /// Sample a point on a light (or a direction towards the environment) as seen from `x`: the
-    /// environment with probability `env_select`, else an area light by power.
+    /// environment with probability `env_select`, else an area light (by power, and evenly
+    /// between lights: `Lights`).
     ///
     /// One 2D number does both: its first coordinate picks the light and is then stretched back
     /// to [0, 1) over the chosen light's share (`(u.x - F_lo) / p`), so that the points the
@@ -1393,17 +1396,25 @@ impl Lights {
         // lights its surroundings more: a share `LIGHT_UNIFORM` of the picks goes to the
         // lights in equal parts (within a light by power), the rest by power
         // (docs/light-sampling.md, "Which light").
+        // Only lights of some power count (a material whose triangles all have area 0 after
+        // placement has none, and would divide 0 by 0).
         let groups = light_groups(mesh, &tris);
-        if groups.len() > 1 {
+        let mut group_power = vec![0.0f64; groups.len()];
+        for (&g, (p, _)) in groups.of.iter().zip(&parts) {
+            group_power[g] += p.iter().sum::<f64>();
+        }
+        let lit = group_power.iter().filter(|&&p| p > 0.0).count();
+        if lit > 1 {
             let total: f64 = parts.iter().flat_map(|(p, _)| p.iter()).sum();
-            let mut group_power = vec![0.0f64; groups.len()];
-            for (&g, (p, _)) in groups.of.iter().zip(&parts) {
-                group_power[g] += p.iter().sum::<f64>();
-            }
-            let even = LIGHT_UNIFORM / groups.len() as f64;
+            let even = LIGHT_UNIFORM / lit as f64;
             for (&g, (p, _)) in groups.of.iter().zip(parts.iter_mut()) {
+                let share = if group_power[g] > 0.0 {
+                    even / group_power[g]
+                } else {
+                    0.0
+                };
                 for w in p.iter_mut() {
-                    *w = (1.0 - LIGHT_UNIFORM) * (*w / total) + even * (*w / group_power[g]);
+                    *w = (1.0 - LIGHT_UNIFORM) * (*w / total) + share * *w;
                 }
             }
         }
@@ -1584,11 +1595,34 @@ fn part_power(uv: &[Vec2; 3], b: [Vec2; 3], le: impl Fn(Vec2) -> Vec3) -> f64 {
     0.5 * (sum / points.len() as f64 + max)
 }
 
+/// Refused: an OBJ name that is the scene file itself (`obj = "s.toml"`), which was read as an
+/// OBJ of no faces ("s.toml: no faces"). `at`: the key, for the message.
+fn refuse_scene_as_obj(obj: &Path, scene: &Path, at: &str) -> Result<()> {
+    let same = match (std::fs::canonicalize(obj), std::fs::canonicalize(scene)) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    };
+    if same {
+        bail!("{at}: that is this scene file; obj names the OBJ model to render (obj = \"model.obj\")");
+    }
+    Ok(())
+}
+
 /// The scene TOML, with errors on one line that name the line and quote it.
 fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
     if text.trim().is_empty() {
         bail!("{label}: the file is empty");
     }
+    // Lines that end in a bare CR throughout (a classic Mac editor's, as the OBJ, MTL and camera
+    // readers take them): read as lines, where TOML saw one line of the whole file and refused
+    // it, quoting it all.
+    let unix;
+    let text = if text.contains('\r') && !text.contains('\n') {
+        unix = text.replace('\r', "\n");
+        unix.as_str()
+    } else {
+        text
+    };
     toml::from_str(text).map_err(|e| {
         // An OBJ or MTL given as the scene (a first try with a model): said so, not a TOML
         // syntax error on its first statement.
@@ -1666,7 +1700,7 @@ fn check_camera(
         (Some(c), Some(_)) => bail!(
             "{label}: line {}: camera = '{}' and [[keyframe]] tables: give one or the other",
             line(c.span()),
-            quote(c.get_ref())
+            quote_name(c.get_ref())
         ),
         (Some(c), None) => {
             if let Some(i) = &f.interpolation {
@@ -2006,7 +2040,7 @@ fn load_environment(
                     path.display()
                 );
             }
-            let what = format!("environment image '{}'", quote(img.get_ref()));
+            let what = format!("environment image '{}'", quote_name(img.get_ref()));
             maps::note_images_read(
                 repairs,
                 (label, table_line),
@@ -2023,7 +2057,7 @@ fn load_environment(
                 repairs.note(label, table_line, ENV_NOT_LATLONG, || {
                     format!(
                         "environment image '{}' is {width} x {height}",
-                        quote(img.get_ref())
+                        quote_name(img.get_ref())
                     )
                 })?;
             }
@@ -2110,7 +2144,7 @@ fn load_objects(
                 let at = format!(
                     "{label}: line {}: object '{}'",
                     lines.at(o.obj.span().start),
-                    quote(o.obj.get_ref())
+                    quote_name(o.obj.get_ref())
                 );
                 first.insert(path.clone(), groups.len());
                 groups.push((path, at, vec![m]));
@@ -2120,6 +2154,7 @@ fn load_objects(
     let mut meshes = Vec::with_capacity(groups.len());
     let mut inputs = Vec::new();
     for (path, at, _) in &groups {
+        refuse_scene_as_obj(path, Path::new(label), at)?;
         let bytes = read_input(path, "OBJ", MAX_INPUT_BYTES).map_err(|e| anyhow!("{at}: {e}"))?;
         let obj_label = path.display().to_string();
         let mtl_dir = path.parent().unwrap_or(dir).to_path_buf();
@@ -2427,43 +2462,63 @@ fn folded(name: &str) -> String {
 }
 
 /// The file at relative path `rel` under `dir`, each part of it matched in any case and
-/// composition of its letters (`folded`) where it is not there as written and exactly one entry
-/// of its folder matches it that way; `Err` with the entries where several do (sorted).
+/// composition of its letters (`folded`) where it is not there as written, found where exactly
+/// one path that way leads to a file; `Err` with the files (sorted) where several do (a
+/// folder of another case that leads nowhere, `TEX/` beside `tex/wood.png`, is no candidate).
 fn ignoring_case(dir: &Path, rel: &str) -> Result<Option<PathBuf>, Vec<PathBuf>> {
-    let mut at = dir.to_path_buf();
-    for part in rel.split('/').filter(|p| !p.is_empty() && *p != ".") {
-        let exact = at.join(part);
-        if exact.exists() {
-            at = exact;
-            continue;
-        }
-        // The folder of a bare file name (`s.mtl`, the scene given as `s.toml`) is the empty
-        // path, which `read_dir` cannot list: it is the working folder. The name found is
-        // joined to `at`, so that a path stays as relative as it was given.
-        let listed = if at.as_os_str().is_empty() {
-            Path::new(".")
-        } else {
-            at.as_path()
-        };
-        let want = folded(part);
-        let Ok(entries) = std::fs::read_dir(listed) else {
-            return Ok(None);
-        };
-        let mut found: Vec<_> = entries
-            .filter_map(|e| e.ok())
-            .filter(|e| e.file_name().to_str().is_some_and(|n| folded(n) == want))
-            .map(|e| at.join(e.file_name()))
-            .collect();
-        match found.len() {
-            0 => return Ok(None),
-            1 => at = found.remove(0),
-            _ => {
-                found.sort();
-                return Err(found);
-            }
+    let parts: Vec<&str> = rel
+        .split('/')
+        .filter(|p| !p.is_empty() && *p != ".")
+        .collect();
+    let mut found = Vec::new();
+    files_ignoring_case(dir.to_path_buf(), &parts, &mut found);
+    match found.len() {
+        0 => Ok(None),
+        1 => Ok(found.pop()),
+        _ => {
+            found.sort();
+            Err(found)
         }
     }
-    Ok(Some(at).filter(|p| p.is_file()))
+}
+
+/// Every file `parts` leads to from `at` (`ignoring_case`), into `found`; at most a few, past
+/// which the search stops (they are only named in a message).
+fn files_ignoring_case(at: PathBuf, parts: &[&str], found: &mut Vec<PathBuf>) {
+    let Some((part, rest)) = parts.split_first() else {
+        if at.is_file() {
+            found.push(at);
+        }
+        return;
+    };
+    if found.len() >= 8 {
+        return;
+    }
+    let exact = at.join(part);
+    if exact.exists() {
+        return files_ignoring_case(exact, rest, found);
+    }
+    // The folder of a bare file name (`s.mtl`, the scene given as `s.toml`) is the empty path,
+    // which `read_dir` cannot list: it is the working folder. The name found is joined to `at`,
+    // so that a path stays as relative as it was given.
+    let listed = if at.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        at.as_path()
+    };
+    let want = folded(part);
+    let Ok(entries) = std::fs::read_dir(listed) else {
+        return;
+    };
+    let mut matching: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_str().is_some_and(|n| folded(n) == want))
+        .map(|e| at.join(e.file_name()))
+        .collect();
+    matching.sort();
+    for m in matching {
+        files_ignoring_case(m, rest, found);
+    }
 }
 
 /// `missing`'s message for a file named `name` in `dir` that is not there: where several files
@@ -2848,7 +2903,7 @@ mod tests {
     }
 
     /// A 400 x 400 dim panel overhead and a lamp of 0.04 x 0.04 units 10^4 times as bright
-    /// per area beside a wall: by power alone the lamp got 1.6e-4 of the light samples
+    /// per area beside a wall: by power alone the lamp got 10^-4 of the light samples
     /// (Mitsuba 3, which picks its four emitters evenly, lit the wall 2-9% brighter than
     /// reframe at 2048 spp: the lamp's light came in rare bright samples). It gets its even
     /// share now, and the density of every sample is what `light_pdf` says of its point.
@@ -2864,8 +2919,19 @@ mod tests {
             newmtl lamp\nKd 0 0 0\nKe 500 500 500\nnewmtl floor\nKd 0.5 0.5 0.5\n";
         std::fs::write(dir.path().join("s.obj"), obj).unwrap();
         std::fs::write(dir.path().join("s.mtl"), mtl).unwrap();
-        let toml = "obj = \"s.obj\"\nframes = 1\nresolution = [8, 8]\n[[keyframe]]\nframe = 0\n\
-                    position = [0, 1, 5]\nlook_at = [0, 0.5, 0]\nup = [0, 1, 0]\nfov = 50.0\n";
+        // And a speck whose area is 0 in single precision once placed: a light of no power,
+        // which must get no share (its 0 / 0 made every pick NaN, and the frame black).
+        std::fs::write(
+            dir.path().join("speck.obj"),
+            "mtllib speck.mtl\nv -1e-9 0 -1e-9\nv 1e-9 0 -1e-9\nv 1e-9 0 1e-9\nv -1e-9 0 1e-9\n\
+             usemtl speck\nf 1 2 3 4\n",
+        )
+        .unwrap();
+        std::fs::write(dir.path().join("speck.mtl"), "newmtl speck\nKe 1 1 1\n").unwrap();
+        let toml = "frames = 1\nresolution = [8, 8]\n[[keyframe]]\nframe = 0\n\
+                    position = [0, 1, 5]\nlook_at = [0, 0.5, 0]\nup = [0, 1, 0]\nfov = 50.0\n\
+                    [[object]]\nobj = \"s.obj\"\n\
+                    [[object]]\nobj = \"speck.obj\"\nscale = 1e-6\ntranslate = [3, 0.2, -1]\n";
         let path = dir.path().join("s.toml");
         std::fs::write(&path, toml).unwrap();
         let d = Device::new().unwrap();

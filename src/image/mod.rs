@@ -871,12 +871,11 @@ fn open_checked(
         bail!(
             "it stores {}x{} pixels (its data window), none of them inside its {}x{} image (its \
              display window), which would read as black: give it a display window that holds \
-             its data (e.g. 'oiiotool {} --fullpixels -o fixed.exr')",
+             its data (e.g. with oiiotool's --fullpixels)",
             info.stored_width,
             info.stored_height,
             info.width,
             info.height,
-            path.display()
         );
     }
     let stored = (info.stored_width, info.stored_height);
@@ -1009,15 +1008,6 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
     if rgb.iter().any(Option::is_some) {
         return Ok(Colour::Rgb(rgb));
     }
-    // Luminance and chroma (OpenEXR's Y, RY, BY): RY and BY are no colours of their own, and
-    // the image read as its Y alone would be grey without a word.
-    if find("RY").is_some() && find("BY").is_some() {
-        bail!(
-            "its channels ({}) are luminance and chroma (Y, RY, BY), not RGB: save it as RGB \
-             first (in a compositor or an image editor)",
-            names.join(", ")
-        );
-    }
     // A multi-layer EXR (Blender's MultiLayer output, a compositor's AOVs): the channels of
     // the layer `colour_layers` picks, never the first three across layers (the AO pass read
     // for the Combined one, or a depth channel mixed with a colour's red and green).
@@ -1028,6 +1018,17 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
             })
         };
         return Ok(Colour::Rgb(['R', 'G', 'B'].map(find)));
+    }
+    // Luminance and chroma (OpenEXR's Y, RY, BY, also in a layer): RY and BY are no colours of
+    // their own, and the image read as its Y alone would be grey without a word (in a layer,
+    // as RGB: Y as red).
+    let own = |n: &String| layer_of(n).map_or(n.clone(), |(_, k)| k.to_string());
+    if names.iter().any(|n| own(n) == "RY") && names.iter().any(|n| own(n) == "BY") {
+        bail!(
+            "its channels ({}) are luminance and chroma (Y, RY, BY), not RGB: save it as RGB \
+             first (in a compositor or an image editor)",
+            names.join(", ")
+        );
     }
     // Printers' inks (a CMYK TIFF as OpenImageIO hands it over: C, M, Y, K, or ink0..), whose
     // first three read as RGB would turn red into cyan, and whose Y is yellow, not grey.
@@ -1057,7 +1058,7 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
     };
     match names {
         [] => bail!("the image has no channels"),
-        [a, ..] if a == "A" && names.len() <= 2 => bail!(
+        [a, ..] if role(a) == Some('A') && names.len() <= 2 => bail!(
             "its channels ({}) hold no colour: an alpha channel alone is not a colour",
             names.join(", ")
         ),
@@ -1369,12 +1370,14 @@ fn mask_pick(names: &[String], imfchan: Option<char>) -> Result<MaskPick> {
             .collect(),
         _ => (0..names.len()).collect(),
     };
-    // A channel by its name, in a layer also by its role (`diffuse.a`, `diffuse.alpha`).
-    let is = |i: usize, c: &str| match layer_of(&names[i]) {
-        None => names[i] == c,
-        Some((_, k)) => k == c || (c.len() == 1 && role(k) == c.chars().next()),
+    // A channel by its name, else by its role in any case (`a`, `Alpha`, `diffuse.a`), as the
+    // colour's channels are found (a lower-case `r, g, b, a` file read its red as the mask).
+    let own = |i: usize| layer_of(&names[i]).map_or(names[i].as_str(), |(_, k)| k);
+    let find = |c: &str| {
+        let role_of = |i: usize| c.len() == 1 && role(own(i)) == c.chars().next();
+        (scope.iter().copied().find(|&i| own(i) == c))
+            .or_else(|| scope.iter().copied().find(|&i| role_of(i)))
     };
-    let find = |c: &str| scope.iter().copied().find(|&i| is(i, c));
     let by_place = |i: usize| scope.get(i).copied();
     let first = Some(scope[0]);
     let (alpha, grey) = (find("A"), find("Y"));
@@ -1565,11 +1568,32 @@ mod tests {
             ok(&["a", "b", "g", "r"]),
             Colour::Rgb([Some(3), Some(2), Some(1)])
         );
-        // Luminance and chroma read as grey Y.
-        let e = colour_channels(&names(&["BY", "RY", "Y"]))
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("luminance and chroma (Y, RY, BY)"), "{e}");
+        // Luminance and chroma read as grey Y, or in a layer as RGB.
+        for yc in [&["BY", "RY", "Y"][..], &["l.BY", "l.RY", "l.Y"]] {
+            let e = colour_channels(&names(yc)).unwrap_err().to_string();
+            assert!(e.contains("luminance and chroma (Y, RY, BY)"), "{e}");
+        }
+        // A mask's alpha in lower case, as the colour's channels are found: it read the red.
+        assert_eq!(
+            mask_source(&names(&["r", "g", "b", "a"]), None).unwrap().0,
+            3
+        );
+        assert_eq!(
+            mask_source(&names(&["a", "b", "g", "r"]), Some('r'))
+                .unwrap()
+                .0,
+            3
+        );
+        assert_eq!(
+            mask_source(&names(&["r", "g", "b", "a"]), Some('m'))
+                .unwrap()
+                .0,
+            3
+        );
+        // An alpha channel alone, in either case, is no colour.
+        for alpha in ["A", "a", "alpha"] {
+            assert!(colour_channels(&names(&[alpha])).is_err(), "{alpha}");
+        }
     }
 
     #[test]

@@ -69,15 +69,16 @@ const KD_ZERO_MAP: Kind = Kind {
         "materials with Kd 0 beside a map_Kd read as Kd 1, the texture as it is (as Maya writes it)",
 };
 const KS_ZERO_MAP: Kind = Kind {
-    one: "Ks 0 beside a map_Ks read as Ks 1, the texture as it is (as Maya writes it)",
-    many:
-        "materials with Ks 0 beside a map_Ks read as Ks 1, the texture as it is (as Maya writes it)",
+    one: "map_Ks has no effect: the map is multiplied by Ks, which is 0 (write Ks 1 for the \
+          map as it is)",
+    many: "maps (map_Ks) with no effect: each is multiplied by its Ks, which is 0 (write Ks 1 \
+           for the map as it is)",
 };
 const KE_ZERO_MAP: Kind = Kind {
-    one: "Ke 0 beside a map_Ke read as Ke 1, the texture as it is (as Blender writes an \
-          emission colour taken from an image)",
-    many: "materials with Ke 0 beside a map_Ke read as Ke 1, the texture as it is (as Blender \
-           writes an emission colour taken from an image)",
+    one: "map_Ke has no effect: the map is multiplied by Ke, which is 0, so the surface emits \
+          nothing (write Ke 1 for the map as it is)",
+    many: "maps (map_Ke) with no effect: each is multiplied by its Ke, which is 0, so the \
+           surfaces emit nothing (write Ke 1 for the map as it is)",
 };
 const EXTRA_NUMBERS: Kind = Kind {
     one: "numbers past a statement's own ignored",
@@ -368,16 +369,21 @@ impl MtlMaterial {
         let name = &self.name;
         // `Kd 0` beside a `map_Kd`: Maya writes it for a colour connected to a file texture (its
         // own value unused), and Blender and Maya show the texture. As the format reads it (the
-        // texture times Kd) the surface was black, without a word. The same for `Ks` and `Ke`:
-        // Blender writes `Ke` as the emission socket's own colour, black where an image drives
-        // it, and a textured lamp emitted nothing (or the scene was refused as having no light).
+        // texture times Kd) the surface was black, without a word.
+        if kd == Vec3::ZERO && self.maps[Slot::Kd as usize].is_some() {
+            kd = Vec3::ONE;
+            let line = self.kd.map_or(self.line, |v| v.1);
+            repairs.note(label, line, KD_ZERO_MAP, || format!("material '{name}'"))?;
+        }
+        // `Ks 0` or `Ke 0` beside its map: the map does nothing, said so (it was dropped without
+        // a word, and a lamp textured so was refused as no light). Not read as 1: an exporter
+        // writes `Ke` as the emission's colour times its strength, and a strength of 0 with an
+        // image on the colour means no light, which reading it as 1 would add.
         for (value, given, slot, kind) in [
-            (&mut kd, self.kd, Slot::Kd, KD_ZERO_MAP),
-            (&mut ks, self.ks, Slot::Ks, KS_ZERO_MAP),
-            (&mut ke, self.ke, Slot::Ke, KE_ZERO_MAP),
+            (ks, self.ks, Slot::Ks, KS_ZERO_MAP),
+            (ke, self.ke, Slot::Ke, KE_ZERO_MAP),
         ] {
-            if *value == Vec3::ZERO && self.maps[slot as usize].is_some() {
-                *value = Vec3::ONE;
+            if value == Vec3::ZERO && self.maps[slot as usize].is_some() {
                 let line = given.map_or(self.line, |v| v.1);
                 repairs.note(label, line, kind, || format!("material '{name}'"))?;
             }
@@ -745,15 +751,15 @@ mod tests {
         let glow = mtl.materials[1].maps[Slot::Ke as usize].as_ref().unwrap();
         assert_eq!((glow.scale, glow.offset), (Vec2::ONE, Vec2::new(0.25, 0.5)));
         // A map without its colour line is the texture as it is; with one, their product; a
-        // colour of 0 beside its map is read as 1, with a warning.
+        // Ks of 0 beside its map makes the map useless, with a warning.
         let a = mtl.materials[0].material("a.mtl", &mut r).unwrap();
         let b = mtl.materials[1].material("a.mtl", &mut r).unwrap();
-        assert_eq!((a.kd, a.ks), (Vec3::ONE, Vec3::ONE));
+        assert_eq!((a.kd, a.ks), (Vec3::ONE, Vec3::ZERO));
         assert_eq!((b.kd, b.ke), (Vec3::splat(0.5), Vec3::ONE));
         let w = r.into_warnings();
         assert_eq!(w.len(), 2, "{w:?}");
         assert!(
-            w[1].starts_with("a.mtl: line 3: material 'a': Ks 0 beside a map_Ks read as Ks 1"),
+            w[1].starts_with("a.mtl: line 3: material 'a': map_Ks has no effect"),
             "{}",
             w[1]
         );

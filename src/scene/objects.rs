@@ -19,7 +19,7 @@
 //! instanced, because light sampling picks points of the lights in world space.
 use super::maps::Maps;
 use super::mesh::Mesh;
-use super::text::{past_max_coord, quote, Lines, MAX_COORD, MAX_DEGREES};
+use super::text::{past_max_coord, quote_name, Lines, MAX_COORD, MAX_DEGREES};
 use anyhow::{bail, Result};
 use glam::{DMat3, DMat4, DVec3, Mat3, Mat4, Vec2, Vec3};
 use serde::Deserialize;
@@ -52,7 +52,7 @@ impl ObjectFile {
         let at = format!(
             "{label}: line {}: object '{}'",
             line(self.obj.span().start),
-            quote(self.obj.get_ref())
+            quote_name(self.obj.get_ref())
         );
         let m = if let Some(m) = &self.matrix {
             if self.translate.is_some() || self.rotate.is_some() || self.scale.is_some() {

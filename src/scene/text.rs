@@ -383,6 +383,16 @@ pub fn line_at(bytes: &[u8], offset: usize) -> usize {
 }
 
 /// A line as it appears in an error message: trimmed, and cut short if long.
+/// A file name from a scene file as a message shows it: as `quote` shortens it, but untrimmed,
+/// so that a space at its end (`obj = "s.obj "`, which names no file) shows, where the message
+/// read `obj 's.obj': OBJ 's.obj ': no such file`.
+pub fn quote_name(name: &str) -> String {
+    match name.char_indices().nth(60) {
+        Some((i, _)) => format!("{} ...", &name[..i]),
+        None => name.to_string(),
+    }
+}
+
 pub fn quote(line: &str) -> String {
     let line = line.trim();
     match line.char_indices().nth(60) {
