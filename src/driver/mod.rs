@@ -217,7 +217,9 @@ fn run_key(scene: &Scene, opts: &RenderOptions, plan: &Plan) -> Result<RunKey> {
         visibility: if opts.packets { "packet" } else { "single" }.into(),
         primary: opts.primary.name().into(),
         paths: opts.paths.name().into(),
-        aov: opts.aov,
+        // `--aov` changes nothing the independent tracer writes (it is ignored, with a
+        // warning): it does not keep such a run from resuming.
+        aov: opts.aov && opts.method.reuses(),
         adaptive: opts.effective_adaptive().unwrap_or(0.0),
         exr_float: opts.exr_float,
         radiance_unit: plan.radiance_unit,

@@ -536,6 +536,11 @@ fn frame_number(text: &str) -> Option<u32> {
     // place after the exponent moves it is a zero (`1e-400` and `0.99999999999999999` are not
     // frames, though they read as the floats 0 and 1).
     let unsigned = text.strip_prefix('+').unwrap_or(text);
+    // A minus before nothing but zeros is zero (`-0`, `-0.0`, as numpy writes a negative zero).
+    let unsigned = match unsigned.strip_prefix('-') {
+        Some(rest) if rest.bytes().all(|b| matches!(b, b'0' | b'.')) && rest.contains('0') => "0",
+        _ => unsigned,
+    };
     let (mantissa, exponent) = match unsigned.split_once(['e', 'E']) {
         Some((m, e)) => (m, e.parse::<i32>().ok()?),
         None => (unsigned, 0),
@@ -853,18 +858,24 @@ mod tests {
             &mut Repairs::new(false),
         );
         assert_eq!(p.unwrap_or_else(|e| panic!("{csv}: {e:#}")), poses[..1]);
-        let text = json(&[
-            entry(0, ID).replace("\"frame\": 0", "\"frame\": 0.0"),
-            entry(1, ID).replace("\"frame\": 1", "\"frame\": 1e0"),
-        ]);
-        let p = parse(
-            "c.json",
-            text.as_bytes(),
-            Format::Json,
-            2,
-            &mut Repairs::new(false),
-        );
-        assert_eq!(p.unwrap()[..1], poses[..1]);
+        // A negative zero is the frame 0 too (it was refused as not a whole number).
+        for zero in ["0.0", "-0", "-0.0"] {
+            let text = json(&[
+                entry(0, ID).replace("\"frame\": 0", &format!("\"frame\": {zero}")),
+                entry(1, ID).replace("\"frame\": 1", "\"frame\": 1e0"),
+            ]);
+            let p = parse(
+                "c.json",
+                text.as_bytes(),
+                Format::Json,
+                2,
+                &mut Repairs::new(false),
+            );
+            assert_eq!(
+                p.unwrap_or_else(|e| panic!("{zero}: {e:#}"))[..1],
+                poses[..1]
+            );
+        }
     }
 
     #[test]
