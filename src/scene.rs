@@ -318,31 +318,7 @@ struct FrameNumber(u32);
 
 impl<'de> Deserialize<'de> for FrameNumber {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        struct V;
-        impl de::Visitor<'_> for V {
-            type Value = FrameNumber;
-            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-                write!(f, "a frame number (a whole number from 0 to {})", u32::MAX)
-            }
-            fn visit_i64<E: de::Error>(self, v: i64) -> Result<FrameNumber, E> {
-                u32::try_from(v)
-                    .map(FrameNumber)
-                    .map_err(|_| E::invalid_value(de::Unexpected::Signed(v), &self))
-            }
-            fn visit_u64<E: de::Error>(self, v: u64) -> Result<FrameNumber, E> {
-                u32::try_from(v)
-                    .map(FrameNumber)
-                    .map_err(|_| E::invalid_value(de::Unexpected::Unsigned(v), &self))
-            }
-            fn visit_f64<E: de::Error>(self, v: f64) -> Result<FrameNumber, E> {
-                if v.fract() == 0.0 && (0.0..=u32::MAX as f64).contains(&v) {
-                    Ok(FrameNumber(v as u32))
-                } else {
-                    Err(E::invalid_value(de::Unexpected::Float(v), &self))
-                }
-            }
-        }
-        d.deserialize_any(V)
+        whole(d, "a frame number (a whole number from 0 to 4294967295)").map(FrameNumber)
     }
 }
 
@@ -355,32 +331,34 @@ struct Whole(u32);
 
 impl<'de> Deserialize<'de> for Whole {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        struct V;
-        impl de::Visitor<'_> for V {
-            type Value = Whole;
-            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-                write!(f, "a whole number from 0 to {}", u32::MAX)
-            }
-            fn visit_i64<E: de::Error>(self, v: i64) -> Result<Whole, E> {
-                u32::try_from(v)
-                    .map(Whole)
-                    .map_err(|_| E::invalid_value(de::Unexpected::Signed(v), &self))
-            }
-            fn visit_u64<E: de::Error>(self, v: u64) -> Result<Whole, E> {
-                u32::try_from(v)
-                    .map(Whole)
-                    .map_err(|_| E::invalid_value(de::Unexpected::Unsigned(v), &self))
-            }
-            fn visit_f64<E: de::Error>(self, v: f64) -> Result<Whole, E> {
-                if v.fract() == 0.0 && (0.0..=u32::MAX as f64).contains(&v) {
-                    Ok(Whole(v as u32))
-                } else {
-                    Err(E::invalid_value(de::Unexpected::Float(v), &self))
-                }
+        whole(d, "a whole number from 0 to 4294967295").map(Whole)
+    }
+}
+
+/// A whole number from 0 to 2^32 - 1, as an integer or a float whose value is whole; `what`:
+/// what a refusal says was expected.
+fn whole<'de, D: Deserializer<'de>>(d: D, what: &'static str) -> Result<u32, D::Error> {
+    struct V(&'static str);
+    impl de::Visitor<'_> for V {
+        type Value = u32;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str(self.0)
+        }
+        fn visit_i64<E: de::Error>(self, v: i64) -> Result<u32, E> {
+            u32::try_from(v).map_err(|_| E::invalid_value(de::Unexpected::Signed(v), &self))
+        }
+        fn visit_u64<E: de::Error>(self, v: u64) -> Result<u32, E> {
+            u32::try_from(v).map_err(|_| E::invalid_value(de::Unexpected::Unsigned(v), &self))
+        }
+        fn visit_f64<E: de::Error>(self, v: f64) -> Result<u32, E> {
+            if v.fract() == 0.0 && (0.0..=u32::MAX as f64).contains(&v) {
+                Ok(v as u32)
+            } else {
+                Err(E::invalid_value(de::Unexpected::Float(v), &self))
             }
         }
-        d.deserialize_any(V)
     }
+    d.deserialize_any(V(what))
 }
 
 /// Every value keeps its place in the file, so that an error can name its line.

@@ -281,6 +281,20 @@ fn names_in_another_case_are_found_from_the_scenes_own_folder() {
     }
 }
 
+/// The corpus's base scene in `d`, with the OBJ of `cases/tex-case-mismatch`, whose
+/// `mats/s.mtl` names the map `map` (no file is there by that name); returns that case's folder.
+fn scene_naming_a_map(d: &Path, map: &str) -> PathBuf {
+    for f in files_under(&corpus().join("base")) {
+        std::fs::copy(&f, d.join(f.file_name().unwrap())).unwrap();
+    }
+    let case = corpus().join("cases/tex-case-mismatch");
+    std::fs::copy(case.join("s.obj"), d.join("s.obj")).unwrap();
+    std::fs::create_dir_all(d.join("mats")).unwrap();
+    let mtl = std::fs::read_to_string(case.join("mats/s.mtl")).unwrap();
+    std::fs::write(d.join("mats/s.mtl"), mtl.replace("Textures/Wood.PNG", map)).unwrap();
+    case
+}
+
 /// A name written composed and in capitals (`ÖLFASS Holz.png`, the `Ö` one character) finds a
 /// file stored decomposed (an `O` and its accent, as macOS stores names and archives made
 /// there keep them) and in small letters: the scene was refused, naming two files whose names
@@ -289,18 +303,7 @@ fn names_in_another_case_are_found_from_the_scenes_own_folder() {
 fn names_are_found_in_another_composition_and_case_of_their_letters() {
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
-    for f in files_under(&corpus().join("base")) {
-        std::fs::copy(&f, d.join(f.file_name().unwrap())).unwrap();
-    }
-    let case = corpus().join("cases/tex-case-mismatch");
-    std::fs::copy(case.join("s.obj"), d.join("s.obj")).unwrap();
-    std::fs::create_dir_all(d.join("mats")).unwrap();
-    let mtl = std::fs::read_to_string(case.join("mats/s.mtl")).unwrap();
-    std::fs::write(
-        d.join("mats/s.mtl"),
-        mtl.replace("Textures/Wood.PNG", "\u{d6}LFASS Holz.png"),
-    )
-    .unwrap();
+    let case = scene_naming_a_map(d, "\u{d6}LFASS Holz.png");
     // "ölfass holz.png" decomposed: o, combining diaeresis (U+0308), ...
     std::fs::copy(
         case.join("mats/textures/wood.png"),
@@ -321,18 +324,7 @@ fn names_are_found_in_another_composition_and_case_of_their_letters() {
 fn two_files_matching_a_name_in_another_case_are_both_named() {
     let tmp = tempfile::tempdir().unwrap();
     let d = tmp.path();
-    for f in files_under(&corpus().join("base")) {
-        std::fs::copy(&f, d.join(f.file_name().unwrap())).unwrap();
-    }
-    let case = corpus().join("cases/tex-case-mismatch");
-    std::fs::copy(case.join("s.obj"), d.join("s.obj")).unwrap();
-    std::fs::create_dir_all(d.join("mats/textures")).unwrap();
-    let mtl = std::fs::read_to_string(case.join("mats/s.mtl")).unwrap();
-    std::fs::write(
-        d.join("mats/s.mtl"),
-        mtl.replace("Textures/Wood.PNG", "wood.png"),
-    )
-    .unwrap();
+    let case = scene_naming_a_map(d, "wood.png");
     for name in ["Wood.png", "WOOD.png"] {
         std::fs::copy(
             case.join("mats/textures/wood.png"),

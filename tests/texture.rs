@@ -62,6 +62,25 @@ fn write_scene(d: &Path, obj: &str, mtl: &str, toml: &str) -> String {
     p.to_str().unwrap().to_string()
 }
 
+/// `QUAD` with the materials `mtl` under a white sky, seen from (0, 0, 2) at 16 x 16 and 4 spp
+/// (written into `dir`, loaded, rendered on `pool`): its pixels and the scene's warnings.
+fn quad_under_sky(
+    dir: &Path,
+    mtl: &str,
+    device: &Device,
+    pool: &rayon::ThreadPool,
+) -> (Vec<Vec3>, Vec<String>) {
+    let sky = "[environment]\nradiance = [1, 1, 1]";
+    let path = write_scene(dir, QUAD, mtl, &toml(16, 16, [0.0, 0.0, 2.0], 40.0, sky));
+    let scene = Scene::load(&path, device).unwrap();
+    let integ = Integrator::new(&scene, 2);
+    let cam = scene.camera(0, 16, 16);
+    let px = pool
+        .install(|| render_frame_independent(&integ, &cam, 0, 4, 1, false, &|_| {}))
+        .pixels;
+    (px, scene.warnings)
+}
+
 /// A camera at `position` looking at the origin, `frames` frames, `w` x `h`, and `extra` TOML.
 fn toml(w: u32, h: u32, position: [f32; 3], fov: f32, extra: &str) -> String {
     format!(
@@ -1329,26 +1348,8 @@ fn kd_zero_beside_a_colour_map_is_the_texture() {
     let device = Device::new().unwrap();
     let pool = thread_pool(1).unwrap();
     let frame = |kd: &str| {
-        let path = write_scene(
-            dir.path(),
-            QUAD,
-            &format!("newmtl q\nKd {kd}\nmap_Kd checker.png\n"),
-            &toml(
-                16,
-                16,
-                [0.0, 0.0, 2.0],
-                40.0,
-                "[environment]\nradiance = [1, 1, 1]",
-            ),
-        );
-        let scene = Scene::load(&path, &device).unwrap();
-        let integ = Integrator::new(&scene, 2);
-        let px = pool
-            .install(|| {
-                render_frame_independent(&integ, &scene.camera(0, 16, 16), 0, 4, 1, false, &|_| {})
-            })
-            .pixels;
-        (px, scene.warnings)
+        let mtl = format!("newmtl q\nKd {kd}\nmap_Kd checker.png\n");
+        quad_under_sky(dir.path(), &mtl, &device, &pool)
     };
     let (zero, said) = frame("0.00 0.00 0.00");
     let (one, none) = frame("1 1 1");
@@ -1466,28 +1467,7 @@ fn a_map_beside_a_zero_ks_or_ke_is_said_to_do_nothing() {
     );
     let device = Device::new().unwrap();
     let pool = thread_pool(1).unwrap();
-    let frame = |mtl: &str| {
-        let path = write_scene(
-            dir.path(),
-            QUAD,
-            mtl,
-            &toml(
-                16,
-                16,
-                [0.0, 0.0, 2.0],
-                40.0,
-                "[environment]\nradiance = [1, 1, 1]",
-            ),
-        );
-        let scene = Scene::load(&path, &device).unwrap();
-        let integ = Integrator::new(&scene, 2);
-        let px = pool
-            .install(|| {
-                render_frame_independent(&integ, &scene.camera(0, 16, 16), 0, 4, 1, false, &|_| {})
-            })
-            .pixels;
-        (px, scene.warnings)
-    };
+    let frame = |mtl: &str| quad_under_sky(dir.path(), mtl, &device, &pool);
     for (with_map, without, said) in [
         (
             "newmtl q\nKd 0.5\nKe 0 0 0\nmap_Ke checker.png\n",
