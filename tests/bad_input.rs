@@ -238,15 +238,20 @@ fn usage_errors_are_one_line_that_says_what_is_missing() {
     }
 }
 
-/// Render `s.toml` from its own folder `d`, by its bare name (`reframe render s.toml`, the
-/// usual way); it must succeed. Its standard error.
-fn render_from(d: &Path) -> String {
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
+/// `reframe render s.toml` (16x12, 1 spp) run in the folder `d`.
+fn run_from(d: &Path) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
         .current_dir(d)
         .args(["render", "s.toml", "--spp", "1", "--threads", "1"])
         .args(["--res", "16x12", "--out", "out/f_####.png"])
         .output()
-        .unwrap();
+        .unwrap()
+}
+
+/// Render `s.toml` from its own folder `d`, by its bare name (`reframe render s.toml`, the
+/// usual way); it must succeed. Its standard error.
+fn render_from(d: &Path) -> String {
+    let o = run_from(d);
     let err = String::from_utf8_lossy(&o.stderr).into_owned();
     assert!(o.status.success(), "{err}");
     err
@@ -332,12 +337,7 @@ fn two_files_matching_a_name_in_another_case_are_both_named() {
         )
         .unwrap();
     }
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
-        .current_dir(d)
-        .args(["render", "s.toml", "--spp", "1", "--threads", "1"])
-        .args(["--res", "16x12", "--out", "out/f_####.png"])
-        .output()
-        .unwrap();
+    let o = run_from(d);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "{err}");
     assert!(

@@ -62,6 +62,18 @@ fn write_scene(d: &Path, obj: &str, mtl: &str, toml: &str) -> String {
     p.to_str().unwrap().to_string()
 }
 
+/// A folder holding `checker.png` (`square`'s 32 x 32 texels), a device and a pool of one thread.
+fn checker_setup() -> (tempfile::TempDir, Device, rayon::ThreadPool) {
+    let dir = tempfile::tempdir().unwrap();
+    write_texture(
+        &dir.path().join("checker.png"),
+        32,
+        |x, y| square(y / 8, x / 8),
+        false,
+    );
+    (dir, Device::new().unwrap(), thread_pool(1).unwrap())
+}
+
 /// `QUAD` with the materials `mtl` under a white sky, seen from (0, 0, 2) at 16 x 16 and 4 spp
 /// (written into `dir`, loaded, rendered on `pool`): its pixels and the scene's warnings.
 fn quad_under_sky(
@@ -1338,15 +1350,7 @@ fn the_texture_cache_counts_against_the_memory_a_render_may_take() {
 /// `Kd 1`, bit for bit.
 #[test]
 fn kd_zero_beside_a_colour_map_is_the_texture() {
-    let dir = tempfile::tempdir().unwrap();
-    write_texture(
-        &dir.path().join("checker.png"),
-        32,
-        |x, y| square(y / 8, x / 8),
-        false,
-    );
-    let device = Device::new().unwrap();
-    let pool = thread_pool(1).unwrap();
+    let (dir, device, pool) = checker_setup();
     let frame = |kd: &str| {
         let mtl = format!("newmtl q\nKd {kd}\nmap_Kd checker.png\n");
         quad_under_sky(dir.path(), &mtl, &device, &pool)
@@ -1458,15 +1462,7 @@ fn texture_statistics_from_the_environment_end_cleanly() {
 /// 0 on an image-driven emission exports the same way, and means no light.
 #[test]
 fn a_map_beside_a_zero_ks_or_ke_is_said_to_do_nothing() {
-    let dir = tempfile::tempdir().unwrap();
-    write_texture(
-        &dir.path().join("checker.png"),
-        32,
-        |x, y| square(y / 8, x / 8),
-        false,
-    );
-    let device = Device::new().unwrap();
-    let pool = thread_pool(1).unwrap();
+    let (dir, device, pool) = checker_setup();
     let frame = |mtl: &str| quad_under_sky(dir.path(), mtl, &device, &pool);
     for (with_map, without, said) in [
         (
