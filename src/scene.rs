@@ -882,6 +882,12 @@ impl Scene {
                         .first_of(&[obj::UNKNOWN])
                         .map(|w| format!(" (a line was ignored: {w})"))
                 })
+                .or_else(|| {
+                    // An emission map beside `Ke 0`, which it is multiplied by.
+                    repairs
+                        .first_of(&[mtl::KE_ZERO_MAP])
+                        .map(|w| format!(" ({w})"))
+                })
                 .unwrap_or_default();
             let env = if environment.is_some() {
                 "its [environment] is black"

@@ -1483,4 +1483,16 @@ fn a_map_beside_a_zero_ks_or_ke_is_said_to_do_nothing() {
         assert!(a.iter().map(|p| p.x).sum::<f32>() > 1.0);
         assert!(a.iter().zip(&b).all(|(a, b)| a == b));
     }
+    // The lamp alone: the refusal of a scene without light names the map.
+    let path = write_scene(
+        dir.path(),
+        QUAD,
+        "newmtl q\nKd 0.5\nKe 0 0 0\nmap_Ke checker.png\n",
+        &toml(16, 16, [0.0, 0.0, 2.0], 40.0, ""),
+    );
+    let e = Scene::load(&path, &device).err().unwrap().to_string();
+    assert!(
+        e.contains("the scene has no light") && e.contains("map_Ke has no effect"),
+        "{e}"
+    );
 }

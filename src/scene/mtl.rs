@@ -74,7 +74,7 @@ const KS_ZERO_MAP: Kind = Kind {
     many: "maps (map_Ks) with no effect: each is multiplied by its Ks, which is 0 (write Ks 1 \
            for the map as it is)",
 };
-const KE_ZERO_MAP: Kind = Kind {
+pub(crate) const KE_ZERO_MAP: Kind = Kind {
     one: "map_Ke has no effect: the map is multiplied by Ke, which is 0, so the surface emits \
           nothing (write Ke 1 for the map as it is)",
     many: "maps (map_Ke) with no effect: each is multiplied by its Ke, which is 0, so the \
