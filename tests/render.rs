@@ -468,16 +468,16 @@ fn reuse_cli_stats_aov_and_determinism() {
 }
 
 /// The reuse kernel's blocks are as large as the thread count allows
-/// (`reuse::shade::block_side`): at 256x256 one thread takes 64-pixel blocks and two take
+/// (`reuse::shade::block_side`): at 192x192 one thread takes 64-pixel blocks and two take
 /// 32-pixel ones, with other windows and another order of splats; the frames are the same to
 /// the bit (`mis-cv`, whose weights and two folds go through every part of a splat).
 #[test]
 fn reuse_blocks_of_any_side_give_the_same_frames() {
     use reframe::reuse::shade::block_side;
-    assert_eq!((block_side(256, 256, 1), block_side(256, 256, 2)), (64, 32));
+    assert_eq!((block_side(192, 192, 1), block_side(192, 192, 2)), (64, 32));
     let dir = tempfile::tempdir().unwrap();
     let args = [
-        "vase", "--method", "mis-cv", "--window", "5", "--frames", "20-25", "--res", "256x256",
+        "vase", "--method", "mis-cv", "--window", "5", "--frames", "20-25", "--res", "192x192",
         "--spp", "1",
     ];
     render_with_1_and_2_threads(dir.path(), &args, 20..=25);
