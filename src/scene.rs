@@ -962,8 +962,6 @@ impl Scene {
         })
     }
 
-    /// The camera of frame `frame`, at `width` x `height`: its eye where the render has it
-    /// (`cameras` are given from `origin`), its matrices in the scene file's coordinates.
     /// The largest radiance any light of the scene emits in a channel: an emitting material's
     /// `Ke` times the largest texel of its emission map (at most `MAX_KE`, as a lookup is
     /// capped), and the environment's brightest texel. 0 for a scene that emits nothing.
@@ -989,6 +987,8 @@ impl Scene {
         brightest
     }
 
+    /// The camera of frame `frame`, at `width` x `height`: its eye where the render has it
+    /// (`cameras` are given from `origin`), its matrices in the scene file's coordinates.
     pub fn camera(&self, frame: u32, width: u32, height: u32) -> Camera {
         let mut cam = Camera::from_pose(&self.cameras.pose(frame), width, height);
         if self.origin != DVec3::ZERO {
@@ -1382,16 +1382,16 @@ impl Lights {
         // (docs/light-sampling.md, "Which light").
         // Only lights of some power count (a material whose triangles all have area 0 after
         // placement has none, and would divide 0 by 0).
-        let groups = light_groups(mesh, &tris);
-        let mut group_power = vec![0.0f64; groups.len()];
-        for (&g, (p, _)) in groups.of.iter().zip(&parts) {
+        let (light_of, lights) = light_groups(mesh, &tris);
+        let mut group_power = vec![0.0f64; lights];
+        for (&g, (p, _)) in light_of.iter().zip(&parts) {
             group_power[g] += p.iter().sum::<f64>();
         }
         let lit = group_power.iter().filter(|&&p| p > 0.0).count();
         if lit > 1 {
             let total: f64 = parts.iter().flat_map(|(p, _)| p.iter()).sum();
             let even = LIGHT_UNIFORM / lit as f64;
-            for (&g, (p, _)) in groups.of.iter().zip(parts.iter_mut()) {
+            for (&g, (p, _)) in light_of.iter().zip(parts.iter_mut()) {
                 let share = if group_power[g] > 0.0 {
                     even / group_power[g]
                 } else {
@@ -1485,20 +1485,9 @@ impl Lights {
 const LIGHT_UNIFORM: f64 = 0.25;
 
 /// The lights of a scene for picking (`Lights::new`): the emitting triangles of one material
-/// are one light (a lamp, a window, a panel), whatever their number.
-struct LightGroups {
-    /// Per emitting triangle (in `Lights::tris`' order), its light.
-    of: Vec<usize>,
-    count: usize,
-}
-
-impl LightGroups {
-    fn len(&self) -> usize {
-        self.count
-    }
-}
-
-fn light_groups(mesh: &Mesh, tris: &[u32]) -> LightGroups {
+/// are one light (a lamp, a window, a panel), whatever their number. Per emitting triangle (in
+/// `Lights::tris`' order), its light; and the number of lights.
+fn light_groups(mesh: &Mesh, tris: &[u32]) -> (Vec<usize>, usize) {
     let mut index: HashMap<u32, usize> = HashMap::new();
     let of = tris
         .iter()
@@ -1507,10 +1496,7 @@ fn light_groups(mesh: &Mesh, tris: &[u32]) -> LightGroups {
             *index.entry(mesh.tri_material[t as usize]).or_insert(n)
         })
         .collect();
-    LightGroups {
-        of,
-        count: index.len(),
-    }
+    (of, index.len())
 }
 
 /// The grid side of each emitting triangle with an emission map, by triangle: about two texels
@@ -1601,7 +1587,7 @@ fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
     // readers take them): read as lines, where TOML saw one line of the whole file and refused
     // it, quoting it all.
     let unix;
-    let text = if text.contains('\r') && !text.contains('\n') {
+    let text = if text::bare_cr_lines(text.as_bytes()) {
         unix = text.replace('\r', "\n");
         unix.as_str()
     } else {
@@ -2393,16 +2379,9 @@ fn find_named_file(dir: &Path, name: &str) -> Option<PathBuf> {
     named_file_matches(dir, name).ok()
 }
 
-/// Where a file named `name` in `dir` that is not there as written could not be found because
-/// several entries of a folder match it in another case or composition (`Wood.png` and
-/// `wood.png` beside each other, both `wood.PNG` to Windows): those entries, for the message
-/// that says the file is missing. Empty where that is not why.
-pub(crate) fn case_ambiguities(dir: &Path, name: &str) -> Vec<PathBuf> {
-    named_file_matches(dir, name).err().unwrap_or_default()
-}
-
-/// `find_named_file`, with `Err` holding the entries of a folder that matched a part of the
-/// path equally well where nothing was found.
+/// `find_named_file`, with `Err` holding the files that the name matches equally well in
+/// another case or composition (`Wood.png` and `wood.png` beside each other, both `wood.PNG`
+/// to Windows) where that is why none was found; empty where nothing matches.
 fn named_file_matches(dir: &Path, name: &str) -> Result<PathBuf, Vec<PathBuf>> {
     let slashed = name.replace('\\', "/");
     let drive = slashed.len() >= 2
@@ -2509,7 +2488,7 @@ fn files_ignoring_case(at: PathBuf, parts: &[&str], found: &mut Vec<PathBuf>) {
 /// of a folder match the name in another case, they are named (none is picked: which one an
 /// exporter meant is a guess).
 pub(crate) fn missing_file_message(dir: &Path, name: &str, missing: &Path) -> String {
-    let several = case_ambiguities(dir, name);
+    let several = named_file_matches(dir, name).err().unwrap_or_default();
     if several.is_empty() {
         return format!("no file '{}'", missing.display());
     }

@@ -1022,8 +1022,7 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
     // Luminance and chroma (OpenEXR's Y, RY, BY, also in a layer): RY and BY are no colours of
     // their own, and the image read as its Y alone would be grey without a word (in a layer,
     // as RGB: Y as red).
-    let own = |n: &String| layer_of(n).map_or(n.clone(), |(_, k)| k.to_string());
-    if names.iter().any(|n| own(n) == "RY") && names.iter().any(|n| own(n) == "BY") {
+    if names.iter().any(|n| own_name(n) == "RY") && names.iter().any(|n| own_name(n) == "BY") {
         bail!(
             "its channels ({}) are luminance and chroma (Y, RY, BY), not RGB: save it as RGB \
              first (in a compositor or an image editor)",
@@ -1065,6 +1064,11 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
         [_] | [_, _] => Ok(Colour::Grey(0)),
         _ => Ok(Colour::Rgb([Some(0), Some(1), Some(2)])),
     }
+}
+
+/// A channel's own name, without its layer (`R` of `ViewLayer.Combined.R`).
+fn own_name(name: &str) -> &str {
+    layer_of(name).map_or(name, |(_, k)| k)
 }
 
 /// A layered channel name (`ViewLayer.Combined.R`, as OpenEXR names the channels of a
@@ -1372,7 +1376,7 @@ fn mask_pick(names: &[String], imfchan: Option<char>) -> Result<MaskPick> {
     };
     // A channel by its name, else by its role in any case (`a`, `Alpha`, `diffuse.a`), as the
     // colour's channels are found (a lower-case `r, g, b, a` file read its red as the mask).
-    let own = |i: usize| layer_of(&names[i]).map_or(names[i].as_str(), |(_, k)| k);
+    let own = |i: usize| own_name(&names[i]);
     let find = |c: &str| {
         let role_of = |i: usize| c.len() == 1 && role(own(i)) == c.chars().next();
         (scope.iter().copied().find(|&i| own(i) == c))

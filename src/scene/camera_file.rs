@@ -616,7 +616,7 @@ fn decimal_point((f, quoted): (String, bool), sep: char) -> String {
 fn csv_entries(label: &str, text: &str, repairs: &mut Repairs) -> Result<Vec<Entry>> {
     // Lines end in LF or CRLF, or in a bare CR throughout (a classic Mac spreadsheet's export,
     // which was read as one line: its header).
-    let bare_cr = !text.contains('\n') && text.contains('\r');
+    let bare_cr = super::text::bare_cr_lines(text.as_bytes());
     let lines: Box<dyn Iterator<Item = &str>> = if bare_cr {
         Box::new(text.split('\r'))
     } else {

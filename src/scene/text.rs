@@ -130,6 +130,12 @@ pub struct Line<'a> {
     pub latin1: bool,
 }
 
+/// Whether a text's lines end in a bare CR throughout (the classic Mac OS's line end): it has
+/// a CR and no LF.
+pub fn bare_cr_lines(bytes: &[u8]) -> bool {
+    !bytes.contains(&b'\n') && bytes.contains(&b'\r')
+}
+
 /// The lines of an OBJ or MTL file, without a UTF-8 byte order mark or line ends (LF or CRLF;
 /// a bare CR, the classic Mac OS's line end, in a file without any LF; a bare CR within a line
 /// of a file with LF ends a statement too, the parts keeping the line's number), one at a time
@@ -138,11 +144,7 @@ pub fn lines(bytes: &[u8]) -> Result<impl Iterator<Item = Line<'_>>> {
     let bytes = without_eof_mark(bytes);
     binary(bytes)?;
     let bytes = bytes.strip_prefix(b"\xef\xbb\xbf").unwrap_or(bytes);
-    let end = if !bytes.contains(&b'\n') && bytes.contains(&b'\r') {
-        b'\r'
-    } else {
-        b'\n'
-    };
+    let end = if bare_cr_lines(bytes) { b'\r' } else { b'\n' };
     // A bare CR inside a line of a file with LF line ends ends a statement too (an exporter's
     // header comment ending in CR swallowed the vertex after it): the parts keep the line's
     // number, as an editor shows the CR within the line.
@@ -394,11 +396,7 @@ pub fn quote_name(name: &str) -> String {
 }
 
 pub fn quote(line: &str) -> String {
-    let line = line.trim();
-    match line.char_indices().nth(60) {
-        Some((i, _)) => format!("{} ...", &line[..i]),
-        None => line.to_string(),
-    }
+    quote_name(line.trim())
 }
 
 #[cfg(test)]

@@ -283,7 +283,8 @@ impl Checkpointer {
             } else {
                 left_by_a_run = super::is_state_file(&state);
             }
-            if state.exists() && !resume && !super::is_state_file(&state) {
+            // (`left_by_a_run` is whether a 'state' there is a reframe checkpoint.)
+            if state.exists() && !resume && !left_by_a_run {
                 bail!(
                     "--checkpoint {}: the folder holds a file named 'state' that is not a \
                      complete reframe checkpoint (another program's file, or one cut short); \
