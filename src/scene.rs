@@ -877,9 +877,9 @@ impl Scene {
                 .first_of(&[MTL_MISSING, NO_MTLLIB, UNKNOWN_MATERIAL, NO_USEMTL])
                 .map(|w| format!(" (materials fell back to the default: {w})"))
                 .or_else(|| {
-                    // A misspelt `usemtl`: its faces kept the material before it.
+                    // A misspelt `usemtl` (its faces kept the material before it), or `Ke`.
                     repairs
-                        .first_of(&[obj::UNKNOWN])
+                        .first_of(&[obj::UNKNOWN, mtl::UNKNOWN])
                         .map(|w| format!(" (a line was ignored: {w})"))
                 })
                 .or_else(|| {
@@ -2666,7 +2666,10 @@ fn load_obj_files(
                 } else {
                     UNKNOWN_MATERIAL
                 };
-                repairs.note(label, *line, kind, || format!("'usemtl {}'", quote(name)))?;
+                repairs.note(label, *line, kind, || {
+                    let hint = text::did_you_mean(name, names.iter().map(String::as_str));
+                    format!("'usemtl {}'{hint}", quote(name))
+                })?;
                 need_default = true;
                 default
             }

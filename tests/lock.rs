@@ -40,8 +40,21 @@ fn a_second_render_on_the_same_output_is_refused() {
         assert!(start.elapsed() < Duration::from_secs(60), "no lock file");
         std::thread::sleep(Duration::from_millis(5));
     }
+    // The first is stopped while the second runs, so that it still holds the lock however
+    // slowly the second starts (on a loaded machine the first had finished its 0.3 s render
+    // before the second looked, and the second rendered).
+    let signal = |sig: &str| {
+        let pid = first.id().to_string();
+        assert!(Command::new("kill")
+            .args([sig, &pid])
+            .status()
+            .unwrap()
+            .success());
+    };
+    signal("-STOP");
     let t = Instant::now();
     let o = reframe(&args("a")).output().unwrap();
+    signal("-CONT");
     let err = String::from_utf8_lossy(&o.stderr);
     // Refused, not made to wait: a refusal naming the first's pid can only come while the
     // first holds the lock (`try_lock` never waits). The bound only catches a hang; a timed

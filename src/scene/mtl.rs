@@ -26,7 +26,7 @@
 //! lobes keep their colour), `Ns` above `MAX_NS`, `Ke` above
 //! `MAX_KE`.
 use super::repairs::{Kind, Repairs};
-use super::text::{canonical, joined, lines, number, number_saturating, quote, rest};
+use super::text::{canonical, did_you_mean, joined, lines, number, number_saturating, quote, rest};
 use crate::bsdf::Material;
 /// Largest Phong exponent: the BSDF's own bound (`bsdf::MAX_NS`).
 pub use crate::bsdf::MAX_NS;
@@ -84,6 +84,42 @@ const EXTRA_NUMBERS: Kind = Kind {
     one: "numbers past a statement's own ignored",
     many: "statements with numbers past their own ignored",
 };
+/// A statement that is no MTL statement: a misspelt `Kd` or `Ke` (the material kept its
+/// default, and a scene could lose its light without a word), another format's line.
+pub(crate) const UNKNOWN: Kind = Kind {
+    one: "statement the MTL format does not have: ignored",
+    many: "statements the MTL format does not have: ignored",
+};
+
+/// MTL statements that reframe passes over without a word, besides the maps and their
+/// relatives (`unrendered_map`): ambient colour, transmission, refraction index, the
+/// illumination model, transparency as `Tr` (exporters disagree on which way it runs), and
+/// the PBR extension's sheen, clearcoat and anisotropy; `Kt` and `Km` as some exporters write
+/// them; `map_aat` (texture antialiasing).
+const PASSED_OVER: [&str; 14] = [
+    "Ka",
+    "Tf",
+    "Ni",
+    "illum",
+    "Tr",
+    "sharpness",
+    "Ps",
+    "Pc",
+    "Pcr",
+    "aniso",
+    "anisor",
+    "Kt",
+    "Km",
+    "map_aat",
+];
+
+/// The statements reframe reads or says it does not render, in their usual case (a misspelt
+/// statement is compared with these and `PASSED_OVER` for a hint, `did_you_mean`).
+const STATEMENTS: [&str; 20] = [
+    "newmtl", "Kd", "Ks", "Ke", "Ns", "d", "map_Kd", "map_Ks", "map_Ke", "map_d", "Pr", "Pm",
+    "map_Bump", "bump", "disp", "norm", "refl", "decal", "map_Ka", "map_Ns",
+];
+
 const UNRENDERED_MAP: Kind = Kind {
     one: "texture map not rendered (reframe renders map_Kd, map_Ks, map_Ke and map_d)",
     many: "texture maps not rendered (reframe renders map_Kd, map_Ks, map_Ke and map_d)",
@@ -276,6 +312,13 @@ pub fn parse_for(
             continue;
         }
         if !matches!(key, "Kd" | "Ks" | "Ke" | "Ns" | "Pr") {
+            let mut known = STATEMENTS.iter().chain(&PASSED_OVER);
+            if !known.any(|k| k.eq_ignore_ascii_case(key)) {
+                notes.note(label, n, UNKNOWN, || {
+                    let hint = did_you_mean(key, STATEMENTS.iter().chain(&PASSED_OVER).copied());
+                    format!("'{}'{hint}", quote(text))
+                })?;
+            }
             continue;
         }
         let Some(m) = out.materials.last_mut() else {

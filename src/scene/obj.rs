@@ -17,7 +17,7 @@
 //! `usemtl` or `mtllib` without a name.
 use super::repairs::{Kind, Repairs};
 use super::text::{
-    canonical, joined, latin1_bytes, lines, number, numbers, quote, rest, MAX_COORD,
+    canonical, did_you_mean, joined, latin1_bytes, lines, number, numbers, quote, rest, MAX_COORD,
 };
 use anyhow::{anyhow, Result};
 use glam::{DVec3, Vec2, Vec3};
@@ -283,12 +283,14 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
             "s" => smooth = smoothing_group(&args),
             // Groups, merging groups and display and rendering attributes: nothing reframe
             // renders differently.
-            "o" | "g" | "mg" | "bevel" | "c_interp" | "d_interp" | "lod" | "shadow_obj"
-            | "trace_obj" | "usemap" | "maplib" | "ctech" | "stech" | "call" | "csh" | "res" => {}
+            k if PASSED_OVER.contains(&k) => {}
             // Anything else is no OBJ statement: a misspelt `usemtl` (its faces kept the
             // material before it, and the scene lost its light without a word), another
             // format's line.
-            _ => repairs.note(label, n, UNKNOWN, || format!("'{}'", quote(text)))?,
+            _ => repairs.note(label, n, UNKNOWN, || {
+                let hint = did_you_mean(key, KEYS.iter().chain(&PASSED_OVER).copied());
+                format!("'{}'{hint}", quote(text))
+            })?,
         }
     }
     // The box of the vertices the faces use, in f64: an unused vertex (a stray `v 0 0 0` left
@@ -328,6 +330,27 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
 /// `text::canonical`).
 const KEYS: [&str; 10] = [
     "v", "vt", "vn", "f", "fo", "usemtl", "mtllib", "s", "l", "p",
+];
+
+/// Statements passed over without a word: groups, merging groups, and display and rendering
+/// attributes, nothing reframe renders differently.
+const PASSED_OVER: [&str; 16] = [
+    "o",
+    "g",
+    "mg",
+    "bevel",
+    "c_interp",
+    "d_interp",
+    "lod",
+    "shadow_obj",
+    "trace_obj",
+    "usemap",
+    "maplib",
+    "ctech",
+    "stech",
+    "call",
+    "csh",
+    "res",
 ];
 
 /// The smoothing group an `s` statement names: 0 for `off` and 0 (none), its number for a

@@ -399,6 +399,48 @@ pub fn quote(line: &str) -> String {
     quote_name(line.trim())
 }
 
+/// `nearest_name` as the end of a message's detail: ` (did you mean 'floor'?)`, or nothing.
+pub fn did_you_mean<'a>(name: &str, defined: impl IntoIterator<Item = &'a str>) -> String {
+    nearest_name(name, defined)
+        .map(|d| format!(" (did you mean '{}'?)", quote_name(d)))
+        .unwrap_or_default()
+}
+
+/// The name of `defined` that `name` most likely meant, where it names none of them: one that
+/// differs only in case or surrounding spaces, else the nearest within a few edits, case aside
+/// (one for names of up to 5 characters, two up to 12, three beyond; a swap of neighbours is
+/// one edit), the first defined on a tie. A hint for a message: `usemtl Floor` against
+/// `newmtl floor`, `usemtl flor`, `usemtl Material.01` against `Material.001`, `Kdd` against
+/// the MTL statement `Kd`.
+pub fn nearest_name<'a>(name: &str, defined: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
+    let folded = name.trim().to_lowercase();
+    let lower = name.to_lowercase();
+    let chars = name.chars().count();
+    let limit = match chars {
+        0..=5 => 1,
+        6..=12 => 2,
+        _ => 3,
+    };
+    let mut best: Option<(usize, &str)> = None;
+    for d in defined {
+        if d == name {
+            continue;
+        }
+        if d.trim().to_lowercase() == folded {
+            return Some(d);
+        }
+        // The distance is at least the difference in length: most names are skipped unread.
+        if d.chars().count().abs_diff(chars) > limit {
+            continue;
+        }
+        let e = strsim::osa_distance(&lower, &d.to_lowercase());
+        if e <= limit && e < chars && best.is_none_or(|(b, _)| e < b) {
+            best = Some((e, d));
+        }
+    }
+    best.map(|(_, d)| d)
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
@@ -412,6 +454,36 @@ mod tests {
     }
 
     use super::*;
+
+    #[test]
+    fn a_near_name_is_found_and_a_far_one_is_not() {
+        let defined = [
+            "floor",
+            "light",
+            "Material.001",
+            "Material.002",
+            "wall_left",
+        ];
+        let near = |n: &str| nearest_name(n, defined.iter().copied());
+        // Case and spaces first, whatever the edits.
+        assert_eq!(near("FLOOR"), Some("floor"));
+        assert_eq!(near(" light"), Some("light"));
+        // One edit in a short name, two in a middling one, a swap counting one.
+        assert_eq!(near("flor"), Some("floor"));
+        assert_eq!(near("ligth"), Some("light"));
+        assert_eq!(near("wall_lft"), Some("wall_left"));
+        assert_eq!(near("wal_lef"), Some("wall_left"));
+        assert_eq!(near("FLOR"), Some("floor"), "an edit and a case");
+        // A tie goes to the first defined.
+        assert_eq!(near("Material.003"), Some("Material.001"));
+        // Too far, or a name of one letter, or nothing at all.
+        assert_eq!(near("ceiling"), None);
+        assert_eq!(near("fl"), None);
+        assert_eq!(near("x"), None);
+        assert_eq!(near(""), None);
+        assert_eq!(near("floor"), None, "a defined name is no miss");
+        assert_eq!(nearest_name("floor", []), None);
+    }
 
     #[test]
     fn lines_finds_what_line_at_finds() {
