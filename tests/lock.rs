@@ -290,6 +290,21 @@ fn renders_whose_frame_files_meet_are_refused_whatever_their_patterns() {
         "{err}"
     );
     assert!(!d.join("h_0000.exr").exists());
+    // A report named as a lock file: the running render's (it was renamed over the lock, and a
+    // third render then wrote the same frames beside the first), its checkpoint's, or any
+    // other, held or not.
+    let locks = [lock.clone(), d.join(".ck.lock"), d.join(".compare.lock")];
+    for stats in locks.iter().map(|l| l.display().to_string()) {
+        let (code, err) = refusal(args("h_####.exr", "0-1", &["--stats", &stats]));
+        assert!(
+            code == Some(1) && err.contains("lock file") && err.contains(&stats),
+            "{err}"
+        );
+    }
+    assert!(std::fs::read_to_string(&lock)
+        .unwrap()
+        .contains("frames 0-40"));
+    assert!(!d.join("h_0000.exr").exists() && !d.join(".compare.lock").exists());
     // Names that never meet: f_1000.exr and up, and another stem.
     reframe_ok(&args("f_1###.exr", "0-1", &[]));
     reframe_ok(&args("g_####.exr", "0-1", &[]));

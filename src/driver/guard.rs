@@ -236,6 +236,14 @@ fn is_held(f: &File) -> bool {
     true
 }
 
+/// Whether `path` is named as the lock files of outputs, checkpoint folders, chunks, `compare`
+/// and the reference cache are: `.NAME.lock`.
+fn is_lock_name(path: &Path) -> bool {
+    path.file_name()
+        .map(|n| n.to_string_lossy())
+        .is_some_and(|n| n.len() > ".lock".len() && n.starts_with('.') && n.ends_with(".lock"))
+}
+
 /// The first lock file in the folder of `beside` (other than `beside` itself, where that is a
 /// lock) that is held by a live process writing frames, and for which `matches` (given the
 /// holder's pattern and frames) says something: that, and a clause naming the holder. Lock
@@ -250,7 +258,7 @@ fn live_frames_lock<T>(
     for e in entries.flatten() {
         let name = e.file_name();
         let n = name.to_string_lossy();
-        if !(n.starts_with('.') && n.ends_with(".lock"))
+        if !is_lock_name(Path::new(&name))
             || Some(name.as_os_str()) == own_name
             || !e.file_type().is_ok_and(|t| t.is_file())
         {
@@ -387,6 +395,14 @@ pub fn check_outputs<'a>(
         // A report (--stats, bench's --json) is never written over a run's state, nor over a
         // frame that a running render writes.
         if matches!(flag, "--stats" | "--json") {
+            if is_lock_name(&out) {
+                bail!(
+                    "{flag} {}: that is named as a reframe lock file (.NAME.lock), which a \
+                     report must not replace (a running command's lock replaced lets a second \
+                     command write its outputs beside it); nothing was written",
+                    out.display()
+                );
+            }
             if crate::state::is_state_file(&out) {
                 bail!(
                     "{flag} {}: that is a reframe state file (a checkpoint or a chunk's \
