@@ -257,7 +257,6 @@ fn live_frames_lock<T>(
     let own_name = beside.file_name();
     for e in entries.flatten() {
         let name = e.file_name();
-        let n = name.to_string_lossy();
         if !is_lock_name(Path::new(&name))
             || Some(name.as_os_str()) == own_name
             || !e.file_type().is_ok_and(|t| t.is_file())
