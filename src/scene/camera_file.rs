@@ -613,6 +613,26 @@ fn decimal_point((f, quoted): (String, bool), sep: char) -> String {
     }
 }
 
+/// A CSV header line (without a comment's `#`): its separator as spreadsheets write it (a comma,
+/// or a semicolon where the locale's decimal mark is a comma, as German or French Excel and
+/// LibreOffice write it, or a tab), its column names in lower case, and whether it ends in a
+/// separator (an empty last name: a column of nothing, left out of the names).
+fn csv_header(text: &str) -> (char, Vec<String>, bool) {
+    let sep = [',', ';', '\t']
+        .into_iter()
+        .find(|c| text.contains(*c))
+        .unwrap_or(',');
+    let mut names: Vec<String> = csv_fields(text, sep)
+        .into_iter()
+        .map(|(n, _)| n.to_ascii_lowercase())
+        .collect();
+    let trailing = names.len() > 1 && names.last().is_some_and(String::is_empty);
+    if trailing {
+        names.pop();
+    }
+    (sep, names, trailing)
+}
+
 fn csv_entries(label: &str, text: &str, repairs: &mut Repairs) -> Result<Vec<Entry>> {
     // Lines end in LF or CRLF, or in a bare CR throughout (a classic Mac spreadsheet's export,
     // which was read as one line: its header).
@@ -622,41 +642,60 @@ fn csv_entries(label: &str, text: &str, repairs: &mut Repairs) -> Result<Vec<Ent
     } else {
         Box::new(text.lines())
     };
+    // Comments as numpy's `loadtxt` reads them: from a `#` to the end of the line. `savetxt`
+    // writes its header (`header=`, of one line or several) and footer (`footer=`) as comment
+    // lines; a camera's numbers hold no `#`.
     let mut rows = lines
         .enumerate()
         .map(|(i, l)| (i + 1, l.trim_end_matches('\r')))
         .filter(|(_, l)| !l.trim().is_empty());
-    let (hline, header) = rows.next().expect("the text is not blank");
-    // numpy's `savetxt(..., header=...)` writes the header as a comment: `# frame,fov,...`.
-    let header_text = header.trim_start().trim_start_matches('#');
-    // The separator as spreadsheets write it: a comma, or a semicolon where the locale's
-    // decimal mark is a comma (German or French Excel and LibreOffice), or a tab.
-    let sep = [',', ';', '\t']
-        .into_iter()
-        .find(|c| header_text.contains(*c))
-        .unwrap_or(',');
-    let mut names: Vec<String> = csv_fields(header_text, sep)
-        .into_iter()
-        .map(|(n, _)| n.to_ascii_lowercase())
-        .collect();
-    // A separator after the last column (an empty last name): a column of nothing.
-    let trailing = names.len() > 1 && names.last().is_some_and(String::is_empty);
-    if trailing {
-        names.pop();
-    }
     let matrix = matrix_header();
+    // The header: the first line that is not a comment, or a comment that names the columns
+    // (`# frame,fov,...`, as `savetxt(..., header=...)` writes it) before it; other comments
+    // before it are passed over.
+    let mut passed_over = None;
+    let (hline, header, header_text) = loop {
+        let Some((n, line)) = rows.next() else {
+            bail!(
+                "{label}: no header line naming the columns ('{}' or '{}'): the file holds only \
+                 comments",
+                "frame,fov,m00,m01,...,m33",
+                LOOK_AT_HEADER.join(",")
+            );
+        };
+        let text = line.trim_start();
+        match text.strip_prefix('#') {
+            Some(comment) => {
+                let names = csv_header(comment).1;
+                if names == matrix || names == LOOK_AT_HEADER {
+                    break (n, line, comment);
+                }
+                passed_over.get_or_insert((n, line));
+            }
+            None => break (n, line, text),
+        }
+    };
+    let (sep, names, trailing) = csv_header(header_text);
     let is_matrix = names == matrix;
     if !is_matrix && names != LOOK_AT_HEADER {
+        // A comment before it that the author may have meant as the header.
+        let comment = passed_over
+            .map(|(n, c)| format!("; the comment at line {n}: '{}' names no columns", quote(c)))
+            .unwrap_or_default();
         bail!(
             "{label}: line {hline}: header '{}' is neither '{}' nor '{}' (in any case, \
-             separated by commas, or by semicolons with decimal commas)",
+             separated by commas, or by semicolons with decimal commas){comment}",
             quote(header),
             "frame,fov,m00,m01,...,m33",
             LOOK_AT_HEADER.join(",")
         );
     }
-    let rows: Vec<(usize, Vec<(String, bool)>)> =
-        rows.map(|(n, row)| (n, csv_fields(row, sep))).collect();
+    // The rows after it, each up to its comment, if any; a line that is all comment is none.
+    let rows: Vec<(usize, Vec<(String, bool)>)> = rows
+        .map(|(n, row)| (n, row.split_once('#').map_or(row, |(data, _)| data)))
+        .filter(|(_, row)| !row.trim().is_empty())
+        .map(|(n, row)| (n, csv_fields(row, sep)))
+        .collect();
     // Separated by semicolons or tabs, numbers have decimal commas, or else points; a file that
     // writes both may group thousands with one of them (`1.000` in a German locale is 1000),
     // and is refused rather than read a thousand times off.
@@ -1174,9 +1213,30 @@ mod tests {
                 h.to_uppercase()
             ),
             format!("{h},\n0,40,0.5,0,3,0,0,0,0,1,0,\n1,40.5,0.25,0,3,0,0,0,0,1,0,\n"),
+            // Comments as numpy's savetxt writes them and loadtxt reads them: a header of
+            // several comment lines (`header="a\\nb"`), a footer (`footer=`), a comment after a
+            // row's numbers, a comment line between rows; and a comment before a plain header.
+            format!(
+                "# exported from shot_v2.blend\n# {h}\n0,40,0.5,0,3,0,0,0,0,1,0\n\
+                 1,40.5,0.25,0,3,0,0,0,0,1,0\n# end\n"
+            ),
+            format!(
+                "# {h}\n# units: metres\n0,40,0.5,0,3,0,0,0,0,1,0 # key\n#\n\
+                 1,40.5,0.25,0,3,0,0,0,0,1,0#\n"
+            ),
+            format!("# made by hand\n{h}\n0,40,0.5,0,3,0,0,0,0,1,0\n1,40.5,0.25,0,3,0,0,0,0,1,0\n"),
         ] {
             assert_eq!(load(&text), plain, "{text}");
         }
+        // A file of comments alone, and a comment that names other columns before the rows.
+        let e = refused("c.csv", &format!("# exported\n#{h}x\n"), 1);
+        assert!(e.contains("no header line naming the columns"), "{e}");
+        let e = refused("c.csv", "# frame,fov,x,y,z\n0,40,0.5,0,3,0,0,0,0,1,0\n", 1);
+        assert!(
+            e.contains("line 2: header '0,40,0.5,0,3,0,0,0,0,1,0' is neither")
+                && e.contains("line 1: '# frame,fov,x,y,z' names no columns"),
+            "{e}"
+        );
         // "1,000" may group thousands: not read as 1.
         let e = refused(
             "c.csv",
