@@ -113,6 +113,26 @@ const PASSED_OVER: [&str; 14] = [
     "map_aat",
 ];
 
+/// An `xyz` colour (`Kd xyz x y z`) outside the gamut of Rec.709's primaries.
+const OUT_OF_GAMUT: Kind = Kind {
+    one: "XYZ colour outside the Rec.709 gamut: its negative channels read as 0",
+    many: "XYZ colours outside the Rec.709 gamut: their negative channels read as 0",
+};
+
+/// A CIE XYZ colour as linear Rec.709 RGB (the primaries of sRGB, white D65), derived from the
+/// primaries' and the white's chromaticities (docs/colour.md, eq. 1-3): the RGB-to-XYZ matrix
+/// has as columns each primary's XYZ at luminance 1, `(x/y, 1, (1-x-y)/y)`, scaled so that RGB
+/// (1, 1, 1) is the white at luminance 1; this is its inverse. Computed in f64, rounded once.
+fn xyz_to_rec709(c: Vec3) -> Vec3 {
+    use glam::{DMat3, DVec3};
+    let at_y1 = |x: f64, y: f64| DVec3::new(x / y, 1.0, (1.0 - x - y) / y);
+    let primaries = DMat3::from_cols(at_y1(0.64, 0.33), at_y1(0.30, 0.60), at_y1(0.15, 0.06));
+    let white = at_y1(0.3127, 0.3290);
+    let scale = primaries.inverse() * white;
+    let rgb_to_xyz = primaries * DMat3::from_diagonal(scale);
+    (rgb_to_xyz.inverse() * c.as_dvec3()).as_vec3()
+}
+
 /// The statements reframe reads or says it does not render, in their usual case (a misspelt
 /// statement is compared with these and `PASSED_OVER` for a hint, `did_you_mean`).
 const STATEMENTS: [&str; 20] = [
@@ -327,6 +347,17 @@ pub fn parse_for(
         // A number written finite but past single precision (`Ke 1e39`) is the largest single
         // (then capped, clamped or scaled as any large value is), not the infinity it reads as:
         // `Ke 1e38` was capped at 1e9 with a warning and `Ke 1e39` refused as not finite.
+        // The format's other two forms of a colour: `Kd xyz x [y z]`, CIE XYZ values, and
+        // `Kd spectral file.rfl [factor]`, a spectral curve in a file of its own.
+        let form = args.first().map(|a| a.to_ascii_lowercase());
+        if matches!(key, "Kd" | "Ks" | "Ke") && form.as_deref() == Some("spectral") {
+            return Err(err(format!(
+                "spectral colours (a curve in an .rfl file) are not read: write '{key} r g b' \
+                 (linear Rec.709 RGB)"
+            )));
+        }
+        let xyz = matches!(key, "Kd" | "Ks" | "Ke") && form.as_deref() == Some("xyz");
+        let args = if xyz { &args[1..] } else { &args[..] };
         let parsed: Option<Vec<f32>> = args.iter().map(|a| number_saturating(a)).collect();
         // Numbers past the statement's (`Kd 0.2 0.3 0.4 0.9`, `Ns 10 20`): ignored, and said.
         let most = if matches!(key, "Ns" | "Pr") { 1 } else { 3 };
@@ -374,11 +405,36 @@ pub fn parse_for(
         let c = match parsed.as_deref() {
             Some(&[r]) => Vec3::splat(r),
             Some(&[r, g, b, ..]) => Vec3::new(r, g, b),
+            _ if xyz => {
+                return Err(err(format!(
+                    "expected '{key} xyz x y z' (or '{key} xyz x')"
+                )))
+            }
             _ => return Err(err(format!("expected '{key} r g b' (or '{key} grey')"))),
         };
         if !c.is_finite() || c.min_element() < 0.0 {
             return Err(err(format!("{key} must be finite and non-negative")));
         }
+        let c = if xyz {
+            let rgb = xyz_to_rec709(c);
+            // A colour outside the Rec.709 gamut has a negative channel, which no BSDF or
+            // light can have: clamped to 0, and said.
+            if rgb.min_element() < 0.0 {
+                let name = &m.name;
+                notes.note(label, n, OUT_OF_GAMUT, || {
+                    format!(
+                        "'{}' in '{name}': linear Rec.709 RGB ({}, {}, {})",
+                        quote(text),
+                        rgb.x,
+                        rgb.y,
+                        rgb.z
+                    )
+                })?;
+            }
+            rgb.max(Vec3::ZERO)
+        } else {
+            c
+        };
         let slot = match key {
             "Kd" => &mut m.kd,
             "Ks" => &mut m.ks,
@@ -604,6 +660,47 @@ mod tests {
     use super::*;
 
     #[test]
+    fn xyz_colours_are_read_as_linear_rec709() {
+        // The published XYZ-to-linear-sRGB matrix (IEC 61966-2-1, to its 4 decimals, which it
+        // derived from rounded values: within 5e-4 of the exact one), column by column, and the
+        // D65 white (x 0.3127, y 0.3290) to white.
+        let columns = [
+            (Vec3::X, Vec3::new(3.2406, -0.9689, 0.0557)),
+            (Vec3::Y, Vec3::new(-1.5372, 1.8758, -0.2040)),
+            (Vec3::Z, Vec3::new(-0.4986, 0.0415, 1.0570)),
+            (Vec3::new(0.950456, 1.0, 1.089058), Vec3::ONE),
+        ];
+        for (xyz, rgb) in columns {
+            let got = xyz_to_rec709(xyz);
+            assert!(got.abs_diff_eq(rgb, 5e-4), "{xyz} -> {got}, not {rgb}");
+        }
+        // In a file: the D65 white, one number for all three, and a colour outside the gamut
+        // (pure Y), whose negative channels are 0 with a warning.
+        let text = "newmtl a\nKd xyz 0.950456 1 1.089058\nnewmtl b\nKs XYZ 0.5\nnewmtl c\n\
+                    Ke xyz 0 1 0\n";
+        let mut r = Repairs::new(false);
+        let m = parse("a.mtl", text.as_bytes(), &mut r).unwrap();
+        assert!(m.materials[0].kd.unwrap().0.abs_diff_eq(Vec3::ONE, 1e-4));
+        let ks = m.materials[1].ks.unwrap().0;
+        assert!(
+            ks.abs_diff_eq(xyz_to_rec709(Vec3::splat(0.5)), 1e-6),
+            "{ks}"
+        );
+        let ke = m.materials[2].ke.unwrap().0;
+        assert!(
+            ke.x == 0.0 && ke.z == 0.0 && (ke.y - 1.8758).abs() < 5e-4,
+            "{ke}"
+        );
+        let w = r.into_warnings();
+        assert!(
+            w.len() == 1
+                && w[0].contains("line 6: 'Ke xyz 0 1 0' in 'c'")
+                && w[0].contains("gamut"),
+            "{w:?}"
+        );
+    }
+
+    #[test]
     fn statements_and_refusals() {
         let ok = "# c\nnewmtl a\nKd 0.5 0.5 0.5\nillum 2\nnewmtl b\nKe 1 1 1\nKa x\n";
         let m = parse("a.mtl", ok.as_bytes(), &mut Repairs::new(false)).unwrap();
@@ -618,6 +715,13 @@ mod tests {
             ("Ke -1 0 0", "Ke must be finite and non-negative"),
             ("Kd nan 0 0", "Kd must be finite"),
             ("Ns", "expected 'Ns value'"),
+            ("Kd xyz", "expected 'Kd xyz x y z' (or 'Kd xyz x')"),
+            ("Ke xyz 1 1", "expected 'Ke xyz x y z'"),
+            ("Kd xyz -1 0 0", "Kd must be finite and non-negative"),
+            (
+                "Kd spectral grey.rfl 0.8",
+                "spectral colours (a curve in an .rfl file) are not read: write 'Kd r g b'",
+            ),
             ("Ns -5", "Ns must be finite and non-negative"),
             ("newmtl a", "material 'a' is already defined at line 2"),
             (
