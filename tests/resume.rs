@@ -1041,3 +1041,51 @@ fn a_finished_frame_that_cannot_be_opened_is_refused_saying_so() {
     let o = nobody().args(args).arg("--resume").output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
+
+/// Frames in a format that keeps the camera but not reframe's other metadata (TIFF keeps
+/// `worldtocamera`): two finished frames swapped after the stop are refused on resume by their
+/// cameras (they were taken as finished, and the sequence came out of order), and put back they
+/// resume.
+#[test]
+fn a_resume_finds_tiff_frames_swapped_by_their_cameras() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = format!("{}/f_####.tif", d.display());
+    let args: Vec<&str> = [
+        "render",
+        "vase",
+        "--spp",
+        "64",
+        "--res",
+        "64x48",
+        "--threads",
+        "1",
+        "--checkpoint-every",
+        "0",
+        "--out",
+        &out,
+    ]
+    .to_vec();
+    let mut child = reframe().args(&args).spawn().unwrap();
+    let frame = |f: u32| d.join(format!("f_{f:04}.tif"));
+    interrupt_when(&mut child, "INT", || frame(2).exists());
+    child.wait().unwrap();
+    let swap = || {
+        let t = d.join("swap.tif");
+        std::fs::rename(frame(0), &t).unwrap();
+        std::fs::rename(frame(1), frame(0)).unwrap();
+        std::fs::rename(&t, frame(1)).unwrap();
+    };
+    swap();
+    let o = reframe().args(&args).arg("--resume").output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.code() == Some(1)
+            && err.contains("frame 0 was finished before the stop")
+            && err.contains("worldToCamera, is not frame 0's"),
+        "{err}"
+    );
+    swap();
+    run(&args.iter().copied().chain(["--resume"]).collect::<Vec<_>>());
+    assert!(frame(47).exists());
+}

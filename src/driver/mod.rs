@@ -85,8 +85,8 @@ fn check_resumed_outputs(
     t: &Trailer,
     opts: &RenderOptions,
     plan: &Plan,
-    out: &OutputPattern,
-    meta: &FrameMeta,
+    (out, meta): (&OutputPattern, &FrameMeta),
+    scene: &crate::scene::Scene,
 ) -> Result<()> {
     // The same pattern, written alike or not (`o/f_####.exr`, `./o/f_####.exr`, absolute).
     let same = |a: &str, b: &str| {
@@ -145,7 +145,8 @@ fn check_resumed_outputs(
                     ("spp", meta.spp.to_string()),
                     ("window", meta.window.to_string()),
                 ];
-                want.iter()
+                let named = want
+                    .iter()
                     .find_map(|(k, v)| match get(&format!("reframe:{k}")) {
                         Some(got) if got != *v => Some(format!(
                             "it is not this render's (its {k} is {got}, not {v})"
@@ -154,7 +155,29 @@ fn check_resumed_outputs(
                             "it is not a frame of this render (it has no reframe:{k})"
                         )),
                         _ => None,
+                    });
+                // The camera, where the format keeps it and not the rest (TIFF): two frames
+                // swapped there were taken as finished.
+                let camera = || {
+                    let theirs: Vec<f32> = get(crate::image::EXR_WORLD_TO_CAMERA)?
+                        .split_whitespace()
+                        .map(|v| v.parse().unwrap_or(f32::NAN))
+                        .collect();
+                    let cam = scene.camera(f, plan.width, plan.height);
+                    let ours = crate::film::View::of(f, &cam).world_to_camera;
+                    let same = theirs.len() == 16
+                        && theirs
+                            .iter()
+                            .zip(ours)
+                            .all(|(a, b)| (a - b).abs() <= 1e-6 * b.abs().max(1.0));
+                    (!same).then(|| {
+                        format!(
+                            "it is not this render's (its camera, worldToCamera, is not frame \
+                             {f}'s)"
+                        )
                     })
+                };
+                named.or_else(camera)
             }
         };
         if let Some(why) = why {
@@ -392,7 +415,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     };
     let (counters, next, active) = match resumed {
         Some(r) => {
-            check_resumed_outputs(&r.trailer, opts, &plan, &out, &meta)?;
+            check_resumed_outputs(&r.trailer, opts, &plan, (&out, &meta), scene)?;
             (r.trailer.progress, r.trailer.next_unit, r.active)
         }
         None => (Counters::default(), *plan.units.start(), vec![]),

@@ -116,7 +116,7 @@ const OIIO_WORLD_TO_CAMERA: &str = "worldtocamera";
 const OIIO_WORLD_TO_NDC: &str = "worldtoNDC";
 /// The names as they appear in the EXR header; OIIO's EXR reader reports these, and so does
 /// `read_metadata` whatever the format.
-const EXR_WORLD_TO_CAMERA: &str = "worldToCamera";
+pub const EXR_WORLD_TO_CAMERA: &str = "worldToCamera";
 const EXR_WORLD_TO_NDC: &str = "worldToNDC";
 
 const PREFIX: &str = "reframe:";
