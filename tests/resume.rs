@@ -1051,21 +1051,11 @@ fn a_resume_finds_tiff_frames_swapped_by_their_cameras() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let out = format!("{}/f_####.tif", d.display());
-    let args: Vec<&str> = [
-        "render",
-        "vase",
-        "--spp",
-        "64",
-        "--res",
-        "64x48",
-        "--threads",
-        "1",
-        "--checkpoint-every",
-        "0",
-        "--out",
-        &out,
-    ]
-    .to_vec();
+    let mut args: Vec<&str> =
+        "render vase --spp 64 --res 64x48 --threads 1 --checkpoint-every 0 --out"
+            .split_whitespace()
+            .collect();
+    args.push(&out);
     let mut child = reframe().args(&args).spawn().unwrap();
     let frame = |f: u32| d.join(format!("f_{f:04}.tif"));
     interrupt_when(&mut child, "INT", || frame(2).exists());
