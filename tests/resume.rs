@@ -1042,26 +1042,36 @@ fn a_finished_frame_that_cannot_be_opened_is_refused_saying_so() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
-/// Frames in a format that keeps the camera but not reframe's other metadata (TIFF keeps
-/// `worldtocamera`): two finished frames swapped after the stop are refused on resume by their
-/// cameras (they were taken as finished, and the sequence came out of order), and put back they
-/// resume.
+/// Two finished frames swapped after the stop, in formats that keep less than EXR: refused on
+/// resume (they were taken as finished, and the sequence came out of order), by their cameras
+/// where the format keeps them (TIFF keeps `worldtocamera`), else by the hash of each file that
+/// the checkpoint keeps (Radiance HDR and JPEG keep no metadata); put back, they resume.
 #[test]
-fn a_resume_finds_tiff_frames_swapped_by_their_cameras() {
+fn a_resume_finds_frames_swapped_in_any_format() {
+    for (ext, why) in [
+        ("tif", "worldToCamera, is not frame 0's"),
+        ("hdr", "is not the file this render wrote there"),
+        ("jpg", "is not the file this render wrote there"),
+    ] {
+        frames_swapped_before_resume(ext, why);
+    }
+}
+
+fn frames_swapped_before_resume(ext: &str, why: &str) {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let out = format!("{}/f_####.tif", d.display());
+    let out = format!("{}/f_####.{ext}", d.display());
     let mut args: Vec<&str> =
         "render vase --spp 64 --res 64x48 --threads 1 --checkpoint-every 0 --out"
             .split_whitespace()
             .collect();
     args.push(&out);
     let mut child = reframe().args(&args).spawn().unwrap();
-    let frame = |f: u32| d.join(format!("f_{f:04}.tif"));
+    let frame = |f: u32| d.join(format!("f_{f:04}.{ext}"));
     interrupt_when(&mut child, "INT", || frame(2).exists());
     child.wait().unwrap();
     let swap = || {
-        let t = d.join("swap.tif");
+        let t = d.join(format!("swap.{ext}"));
         std::fs::rename(frame(0), &t).unwrap();
         std::fs::rename(frame(1), frame(0)).unwrap();
         std::fs::rename(&t, frame(1)).unwrap();
@@ -1072,8 +1082,8 @@ fn a_resume_finds_tiff_frames_swapped_by_their_cameras() {
     assert!(
         o.status.code() == Some(1)
             && err.contains("frame 0 was finished before the stop")
-            && err.contains("worldToCamera, is not frame 0's"),
-        "{err}"
+            && err.contains(why),
+        "{ext}: {err}"
     );
     swap();
     run(&args.iter().copied().chain(["--resume"]).collect::<Vec<_>>());

@@ -164,4 +164,8 @@ impl<S: Sink> Sink for DenoiseSink<'_, S> {
         )?;
         self.inner.put(d)
     }
+
+    fn take_digests(&mut self) -> Vec<(u32, u64)> {
+        self.inner.take_digests()
+    }
 }

@@ -187,7 +187,7 @@ pub fn run_groups(
                 let d = develop(&a, sample_folds);
                 drop(a);
                 run.counters.nonfinite_pixels += d.nonfinite;
-                sink.put(d)?;
+                run.put(sink, d)?;
             }
             written += 1;
         }

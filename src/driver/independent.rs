@@ -226,7 +226,7 @@ pub fn run_independent(
         if run.ckpt.chunked() {
             run.ckpt.retire(&Record::Pixels(d))?;
         } else {
-            sink.put(d)?;
+            run.put(sink, d)?;
         }
         run.next = frame + 1;
         if frame < b && run.ckpt.due() {

@@ -177,7 +177,22 @@ fn check_resumed_outputs(
                         )
                     })
                 };
-                named.or_else(camera)
+                // Last, the file's bytes against what this render wrote: another file in its
+                // place in a format that keeps none of the above (JPEG, HDR, TGA: two frames
+                // swapped were taken as finished), or an edit.
+                let bytes = || {
+                    let (_, wrote) = t.frame_digests.iter().find(|(g, _)| *g == f)?;
+                    match sink::file_digest(&p) {
+                        Ok(d) if d == *wrote => None,
+                        Ok(_) => Some(
+                            "it is not the file this render wrote there (its bytes have changed \
+                             since: another file in its place, or an edit)"
+                                .to_string(),
+                        ),
+                        Err(e) => Some(format!("{e:#}")),
+                    }
+                };
+                named.or_else(camera).or_else(bytes)
             }
         };
         if let Some(why) = why {
@@ -413,14 +428,18 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         seed: opts.seed,
         exr_float: opts.exr_float,
     };
+    let mut resumed_digests = None;
     let (counters, next, active) = match resumed {
         Some(r) => {
             check_resumed_outputs(&r.trailer, opts, &plan, (&out, &meta), scene)?;
+            resumed_digests = Some(r.trailer.frame_digests);
             (r.trailer.progress, r.trailer.next_unit, r.active)
         }
         None => (Counters::default(), *plan.units.start(), vec![]),
     };
+    let digests = resumed_digests.unwrap_or_default();
     let mut run = Run::new(ckpt, plan.units.clone(), next, counters);
+    run.frame_digests = digests;
     run.interrupt = opts.interrupt.clone();
     let pool = thread_pool(opts.threads)?;
     crate::embree::set_flush_denormals();

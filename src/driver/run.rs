@@ -1,6 +1,6 @@
 //! A resumable run in progress: the units it covers, how far it got, its counters and clock,
 //! its checkpoints, and how a signal stops it.
-use crate::film::{Clock, FrameAccum};
+use crate::film::{Clock, FrameAccum, Sink};
 use crate::state::checkpoint::{Checkpointer, Counters};
 use anyhow::Result;
 use std::ops::RangeInclusive;
@@ -48,6 +48,9 @@ pub struct Run {
     pub counters: Counters,
     /// Set by a signal handler: stop at the next unit boundary, after a checkpoint.
     pub interrupt: Option<Arc<AtomicBool>>,
+    /// Each frame written so far, this process and the ones it resumed, and its file's hash
+    /// (`Trailer::frame_digests`).
+    pub frame_digests: Vec<(u32, u64)>,
     clock: Clock,
 }
 
@@ -66,6 +69,7 @@ impl Run {
             clock: Clock::start(counters.seconds),
             counters,
             interrupt: None,
+            frame_digests: Vec::new(),
         }
     }
 
@@ -90,7 +94,16 @@ impl Run {
     /// `active`.
     pub fn save<'a>(&mut self, active: impl IntoIterator<Item = &'a FrameAccum>) -> Result<()> {
         self.counters.seconds = self.seconds();
-        self.ckpt.save(self.next, &self.counters, active)
+        let digests = &self.frame_digests;
+        self.ckpt.save(self.next, &self.counters, active, digests)
+    }
+
+    /// Frame `d` handed to `sink` (written, for a file sink), and its file's hash kept for the
+    /// next checkpoint.
+    pub fn put(&mut self, sink: &mut dyn Sink, d: crate::film::Developed) -> Result<()> {
+        sink.put(d)?;
+        self.frame_digests.extend(sink.take_digests());
+        Ok(())
     }
 
     /// The run is complete: the chunk's partial file, if any (the checkpoint is removed).

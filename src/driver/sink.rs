@@ -20,6 +20,8 @@ pub struct FileSink {
     pub meta: FrameMeta,
     pub out: OutputPattern,
     pub written: Vec<std::path::PathBuf>,
+    /// The frames written since `take_digests` last took them, and their files' hashes.
+    digests: Vec<(u32, u64)>,
 }
 
 impl FileSink {
@@ -28,6 +30,7 @@ impl FileSink {
             meta,
             out,
             written: Vec::new(),
+            digests: Vec::new(),
         }
     }
 }
@@ -64,7 +67,20 @@ impl Sink for FileSink {
             },
         )
         .with_context(|| format!("writing frame {frame}"))?;
+        self.digests.push((frame, file_digest(&path)?));
         self.written.push(path);
         Ok(())
     }
+
+    fn take_digests(&mut self) -> Vec<(u32, u64)> {
+        std::mem::take(&mut self.digests)
+    }
+}
+
+/// The FNV-1a hash of the bytes of the file at `path` (`Trailer::frame_digests`).
+pub fn file_digest(path: &std::path::Path) -> Result<u64> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading back {}", path.display()))?;
+    let mut h = crate::util::hash::Fnv::default();
+    h.bytes(&bytes);
+    Ok(h.0)
 }

@@ -551,6 +551,13 @@ pub fn control_variate(s: [f64; 2], w: [f64; 2], g: [f64; 2]) -> f64 {
 /// Where finished frames go: files (the driver), memory (comparisons, tests).
 pub trait Sink {
     fn put(&mut self, frame: Developed) -> anyhow::Result<()>;
+
+    /// The frames written to files since the last call, each with the FNV-1a hash of its
+    /// file's bytes (a checkpoint keeps them: `state::Trailer::frame_digests`); none for a
+    /// sink that writes no files.
+    fn take_digests(&mut self) -> Vec<(u32, u64)> {
+        Vec::new()
+    }
 }
 
 /// Frames kept in memory, by frame number.

@@ -471,6 +471,7 @@ impl Checkpointer {
         next_unit: u32,
         progress: &Counters,
         active: impl IntoIterator<Item = &'a FrameAccum>,
+        frame_digests: &[(u32, u64)],
     ) -> Result<()> {
         let Some(dir) = &self.dir else {
             return Ok(());
@@ -480,6 +481,7 @@ impl Checkpointer {
         t.kind = Kind::Checkpoint;
         t.next_unit = next_unit;
         t.progress = progress.clone();
+        t.frame_digests = frame_digests.to_vec();
         if let Some((f, _, len, recs, crcs)) = &mut self.log {
             // The log's records must be on disk before a checkpoint counts them.
             f.sync_data()?;

@@ -94,6 +94,12 @@ pub struct Trailer {
     /// must not write a frame over one (absent in older files: nothing to check).
     #[serde(default)]
     pub inputs: Vec<String>,
+    /// A checkpoint of a render that writes frames: each finished frame and the FNV-1a hash of
+    /// its file's bytes as written (`Sink::take_digests`), so that a resume finds another file
+    /// in its place in any format, one that keeps no metadata too (absent in older files: not
+    /// checked).
+    #[serde(default)]
+    pub frame_digests: Vec<(u32, u64)>,
 }
 
 impl Trailer {
@@ -117,6 +123,7 @@ impl Trailer {
             log_len: 0,
             log_records: vec![],
             log_crcs: vec![],
+            frame_digests: vec![],
             records: vec![],
             progress: Counters::default(),
             out,
