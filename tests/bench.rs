@@ -3,7 +3,7 @@ mod common;
 
 use common::reframe_ok as reframe;
 use reframe::image::read_image;
-use serde_json::Value;
+use serde_json::{json, Value};
 use std::path::Path;
 
 fn json(p: &Path) -> Value {
@@ -260,9 +260,61 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
     let again = read_image(&refdir.join("ref_0005.exr")).unwrap();
     let want = read_image_bytes(&made);
     assert_eq!(again.data, want.data, "made again as it was");
+    // A description of another reference (copied or edited into this entry: it was read as
+    // this one, and compare measured against another scene's images), or with no time, is a
+    // damaged cache.
+    let info = refdir.join("reference.json");
+    let text = std::fs::read(&info).unwrap();
+    for (field, value, why) in [
+        (
+            "spp",
+            json!(128),
+            "its description's spp is 128, not 64: it is another reference's",
+        ),
+        (
+            "scene",
+            json!("vase"),
+            "its description's scene is vase, not cornell",
+        ),
+        (
+            "key",
+            json!("0123456789abcdef"),
+            "its description's key is 0123456789abcdef",
+        ),
+        (
+            "seconds",
+            json!(-5.0),
+            "its description's seconds, -5, is no time",
+        ),
+    ] {
+        let mut v: Value = serde_json::from_slice(&text).unwrap();
+        v[field] = value;
+        std::fs::write(&info, serde_json::to_vec_pretty(&v).unwrap()).unwrap();
+        let o = reference();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            o.status.success() && err.contains(why) && err.contains("rendering it again"),
+            "{field}: {err}"
+        );
+    }
+    // Two frames swapped together with their digests: each file says which frame it is.
+    let text = std::fs::read(&info).unwrap();
+    let mut v: Value = serde_json::from_slice(&text).unwrap();
+    v["digests"].as_array_mut().unwrap().swap(0, 1);
+    std::fs::write(&info, serde_json::to_vec_pretty(&v).unwrap()).unwrap();
+    let [f4, f5] = ["ref_0004.exr", "ref_0005.exr"].map(|f| refdir.join(f));
+    let t = refdir.join("swap.exr");
+    std::fs::rename(&f4, &t).unwrap();
+    std::fs::rename(&f5, &f4).unwrap();
+    std::fs::rename(&t, &f5).unwrap();
+    let o = reference();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.success() && err.contains("says it is frame 5, not 4"),
+        "{err}"
+    );
     // A description cut short is a damaged cache too (it had failed every later run); a FIFO
     // in its place is refused at once, where reading it waited for ever.
-    let info = refdir.join("reference.json");
     let text = std::fs::read(&info).unwrap();
     std::fs::write(&info, &text[..text.len() / 2]).unwrap();
     let o = reference();

@@ -66,25 +66,72 @@ struct ReferenceInfo {
     digests: Vec<String>,
 }
 
-/// The hash of a reference frame's values (mean and variance, as f32 bits).
-fn frame_digest(f: &RefFrame) -> String {
+/// The hash of a reference frame's values (mean and variance, as f32 bits) under the entry's
+/// key, so that a frame of another entry (another scene's, copied in with its description)
+/// does not pass for this one's.
+fn frame_digest(key: &str, f: &RefFrame) -> String {
     let mut h = Fnv::default();
+    h.bytes(key.as_bytes());
     h.f32s(f.mean.iter().chain(&f.var).flat_map(|v| v.to_array()));
     h.hex()
 }
 
-/// The cached frames of a reference if every one reads back as it was made; why not, else.
+/// The cached frames of a reference if its description is the one asked for (`want`: every
+/// field but the time and the digests) and every frame reads back as it was made; why not,
+/// else. An entry copied or renamed from another reference (another scene's, another sample
+/// count's) was read as this one, and `compare` measured against it.
 fn read_cached(
     info: &ReferenceInfo,
+    want: &ReferenceInfo,
     range: &RangeInclusive<u32>,
-    (w, h): (u32, u32),
     frame_path: impl Fn(u32) -> PathBuf,
 ) -> Result<Vec<RefFrame>> {
+    let fields = [
+        ("scene", info.scene.clone(), want.scene.clone()),
+        ("key", info.key.clone(), want.key.clone()),
+        ("width", info.width.to_string(), want.width.to_string()),
+        ("height", info.height.to_string(), want.height.to_string()),
+        (
+            "first_frame",
+            info.first_frame.to_string(),
+            want.first_frame.to_string(),
+        ),
+        (
+            "last_frame",
+            info.last_frame.to_string(),
+            want.last_frame.to_string(),
+        ),
+        ("spp", info.spp.to_string(), want.spp.to_string()),
+        ("passes", info.passes.to_string(), want.passes.to_string()),
+        (
+            "max_depth",
+            info.max_depth.to_string(),
+            want.max_depth.to_string(),
+        ),
+    ];
+    if let Some((name, got, wanted)) = fields.iter().find(|(_, a, b)| a != b) {
+        bail!("its description's {name} is {got}, not {wanted}: it is another reference's");
+    }
+    if !(info.seconds.is_finite() && info.seconds >= 0.0) {
+        bail!("its description's seconds, {}, is no time", info.seconds);
+    }
+    let (w, h) = (want.width, want.height);
     let mut frames = Vec::new();
     for (k, f) in range.clone().enumerate() {
-        let frame = read_reference_frame(&frame_path(f), w, h)?;
-        if info.digests.get(k) != Some(&frame_digest(&frame)) {
+        let path = frame_path(f);
+        let frame = read_reference_frame(&path, w, h)?;
+        if info.digests.get(k) != Some(&frame_digest(&want.key, &frame)) {
             bail!("frame {f} is not the one that was made");
+        }
+        // What the file says it is (a frame swapped with another together with their digests).
+        let md = crate::image::read_metadata(&path).unwrap_or_default();
+        let said = |k: &str| md.iter().find(|(n, _)| n == k).map(|(_, v)| v.as_str());
+        if said("reframe:frame") != Some(&f.to_string()) {
+            bail!(
+                "{} says it is frame {}, not {f}",
+                path.display(),
+                said("reframe:frame").unwrap_or("none")
+            );
         }
         frames.push(frame);
     }
@@ -198,8 +245,21 @@ pub fn reference(
     if let Some(text) = text {
         let info = serde_json::from_str::<ReferenceInfo>(&text)
             .with_context(|| format!("{}: not a reference description", info_path.display()));
+        let want = ReferenceInfo {
+            scene: scene.name.clone(),
+            width: w,
+            height: h,
+            first_frame: first,
+            last_frame: last,
+            spp,
+            passes: PASSES,
+            max_depth,
+            key: key.clone(),
+            seconds: 0.0,
+            digests: vec![],
+        };
         match info.and_then(|info| {
-            read_cached(&info, &range, (w, h), frame_path).map(|frames| (info, frames))
+            read_cached(&info, &want, &range, frame_path).map(|frames| (info, frames))
         }) {
             Ok((info, frames)) => {
                 return Ok(Reference {
@@ -267,6 +327,7 @@ pub fn reference(
     }
     pb.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
+    let digests = frames.iter().map(|f| frame_digest(&key, f)).collect();
     write_json(
         &info_path,
         &ReferenceInfo {
@@ -280,7 +341,7 @@ pub fn reference(
             max_depth,
             key,
             seconds,
-            digests: frames.iter().map(frame_digest).collect(),
+            digests,
         },
     )?;
     Ok(Reference {
