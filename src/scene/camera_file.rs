@@ -241,9 +241,18 @@ fn check_matrix(m: &[f64; 16]) -> Result<(), String> {
         }
     }
     if m[12..] != [0.0, 0.0, 0.0, 1.0] {
+        // Written column by column (as OpenGL and some exporters hold matrices), the
+        // translation is the bottom row and the last column is [0, 0, 0, 1].
+        let transposed = [m[3], m[7], m[11], m[15]] == [0.0, 0.0, 0.0, 1.0];
         return Err(format!(
-            "matrix bottom row {:?} is not [0, 0, 0, 1] (a camera-to-world matrix is affine)",
-            &m[12..]
+            "matrix bottom row {:?} is not [0, 0, 0, 1] (a camera-to-world matrix is affine){}",
+            &m[12..],
+            if transposed {
+                "; its last column is [0, 0, 0, 1]: it looks written column by column, and the \
+                 file's matrices are row-major (transpose them)"
+            } else {
+                ""
+            }
         ));
     }
     let col = |c: usize| glam::DVec3::new(m[c], m[4 + c], m[8 + c]);
@@ -383,8 +392,9 @@ fn matrix_rows<'a>(m: &[Num<'a>]) -> Result<Vec<Num<'a>>, String> {
             Ok(rows.into_iter().flatten().collect())
         }
         _ => Err(format!(
-            "matrix is given as {} rows{}: give 16 numbers, row-major, or 4 rows of 4",
+            "matrix is given as {} row{}{}: give 16 numbers, row-major, or 4 rows of 4",
             m.len(),
+            if m.len() == 1 { "" } else { "s" },
             rows_shape(m)
         )),
     }
@@ -1007,6 +1017,10 @@ mod tests {
         let m = |s: &str| json(&[entry(0, s)]);
         for (matrix, want) in [
             (
+                "[[1, 0, 0, 0]]",
+                "frame 0: matrix is given as 1 row of 4 numbers: give 16 numbers",
+            ),
+            (
                 "[[1, 0, 0], [0, 1, 0], [0, 0, 1]]",
                 "frame 0: matrix is given as 3 rows of 3, 3, 3 numbers: give 16 numbers, \
                  row-major, or 4 rows of 4",
@@ -1046,6 +1060,11 @@ mod tests {
             (
                 "[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 1, 1]",
                 "matrix bottom row [0.0, 0.0, 1.0, 1.0] is not [0, 0, 0, 1]",
+            ),
+            // Column by column: the translation in the bottom row.
+            (
+                "[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0.5, 1, 3, 1]",
+                "its last column is [0, 0, 0, 1]: it looks written column by column",
             ),
             (
                 "[1, 0, 0, 1e19, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]",

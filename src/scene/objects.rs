@@ -37,7 +37,10 @@ pub struct ObjectFile {
 }
 
 #[derive(Deserialize)]
-#[serde(untagged)]
+#[serde(
+    untagged,
+    expecting = "expected scale as one number (uniform) or three ([sx, sy, sz])"
+)]
 enum Scale {
     Uniform(f64),
     Axes([f64; 3]),
