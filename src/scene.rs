@@ -740,6 +740,15 @@ impl Scene {
             |n, frames| read_camera(n, frames, DVec3::ZERO, &mut repairs),
             DVec3::ZERO,
         );
+        if let (Ok(_), Some(keys)) = (&first_cameras, &file.keyframe) {
+            let fovs = keys.iter().map(|k| *k.fov.get_ref());
+            if let Some(largest) = camera_file::fovs_look_like_radians(fovs) {
+                let line = line_at(toml_text.as_bytes(), keys[0].fov.span().start);
+                repairs.note(&label, line, camera_file::FOV_RADIANS, || {
+                    format!("the largest of its keyframes' fovs is {largest}")
+                })?;
+            }
+        }
         let (environment, env_input) = match &file.environment {
             None => (None, None),
             Some(e) => {

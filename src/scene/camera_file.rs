@@ -153,6 +153,11 @@ pub fn parse_from(
             }
         }
     }
+    if let Some(largest) = fovs_look_like_radians(entries.iter().map(|e| e.fov)) {
+        repairs.note(label, entries[0].line, FOV_RADIANS, || {
+            format!("the largest of its fovs is {largest}")
+        })?;
+    }
     let n = poses.len() as u32;
     if n < frames {
         let last = entries.last().map_or(String::new(), |e| {
@@ -313,6 +318,24 @@ fn may_group_thousands(f: &str) -> bool {
         && digits(int)
         && frac.len() == 3
         && digits(frac)
+}
+
+/// A camera whose every fov is below pi: likely radians (Blender's `camera.data.angle`, most
+/// scripting APIs), which read as degrees give a telephoto view 57 times narrower.
+pub(crate) const FOV_RADIANS: Kind = Kind {
+    one: "every fov is below pi: read as degrees (if they are radians, as Blender's and most \
+          scripting APIs' camera angles are, multiply them by 180/pi)",
+    many: "cameras whose every fov is below pi: read as degrees (if they are radians, as \
+           Blender's and most scripting APIs' camera angles are, multiply them by 180/pi)",
+};
+
+/// Whether `fovs` (degrees, as given) look like radians: there are some, and every one is
+/// below pi (a lens that narrow throughout is a 600 mm telephoto or longer).
+pub(crate) fn fovs_look_like_radians(fovs: impl IntoIterator<Item = f64>) -> Option<f64> {
+    let largest = fovs
+        .into_iter()
+        .fold(None, |m: Option<f64>, f| Some(m.map_or(f, |m| m.max(f))))?;
+    (largest < std::f64::consts::PI).then_some(largest)
 }
 
 const SHEARED: Kind = Kind {
