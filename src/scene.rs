@@ -96,6 +96,12 @@ use text::{as_text, fov_fault, line_at, quote, quote_name, Lines, MAX_COORD, MAX
 pub const MAX_FRAMES: u32 = 1_000_000;
 /// Most pixels of a scene's resolution (16384 x 16384).
 pub const MAX_PIXELS: u64 = 1 << 28;
+/// The least radiance the brightest light of a scene may emit (`Scene::brightest_emission`): a
+/// path multiplies it by its throughput (albedos, cosines; 1e-6 after a few dark bounces) and a
+/// reuse film by its unit, and below single precision's smallest normal number (1.2e-38) the
+/// tracer's threads flush values to zero (FTZ/DAZ, as Embree asks). 1e-30 leaves those products
+/// a factor 1e8; an environment at intensity 1e-40 rendered every frame black without a word.
+pub const MIN_LIGHT: f32 = 1e-30;
 
 /// The scenes shipped in `scenes/`, compiled into the binary: (name, toml, obj, mtl).
 const BUILTIN: &[(&str, &str, &str, &str)] = &[
@@ -941,7 +947,7 @@ impl Scene {
             offset_floor,
             &mesh.tri_area,
         ));
-        Ok(Scene {
+        let scene = Scene {
             inputs,
             warnings,
             name,
@@ -968,7 +974,18 @@ impl Scene {
             geometry,
             offset_floor,
             origin,
-        })
+        };
+        // Lights so dim that the render's arithmetic loses them: every frame black, no word.
+        let brightest = scene.brightest_emission();
+        if brightest > 0.0 && brightest < MIN_LIGHT {
+            bail!(
+                "{obj_label}: the scene's brightest light emits {brightest:e}, below {MIN_LIGHT:e}: \
+                 a path's products of it fall below single precision's smallest normal number \
+                 (1.2e-38, under which the ray tracer's threads flush values to zero), and every \
+                 frame would be black; scale the lights (Ke, the environment's intensity) up"
+            );
+        }
+        Ok(scene)
     }
 
     /// The largest radiance any light of the scene emits in a channel: an emitting material's
