@@ -242,22 +242,23 @@ pub fn reference(
         Err(InputError::NotFound(_)) => None,
         Err(InputError::Refused(why)) => bail!("{why}"),
     };
+    // What this entry's description says, but for the time and the frames' hashes.
+    let want = ReferenceInfo {
+        scene: scene.name.clone(),
+        width: w,
+        height: h,
+        first_frame: first,
+        last_frame: last,
+        spp,
+        passes: PASSES,
+        max_depth,
+        key: key.clone(),
+        seconds: 0.0,
+        digests: vec![],
+    };
     if let Some(text) = text {
         let info = serde_json::from_str::<ReferenceInfo>(&text)
             .with_context(|| format!("{}: not a reference description", info_path.display()));
-        let want = ReferenceInfo {
-            scene: scene.name.clone(),
-            width: w,
-            height: h,
-            first_frame: first,
-            last_frame: last,
-            spp,
-            passes: PASSES,
-            max_depth,
-            key: key.clone(),
-            seconds: 0.0,
-            digests: vec![],
-        };
         match info.and_then(|info| {
             read_cached(&info, &want, &range, frame_path).map(|frames| (info, frames))
         }) {
@@ -331,17 +332,9 @@ pub fn reference(
     write_json(
         &info_path,
         &ReferenceInfo {
-            scene: scene.name.clone(),
-            width: w,
-            height: h,
-            first_frame: first,
-            last_frame: last,
-            spp,
-            passes: PASSES,
-            max_depth,
-            key,
             seconds,
             digests,
+            ..want
         },
     )?;
     Ok(Reference {
