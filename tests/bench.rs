@@ -358,6 +358,7 @@ fn compare_rejects_bad_settings_before_rendering() {
         (vec!["--windows", "4"], "odd"),
         (vec!["--frames", "0-99"], "frames 0-23"),
         (vec!["--crop", "30,30,20,20"], "not inside"),
+        (vec!["--crop", "4,4,0,3"], "--crop 4,4,0,3: empty"),
         (vec!["--budgets", "0"], "at least one"),
         (
             vec!["--methods", "mis-cv+denoise"],

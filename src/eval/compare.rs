@@ -345,8 +345,16 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     let crop = opts
         .crop
         .unwrap_or([(w - side) / 2, (h - side) / 2, side, side]);
-    let inside =
-        |x: u32, cw: u32, limit: u32| cw > 0 && x.checked_add(cw).is_some_and(|e| e <= limit);
+    if crop[2] == 0 || crop[3] == 0 {
+        bail!(
+            "--crop {},{},{},{}: empty (X,Y,W,H: its width and height must be at least 1)",
+            crop[0],
+            crop[1],
+            crop[2],
+            crop[3]
+        );
+    }
+    let inside = |x: u32, cw: u32, limit: u32| x.checked_add(cw).is_some_and(|e| e <= limit);
     if !inside(crop[0], crop[2], w) || !inside(crop[1], crop[3], h) {
         bail!(
             "--crop {},{},{},{}: not inside the {w}x{h} frame",
