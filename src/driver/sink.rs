@@ -1,7 +1,9 @@
 //! Finished frames written as image files: atomically, with the metadata every frame file
 //! carries (method, samples, window, seed, time, scene, frame and the camera's matrices).
 use crate::film::{Developed, Sink};
-use crate::image::{write_image, Image, Metadata, OutputPattern, WriteOptions};
+use crate::image::{
+    bytes_digest, write_image_hashed, Image, Metadata, OutputPattern, WriteOptions,
+};
 use anyhow::{Context, Result};
 
 /// What every frame file of a render records about how it was made.
@@ -58,7 +60,7 @@ impl Sink for FileSink {
             channels: d.channels.iter().map(|c| c.to_string()).collect(),
             data: d.data,
         };
-        write_image(
+        let digest = write_image_hashed(
             &path,
             &img,
             &meta,
@@ -67,7 +69,7 @@ impl Sink for FileSink {
             },
         )
         .with_context(|| format!("writing frame {frame}"))?;
-        self.digests.push((frame, file_digest(&path)?));
+        self.digests.push((frame, digest));
         self.written.push(path);
         Ok(())
     }
@@ -77,10 +79,9 @@ impl Sink for FileSink {
     }
 }
 
-/// The FNV-1a hash of the bytes of the file at `path` (`Trailer::frame_digests`).
+/// The hash of the bytes of the file at `path`, as `write_image_hashed` gave it when it wrote
+/// the file (`Trailer::frame_digests`).
 pub fn file_digest(path: &std::path::Path) -> Result<u64> {
     let bytes = std::fs::read(path).with_context(|| format!("reading back {}", path.display()))?;
-    let mut h = crate::util::hash::Fnv::default();
-    h.bytes(&bytes);
-    Ok(h.0)
+    Ok(bytes_digest(&bytes))
 }

@@ -409,11 +409,35 @@ impl Drop for TempFile {
 /// `worldtocamera`, JPEG keeps none. PNG and JPEG bytes depend only on the inputs; TIFF and EXR
 /// also carry the time of writing (OIIO adds `DateTime` / `capDate`).
 pub fn write_image(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOptions) -> Result<()> {
+    write_image_hashed(path, img, meta, opts).map(|_| ())
+}
+
+/// `write_image`, returning the FNV-1a hash of the bytes written (`bytes_digest`): of the
+/// encoded bytes in memory, or of the file where the writer wrote it itself, so that a caller
+/// that keeps the hash (a checkpoint's `frame_digests`) does not read the file back.
+pub fn write_image_hashed(
+    path: &Path,
+    img: &Image,
+    meta: &Metadata,
+    opts: &WriteOptions,
+) -> Result<u64> {
     write_image_inner(path, img, meta, opts)
         .map_err(|e| anyhow!("cannot write {}: {e}", path.display()))
 }
 
-fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOptions) -> Result<()> {
+/// The FNV-1a hash of `bytes`: a frame file's identity in a checkpoint (`frame_digests`).
+pub fn bytes_digest(bytes: &[u8]) -> u64 {
+    let mut h = crate::util::hash::Fnv::default();
+    h.bytes(bytes);
+    h.0
+}
+
+fn write_image_inner(
+    path: &Path,
+    img: &Image,
+    meta: &Metadata,
+    opts: &WriteOptions,
+) -> Result<u64> {
     img.check()?;
     crate::util::fs::check_replaceable(path)?;
     let kind = FileKind::of(path)?;
@@ -523,6 +547,11 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
     // The bytes are written here, where a failed write (a full disk, a quota) is an error, and
     // synced before the rename, so that a frame in place is whole.
     let encoded = encoded.as_slice();
+    let digest = if encoded.is_empty() {
+        bytes_digest(&fs::read(&tmp.path).map_err(|e| anyhow!("{e}"))?)
+    } else {
+        bytes_digest(encoded)
+    };
     let file = if encoded.is_empty() {
         // Written by the writer, and read back whole by the bridge.
         fs::File::open(&tmp.path)
@@ -539,7 +568,7 @@ fn write_image_inner(path: &Path, img: &Image, meta: &Metadata, opts: &WriteOpti
     fs::rename(&tmp.path, path)
         .map_err(|e| anyhow!("cannot move the finished file into place: {e}"))?;
     tmp.keep = true;
-    Ok(())
+    Ok(digest)
 }
 
 fn rgb_desc(img: &Image, store_as: ffi::PixelType) -> ffi::ImageDesc {
@@ -1120,8 +1149,8 @@ fn role(c: &str) -> Option<char> {
 }
 
 /// Whether a colour file's values are sRGB-encoded, from the colour space the file names
-/// (`space`, OIIO's `oiio:ColorSpace`), whether it stores 8- or 16-bit unsigned codes, and its format (OIIO's
-/// name):
+/// (`space`, OIIO's `oiio:ColorSpace`), whether it stores 8- or 16-bit unsigned codes, and its
+/// format (OIIO's name):
 /// - a file that names sRGB is sRGB, one that names a linear space (`linear`, `scene_linear`,
 ///   `lin_*`, ACES, `GammaCorrected1.0`) is linear;
 /// - a file that names another gamma (`GammaCorrected2.2` or `Gamma2.2`: a PNG with a `gAMA`
@@ -1162,8 +1191,8 @@ pub fn srgb_encoded(space: Option<&str>, codes: bool, format: &str) -> bool {
 /// Reads a colour input (an environment map, a texture) as linear RGB: refuses images of more
 /// than `max_pixels` pixels before reading their pixels; takes its colour from the channels
 /// `colour_channels` names; decodes sRGB where the file's values are sRGB-encoded
-/// (`srgb_encoded`: 8-bit PNG and JPEG, and any file of 8- or 16-bit codes that does not name a linear
-/// space), so that an 8-bit file gives the same linear values as the HDR it was made from.
+/// (`srgb_encoded`: 8-bit PNG and JPEG, and any file of 8- or 16-bit codes that does not name a
+/// linear space), so that an 8-bit file gives the same linear values as the HDR it was made from.
 ///
 /// `then_per_pixel`: the bytes per pixel the caller goes on to hold beside or after the image
 /// (an environment's texels and sampling tables), counted in the memory check before the file
