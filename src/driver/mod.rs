@@ -428,16 +428,14 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         seed: opts.seed,
         exr_float: opts.exr_float,
     };
-    let mut resumed_digests = None;
-    let (counters, next, active) = match resumed {
+    let (counters, next, active, digests) = match resumed {
         Some(r) => {
             check_resumed_outputs(&r.trailer, opts, &plan, (&out, &meta), scene)?;
-            resumed_digests = Some(r.trailer.frame_digests);
-            (r.trailer.progress, r.trailer.next_unit, r.active)
+            let t = r.trailer;
+            (t.progress, t.next_unit, r.active, t.frame_digests)
         }
-        None => (Counters::default(), *plan.units.start(), vec![]),
+        None => (Counters::default(), *plan.units.start(), vec![], vec![]),
     };
-    let digests = resumed_digests.unwrap_or_default();
     let mut run = Run::new(ckpt, plan.units.clone(), next, counters);
     run.frame_digests = digests;
     run.interrupt = opts.interrupt.clone();

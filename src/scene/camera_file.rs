@@ -332,9 +332,7 @@ pub(crate) const FOV_RADIANS: Kind = Kind {
 /// Whether `fovs` (degrees, as given) look like radians: there are some, and every one is
 /// below pi (a lens that narrow throughout is a 600 mm telephoto or longer).
 pub(crate) fn fovs_look_like_radians(fovs: impl IntoIterator<Item = f64>) -> Option<f64> {
-    let largest = fovs
-        .into_iter()
-        .fold(None, |m: Option<f64>, f| Some(m.map_or(f, |m| m.max(f))))?;
+    let largest = fovs.into_iter().reduce(f64::max)?;
     (largest < std::f64::consts::PI).then_some(largest)
 }
 
@@ -687,7 +685,7 @@ fn csv_entries(label: &str, text: &str, repairs: &mut Repairs) -> Result<Vec<Ent
     // (`# frame,fov,...`, as `savetxt(..., header=...)` writes it) before it; other comments
     // before it are passed over.
     let mut passed_over = None;
-    let (hline, header, header_text) = loop {
+    let (hline, header, (sep, names, trailing)) = loop {
         let Some((n, line)) = rows.next() else {
             bail!(
                 "{label}: no header line naming the columns ('{}' or '{}'): the file holds only \
@@ -699,16 +697,15 @@ fn csv_entries(label: &str, text: &str, repairs: &mut Repairs) -> Result<Vec<Ent
         let text = line.trim_start();
         match text.strip_prefix('#') {
             Some(comment) => {
-                let names = csv_header(comment).1;
-                if names == matrix || names == LOOK_AT_HEADER {
-                    break (n, line, comment);
+                let parsed = csv_header(comment);
+                if parsed.1 == matrix || parsed.1 == LOOK_AT_HEADER {
+                    break (n, line, parsed);
                 }
                 passed_over.get_or_insert((n, line));
             }
-            None => break (n, line, text),
+            None => break (n, line, csv_header(text)),
         }
     };
-    let (sep, names, trailing) = csv_header(header_text);
     let is_matrix = names == matrix;
     if !is_matrix && names != LOOK_AT_HEADER {
         // A comment before it that the author may have meant as the header.

@@ -332,11 +332,10 @@ pub fn parse_for(
             continue;
         }
         if !matches!(key, "Kd" | "Ks" | "Ke" | "Ns" | "Pr") {
-            let mut known = STATEMENTS.iter().chain(&PASSED_OVER);
-            if !known.any(|k| k.eq_ignore_ascii_case(key)) {
+            let known = || STATEMENTS.iter().chain(&PASSED_OVER).copied();
+            if !known().any(|k| k.eq_ignore_ascii_case(key)) {
                 notes.note(label, n, UNKNOWN, || {
-                    let hint = did_you_mean(key, STATEMENTS.iter().chain(&PASSED_OVER).copied());
-                    format!("'{}'{hint}", quote(text))
+                    format!("'{}'{}", quote(text), did_you_mean(key, known()))
                 })?;
             }
             continue;
@@ -344,20 +343,21 @@ pub fn parse_for(
         let Some(m) = out.materials.last_mut() else {
             return Err(err(format!("'{key}' before any newmtl")));
         };
-        // A number written finite but past single precision (`Ke 1e39`) is the largest single
-        // (then capped, clamped or scaled as any large value is), not the infinity it reads as:
-        // `Ke 1e38` was capped at 1e9 with a warning and `Ke 1e39` refused as not finite.
         // The format's other two forms of a colour: `Kd xyz x [y z]`, CIE XYZ values, and
         // `Kd spectral file.rfl [factor]`, a spectral curve in a file of its own.
+        let colour = matches!(key, "Kd" | "Ks" | "Ke");
         let form = args.first().map(|a| a.to_ascii_lowercase());
-        if matches!(key, "Kd" | "Ks" | "Ke") && form.as_deref() == Some("spectral") {
+        if colour && form.as_deref() == Some("spectral") {
             return Err(err(format!(
                 "spectral colours (a curve in an .rfl file) are not read: write '{key} r g b' \
                  (linear Rec.709 RGB)"
             )));
         }
-        let xyz = matches!(key, "Kd" | "Ks" | "Ke") && form.as_deref() == Some("xyz");
+        let xyz = colour && form.as_deref() == Some("xyz");
         let args = if xyz { &args[1..] } else { &args[..] };
+        // A number written finite but past single precision (`Ke 1e39`) is the largest single
+        // (then capped, clamped or scaled as any large value is), not the infinity it reads as:
+        // `Ke 1e38` was capped at 1e9 with a warning and `Ke 1e39` refused as not finite.
         let parsed: Option<Vec<f32>> = args.iter().map(|a| number_saturating(a)).collect();
         // Numbers past the statement's (`Kd 0.2 0.3 0.4 0.9`, `Ns 10 20`): ignored, and said.
         let most = if matches!(key, "Ns" | "Pr") { 1 } else { 3 };

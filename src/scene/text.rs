@@ -384,7 +384,6 @@ pub fn line_at(bytes: &[u8], offset: usize) -> usize {
     bytes[..offset].iter().filter(|&&b| b == b'\n').count() + 1
 }
 
-/// A line as it appears in an error message: trimmed, and cut short if long.
 /// A file name from a scene file as a message shows it: as `quote` shortens it, but untrimmed,
 /// so that a space at its end (`obj = "s.obj "`, which names no file) shows, where the message
 /// read `obj 's.obj': OBJ 's.obj ': no such file`.
@@ -395,6 +394,7 @@ pub fn quote_name(name: &str) -> String {
     }
 }
 
+/// A line as it appears in an error message: trimmed, and cut short if long.
 pub fn quote(line: &str) -> String {
     quote_name(line.trim())
 }
