@@ -837,6 +837,20 @@ fn a_running_chunks_state_is_never_replaced_or_taken_for_its_own() {
     assert!(!sub.join("f.chunk-1-of-2.partial").exists());
 }
 
+/// A short render that checkpoints after every unit: two frames of `cornell` at 32 x 24, 1 spp.
+const SHORT_CHECKPOINTED: [&str; 10] = [
+    "render",
+    "cornell",
+    "--res",
+    "32x24",
+    "--spp",
+    "1",
+    "--frames",
+    "0-1",
+    "--checkpoint-every",
+    "0",
+];
+
 /// A process killed while writing its first checkpoint leaves only `state.tmp-PID` in the
 /// folder: the next run (with or without `--resume`) removes it, and the folder goes when the
 /// render completes (no later run removed it, and the folder outlived every render). A user's
@@ -848,18 +862,7 @@ fn a_first_checkpoint_left_half_written_is_swept() {
     let ck = d.join("o/f.checkpoint");
     let args = |resume: bool| {
         let mut a = with(
-            &[
-                "render",
-                "cornell",
-                "--res",
-                "32x24",
-                "--spp",
-                "1",
-                "--frames",
-                "0-1",
-                "--checkpoint-every",
-                "0",
-            ],
+            &SHORT_CHECKPOINTED,
             &["--out", &format!("{}/o/f_####.exr", d.display())],
         );
         if resume {
@@ -900,22 +903,11 @@ fn a_checkpoint_folder_made_beforehand_is_kept() {
     std::fs::create_dir(&ck).unwrap();
     let out = format!("{}/o/f_####.exr", d.display());
     let ck_arg = ck.display().to_string();
-    let args = [
-        "render",
-        "cornell",
-        "--res",
-        "32x24",
-        "--spp",
-        "1",
-        "--frames",
-        "0-1",
-        "--checkpoint-every",
-        "0",
-        "--checkpoint",
-        &ck_arg,
-        "--out",
-        &out,
-    ];
+    let args = with(
+        &SHORT_CHECKPOINTED,
+        &["--checkpoint", &ck_arg, "--out", &out],
+    );
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
     run(&args);
     assert!(ck.is_dir(), "the folder made beforehand was removed");
     assert!(

@@ -62,15 +62,20 @@ fn write_scene(d: &Path, obj: &str, mtl: &str, toml: &str) -> String {
     p.to_str().unwrap().to_string()
 }
 
-/// A folder holding `checker.png` (`square`'s 32 x 32 texels), a device and a pool of one thread.
-fn checker_setup() -> (tempfile::TempDir, Device, rayon::ThreadPool) {
-    let dir = tempfile::tempdir().unwrap();
+/// `checker.png` in `dir`: `square`'s 32 x 32 texels, 8-bit sRGB.
+fn write_checker(dir: &Path) {
     write_texture(
-        &dir.path().join("checker.png"),
+        &dir.join("checker.png"),
         32,
         |x, y| square(y / 8, x / 8),
         false,
     );
+}
+
+/// A folder holding `checker.png` (`write_checker`), a device and a pool of one thread.
+fn checker_setup() -> (tempfile::TempDir, Device, rayon::ThreadPool) {
+    let dir = tempfile::tempdir().unwrap();
+    write_checker(dir.path());
     (dir, Device::new().unwrap(), thread_pool(1).unwrap())
 }
 
@@ -1377,12 +1382,7 @@ fn kd_zero_beside_a_colour_map_is_the_texture() {
 #[test]
 fn threads_that_read_textures_end_after_their_scene_without_harm() {
     let dir = tempfile::tempdir().unwrap();
-    write_texture(
-        &dir.path().join("checker.png"),
-        32,
-        |x, y| square(y / 8, x / 8),
-        false,
-    );
+    write_checker(dir.path());
     let path = write_scene(
         dir.path(),
         QUAD,
