@@ -165,7 +165,7 @@ impl<S: Sink> Sink for DenoiseSink<'_, S> {
         self.inner.put(d)
     }
 
-    fn take_digests(&mut self) -> Vec<(u32, u64)> {
-        self.inner.take_digests()
+    fn sync(&mut self) -> Result<Vec<(u32, u64)>> {
+        self.inner.sync()
     }
 }

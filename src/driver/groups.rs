@@ -111,7 +111,7 @@ pub fn run_groups(
     let _graceful = Graceful::begin(run);
     for g0 in run.next..=last_group {
         if run.interrupted() {
-            run.save(active.iter().map(|(_, a)| a))?;
+            run.save(sink, active.iter().map(|(_, a)| a))?;
             pb.abandon();
             return Ok(false);
         }
@@ -187,13 +187,13 @@ pub fn run_groups(
                 let d = develop(&a, sample_folds);
                 drop(a);
                 run.counters.nonfinite_pixels += d.nonfinite;
-                run.put(sink, d)?;
+                sink.put(d)?;
             }
             written += 1;
         }
         run.next = g0 + 1;
         if g0 < last_group && run.ckpt.due() {
-            run.save(active.iter().map(|(_, a)| a))?;
+            run.save(sink, active.iter().map(|(_, a)| a))?;
         }
         pb.set_message(format!(
             "| {written} frames {}",

@@ -197,7 +197,7 @@ pub fn run_independent(
     let _graceful = Graceful::begin(run);
     for frame in run.next..=b {
         if run.interrupted() {
-            run.save([])?;
+            run.save(sink, [])?;
             pb.abandon();
             return Ok(false);
         }
@@ -226,11 +226,11 @@ pub fn run_independent(
         if run.ckpt.chunked() {
             run.ckpt.retire(&Record::Pixels(d))?;
         } else {
-            run.put(sink, d)?;
+            sink.put(d)?;
         }
         run.next = frame + 1;
         if frame < b && run.ckpt.due() {
-            run.save([])?;
+            run.save(sink, [])?;
         }
     }
     pb.finish_and_clear();

@@ -446,25 +446,33 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     integrator.paths = opts.paths;
     let mut sink = FileSink::new(meta, out);
     let mut denoise_seconds = 0.0;
-    let completed = match denoiser {
-        Some((denoiser, layers)) => {
-            let mut dsink = denoise::DenoiseSink {
-                inner: &mut sink,
-                denoiser,
-                integrator: &integrator,
-                seed: opts.seed,
-                layers,
-                seconds: 0.0,
-            };
-            let done =
-                pool.install(|| frame_loop(&integrator, opts, &plan, &mut run, active, &mut dsink));
-            denoise_seconds = dsink.seconds;
-            done?
-        }
-        None => {
-            pool.install(|| frame_loop(&integrator, opts, &plan, &mut run, active, &mut sink))?
-        }
-    };
+    let completed = std::thread::scope(|scope| -> Result<bool> {
+        let mut writer = sink::Writer::spawn(scope, &mut sink);
+        let done = match denoiser {
+            Some((denoiser, layers)) => {
+                let mut dsink = denoise::DenoiseSink {
+                    inner: &mut writer,
+                    denoiser,
+                    integrator: &integrator,
+                    seed: opts.seed,
+                    layers,
+                    seconds: 0.0,
+                };
+                let done = pool
+                    .install(|| frame_loop(&integrator, opts, &plan, &mut run, active, &mut dsink));
+                denoise_seconds = dsink.seconds;
+                done
+            }
+            None => {
+                pool.install(|| frame_loop(&integrator, opts, &plan, &mut run, active, &mut writer))
+            }
+        };
+        // Every frame handed over is written (or its failure said) before the render ends.
+        let written = writer.sync();
+        let done = done?;
+        run.frame_digests.extend(written?);
+        Ok(done)
+    })?;
     if !completed {
         return Err(Interrupted {
             checkpoint: run.ckpt.dir().map(Path::to_path_buf),

@@ -399,8 +399,10 @@ impl RenderOptions {
         } else {
             threads * tile_pixels * crate::integrator::wavefront::Wavefront::bytes_per_path() as u64
         };
-        // A developed frame (RGB and `--aov`'s two channels, f32), and the writer's copies.
-        let develop = 3 * 4 * 5 * pixels;
+        // Developed frames (RGB and `--aov`'s two channels, f32): one on the render's thread,
+        // one waiting for the writer (`driver::sink::Writer`), and one being written with the
+        // writer's two copies of it.
+        let develop = 5 * 4 * 5 * pixels;
         // The denoiser's images and its bounded scratch.
         let denoise = if self.denoise.is_some() {
             use crate::image::oidn;

@@ -91,19 +91,17 @@ impl Run {
     }
 
     /// Checkpoint at `next` (the first unit still to render), with the frames in flight
-    /// `active`.
-    pub fn save<'a>(&mut self, active: impl IntoIterator<Item = &'a FrameAccum>) -> Result<()> {
+    /// `active`, once every frame handed to `sink` is written: a checkpoint never counts a
+    /// frame whose file is not whole.
+    pub fn save<'a>(
+        &mut self,
+        sink: &mut dyn Sink,
+        active: impl IntoIterator<Item = &'a FrameAccum>,
+    ) -> Result<()> {
+        self.frame_digests.extend(sink.sync()?);
         self.counters.seconds = self.seconds();
         let digests = &self.frame_digests;
         self.ckpt.save(self.next, &self.counters, active, digests)
-    }
-
-    /// Frame `d` handed to `sink` (written, for a file sink), and its file's hash kept for the
-    /// next checkpoint.
-    pub fn put(&mut self, sink: &mut dyn Sink, d: crate::film::Developed) -> Result<()> {
-        sink.put(d)?;
-        self.frame_digests.extend(sink.take_digests());
-        Ok(())
     }
 
     /// The run is complete: the chunk's partial file, if any (the checkpoint is removed).

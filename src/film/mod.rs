@@ -18,6 +18,7 @@ pub mod tiles;
 use crate::camera::Camera;
 use fixed::{FixedSums, FIXED};
 use glam::Vec3;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering::Relaxed};
 use std::time::Instant;
@@ -490,22 +491,23 @@ pub fn develop(a: &FrameAccum, sample_folds: Option<[f64; 2]>) -> Developed {
         channels.extend(["spp_eff", "lost_reuse"]);
     }
     let nc = channels.len();
-    let mut data = Vec::with_capacity(n * nc);
     let unit = a.layout.unit;
-    for i in 0..n {
+    // The weights a fold expects: one per group, or a share of the one group.
+    let g = match sample_folds {
+        Some(shares) if a.group_count() == 1 => shares,
+        _ => a.groups.map(f64::from),
+    };
+    // Pixel by pixel, each on its own: in parallel, on the render's workers (the frame loop
+    // waits for its frame here).
+    let mut data = vec![0.0f32; n * nc];
+    data.par_chunks_mut(nc).enumerate().for_each(|(i, px)| {
         let count = landed.map_or(0, |l| l[i].load(Relaxed));
         match (a.layout.norm, &weights) {
             (Norm::ControlVariate, Some(w)) => {
                 let sum = |f: usize, c: usize| totals[6 * i + 3 * f + c] as f64 / FIXED;
                 let w = [w[2 * i] as f64 / FIXED, w[2 * i + 1] as f64 / FIXED];
-                // The weights a fold expects: one per group, or a share of the one group.
-                let g = match sample_folds {
-                    Some(shares) if a.group_count() == 1 => shares,
-                    _ => a.groups.map(f64::from),
-                };
-                for c in 0..3 {
-                    let s = [sum(0, c), sum(1, c)];
-                    data.push(control_variate(s, w, g) as f32 * unit);
+                for (c, v) in px[..3].iter_mut().enumerate() {
+                    *v = control_variate([sum(0, c), sum(1, c)], w, g) as f32 * unit;
                 }
             }
             (norm, _) => {
@@ -513,18 +515,18 @@ pub fn develop(a: &FrameAccum, sample_folds: Option<[f64; 2]>) -> Developed {
                     Norm::Count => (count > 0).then_some(count as f32),
                     _ => Some(a.group_count() as f32),
                 };
-                for c in 0..3 {
+                for (c, v) in px[..3].iter_mut().enumerate() {
                     let s = (totals[3 * i + c] as f64 / FIXED) as f32 * unit;
-                    data.push(divisor.map_or(0.0, |d| s / d));
+                    *v = divisor.map_or(0.0, |d| s / d);
                 }
             }
         }
         if let Some((tried, lost)) = loss {
-            data.push(count as f32);
+            px[3] = count as f32;
             let (t, l) = (tried[i].load(Relaxed), lost[i].load(Relaxed));
-            data.push(if t > 0 { l as f32 / t as f32 } else { 0.0 });
+            px[4] = if t > 0 { l as f32 / t as f32 } else { 0.0 };
         }
-    }
+    });
     Developed {
         view: a.view,
         nonfinite: count_nonfinite(&data, nc),
@@ -552,11 +554,13 @@ pub fn control_variate(s: [f64; 2], w: [f64; 2], g: [f64; 2]) -> f64 {
 pub trait Sink {
     fn put(&mut self, frame: Developed) -> anyhow::Result<()>;
 
-    /// The frames written to files since the last call, each with the FNV-1a hash of its
-    /// file's bytes (a checkpoint keeps them: `state::Trailer::frame_digests`); none for a
+    /// Wait until every frame put so far is where the sink puts it (a sink may write on a
+    /// thread of its own: `driver::sink::Writer`), and say the first failure if one failed.
+    /// Returns the frames written to files since the last call, each with the FNV-1a hash of
+    /// its file's bytes (a checkpoint keeps them: `state::Trailer::frame_digests`); none for a
     /// sink that writes no files.
-    fn take_digests(&mut self) -> Vec<(u32, u64)> {
-        Vec::new()
+    fn sync(&mut self) -> anyhow::Result<Vec<(u32, u64)>> {
+        Ok(Vec::new())
     }
 }
 

@@ -95,7 +95,7 @@ pub struct Trailer {
     #[serde(default)]
     pub inputs: Vec<String>,
     /// A checkpoint of a render that writes frames: each finished frame and the FNV-1a hash of
-    /// its file's bytes as written (`Sink::take_digests`), so that a resume finds another file
+    /// its file's bytes as written (`Sink::sync`), so that a resume finds another file
     /// in its place in any format, one that keeps no metadata too (absent in older files: not
     /// checked).
     #[serde(default)]
