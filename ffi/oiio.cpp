@@ -236,6 +236,13 @@ rust::String oiio_version() {
                         std::to_string(v % 100));
 }
 
+void set_threads(int32_t n) {
+    // OIIO's own pool, and the one OpenEXR compresses and decompresses blocks in (a separate
+    // setting: "exr_threads"); both default to the machine's cores, whatever the process may use.
+    OIIO::attribute("threads", static_cast<int>(n));
+    OIIO::attribute("exr_threads", static_cast<int>(n));
+}
+
 void check_output_format(rust::Slice<const uint8_t> path) {
     const std::string p = path_string(path);
     // create() only looks the writer up by extension; it neither opens nor creates the file.

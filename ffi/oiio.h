@@ -87,6 +87,7 @@ private:
 std::unique_ptr<TextureSet> new_texture_set();
 
 rust::String oiio_version();
+void set_threads(int32_t n);
 void check_output_format(rust::Slice<const uint8_t> path);
 void probe_output(rust::Slice<const uint8_t> path, rust::Slice<const uint8_t> probe,
                   const ImageDesc& desc);

@@ -206,10 +206,11 @@ fn check_resumed_outputs(
     Ok(())
 }
 
-/// A rayon pool whose workers set FTZ/DAZ, as Embree asks of every tracing thread.
+/// A rayon pool whose workers set FTZ/DAZ, as Embree asks of every tracing thread; the image
+/// libraries' own threads are set to as many.
 pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
     options::check_threads(threads)?;
-    rayon::ThreadPoolBuilder::new()
+    let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .start_handler(|_| crate::embree::set_flush_denormals())
         .build()
@@ -218,7 +219,11 @@ pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
                 "creating the worker threads: {e}{}",
                 crate::util::mem::address_space_note()
             )
-        })
+        })?;
+    // The image libraries' compression threads follow the workers: `--threads 2` on a shared
+    // 64-core node had OpenEXR start 64 of them.
+    crate::image::set_threads(pool.current_num_threads());
+    Ok(pool)
 }
 
 pub fn progress_bar(enabled: bool, len: u64, what: &str) -> ProgressBar {

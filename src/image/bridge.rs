@@ -85,6 +85,10 @@ pub(crate) mod ffi {
 
         fn oiio_version() -> String;
 
+        /// Threads OpenImageIO and OpenEXR may use for their own parallel work (an EXR
+        /// frame's compression, format conversions); 0 means one per core.
+        fn set_threads(n: i32);
+
         /// Succeeds when OIIO has a writer for the file name's extension.
         fn check_output_format(path: &[u8]) -> Result<()>;
 

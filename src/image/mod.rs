@@ -1560,6 +1560,12 @@ fn metadata_pair(a: ffi::Attribute) -> Option<(String, String)> {
     Some((name, value))
 }
 
+/// Let the image libraries' own parallel work (an EXR frame's compression) use `threads`
+/// threads, as the render does, rather than one per core of the machine.
+pub fn set_threads(threads: usize) {
+    ffi::set_threads(threads.min(i32::MAX as usize) as i32)
+}
+
 /// The version of the OpenImageIO library in use, e.g. "2.4.7".
 pub fn oiio_version() -> String {
     ffi::oiio_version()
