@@ -220,8 +220,8 @@ pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
                 crate::util::mem::address_space_note()
             )
         })?;
-    // The image libraries' compression threads follow the workers: `--threads 2` on a shared
-    // 64-core node had OpenEXR start 64 of them.
+    // The image libraries' compression threads follow the workers: by default OpenEXR starts
+    // one per core of the machine, so `--threads 2` on a shared 64-core node would start 64.
     crate::image::set_threads(pool.current_num_threads());
     Ok(pool)
 }
