@@ -38,8 +38,11 @@ std::string path_string(rust::Slice<const uint8_t> path) {
 // Some of the codec libraries under OIIO print their own complaint about a damaged file to
 // stderr (libpng's "libpng error: ...", libjpeg's "Corrupt JPEG data ...") besides handing it to
 // OIIO, whose message the caller reports; reframe's errors are one line. While a file is being
-// opened or read, stderr goes to /dev/null. This is process-wide, so it happens only while
-// inputs are read (loading, before any render thread prints), one reader at a time.
+// opened or read, stderr goes to /dev/null, one reader at a time. This is process-wide: inputs
+// are read while loading, before any render thread prints, but a frame that its format's
+// writer wrote itself (TIFF) is read back on the frame writer's thread while the workers
+// render, and for those milliseconds a progress bar's redraw is lost (reframe's own messages
+// and a panic's go to a copy of stderr made at start, `sys::keep_stderr`, and are not).
 class QuietStderr {
 public:
     QuietStderr() : lock_(mutex()) {

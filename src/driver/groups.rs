@@ -201,6 +201,8 @@ pub fn run_groups(
         ));
         pb.inc(1);
     }
+    // Every frame on disk before the loop (and its graceful stop) ends.
+    run.frame_digests.extend(sink.sync()?);
     pb.finish_and_clear();
     Ok(true)
 }

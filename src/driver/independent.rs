@@ -233,6 +233,8 @@ pub fn run_independent(
             run.save(sink, [])?;
         }
     }
+    // Every frame on disk before the loop (and its graceful stop) ends.
+    run.frame_digests.extend(sink.sync()?);
     pb.finish_and_clear();
     Ok(true)
 }

@@ -472,11 +472,18 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
                 pool.install(|| frame_loop(&integrator, opts, &plan, &mut run, active, &mut writer))
             }
         };
-        // Every frame handed over is written (or its failure said) before the render ends.
-        let written = writer.sync();
-        let done = done?;
-        run.frame_digests.extend(written?);
-        Ok(done)
+        // Every frame handed over is written (or its failure said) before the render ends; the
+        // loops sync before they return, so this waits only where one stopped on an error.
+        let told = writer.told();
+        match (done, writer.sync()) {
+            (Ok(done), Ok(digests)) => {
+                run.frame_digests.extend(digests);
+                Ok(done)
+            }
+            // A frame's write failed, unsaid, before the loop failed on a later one.
+            (Err(e), Err(w)) if !told => Err(anyhow::anyhow!("{w:#}; then {e:#}")),
+            (Err(e), _) | (Ok(_), Err(e)) => Err(e),
+        }
     })?;
     if !completed {
         return Err(Interrupted {

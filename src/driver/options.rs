@@ -354,8 +354,9 @@ impl RenderOptions {
 
     /// Bytes a render at `(w, h)` holds at its peak, estimated before it starts: the
     /// accumulators of the frames in flight (`n_f` of them for the reuse methods, one for the
-    /// independent tracer), the adaptive counts, a developed frame and its copy for the file
-    /// writer, every worker's windows of the group's frames (`film::local`, at their largest),
+    /// independent tracer), the adaptive counts, three developed frames (one being developed,
+    /// one waiting for the frame writer, one being written) and the writer's two copies, every
+    /// worker's windows of the group's frames (`film::local`, at their largest),
     /// every worker's native samples of a tile (`reuse::shade::worker_bytes`) or wavefront batch
     /// (`integrator::wavefront`), with `--denoise` the denoiser's images and scratch
     /// (`image::oidn`), and 32 MB for the rest. The process as it starts (the scene,
@@ -399,10 +400,16 @@ impl RenderOptions {
         } else {
             threads * tile_pixels * crate::integrator::wavefront::Wavefront::bytes_per_path() as u64
         };
-        // Developed frames (RGB and `--aov`'s two channels, f32): one on the render's thread,
-        // one waiting for the writer (`driver::sink::Writer`), and one being written with the
-        // writer's two copies of it.
-        let develop = 5 * 4 * 5 * pixels;
+        // Developed frames (f32: RGB, `--aov`'s two channels, `--denoise-layers`' nine): one
+        // on the render's thread, one waiting for the writer (`driver::sink::Writer`), and one
+        // being written with the writer's two copies of it.
+        let channels = 3
+            + if self.aov { 2 } else { 0 }
+            + match self.denoise {
+                Some(super::denoise::Layers::RawAndGuides) => 9,
+                _ => 0,
+            };
+        let develop = 5 * 4 * channels * pixels;
         // The denoiser's images and its bounded scratch.
         let denoise = if self.denoise.is_some() {
             use crate::image::oidn;

@@ -97,58 +97,78 @@ enum Job {
 /// workers waited for every write: 20-35 ms for a 640x480 EXR, a sixth of a 1 spp frame's time
 /// at 2 threads and more at 16. At most one frame waits while one is being written (the
 /// render's memory estimate counts both); a frame that arrives while both places are taken
-/// waits on the render's thread. A write that fails is said at the next `put` or `sync`, and
-/// the frames behind it are not written.
+/// waits on the render's thread. A write that fails is said by a later `put` (the one after
+/// the next, where the next was handed over before the failure) or by the next `sync`; the
+/// frames behind it are not written.
 pub struct Writer {
     jobs: std::sync::mpsc::SyncSender<Job>,
     replies: std::sync::mpsc::Receiver<Result<Vec<(u32, u64)>>>,
+    /// The writer's thread stopped, and its failure has been said.
+    told: bool,
 }
 
 impl Writer {
     /// Start the writer's thread in `scope`, writing to `inner` (which it borrows until the
-    /// scope ends: the frames are all written by then).
+    /// scope ends, when the frames handed over are written or the first failure is kept).
     pub fn spawn<'scope, S: Sink + Send>(
         scope: &'scope std::thread::Scope<'scope, '_>,
         inner: &'scope mut S,
     ) -> Writer {
         let (jobs, queue) = std::sync::mpsc::sync_channel::<Job>(1);
         let (answer, replies) = std::sync::mpsc::channel();
-        scope.spawn(move || {
-            let serve = || {
-                for job in queue {
-                    let reply = match job {
-                        Job::Frame(d) => match inner.put(*d) {
-                            Ok(()) => continue,
-                            Err(e) => Err(e),
-                        },
-                        Job::Sync => inner.sync(),
-                    };
-                    let failed = reply.is_err();
-                    if answer.send(reply).is_err() || failed {
-                        // Dropping the queue refuses the frames behind a failed one.
-                        return;
-                    }
+        let serve = move || {
+            // As the workers that wrote frames before did.
+            crate::embree::set_flush_denormals();
+            for job in queue {
+                let reply = match job {
+                    Job::Frame(d) => match inner.put(*d) {
+                        Ok(()) => continue,
+                        Err(e) => Err(e),
+                    },
+                    Job::Sync => inner.sync(),
+                };
+                let failed = reply.is_err();
+                if answer.send(reply).is_err() || failed {
+                    // Dropping the queue refuses the frames behind a failed one.
+                    return;
                 }
-            };
-            // The image code's parallel loops (the half-float range checks, the sRGB
-            // encoding) run on this thread alone, not on a pool of their own beside the
-            // render's workers.
-            match rayon::ThreadPoolBuilder::new()
-                .num_threads(1)
-                .use_current_thread()
-                .build()
-            {
-                Ok(pool) => pool.install(serve),
-                Err(_) => serve(),
             }
-        });
-        Writer { jobs, replies }
+        };
+        std::thread::Builder::new()
+            // Named for a panic's message, which the process ends with, as a worker's does.
+            .name("frame writer".into())
+            .spawn_scoped(scope, move || {
+                // The image code's parallel loops (the half-float range checks, the sRGB
+                // encoding) run on this thread alone, as the one worker of a pool of one, not
+                // on rayon's global pool beside the render's workers (where the pool cannot be
+                // made, they do).
+                match rayon::ThreadPoolBuilder::new()
+                    .num_threads(1)
+                    .use_current_thread()
+                    .build()
+                {
+                    Ok(pool) => pool.install(serve),
+                    Err(_) => serve(),
+                }
+            })
+            .expect("starting the frame writer's thread");
+        Writer {
+            jobs,
+            replies,
+            told: false,
+        }
+    }
+
+    /// Whether a failure of the writer's thread has been said by `put` or `sync`.
+    pub fn told(&self) -> bool {
+        self.told
     }
 
     /// The writer's thread has stopped: the failure it said.
     fn failure(&mut self) -> anyhow::Error {
+        let told = std::mem::replace(&mut self.told, true);
         match self.replies.recv() {
-            Ok(Err(e)) => e,
+            Ok(Err(e)) if !told => e,
             _ => anyhow::anyhow!("the frame writer stopped"),
         }
     }
@@ -167,8 +187,12 @@ impl Sink for Writer {
             return Err(self.failure());
         }
         match self.replies.recv() {
-            Ok(reply) => reply,
-            Err(_) => Err(anyhow::anyhow!("the frame writer stopped")),
+            Ok(Ok(digests)) => Ok(digests),
+            Ok(Err(e)) => {
+                self.told = true;
+                Err(e)
+            }
+            Err(_) => Err(self.failure()),
         }
     }
 }
@@ -177,6 +201,7 @@ impl Sink for Writer {
 mod tests {
     use super::*;
     use crate::film::View;
+    use std::sync::atomic::{AtomicBool, Ordering::SeqCst};
     use std::sync::mpsc;
     use std::time::Duration;
 
@@ -232,9 +257,11 @@ mod tests {
             .num_threads(3)
             .build()
             .unwrap();
+        let mut caller = None;
         let (first, second) = std::thread::scope(|s| {
             let mut w = Writer::spawn(s, &mut rec);
             pool.install(|| {
+                caller = Some(std::thread::current().id());
                 for f in 0..5 {
                     w.put(frame(f)).unwrap();
                 }
@@ -250,9 +277,9 @@ mod tests {
         assert_eq!(second, vec![(5, 105)]);
         let order: Vec<u32> = rec.got.iter().map(|g| g.0).collect();
         assert_eq!(order, [0, 1, 2, 3, 4, 5]);
-        let me = std::thread::current().id();
+        let caller = caller.unwrap();
         for (f, thread, threads) in &rec.got {
-            assert_ne!(*thread, me, "frame {f} written on the caller's thread");
+            assert_ne!(*thread, caller, "frame {f} written on the caller's thread");
             assert_eq!(
                 *threads, 1,
                 "frame {f}: the writer's rayon pool has {threads} threads"
@@ -292,33 +319,83 @@ mod tests {
         }
     }
 
-    /// A sink that holds each write until the test lets it go.
-    struct Held(mpsc::Receiver<()>, Vec<u32>);
+    /// A sink that holds each write until the test lets it go, and says which it holds.
+    struct Held {
+        go: mpsc::Receiver<()>,
+        holding: mpsc::Sender<u32>,
+        got: Vec<u32>,
+    }
 
     impl Sink for Held {
         fn put(&mut self, d: Developed) -> Result<()> {
-            self.0
+            let f = d.view.frame;
+            self.holding.send(f).unwrap();
+            self.go
                 .recv_timeout(Duration::from_secs(60))
-                .map_err(|_| anyhow::anyhow!("frame {}: never let go", d.view.frame))?;
-            self.1.push(d.view.frame);
+                .map_err(|_| anyhow::anyhow!("frame {f}: never let go"))?;
+            self.got.push(f);
             Ok(())
         }
     }
 
     #[test]
-    fn the_render_goes_on_while_a_frame_is_written() {
+    fn the_render_goes_on_while_a_frame_is_written_and_holds_two_at_most() {
         let (go, held) = mpsc::channel();
-        let mut sink = Held(held, vec![]);
+        let (holding, writing) = mpsc::channel();
+        let mut sink = Held {
+            go: held,
+            holding,
+            got: vec![],
+        };
+        let third_back = AtomicBool::new(false);
         std::thread::scope(|s| {
             let mut w = Writer::spawn(s, &mut sink);
             // One frame being written and one waiting: both puts return with neither written
             // (a writer on the caller's thread would wait for `go` here, which comes after).
             w.put(frame(0)).unwrap();
+            assert_eq!(writing.recv().unwrap(), 0);
             w.put(frame(1)).unwrap();
-            go.send(()).unwrap();
-            go.send(()).unwrap();
-            w.sync().unwrap();
+            let third_back = &third_back;
+            let third = s.spawn(move || {
+                w.put(frame(2)).unwrap();
+                third_back.store(true, SeqCst);
+                w.sync().unwrap();
+            });
+            // A third frame finds no place until frame 0 is written (an unbounded queue would
+            // take it at once; a slow machine can only make this pass, never fail).
+            std::thread::sleep(Duration::from_millis(300));
+            assert!(
+                !third_back.load(SeqCst),
+                "a third frame was taken while two were in hand"
+            );
+            for _ in 0..3 {
+                go.send(()).unwrap();
+            }
+            third.join().unwrap();
         });
-        assert_eq!(sink.1, [0, 1]);
+        assert_eq!(sink.got, [0, 1, 2]);
+    }
+
+    /// A bug in a writer ends the process as a worker's panic does, and no caller waits
+    /// forever for an answer.
+    #[test]
+    fn a_panicking_write_ends_the_render() {
+        struct Bug;
+        impl Sink for Bug {
+            fn put(&mut self, _: Developed) -> Result<()> {
+                panic!("an encoder's bug")
+            }
+        }
+        let mut bug = Bug;
+        let mut said = String::new();
+        let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            std::thread::scope(|s| {
+                let mut w = Writer::spawn(s, &mut bug);
+                w.put(frame(0)).unwrap();
+                said = w.sync().unwrap_err().to_string();
+            })
+        }));
+        assert!(outcome.is_err(), "the panic went unseen");
+        assert_eq!(said, "the frame writer stopped");
     }
 }

@@ -497,8 +497,8 @@ pub fn develop(a: &FrameAccum, sample_folds: Option<[f64; 2]>) -> Developed {
         Some(shares) if a.group_count() == 1 => shares,
         _ => a.groups.map(f64::from),
     };
-    // Pixel by pixel, each on its own: in parallel, on the render's workers (the frame loop
-    // waits for its frame here).
+    // Pixel by pixel, each on its own: in parallel (in a render, on its workers, whose frame
+    // loop waits for the frame here).
     let mut data = vec![0.0f32; n * nc];
     data.par_chunks_mut(nc).enumerate().for_each(|(i, px)| {
         let count = landed.map_or(0, |l| l[i].load(Relaxed));
