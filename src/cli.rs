@@ -35,6 +35,19 @@ pub enum Command {
     Compare(CompareArgs),
 }
 
+impl Command {
+    /// The command's `--threads`.
+    pub fn threads(&self) -> usize {
+        match self {
+            Command::Render(a) => a.threads,
+            Command::Bench(a) => a.threads,
+            Command::Reference(a) => a.threads,
+            Command::Merge(a) => a.threads,
+            Command::Compare(a) => a.reference.threads,
+        }
+    }
+}
+
 #[derive(clap::Args)]
 pub struct ReferenceArgs {
     /// Scene TOML file or shipped scene (default: vase-long, the vase's zoom with 36 frames of

@@ -175,6 +175,15 @@ fn install_signal_handler() -> Result<Arc<AtomicBool>> {
 fn run(cli: Cli) -> Result<()> {
     let interrupt = install_signal_handler()
         .map_err(|e| anyhow::anyhow!("{e:#}{}", reframe::util::mem::address_space_note()))?;
+    // The image libraries' compression threads follow the workers (by default OpenEXR starts
+    // one per core of the machine: 64 for `--threads 2` on a shared 64-core node), set before
+    // any image is read or written, and after `--threads` is checked (OpenEXR starts them at
+    // once).
+    reframe::driver::options::check_threads(cli.command.threads())?;
+    reframe::image::set_threads(match cli.command.threads() {
+        0 => reframe::driver::options::cores(),
+        t => t,
+    });
     match cli.command {
         Command::Render(a) => {
             let scene_name = a.scene.unwrap_or_else(|| "vase".into());

@@ -206,8 +206,7 @@ fn check_resumed_outputs(
     Ok(())
 }
 
-/// A rayon pool whose workers set FTZ/DAZ, as Embree asks of every tracing thread; the image
-/// libraries' own threads are set to as many.
+/// A rayon pool whose workers set FTZ/DAZ, as Embree asks of every tracing thread.
 pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
     options::check_threads(threads)?;
     let pool = rayon::ThreadPoolBuilder::new()
@@ -220,9 +219,6 @@ pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
                 crate::util::mem::address_space_note()
             )
         })?;
-    // The image libraries' compression threads follow the workers: by default OpenEXR starts
-    // one per core of the machine, so `--threads 2` on a shared 64-core node would start 64.
-    crate::image::set_threads(pool.current_num_threads());
     Ok(pool)
 }
 

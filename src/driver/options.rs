@@ -196,12 +196,12 @@ pub fn check_spp(flag: &str, spp: u32) -> Result<()> {
     Ok(())
 }
 
-/// Worker threads: 0 (one per core) or at most 8 per core; more only thrash.
 /// The machine's cores (what `--threads 0` means), 1 where unknown.
-fn cores() -> usize {
+pub fn cores() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
+/// Worker threads: 0 (one per core) or at most 8 per core; more only thrash.
 pub fn check_threads(threads: usize) -> Result<()> {
     let cores = cores();
     if threads > 8 * cores {

@@ -325,7 +325,17 @@ impl OutputPattern {
             std::process::id(),
             unique()
         ));
-        let _live = crate::util::fs::Temporary::new(&probe);
+        // Made empty here, where a stop by signal cannot miss it, and removed after: the
+        // writer that opens it may not (the formats frames are written in are not probed).
+        let _live = crate::util::fs::create_temporary(&probe)
+            .map_err(|e| anyhow!("cannot write {}: {e}", self.original))?;
+        struct Remove<'a>(&'a Path);
+        impl Drop for Remove<'_> {
+            fn drop(&mut self) {
+                let _ = fs::remove_file(self.0);
+            }
+        }
+        let _remove = Remove(&probe);
         let store_as = match kind {
             FileKind::Ldr => ffi::PixelType::U8,
             _ => ffi::PixelType::Float,
@@ -448,15 +458,18 @@ fn write_image_inner(
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
     // Same folder, so that the rename cannot cross file systems; extension kept, because OIIO
     // picks the writer by it; leading dot, so that file browsers and globs skip it.
+    let tmp_path = parent_dir(path).join(format!(
+        ".{name}.tmp-{}-{}.{ext}",
+        std::process::id(),
+        unique()
+    ));
+    // Made empty here, where a stop by signal cannot miss it; the writer fills it. Registered
+    // until after `tmp` (declared later, dropped first) has removed it on a failure.
+    let (_live, made) = crate::util::fs::create_temporary(&tmp_path).map_err(|e| anyhow!("{e}"))?;
     let mut tmp = TempFile {
-        path: parent_dir(path).join(format!(
-            ".{name}.tmp-{}-{}.{ext}",
-            std::process::id(),
-            unique()
-        )),
+        path: tmp_path,
         keep: false,
     };
-    let _live = crate::util::fs::Temporary::new(&tmp.path);
     let tmp_str = path_bytes(&tmp.path);
     let mut attrs = attributes(meta, kind)?;
     if kind == FileKind::Ldr {
@@ -556,11 +569,8 @@ fn write_image_inner(
         // Written by the writer, and read back whole by the bridge.
         fs::File::open(&tmp.path)
     } else {
-        fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&tmp.path)
-            .and_then(|mut f| f.write_all(encoded).map(|()| f))
+        let mut f = made;
+        f.write_all(encoded).map(|()| f)
     };
     file.and_then(|f| f.sync_all())
         .map_err(|e| anyhow!("{e}"))?;
@@ -1561,7 +1571,9 @@ fn metadata_pair(a: ffi::Attribute) -> Option<(String, String)> {
 }
 
 /// Let the image libraries' own parallel work (an EXR frame's compression) use `threads`
-/// threads, as the render does, rather than one per core of the machine.
+/// threads, as the render does, rather than one per core of the machine. Once, before any
+/// image is read or written (the command line does it first thing): OpenEXR's pool resized
+/// while other threads wrote EXR files left them waiting on it for ever.
 pub fn set_threads(threads: usize) {
     ffi::set_threads(threads.min(i32::MAX as usize) as i32)
 }

@@ -393,7 +393,10 @@ impl Checkpointer {
             }
             if !d.exists() {
                 // A stop before the first checkpoint leaves no empty folder behind.
-                made = Some(MadeFolder::new(d));
+                made =
+                    Some(MadeFolder::create(d).with_context(|| {
+                        format!("creating the checkpoint folder {}", d.display())
+                    })?);
             }
             std::fs::create_dir_all(d)
                 .with_context(|| format!("creating the checkpoint folder {}", d.display()))?;

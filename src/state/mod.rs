@@ -21,7 +21,7 @@ pub mod key;
 
 use crate::film::fixed::FixedSums;
 use crate::film::{AccumParts, Developed, FrameAccum, Layout, Norm, RawSums, View};
-use crate::util::fs::{tmp_name, Temporary};
+use crate::util::fs::{create_registered, tmp_name};
 use anyhow::{anyhow, bail, Context, Result};
 use checkpoint::Counters;
 use key::{Chunk, RunKey};
@@ -749,9 +749,11 @@ pub fn write_state<'a>(
     records: impl IntoIterator<Item = &'a FrameAccum>,
 ) -> Result<()> {
     let tmp = tmp_name(path);
-    let _live = Temporary::new(&tmp);
+    let mut _live = None;
     let result = (|| -> Result<()> {
-        let mut w = BufWriter::new(File::create(&tmp)?);
+        let (registered, f) = create_registered(&tmp, |p| File::create(p))?;
+        _live = Some(registered);
+        let mut w = BufWriter::new(f);
         let mut offset = 0u64;
         trailer.records.clear();
         for a in records {

@@ -36,6 +36,32 @@ impl Drop for Temporary {
     }
 }
 
+/// Make `path` with `create` (a file, a folder) and register it as a `Temporary`, both while
+/// the registry is locked. A stop by signal holds the registry from its start until the
+/// process is gone, so it either finds what was made and removes it, or keeps it from being
+/// made. Registering first and creating after left a frame's temporary file behind when the
+/// stop's removals ran in between (2 of 220 renders stopped by two quick interrupts).
+pub fn create_registered<T>(
+    path: &Path,
+    create: impl FnOnce(&Path) -> std::io::Result<T>,
+) -> std::io::Result<(Temporary, T)> {
+    let mut files = live();
+    let made = create(path)?;
+    let id = unique();
+    files.push((id, path.to_path_buf()));
+    Ok((Temporary(id), made))
+}
+
+/// `create_registered` for a new, empty file: one already there is an error.
+pub fn create_temporary(path: &Path) -> std::io::Result<(Temporary, std::fs::File)> {
+    create_registered(path, |p| {
+        std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(p)
+    })
+}
+
 /// A folder this process created: registered as a `Temporary` (a stop by signal removes it while
 /// it is empty) and removed when dropped if it is still empty, so that an error before anything
 /// was written in it (a full disk) leaves no empty folder behind either.
@@ -45,11 +71,13 @@ pub struct MadeFolder {
 }
 
 impl MadeFolder {
-    pub fn new(path: &Path) -> MadeFolder {
-        MadeFolder {
+    /// Make the folder `path` (and its parents) and register it.
+    pub fn create(path: &Path) -> std::io::Result<MadeFolder> {
+        let (live, ()) = create_registered(path, |p| std::fs::create_dir_all(p))?;
+        Ok(MadeFolder {
             path: path.to_path_buf(),
-            _live: Temporary::new(path),
-        }
+            _live: live,
+        })
     }
 }
 
@@ -150,11 +178,7 @@ pub fn check_writable_dir(dir: &Path) -> Result<()> {
         std::process::id(),
         unique()
     ));
-    let _live = Temporary::new(&probe);
-    std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&probe)
+    let _live = create_temporary(&probe)
         .map_err(|e| anyhow!("cannot create files in folder {}: {e}", dir.display()))?;
     std::fs::remove_file(&probe)
         .map_err(|e| anyhow!("cannot delete probe file {}: {e}", probe.display()))?;
@@ -235,15 +259,20 @@ pub fn check_replaceable(p: &Path) -> Result<()> {
 pub fn write_atomic(p: &Path, bytes: &[u8]) -> Result<()> {
     check_replaceable(p)?;
     let tmp = tmp_name(p);
-    let _live = Temporary::new(&tmp);
     // Synced before the rename: a failed write or flush (a full disk, a quota) is an error here,
     // not a short file in place.
-    let written = std::fs::File::create(&tmp)
-        .and_then(|mut f| std::io::Write::write_all(&mut f, bytes).and_then(|()| f.sync_all()));
-    if let Err(e) = written {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e).with_context(|| format!("writing {}", p.display()));
-    }
+    let written =
+        create_registered(&tmp, |p| std::fs::File::create(p)).and_then(|(live, mut f)| {
+            std::io::Write::write_all(&mut f, bytes).and_then(|()| f.sync_all())?;
+            Ok(live)
+        });
+    let _live = match written {
+        Ok(live) => live,
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(e).with_context(|| format!("writing {}", p.display()));
+        }
+    };
     std::fs::rename(&tmp, p).with_context(|| {
         let _ = std::fs::remove_file(&tmp);
         format!("renaming {} to {}", tmp.display(), p.display())
@@ -328,7 +357,30 @@ pub fn open_own_file(path: &Path, what: &str) -> Result<std::fs::File> {
 
 #[cfg(test)]
 mod tests {
-    use super::remove_stale_tmp;
+    use super::{create_temporary, live, remove_stale_tmp};
+
+    /// While a stop by signal holds the registry (from its removals until the process is
+    /// gone), no temporary file is made: a file made after its removals would be left behind.
+    #[test]
+    fn no_temporary_is_made_while_a_stop_holds_the_registry() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join(".f_0001.exr.tmp-1-1.exr");
+        let held = live();
+        std::thread::scope(|s| {
+            let maker = s.spawn(|| create_temporary(&p).map(|(live, _)| live));
+            std::thread::sleep(std::time::Duration::from_millis(300));
+            assert!(!p.exists(), "made while the registry was held");
+            drop(held);
+            let live = maker.join().unwrap().unwrap();
+            assert!(p.exists());
+            assert!(
+                super::live().iter().any(|(_, q)| q == &p),
+                "made but not registered"
+            );
+            drop(live);
+            assert!(!super::live().iter().any(|(_, q)| q == &p));
+        });
+    }
 
     /// A temporary file of a process that runs (pid 1 runs wherever this does) is another
     /// process's write in progress: kept. One of a process that is gone, or this process's, goes.
