@@ -279,3 +279,33 @@ fn a_stop_before_the_first_checkpoint_leaves_no_checkpoint_folder() {
     assert!(!dir.join("out/f.checkpoint").exists(), "{err}");
     assert_eq!(leftovers(dir), Vec::<String>::new());
 }
+
+/// An interrupt while the last frame renders (or is written) lets the render finish: every frame
+/// in place, a line saying the render is complete, status 0, no checkpoint left behind.
+#[test]
+fn an_interrupt_during_the_last_frame_ends_a_complete_render() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    // Two frames of about a second each here: the signal comes as the second starts.
+    let args: Vec<&str> = "render vase --spp 32 --res 320x240 --frames 0-1 --out out/f_####.exr \
+                           --checkpoint-every 600"
+        .split_whitespace()
+        .collect();
+    let child = reframe(&args)
+        .current_dir(dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for(&dir.join("out/f_0000.exr"), "no frame written");
+    assert!(signal(&child, "INT"));
+    let (code, err) = wait(child, Duration::from_secs(60));
+    assert_eq!(code, Some(0), "{err}");
+    assert!(
+        err.contains("the interrupt came during the last frames: the render is complete"),
+        "{err}"
+    );
+    assert!(dir.join("out/f_0001.exr").exists(), "{err}");
+    assert!(!dir.join("out/f.checkpoint").exists(), "{err}");
+    assert_eq!(leftovers(dir), Vec::<String>::new(), "{err}");
+}

@@ -488,6 +488,11 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         }
         .into());
     }
+    if run.interrupted() {
+        // The signal's line promised a checkpoint and a stop; the group in progress was the
+        // last, so the render is whole and ends as one that was not stopped (status 0).
+        errln!("note: the interrupt came during the last frames: the render is complete");
+    }
     let partial = run.finish()?;
     let outputs = match &partial {
         Some(p) => vec![p.display().to_string()],
