@@ -32,7 +32,16 @@ fn wait(mut child: Child, limit: Duration) -> (Option<i32>, String) {
     }
 }
 
-/// Files whose names say they are temporary (`.tmp-`), probes or locks.
+/// Start `reframe ARGS` (split at white space) in `dir`, its stderr piped.
+fn start(dir: &Path, args: &str) -> Child {
+    reframe(&args.split_whitespace().collect::<Vec<_>>())
+        .current_dir(dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
 /// Wait (a minute at most, else fail with `what`) until `p` exists.
 fn wait_for(p: &Path, what: &str) {
     let start = Instant::now();
@@ -256,16 +265,11 @@ fn two_quick_interrupts_leave_no_temporary_file() {
 fn a_stop_before_the_first_checkpoint_leaves_no_checkpoint_folder() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
-    let args: Vec<&str> = "render vase --method mis-exact --window 5 --spp 16 --res 160x120 \
-                           --out out/f_####.exr --checkpoint-every 600"
-        .split_whitespace()
-        .collect();
-    let child = reframe(&args)
-        .current_dir(dir)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let child = start(
+        dir,
+        "render vase --method mis-exact --window 5 --spp 16 --res 160x120 --out out/f_####.exr \
+         --checkpoint-every 600",
+    );
     wait_for(&dir.join("out/f.checkpoint"), "no checkpoint folder");
     std::thread::sleep(Duration::from_millis(200));
     // The first asks for a checkpoint after the group (seconds away at 16 spp), the second
@@ -287,16 +291,11 @@ fn an_interrupt_during_the_last_frame_ends_a_complete_render() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
     // Two frames of about a second each here: the signal comes as the second starts.
-    let args: Vec<&str> = "render vase --spp 32 --res 320x240 --frames 0-1 --out out/f_####.exr \
-                           --checkpoint-every 600"
-        .split_whitespace()
-        .collect();
-    let child = reframe(&args)
-        .current_dir(dir)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let child = start(
+        dir,
+        "render vase --spp 32 --res 320x240 --frames 0-1 --out out/f_####.exr \
+         --checkpoint-every 600",
+    );
     wait_for(&dir.join("out/f_0000.exr"), "no frame written");
     assert!(signal(&child, "INT"));
     let (code, err) = wait(child, Duration::from_secs(60));
