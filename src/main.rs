@@ -179,8 +179,9 @@ fn run(cli: Cli) -> Result<()> {
     // one per core of the machine: 64 for `--threads 2` on a shared 64-core node), set before
     // any image is read or written, and after `--threads` is checked (OpenEXR starts them at
     // once).
-    reframe::driver::options::check_threads(cli.command.threads())?;
-    reframe::image::set_threads(match cli.command.threads() {
+    let threads = cli.command.threads();
+    reframe::driver::options::check_threads(threads)?;
+    reframe::image::set_threads(match threads {
         0 => reframe::driver::options::cores(),
         t => t,
     });

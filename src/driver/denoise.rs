@@ -30,6 +30,19 @@ pub enum Layers {
     RawAndGuides,
 }
 
+impl Layers {
+    /// The channels a frame file holds beyond RGB and the `--aov` channels.
+    pub fn extra_channels(self) -> &'static [&'static str] {
+        match self {
+            Layers::None => &[],
+            Layers::RawAndGuides => &[
+                "raw.R", "raw.G", "raw.B", "albedo.R", "albedo.G", "albedo.B", "normal.X",
+                "normal.Y", "normal.Z",
+            ],
+        }
+    }
+}
+
 /// The guides of frame `frame` at `w` x `h`: per pixel the mean over `AUX_SPP` primary rays of
 /// the first surface's reflectance `Kd + Ks` (textures applied, clamped to 1; an escaped ray's
 /// background radiance clamped to 1) and of its shading normal facing the camera (an escaped
@@ -115,13 +128,7 @@ pub fn denoise_frame(
             normal: &normal,
         })
         .with_context(|| format!("denoising frame {}", d.view.frame))?;
-    let extra: &[&'static str] = match layers {
-        Layers::None => &[],
-        Layers::RawAndGuides => &[
-            "raw.R", "raw.G", "raw.B", "albedo.R", "albedo.G", "albedo.B", "normal.X", "normal.Y",
-            "normal.Z",
-        ],
-    };
+    let extra = layers.extra_channels();
     let mut channels = d.channels.clone();
     channels.extend_from_slice(extra);
     let m = channels.len();

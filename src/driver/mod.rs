@@ -209,7 +209,7 @@ fn check_resumed_outputs(
 /// A rayon pool whose workers set FTZ/DAZ, as Embree asks of every tracing thread.
 pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
     options::check_threads(threads)?;
-    let pool = rayon::ThreadPoolBuilder::new()
+    rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .start_handler(|_| crate::embree::set_flush_denormals())
         .build()
@@ -218,8 +218,7 @@ pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
                 "creating the worker threads: {e}{}",
                 crate::util::mem::address_space_note()
             )
-        })?;
-    Ok(pool)
+        })
 }
 
 pub fn progress_bar(enabled: bool, len: u64, what: &str) -> ProgressBar {

@@ -405,10 +405,7 @@ impl RenderOptions {
         // being written with the writer's two copies of it.
         let channels = 3
             + if self.aov { 2 } else { 0 }
-            + match self.denoise {
-                Some(super::denoise::Layers::RawAndGuides) => 9,
-                _ => 0,
-            };
+            + self.denoise.map_or(0, |l| l.extra_channels().len()) as u64;
         let develop = 5 * 4 * channels * pixels;
         // The denoiser's images and its bounded scratch.
         let denoise = if self.denoise.is_some() {

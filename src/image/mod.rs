@@ -325,17 +325,15 @@ impl OutputPattern {
             std::process::id(),
             unique()
         ));
-        // Made empty here, where a stop by signal cannot miss it, and removed after: the
-        // writer that opens it may not (the formats frames are written in are not probed).
+        // Made empty here, where a stop by signal cannot miss it, and removed after (declared
+        // later, dropped first): the writer that opens it may not (the formats frames are
+        // written in are not probed).
         let _live = crate::util::fs::create_temporary(&probe)
             .map_err(|e| anyhow!("cannot write {}: {e}", self.original))?;
-        struct Remove<'a>(&'a Path);
-        impl Drop for Remove<'_> {
-            fn drop(&mut self) {
-                let _ = fs::remove_file(self.0);
-            }
-        }
-        let _remove = Remove(&probe);
+        let probe = TempFile {
+            path: probe,
+            keep: false,
+        };
         let store_as = match kind {
             FileKind::Ldr => ffi::PixelType::U8,
             _ => ffi::PixelType::Float,
@@ -346,7 +344,7 @@ impl OutputPattern {
             channels: vec!["R".into(), "G".into(), "B".into()],
             store_as,
         };
-        ffi::probe_output(path_bytes(&target), path_bytes(&probe), &desc)
+        ffi::probe_output(path_bytes(&target), path_bytes(&probe.path), &desc)
             .map_err(|e| anyhow!("cannot write {}: {}", self.original, e.what()))
     }
 
