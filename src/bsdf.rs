@@ -168,10 +168,21 @@ impl Material {
         p
     }
 
+    /// Whether `sample` takes `lambert_sample`'s path for lobe number `u_lobe`: no Phong lobe
+    /// (then `diffuse_weight` is exactly 1 and every number below 1 picks the diffuse lobe).
+    #[inline(always)]
+    pub fn samples_lambert(&self, u_lobe: f32) -> bool {
+        self.ks == Vec3::ZERO && u_lobe < 1.0
+    }
+
     /// Sample `wi` for `wo` (`u_lobe` picks the lobe, `u` the direction). `None` when the
     /// direction falls below the surface (possible for the Phong lobe near grazing angles).
     #[inline]
     pub fn sample(&self, n: Vec3, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+        if self.samples_lambert(u_lobe) {
+            let (wi, f, pdf) = lambert_sample(self.kd, n, wo, u);
+            return (pdf > 0.0).then_some(BsdfSample { wi, f, pdf });
+        }
         let wi = self.sample_direction(n, wo, u_lobe, u);
         if n.dot(wi) <= 0.0 {
             return None;
@@ -188,6 +199,22 @@ impl Material {
             to_world(reflect(wo, n), phong_lobe(u, self.ns))
         }
     }
+}
+
+/// `Material::sample` of a material with no Phong lobe (`samples_lambert`), written without a
+/// branch so that a loop of them runs in SIMD lanes (`integrator::lanes`): the direction, the
+/// BSDF value and the density, which is 0 where `sample` gives `None` (the direction below the
+/// surface, `wo` below it, or a density that rounds to 0). The same operations in the same order
+/// as `sample_direction` and `eval_pdf` take for such a material (its diffuse weight is exactly
+/// 1, so `q cos_i / pi` is `cos_i / pi`), so the same bits.
+#[inline(always)]
+pub fn lambert_sample(kd: Vec3, n: Vec3, wo: Vec3, u: Vec2) -> (Vec3, Vec3, f32) {
+    let wi = to_world(n, cosine_hemisphere(u));
+    let cos_i = n.dot(wi);
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
+    let faces = cos_i > 0.0 && !(n.dot(wo) <= 0.0);
+    let pdf = if faces { cos_i * FRAC_1_PI } else { 0.0 };
+    (wi, kd * FRAC_1_PI, pdf)
 }
 
 #[cfg(test)]
@@ -248,6 +275,65 @@ mod tests {
                 assert_eq!(p.to_bits(), p0.to_bits(), "{m:?} {n} {wo} {wi}");
             }
         }
+    }
+
+    #[test]
+    fn a_lambertian_sample_is_the_general_path_to_the_bit() {
+        // `sample` takes `lambert_sample` for materials without a Phong lobe; the general path
+        // (`sample_direction`, then `eval_pdf`) must give the same bits, and `None` in the same
+        // places: directions below the surface, `wo` below it, NaN normals.
+        let mut s = Sampler::new(3, 0, 0, 0);
+        let mats = [
+            Vec3::splat(0.5),
+            Vec3::new(0.9, 0.0, 0.2),
+            Vec3::new(1.0, 1e-30, 3.0),
+        ];
+        let (mut some, mut none) = (0, 0);
+        for i in 0..60_000 {
+            let kd = mats[i % 3];
+            let m = Material {
+                kd,
+                ..Material::default()
+            };
+            let mut unit = || {
+                let v = Vec3::new(s.next_1d(), s.next_1d(), s.next_1d()) * 2.0 - 1.0;
+                v.normalize_or(Vec3::Z)
+            };
+            let n = if i % 1000 == 7 { Vec3::NAN } else { unit() };
+            let wo = unit();
+            let (u_lobe, u) = (s.next_1d(), s.next_2d());
+            assert!(m.samples_lambert(u_lobe));
+            let general = {
+                let wi = m.sample_direction(n, wo, u_lobe, u);
+                let (f, pdf) = m.eval_pdf(n, wo, wi);
+                (n.dot(wi) > 0.0 && pdf > 0.0).then_some((wi, f, pdf))
+            };
+            let got = m.sample(n, wo, u_lobe, u).map(|b| (b.wi, b.f, b.pdf));
+            let bits = |x: Option<(Vec3, Vec3, f32)>| {
+                x.map(|(a, b, c)| {
+                    (
+                        a.to_array().map(f32::to_bits),
+                        b.to_array().map(f32::to_bits),
+                        c.to_bits(),
+                    )
+                })
+            };
+            assert_eq!(bits(got), bits(general), "{kd} {n} {wo} {u}");
+            if got.is_some() {
+                some += 1;
+            } else {
+                none += 1;
+            }
+        }
+        assert!(some > 20_000 && none > 20_000, "{some} {none}");
+        // A Phong lobe, however small, takes the general path.
+        let glossy = Material {
+            kd: Vec3::splat(0.5),
+            ks: Vec3::new(0.0, 1e-20, 0.0),
+            ns: 10.0,
+            ..Material::default()
+        };
+        assert!(!glossy.samples_lambert(0.5));
     }
 
     /// The density of `sample_direction` over the whole sphere (including the part of the Phong

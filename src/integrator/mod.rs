@@ -20,11 +20,12 @@
 //! BSDF directions that escape against its light sampling.
 //! Paths end by Russian roulette from bounce `RR_DEPTH` on, or at `max_depth`
 //! (`examples/rr_efficiency.rs` measures where roulette should start).
+pub mod lanes;
 pub mod wavefront;
 
-use crate::bsdf::Material;
+use crate::bsdf::{BsdfSample, Material};
 use crate::embree::{Hit, Packet16, Ray};
-use crate::sampling::{Sampler, StepDims, StepNumbers};
+use crate::sampling::{Sampler, StepDims};
 use crate::scene::{LightSample, Scene, SurfacePoint};
 use glam::{Vec2, Vec3};
 
@@ -452,10 +453,13 @@ impl<'a> Integrator<'a> {
         let geometry = &self.scene.geometry;
         let scene = self.scene;
         let mut rec = FirstHit::default();
-        self.fill_first_record(&mut rec, &scene.surface(hit), eye);
+        let sp = scene.surface(hit);
+        let (m, wo) = (scene.material(&sp), (eye - sp.p).normalize());
+        self.fill_first_record(&mut rec, &sp, m, wo);
         let step = s.step(self.step_dims(1));
         let light = scene.sample_light(rec.sp.p, step.light);
-        let (shadow, next) = self.first_samples(&mut rec, &step, light, sides);
+        let bs = m.sample(facing(&sp, wo).1, wo, step.lobe, step.bsdf);
+        let (shadow, next) = self.first_samples(&mut rec, light, bs, sides);
         if let Some(ray) = shadow {
             t.shadow(&ray);
             self.light_blocked(&mut rec, geometry.occluded1(&ray));
@@ -472,7 +476,11 @@ impl<'a> Integrator<'a> {
         // The surface the walk is at.
         while let Some(sp) = hit {
             let light = scene.sample_light(sp.p, step.light);
-            let (shadow, next) = self.walk_vertex(&mut walk, &sp, &step, light);
+            let m = scene.material(&sp);
+            let bs = (walk.depth <= self.max_depth)
+                .then(|| m.sample(facing(&sp, walk.wo).1, walk.wo, step.lobe, step.bsdf))
+                .flatten();
+            let (shadow, next) = self.walk_vertex(&mut walk, &sp, &m, bs, light);
             if let Some(ray) = shadow {
                 t.shadow(&ray);
                 walk.shadow_resolved(geometry.occluded1(&ray));
@@ -491,16 +499,22 @@ impl<'a> Integrator<'a> {
         rec
     }
 
-    /// The record of a camera sample whose primary ray from `eye` hit the surface at `sp`
-    /// (`Scene::surface` of the hit), before its samples (`first_samples` draws them), written
-    /// field by field into `rec`: a record built aside and copied in is read with wide loads
-    /// right after narrow stores, which the store buffer cannot forward (the wavefront fills its
-    /// records in place).
+    /// The record of a camera sample whose primary ray hit the surface at `sp` (`Scene::surface`
+    /// of the hit), of material `m` (`Scene::material` there), seen along unit `wo` (towards the
+    /// eye), before its samples (`first_samples` takes them), written field by field into
+    /// `rec`: a record built aside and copied in is read with wide loads right after narrow
+    /// stores, which the store buffer cannot forward (the wavefront fills its records in place).
     #[inline(always)]
-    pub(crate) fn fill_first_record(&self, rec: &mut FirstHit, sp: &SurfacePoint, eye: Vec3) {
+    pub(crate) fn fill_first_record(
+        &self,
+        rec: &mut FirstHit,
+        sp: &SurfacePoint,
+        m: Material,
+        wo: Vec3,
+    ) {
         rec.sp = *sp;
-        rec.m = self.scene.material(sp);
-        rec.wo = (eye - sp.p).normalize();
+        rec.m = m;
+        rec.wo = wo;
         rec.w = None;
         rec.pdf_w = 0.0;
         rec.f_w = Vec3::ZERO;
@@ -513,21 +527,23 @@ impl<'a> Integrator<'a> {
     /// The samples of the first vertex: the shadow ray of its light sample (`light_blocked`
     /// takes the answer) and the continuation ray along the BSDF sample `w` (`first_continue`
     /// takes its hit). The light sample is stored unweighted: its weights depend on the eyes.
-    /// `n` are the vertex's numbers (`step_dims(1)`) and `light` is
-    /// `scene.sample_light(rec.sp.p, n.light)`, which the wavefront takes for many paths at once.
+    /// With `n` the vertex's numbers (`step_dims(1)`), `light` is
+    /// `scene.sample_light(rec.sp.p, n.light)` and `bs` is `rec.m.sample(ns, rec.wo, n.lobe,
+    /// n.bsdf)` (`ns` the shading normal on `rec.wo`'s side), which the wavefront takes for
+    /// many paths at once.
     #[inline(always)]
     pub(crate) fn first_samples(
         &self,
         rec: &mut FirstHit,
-        n: &StepNumbers,
         light: Option<LightSample>,
+        bs: Option<BsdfSample>,
         sides: LightSides,
     ) -> (Option<Ray>, Option<Ray>) {
         let (sp, m, wo) = (rec.sp, rec.m, rec.wo);
         if !m.reflects() {
             return (None, None);
         }
-        let (ng, ns) = facing(&sp, wo);
+        let ng = facing(&sp, wo).0;
         let mut shadow = None;
         if let Some(ls) = light {
             let mut le = ls.le;
@@ -544,7 +560,7 @@ impl<'a> Integrator<'a> {
                 pdf: ls.pdf,
             });
         }
-        let Some(bs) = m.sample(ns, wo, n.lobe, n.bsdf) else {
+        let Some(bs) = bs else {
             return (shadow, None);
         };
         if ng.dot(bs.wi) <= 0.0 {
@@ -605,24 +621,26 @@ impl<'a> Integrator<'a> {
     /// One vertex of the walk (radiance reflected at `sp`, the surface the walk is at, along
     /// `walk.wo`, excluding the vertex's own emission): the shadow ray of its light sample, if
     /// it needs one, and the continuation ray, `None` where the walk ends (depth, a black
-    /// material, a failed or downward BSDF sample). `n` are the vertex's numbers and `light` is
+    /// material, a failed or downward BSDF sample). With `n` the vertex's numbers, `m` is
+    /// `scene.material(sp)`, `bs` is `m.sample(ns, walk.wo, n.lobe, n.bsdf)` (`ns` the shading
+    /// normal on `walk.wo`'s side; only read within `max_depth`) and `light` is
     /// `scene.sample_light(sp.p, n.light)`.
     #[inline(always)]
     pub(crate) fn walk_vertex(
         &self,
         walk: &mut Walk,
         sp: &SurfacePoint,
-        n: &StepNumbers,
+        m: &Material,
+        bs: Option<BsdfSample>,
         light: Option<LightSample>,
     ) -> (Option<Ray>, Option<Ray>) {
         if walk.depth > self.max_depth {
             return (None, None);
         }
-        let m = self.scene.material(sp);
         if !m.reflects() {
             return (None, None);
         }
-        let shadow = match self.direct(sp, &m, walk.wo, light) {
+        let shadow = match self.direct(sp, m, walk.wo, light) {
             (d, Some(ray)) => {
                 walk.shadow_beta = walk.beta;
                 walk.shadow_d = d;
@@ -634,7 +652,7 @@ impl<'a> Integrator<'a> {
             }
         };
         let (ng, ns) = facing(sp, walk.wo);
-        let Some(bs) = m.sample(ns, walk.wo, n.lobe, n.bsdf) else {
+        let Some(bs) = bs else {
             return (shadow, None);
         };
         if ng.dot(bs.wi) <= 0.0 {

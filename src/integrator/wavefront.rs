@@ -10,7 +10,9 @@
 //! as the test oracle): a path draws its numbers from its own sampler at fixed dimensions, and
 //! its radiance is summed in the same order, so traced one ray at a time the wavefront gives
 //! the scalar walk's records bit for bit; in packets the hits may differ in their last bits.
-use super::{FirstHit, Integrator, LightSides, Rays, Tally, Walk};
+use super::lanes::BsdfLanes;
+use super::{facing, FirstHit, Integrator, LightSides, Rays, Tally, Walk};
+use crate::bsdf::Material;
 use crate::embree::{Hit, Packet16, Ray, TriangleScene};
 use crate::sampling::{Sampler, StepBatch, StepLanes};
 use crate::scene::{LightLanes, Scene, SurfacePoint};
@@ -155,6 +157,10 @@ pub struct Wavefront {
     hit: Vec<bool>,
     queries: Vec<(Vec3, Vec2)>,
     light_lanes: LightLanes,
+    /// The material of each surface of the round (`Scene::material`), and its BSDF sample,
+    /// drawn for all of them at once.
+    materials: Vec<Material>,
+    bsdf_lanes: BsdfLanes,
 }
 
 impl Wavefront {
@@ -166,6 +172,11 @@ impl Wavefront {
     /// `depth`: their numbers, the surfaces their rays hit and the light samples there
     /// (`light_lanes.samples()`, one per surface, in order), and empty queues for the rays the
     /// step asks for.
+    ///
+    /// Then, within `max_depth`, the materials of the surfaces and their BSDF samples: the
+    /// walks' outgoing directions are their continuation rays' reversed (`walk.wo` is set to
+    /// `-walk.wi` as the walk goes on), `wi` of the walk's last step or, at the second vertex,
+    /// the record's BSDF direction.
     fn prepare_round(&mut self, integrator: &Integrator, depth: u32) {
         let dims = integrator.step_dims(depth);
         self.lanes
@@ -178,6 +189,28 @@ impl Wavefront {
         scene.sample_lights(&self.queries, &mut self.light_lanes);
         self.shadows.clear();
         self.next_continuations.clear();
+        if depth > integrator.max_depth {
+            // The walks end here: the step reads no sample, but its row must exist.
+            self.bsdf_lanes.start(n);
+            return;
+        }
+        let (recs, walks) = (&self.recs, &self.walks);
+        let wo = |k: usize| {
+            let i = self.continuations.paths[k] as usize;
+            match &walks[i] {
+                Some(walk) if depth > 2 => -walk.wi,
+                _ => -recs[i].w.expect("a continuation ray has a direction"),
+            }
+        };
+        sample_bsdfs(
+            scene,
+            n,
+            &self.surfaces,
+            &self.hit,
+            wo,
+            &self.numbers,
+            (&mut self.materials, &mut self.bsdf_lanes),
+        );
     }
 
     /// Bytes a batch holds per path, at most: its record, walk, sampler and hit, and a lane in
@@ -196,6 +229,8 @@ impl Wavefront {
             + size_of::<bool>()
             + size_of::<(Vec3, Vec2)>()
             + LightLanes::BYTES_PER_QUERY
+            + size_of::<Material>()
+            + BsdfLanes::BYTES_PER_SAMPLE
     }
 }
 
@@ -237,10 +272,19 @@ impl Integrator<'_> {
         let surfaces = (&mut wf.surfaces, &mut wf.hit);
         surfaces_and_lights(scene, n, primary, &wf.numbers, surfaces, &mut wf.queries);
         let lights = scene.sample_lights(&wf.queries, &mut wf.light_lanes);
+        // Each record's outgoing direction, towards the eye, which its BSDF sample needs before
+        // the record is filled.
+        for (rec, sp) in wf.recs.iter_mut().zip(&wf.surfaces[..n]) {
+            rec.wo = (eye - sp.p).normalize();
+        }
+        let wo = |i: usize| wf.recs[i].wo;
+        let room = (&mut wf.materials, &mut wf.bsdf_lanes);
+        sample_bsdfs(scene, n, &wf.surfaces, &wf.hit, wo, &wf.numbers, room);
         for (i, (sp, light)) in wf.surfaces[..n].iter().zip(lights).enumerate() {
             let rec = &mut wf.recs[i];
-            self.fill_first_record(rec, sp, eye);
-            let (shadow, next) = self.first_samples(rec, &wf.numbers.get(i), *light, sides);
+            self.fill_first_record(rec, sp, wf.materials[i], rec.wo);
+            let bs = wf.bsdf_lanes.get(i);
+            let (shadow, next) = self.first_samples(rec, *light, bs, sides);
             if let Some(ray) = shadow {
                 wf.shadows.push(i, &ray);
             }
@@ -269,7 +313,8 @@ impl Integrator<'_> {
             // Every surface has its light sample, in order.
             let light = sp.and_then(|_| *lights.next().expect("a light sample per surface"));
             if let (Some(walk), Some(sp)) = (walk, sp) {
-                let (shadow, next) = self.walk_vertex(walk, sp, &wf.numbers.get(k), light);
+                let (m, bs) = (&wf.materials[k], wf.bsdf_lanes.get(k));
+                let (shadow, next) = self.walk_vertex(walk, sp, m, bs, light);
                 queue(i, shadow, next, &mut wf.shadows, &mut wf.next_continuations);
             }
         }
@@ -292,9 +337,10 @@ impl Integrator<'_> {
                 let walk = wf.walks[i].as_mut().expect("a continuation's path walks");
                 debug_assert_eq!(walk.depth + 1, depth, "a round's walks at one vertex");
                 let light = sp.and_then(|_| *lights.next().expect("a light sample per surface"));
-                let step = wf.numbers.get(k);
-                if let (true, Some(sp)) = (self.walk_continue(walk, sp, step.rr), sp) {
-                    let (shadow, next) = self.walk_vertex(walk, sp, &step, light);
+                let rr = wf.numbers.get(k).rr;
+                if let (true, Some(sp)) = (self.walk_continue(walk, sp, rr), sp) {
+                    let (m, bs) = (&wf.materials[k], wf.bsdf_lanes.get(k));
+                    let (shadow, next) = self.walk_vertex(walk, sp, m, bs, light);
                     queue(i, shadow, next, &mut wf.shadows, &mut wf.next_continuations);
                 }
             }
@@ -331,6 +377,49 @@ fn surfaces_and_lights(
         if let Some(h) = hit {
             surfaces[k] = scene.surface(&h);
             queries.push((surfaces[k].p, numbers.light(k)));
+        }
+    }
+}
+
+/// The materials of a round's `n` surfaces (`room.0[k]`, where `hit[k]`) and their BSDF
+/// samples (`room.1`, under `k`): `m.sample(ns, wo(k), lobe, bsdf)` with the numbers of path
+/// `k` and `ns` the shading normal on the side of `wo(k)`, in SIMD lanes where they can be
+/// (`lanes::BsdfLanes`). The samples of surfaces that reflect nothing are of no meaning (the
+/// step reads none there).
+fn sample_bsdfs(
+    scene: &Scene,
+    n: usize,
+    surfaces: &[SurfacePoint],
+    hit: &[bool],
+    wo: impl Fn(usize) -> Vec3,
+    numbers: &StepBatch,
+    (materials, bsdfs): (&mut Vec<Material>, &mut BsdfLanes),
+) {
+    if materials.len() < n {
+        materials.resize(n, Material::default());
+    }
+    bsdfs.start(n);
+    for k in (0..n).filter(|&k| hit[k]) {
+        let (sp, m) = (&surfaces[k], scene.material(&surfaces[k]));
+        materials[k] = m;
+        if m.samples_lambert(numbers.lobe(k)) {
+            let wo = wo(k);
+            bsdfs.set(k, m.kd, facing(sp, wo).1, wo);
+        }
+    }
+    let (ux, uy) = numbers.bsdf_columns();
+    bsdfs.run(n, ux, uy);
+    for k in (0..n).filter(|&k| hit[k]) {
+        let m = &materials[k];
+        if m.reflects() && !m.samples_lambert(numbers.lobe(k)) {
+            let wo = wo(k);
+            let sample = m.sample(
+                facing(&surfaces[k], wo).1,
+                wo,
+                numbers.lobe(k),
+                numbers.bsdf(k),
+            );
+            bsdfs.put(k, sample);
         }
     }
 }
