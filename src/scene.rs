@@ -671,6 +671,7 @@ impl Scene {
 
     /// `load`, with options (`strict`: refuse what would be repaired).
     pub fn load_with(name_or_path: &str, device: &Device, opts: &LoadOptions) -> Result<Scene> {
+        let _listings = Listings::hold();
         let p = Path::new(name_or_path);
         // Anything at the path (a FIFO, a dangling link) is the user's file, for `read_input`
         // to refuse with its reason; a shipped scene's name is the fallback, also over a
@@ -2495,18 +2496,80 @@ fn files_ignoring_case(at: PathBuf, parts: &[&str], found: &mut Vec<PathBuf>) {
     } else {
         at.as_path()
     };
-    let want = folded(part);
-    let Ok(entries) = std::fs::read_dir(listed) else {
+    let Some(listing) = Listings::of(listed) else {
         return;
     };
-    let mut matching: Vec<PathBuf> = entries
-        .filter_map(|e| e.ok())
-        .filter(|e| e.file_name().to_str().is_some_and(|n| folded(n) == want))
-        .map(|e| at.join(e.file_name()))
-        .collect();
+    let mut matching: Vec<PathBuf> = match listing.get(&folded(part)) {
+        Some(names) => names.iter().map(|n| at.join(n)).collect(),
+        None => Vec::new(),
+    };
     matching.sort();
     for m in matching {
         files_ignoring_case(m, rest, found);
+    }
+}
+
+/// A folder's entries with UTF-8 names by their `folded` name.
+type Listing = HashMap<String, Vec<std::ffi::OsString>>;
+
+thread_local! {
+    /// The folders `files_ignoring_case` listed while a `Listings` is held (`None` while none
+    /// is).
+    static LISTINGS: std::cell::RefCell<Option<HashMap<PathBuf, std::rc::Rc<Listing>>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// While held (a scene's load holds one), `files_ignoring_case` lists each folder once: an
+/// asset whose thousands of names are missing as written, beside a folder of thousands of
+/// files, listed and folded the whole folder once per name (4000 of each took 18 s to load).
+/// Outside, folders are listed anew each time (the files may have changed between loads).
+struct Listings {
+    outermost: bool,
+}
+
+impl Listings {
+    fn hold() -> Listings {
+        LISTINGS.with(|l| {
+            let mut l = l.borrow_mut();
+            let outermost = l.is_none();
+            if outermost {
+                *l = Some(HashMap::new());
+            }
+            Listings { outermost }
+        })
+    }
+
+    /// The entries of `folder` by folded name; `None` where it cannot be listed.
+    fn of(folder: &Path) -> Option<std::rc::Rc<Listing>> {
+        let held = LISTINGS.with(|l| {
+            let l = l.borrow();
+            l.as_ref().map(|cache| cache.get(folder).cloned())
+        });
+        if let Some(Some(listing)) = held {
+            return Some(listing);
+        }
+        let mut listing = Listing::new();
+        for entry in std::fs::read_dir(folder).ok()?.filter_map(|e| e.ok()) {
+            let name = entry.file_name();
+            if let Some(n) = name.to_str() {
+                listing.entry(folded(n)).or_default().push(name);
+            }
+        }
+        let listing = std::rc::Rc::new(listing);
+        LISTINGS.with(|l| {
+            if let Some(cache) = l.borrow_mut().as_mut() {
+                cache.insert(folder.to_path_buf(), listing.clone());
+            }
+        });
+        Some(listing)
+    }
+}
+
+impl Drop for Listings {
+    fn drop(&mut self) {
+        if self.outermost {
+            LISTINGS.with(|l| *l.borrow_mut() = None);
+        }
     }
 }
 
@@ -2777,6 +2840,28 @@ mod tests {
     /// (tinyobjloader's `mtl\ filename\ with\ whitespace\ issue46.mtl`, which was split into
     /// four missing names, and the MTL beside the OBJ never read), a trailing comment; the
     /// whole rest of the line where that is a file.
+    #[test]
+    fn a_load_lists_each_folder_once() {
+        // While a load holds `Listings`, a folder is listed at its first lookup in another
+        // case and that listing answers every later one (a file added since is not seen);
+        // held no more, folders are listed anew.
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("Wood.png"), b"").unwrap();
+        let one = Ok(Some(d.join("Wood.png")));
+        {
+            let _load = Listings::hold();
+            assert_eq!(ignoring_case(d, "wood.png"), one);
+            std::fs::write(d.join("WOOD.png"), b"").unwrap();
+            assert_eq!(ignoring_case(d, "wood.png"), one);
+            // A nested hold (a load within a load) keeps the outer one's listings.
+            drop(Listings::hold());
+            assert_eq!(ignoring_case(d, "wood.png"), one);
+        }
+        let both = vec![d.join("WOOD.png"), d.join("Wood.png")];
+        assert_eq!(ignoring_case(d, "wood.png"), Err(both));
+    }
+
     #[test]
     fn mtllib_names_split_at_unescaped_white_space() {
         let d = tempfile::tempdir().unwrap();

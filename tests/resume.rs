@@ -259,6 +259,32 @@ fn interrupted_render_stops_cleanly_and_resumes() {
         // too, which changes nothing it writes (it refused to resume: "other settings").
         let hint = err.lines().find(|l| l.starts_with("resume with:")).unwrap();
         assert!(hint.ends_with("--resume"), "{hint}");
+        // Another `--checkpoint` folder, holding none, is refused while this one waits, with
+        // or without `--resume`: it rendered over the frames the checkpoint counts finished
+        // (which then could not be resumed), or started again without a word.
+        let other = d.join(format!("{signal}-other"));
+        let before = common::snapshot(&sub);
+        for resume in [&[][..], &["--resume"]] {
+            let o = reframe()
+                .args(&args)
+                .args(["--checkpoint", other.to_str().unwrap()])
+                .args(resume)
+                .output()
+                .unwrap();
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(1), "{resume:?}: {err}");
+            let want = format!(
+                "{} holds the checkpoint of an interrupted render",
+                sub.join("f.checkpoint").display()
+            );
+            assert!(err.contains(&want), "{resume:?}: {err}");
+        }
+        assert_eq!(
+            common::snapshot(&sub),
+            before,
+            "the refusals changed the output folder"
+        );
+        assert!(!other.exists(), "the refusals made the other folder");
         let aov: &[&str] = if method == "independent" {
             &["--aov"]
         } else {

@@ -38,7 +38,9 @@ use crate::integrator::Integrator;
 use crate::reuse::Params;
 use crate::scene::Scene;
 use crate::state::checkpoint::{Checkpointer, Counters};
-use crate::state::key::{output_stem, partial_path, scene_and_build_hashes, Chunk, RunKey};
+use crate::state::key::{
+    default_checkpoint_dir, output_stem, partial_path, scene_and_build_hashes, Chunk, RunKey,
+};
 use crate::state::Trailer;
 use crate::util::fs::{parent_dir, remove_stale_tmp, write_json};
 use anyhow::{bail, Result};
@@ -236,6 +238,31 @@ pub fn progress_bar(enabled: bool, len: u64, what: &str) -> ProgressBar {
     pb
 }
 
+/// Refuse a render whose `--checkpoint` is the folder `d`, which holds no checkpoint, where this
+/// `--out` has one at its default place: an interrupted render of these frames, which the
+/// render would overwrite (its frames counted finished, so that it could no longer be resumed)
+/// or start again from the beginning (with `--resume`) without a word. `--resume` with that
+/// folder continues it; deleting it starts over.
+fn check_no_checkpoint_elsewhere(d: &Path, opts: &RenderOptions) -> Result<()> {
+    let default = default_checkpoint_dir(&opts.out, opts.chunk);
+    let same = d == default
+        || matches!((d.canonicalize(), default.canonicalize()), (Ok(a), Ok(b)) if a == b);
+    let state = default.join("state");
+    if same || d.join("state").exists() || !crate::state::is_state_file(&state) {
+        return Ok(());
+    }
+    bail!(
+        "{} holds the checkpoint of an interrupted render to --out {}, and --checkpoint {} holds \
+         none: continue that render with --resume and --checkpoint {} (or no --checkpoint), or \
+         delete {} to start over",
+        default.display(),
+        opts.out,
+        d.display(),
+        default.display(),
+        default.display()
+    )
+}
+
 /// The settings that make a render's pixels what they are (a resume or merge needs them equal).
 fn run_key(scene: &Scene, opts: &RenderOptions, plan: &Plan) -> Result<RunKey> {
     let (scene_hash, build_hash) = scene_and_build_hashes(scene)?;
@@ -375,6 +402,9 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         guard::check_folder_apart("--checkpoint", d, &outputs)?;
     }
     guard::check_outputs(outputs, &scene.inputs)?;
+    if let Some(d) = &opts.checkpoint {
+        check_no_checkpoint_elsewhere(d, opts)?;
+    }
     let frames = opts.chunk.is_none().then(|| guard::Frames {
         pattern: &out,
         frames: plan.frames.clone(),

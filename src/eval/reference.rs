@@ -282,7 +282,7 @@ pub fn reference(
             ),
         }
     }
-    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    crate::util::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     check_writable_dir(&dir)?;
     let integrator = Integrator::new(scene, max_depth);
     let n = (last - first + 1) as u64;

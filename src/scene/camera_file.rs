@@ -603,8 +603,9 @@ const LOOK_AT_HEADER: [&str; 11] = [
 
 /// The fields of a CSV line separated by `sep`, as RFC 4180 writes them (a field in double
 /// quotes may hold the separator, and `""` is a quote: R's `write.csv`, pandas' quoting),
-/// trimmed, each with whether it was quoted.
-fn csv_fields(line: &str, sep: char) -> Vec<(String, bool)> {
+/// trimmed, each with whether it was quoted. `Err` where a quote is not closed on its line (a
+/// camera file's field holds no line break): the line was cut short, or a quote added by hand.
+fn csv_fields(line: &str, sep: char) -> Result<Vec<(String, bool)>, String> {
     let mut fields = vec![(String::new(), false)];
     let mut quoted = false;
     let mut chars = line.chars().peekable();
@@ -623,10 +624,16 @@ fn csv_fields(line: &str, sep: char) -> Vec<(String, bool)> {
             c => field.0.push(c),
         }
     }
+    if quoted {
+        return Err(format!(
+            "the quote opened in '{}' is not closed on the line (cut short?)",
+            quote(line.trim())
+        ));
+    }
     for f in &mut fields {
         f.0 = f.0.trim().to_string();
     }
-    fields
+    Ok(fields)
 }
 
 /// A field with a number's decimal comma read as a point: any in a file separated by
@@ -653,7 +660,9 @@ fn csv_header(text: &str) -> (char, Vec<String>, bool) {
         .into_iter()
         .find(|c| text.contains(*c))
         .unwrap_or(',');
+    // A header with an unclosed quote names no columns, and is refused as such.
     let mut names: Vec<String> = csv_fields(text, sep)
+        .unwrap_or_default()
         .into_iter()
         .map(|(n, _)| n.to_ascii_lowercase())
         .collect();
@@ -724,8 +733,11 @@ fn csv_entries(label: &str, text: &str, repairs: &mut Repairs) -> Result<Vec<Ent
     let rows: Vec<(usize, Vec<(String, bool)>)> = rows
         .map(|(n, row)| (n, row.split_once('#').map_or(row, |(data, _)| data)))
         .filter(|(_, row)| !row.trim().is_empty())
-        .map(|(n, row)| (n, csv_fields(row, sep)))
-        .collect();
+        .map(|(n, row)| match csv_fields(row, sep) {
+            Ok(fields) => Ok((n, fields)),
+            Err(e) => Err(anyhow!("{label}: line {n}: {e}")),
+        })
+        .collect::<Result<_>>()?;
     // Separated by semicolons or tabs, numbers have decimal commas, or else points; a file that
     // writes both may group thousands with one of them (`1.000` in a German locale is 1000),
     // and is refused rather than read a thousand times off.

@@ -539,6 +539,9 @@ impl MtlMaterial {
     }
 }
 
+/// The largest `-s` or `-o` a map takes (`map_spec`).
+const MAX_MAP_UV: f32 = 1e5;
+
 /// The options of a map statement that reframe does not apply.
 #[derive(Default)]
 struct Ignored<'a> {
@@ -585,6 +588,32 @@ fn map_spec<'a>(
                 let v = numbers_after(i, 3);
                 if v.is_empty() || !v.iter().all(|x| x.is_finite()) {
                     return Err(format!("'{opt}' expects 1 to 3 finite numbers"));
+                }
+                // A fourth number with words after it: the file name is not '4 c.png'.
+                let next = args.get(i + 1 + v.len()).filter(|w| number(w).is_some());
+                if let (Some(w), true) = (next, i + 2 + v.len() < args.len()) {
+                    return Err(format!(
+                        "'{opt}' takes at most 3 numbers, and '{w}' follows them"
+                    ));
+                }
+                // Texture coordinates are single floats: scaled or moved past 1e5, a repeat
+                // of the map is a few texels wide (it collapsed to one texel at 1e30); a scale
+                // of 0 maps the whole surface to one texel.
+                let (what, bad) = if opt == "-s" {
+                    (
+                        "a scale",
+                        v.iter().find(|x| **x == 0.0 || x.abs() > MAX_MAP_UV),
+                    )
+                } else {
+                    ("an offset", v.iter().find(|x| x.abs() > MAX_MAP_UV))
+                };
+                if let Some(x) = bad {
+                    return Err(format!(
+                        "'{opt}': {what} of {} leaves no detail of the map (at most {MAX_MAP_UV:e} \
+                         in size{})",
+                        num(*x),
+                        if opt == "-s" { ", and not 0" } else { "" }
+                    ));
                 }
                 let uv = Vec2::new(
                     v[0],

@@ -398,7 +398,7 @@ impl Checkpointer {
                         format!("creating the checkpoint folder {}", d.display())
                     })?);
             }
-            std::fs::create_dir_all(d)
+            crate::util::fs::create_dir_all(d)
                 .with_context(|| format!("creating the checkpoint folder {}", d.display()))?;
             check_writable_dir(d)?;
         }

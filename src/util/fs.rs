@@ -73,7 +73,7 @@ pub struct MadeFolder {
 impl MadeFolder {
     /// Make the folder `path` (and its parents) and register it.
     pub fn create(path: &Path) -> std::io::Result<MadeFolder> {
-        let (live, ()) = create_registered(path, |p| std::fs::create_dir_all(p))?;
+        let (live, ()) = create_registered(path, create_dir_all)?;
         Ok(MadeFolder {
             path: path.to_path_buf(),
             _live: live,
@@ -153,7 +153,7 @@ impl CreatedDirs {
             missing.push(p.to_path_buf());
             d = p.parent();
         }
-        std::fs::create_dir_all(dir)?;
+        create_dir_all(dir)?;
         Ok(CreatedDirs(missing))
     }
 
@@ -171,6 +171,27 @@ impl Drop for CreatedDirs {
     }
 }
 
+/// `std::fs::create_dir_all`, whose error names the part of the path that is a file (or
+/// another thing that is not a folder) where one is: the system's "File exists" named none
+/// (`--out s.obj/f_####.exr`, `s.obj` a file, said "cannot create output folder s.obj: File
+/// exists").
+pub fn create_dir_all(dir: &Path) -> std::io::Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| {
+        let blocking = dir
+            .ancestors()
+            .collect::<Vec<_>>()
+            .into_iter()
+            .rev()
+            .find(|p| !p.as_os_str().is_empty() && std::fs::metadata(p).is_ok_and(|m| !m.is_dir()));
+        match blocking {
+            Some(p) => {
+                std::io::Error::new(e.kind(), format!("{} is a file, not a folder", p.display()))
+            }
+            None => e,
+        }
+    })
+}
+
 /// Fail unless a file can be created (and removed) in `dir`: creates and deletes a probe file.
 pub fn check_writable_dir(dir: &Path) -> Result<()> {
     let probe = dir.join(format!(
@@ -178,8 +199,16 @@ pub fn check_writable_dir(dir: &Path) -> Result<()> {
         std::process::id(),
         unique()
     ));
-    let _live = create_temporary(&probe)
-        .map_err(|e| anyhow!("cannot create files in folder {}: {e}", dir.display()))?;
+    let _live = create_temporary(&probe).map_err(|e| {
+        // A folder the system keeps (`/proc`, `/sys`) refuses new files with "not found",
+        // which read as if the folder were missing.
+        let why = if e.kind() == std::io::ErrorKind::NotFound && dir.is_dir() {
+            format!("the system makes no new files there ({e})")
+        } else {
+            e.to_string()
+        };
+        anyhow!("cannot create files in folder {}: {why}", dir.display())
+    })?;
     std::fs::remove_file(&probe)
         .map_err(|e| anyhow!("cannot delete probe file {}: {e}", probe.display()))?;
     Ok(())
