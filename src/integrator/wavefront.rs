@@ -190,7 +190,11 @@ impl Wavefront {
         self.shadows.clear();
         self.next_continuations.clear();
         if depth > integrator.max_depth {
-            // The walks end here: the step reads no sample, but its row must exist.
+            // The walks end here: the step reads no material or sample, but their rows must
+            // exist.
+            if self.materials.len() < n {
+                self.materials.resize(n, Material::default());
+            }
             self.bsdf_lanes.start(n);
             return;
         }
