@@ -217,6 +217,36 @@ pub fn lambert_sample(kd: Vec3, n: Vec3, wo: Vec3, u: Vec2) -> (Vec3, Vec3, f32)
     (wi, kd * FRAC_1_PI, pdf)
 }
 
+/// Materials from Lambertian to nearly a mirror, lobes without a specular part or without a
+/// diffuse one, and black (for the tests here and of the BSDF lanes).
+#[cfg(test)]
+pub(crate) fn test_materials() -> [Material; 5] {
+    [
+        Material {
+            kd: Vec3::splat(0.5),
+            ..Material::default()
+        },
+        Material {
+            kd: Vec3::new(0.2, 0.3, 0.1),
+            ks: Vec3::splat(0.6),
+            ns: 30.0,
+            ..Material::default()
+        },
+        Material {
+            ks: Vec3::new(0.9, 0.0, 0.5),
+            ns: 1e6,
+            ..Material::default()
+        },
+        Material {
+            kd: Vec3::new(0.0, 0.4, 0.0),
+            ks: Vec3::new(0.0, 0.5, 0.0),
+            ns: 0.5,
+            ..Material::default()
+        },
+        Material::default(),
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -227,30 +257,7 @@ mod tests {
         // Random directions (unit, some not quite, some zero) and materials from Lambertian to
         // nearly a mirror, and lobes without a specular part or without a diffuse one.
         let mut s = Sampler::new(7, 0, 0, 0);
-        let mats = [
-            Material {
-                kd: Vec3::splat(0.5),
-                ..Material::default()
-            },
-            Material {
-                kd: Vec3::new(0.2, 0.3, 0.1),
-                ks: Vec3::splat(0.6),
-                ns: 30.0,
-                ..Material::default()
-            },
-            Material {
-                ks: Vec3::new(0.9, 0.0, 0.5),
-                ns: 1e6,
-                ..Material::default()
-            },
-            Material {
-                kd: Vec3::new(0.0, 0.4, 0.0),
-                ks: Vec3::new(0.0, 0.5, 0.0),
-                ns: 0.5,
-                ..Material::default()
-            },
-            Material::default(),
-        ];
+        let mats = test_materials();
         let mut dir = || {
             let u = s.next_2d();
             let v = s.next_1d();

@@ -121,32 +121,15 @@ fn run(n: usize, c: &mut BsdfLanes, ux: &[f32], uy: &[f32]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bsdf::Material;
     use crate::sampling::Sampler;
 
     #[test]
     fn lanes_give_sample_to_the_bit() {
-        // Lambertian materials (one black in a channel) among Phong ones, whose samples are
-        // put over the lanes' rows; normals and outgoing directions of every
+        // Lambertian materials (one black) among Phong ones, whose samples are put over the
+        // lanes' rows; normals and outgoing directions of every
         // orientation, some below the surface, some not quite unit; numbers on the ends of
         // [0, 1). Rounds of 0 to 3000 rows, the room kept from one to the next (stale rows).
-        let mats = [
-            Material {
-                kd: Vec3::new(0.5, 0.4, 0.3),
-                ..Material::default()
-            },
-            Material {
-                kd: Vec3::new(0.2, 0.3, 0.1),
-                ks: Vec3::splat(0.6),
-                ns: 30.0,
-                ..Material::default()
-            },
-            Material {
-                kd: Vec3::new(0.0, 0.8, 0.1),
-                ke: Vec3::ONE,
-                ..Material::default()
-            },
-        ];
+        let mats = crate::bsdf::test_materials();
         let mut s = Sampler::new(11, 0, 0, 0);
         let dir = |s: &mut Sampler| {
             let u = s.next_2d();

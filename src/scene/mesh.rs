@@ -8,7 +8,7 @@
 //! triangulated there by `earcutr` (Mapbox's ear clipping), which also copes with repeated
 //! vertices; each triangle is then wound like the polygon, so that its front (the emitting side
 //! of a light) stays where the OBJ put it.
-use super::obj::{Corner, Obj};
+use super::obj::{Corner, Obj, FREE_FORM, POINTS, POLYLINES, SHORT_FACE};
 use super::repairs::{Kind, Repairs};
 use super::text::quote_line;
 use crate::bsdf::Material;
@@ -380,7 +380,13 @@ pub fn build(
                  first at line {first_skipped})"
             );
         }
-        bail!("{label}: no faces");
+        // What the file held instead (polylines, points, faces of one or two vertices, curves),
+        // which was said as a warning only where something else rendered.
+        let instead = [SHORT_FACE, POLYLINES, POINTS, FREE_FORM];
+        match repairs.first_in(Some(label), &instead) {
+            Some(first) => bail!("{label}: no faces (what it has is left out: {first})"),
+            None => bail!("{label}: no faces"),
+        }
     }
     Ok(mesh)
 }

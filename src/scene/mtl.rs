@@ -43,6 +43,12 @@ const ENERGY: Kind = Kind {
     one: "Kd + Ks above 1 scaled down to 1 (energy conservation)",
     many: "materials with Kd + Ks above 1 scaled down to 1 (energy conservation)",
 };
+const WIDE_KS: Kind = Kind {
+    one: "a Phong lobe (Ks) of Ns 1 or less beside a map_Kd is a second, untextured diffuse \
+          lobe: the texture shows faded towards Ks (drop Ks, or give Ns its highlight's size)",
+    many: "Phong lobes (Ks) of Ns 1 or less beside a map_Kd are second, untextured diffuse \
+           lobes: the textures show faded towards Ks (drop Ks, or give Ns the highlights' size)",
+};
 const NS: Kind = Kind {
     one: "Ns capped (the Phong lobe is unstable above it)",
     many: "materials with Ns capped (the Phong lobe is unstable above it)",
@@ -58,6 +64,20 @@ const UNKNOWN_MAP_OPTION: Kind = Kind {
 const DISSOLVE: Kind = Kind {
     one: "dissolve (d) not rendered: the surface is opaque (map_d cut-outs are rendered)",
     many: "materials with dissolve (d) rendered opaque (map_d cut-outs are rendered)",
+};
+const DEFINED_AGAIN: Kind = Kind {
+    one: "a material defined twice in one MTL, differently: the first definition is used",
+    many: "materials defined twice in one MTL, differently: the first definitions are used",
+};
+const TRANSPARENCY: Kind = Kind {
+    one: "transparency (Tr) not rendered: the surface is opaque (map_d cut-outs are rendered)",
+    many: "materials with transparency (Tr) rendered opaque (map_d cut-outs are rendered)",
+};
+const GLASS: Kind = Kind {
+    one: "glass (illum 4, 6, 7 or 9: transparency, refraction) not rendered: the surface is its \
+          Kd diffuse and Ks Phong lobes",
+    many: "materials of glass (illum 4, 6, 7 or 9: transparency, refraction) rendered as their \
+           Kd diffuse and Ks Phong lobes",
 };
 const METALLIC: Kind = Kind {
     one: "metallic (Pm) not rendered: the surface is its Kd diffuse and Ks Phong lobes",
@@ -187,6 +207,8 @@ pub struct MtlMaterial {
     pr: Option<(f32, usize)>,
     /// `map_Kd`, `map_Ks`, `map_Ke`, `map_d`, in that order.
     pub maps: [Option<MapSpec>; 4],
+    /// The statements after `newmtl`, trimmed, to tell a repeated definition from another one.
+    body: Vec<String>,
 }
 
 /// Which colour a texture map scales.
@@ -244,6 +266,9 @@ pub fn parse_for(
             continue;
         };
         let key = canonical(key, &KEYS);
+        if let (false, Some(m)) = (key == "newmtl", out.materials.last_mut()) {
+            m.body.push(text.trim().to_string());
+        }
         // What a statement of a material no face uses would say goes nowhere.
         let mut unsaid = Repairs::new(false);
         let notes = match out.materials.last() {
@@ -251,15 +276,13 @@ pub fn parse_for(
             _ => &mut *repairs,
         };
         if key == "newmtl" {
-            // An empty name is a name (Blender 2.61 wrote one; `usemtl` with none uses it).
+            // An empty name is a name (Blender 2.61 wrote one; `usemtl` with none uses it). A
+            // name defined again is read as a material of its own and compared with the first
+            // at the end (`drop_repeats`); the index keeps the first.
             let name = rest(text);
-            if let Some(&first) = out.index.get(name) {
-                return Err(err(format!(
-                    "material '{name}' is already defined at line {}",
-                    out.materials[first].line
-                )));
-            }
-            out.index.insert(name.to_string(), out.materials.len());
+            out.index
+                .entry(name.to_string())
+                .or_insert(out.materials.len());
             out.materials.push(MtlMaterial {
                 name: name.to_string(),
                 line: n,
@@ -318,6 +341,33 @@ pub fn parse_for(
                     })?;
                 }
             }
+            continue;
+        }
+        // Transparency written as `Tr` (some exporters' `1 - d`, others' `d`: strictly between 0
+        // and 1 it is partial either way) and the illumination models of glass and refraction
+        // (`illum 4`, `6`, `7`, `9`): not rendered, and said where they would show. `Tr 0` and
+        // `Tr 1` (MeshLab's opaque default) say nothing.
+        // A material that also gives `d` is said once, of its `d`.
+        let has_d = |m: &MtlMaterial| {
+            m.body.iter().any(|b| {
+                b.split_whitespace()
+                    .next()
+                    .is_some_and(|k| k.eq_ignore_ascii_case("d"))
+            })
+        };
+        let tr = key.eq_ignore_ascii_case("Tr")
+            && args
+                .first()
+                .and_then(|a| number(a))
+                .is_some_and(|t| t > 0.0 && t < 1.0)
+            && !out.materials.last().is_some_and(has_d);
+        let glass = key.eq_ignore_ascii_case("illum")
+            && matches!(args.first().copied(), Some("4" | "6" | "7" | "9"));
+        if let (true, Some(m)) = (tr || glass, out.materials.last()) {
+            let kind = if tr { TRANSPARENCY } else { GLASS };
+            notes.note(label, n, kind, || {
+                format!("'{}' in '{}'", quote(text), m.name)
+            })?;
             continue;
         }
         if key == "Pm" {
@@ -442,7 +492,48 @@ pub fn parse_for(
         };
         *slot = Some((c, n));
     }
+    drop_repeats(label, &mut out, repairs, used)?;
     Ok(out)
+}
+
+/// A name defined twice in one file: the later definition is dropped. Where it repeats the
+/// first statement for statement (Cinema 4D writes each material once per object that uses it),
+/// nothing is said; where it differs, the first is used, as between files (`DEFINED_AGAIN`;
+/// `--strict` refuses it). Both were refused ("already defined").
+fn drop_repeats(
+    label: &str,
+    out: &mut Mtl,
+    repairs: &mut Repairs,
+    used: &dyn Fn(&str) -> bool,
+) -> Result<()> {
+    if out.index.len() == out.materials.len() {
+        return Ok(());
+    }
+    let mut kept = Vec::with_capacity(out.index.len());
+    for (i, m) in std::mem::take(&mut out.materials).into_iter().enumerate() {
+        let first = out.index[&m.name];
+        if first == i {
+            kept.push(m);
+            continue;
+        }
+        let earlier = kept
+            .iter()
+            .find(|k: &&MtlMaterial| k.name == m.name)
+            .expect("the first definition is kept");
+        if earlier.body != m.body && used(&m.name) {
+            let first_line = earlier.line;
+            repairs.note(label, m.line, DEFINED_AGAIN, || {
+                format!("material '{}' (first at line {first_line})", m.name)
+            })?;
+        }
+    }
+    out.index = kept
+        .iter()
+        .enumerate()
+        .map(|(i, m)| (m.name.clone(), i))
+        .collect();
+    out.materials = kept;
+    Ok(())
 }
 
 impl MtlMaterial {
@@ -518,6 +609,19 @@ impl MtlMaterial {
                     rgb(kd),
                     rgb(ks)
                 )
+            })?;
+        }
+        // A Phong lobe of `Ns` 1 or less is about as wide as the diffuse one: beside a `map_Kd`
+        // it is a second, untextured diffuse lobe that takes the texture's share of the energy
+        // (`Kd + Ks` at most 1 per texel), so the texture shows faded to the `Ks` colour.
+        // MeshLab writes `Ks 1 1 1` and `Ns 0` for every material: its textured scans came out
+        // near white without a word.
+        // Said where `Ks` takes half the range or more (a weak `Ks 0.1` without `Ns` is common
+        // and shows little).
+        if self.maps[Slot::Kd as usize].is_some() && ks.max_element() >= 0.5 && ns <= 1.0 {
+            let line = self.ks.map_or(self.line, |v| v.1);
+            repairs.note(label, line, WIDE_KS, || {
+                format!("material '{name}': Ks {} with Ns {}", rgb(ks), num(ns))
             })?;
         }
         if ns > MAX_NS {
@@ -752,11 +856,6 @@ mod tests {
                 "spectral colours (a curve in an .rfl file) are not read: write 'Kd r g b'",
             ),
             ("Ns -5", "Ns must be finite and non-negative"),
-            ("newmtl a", "material 'a' is already defined at line 2"),
-            (
-                "newmtl \nnewmtl",
-                "material '' is already defined at line 8",
-            ),
         ] {
             let e = parse(
                 "a.mtl",
@@ -771,6 +870,50 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("before any newmtl"), "{e}");
+    }
+
+    #[test]
+    fn a_material_defined_twice_in_one_file() {
+        // Repeated statement for statement (Cinema 4D's export): one material, nothing said.
+        let repeated = "newmtl a\nKd 0.5 0.5 0.5\nnewmtl b\nKe 1 1 1\nnewmtl a\n  Kd 0.5 0.5 0.5\n";
+        let mut r = Repairs::new(false);
+        let m = parse("a.mtl", repeated.as_bytes(), &mut r).unwrap();
+        assert_eq!((m.materials.len(), m.index["a"], m.index["b"]), (2, 0, 1));
+        assert!(r.into_warnings().is_empty());
+        // Defined otherwise: the first definition is used, said once; refused when strict; an
+        // empty name too.
+        for (text, name, kd, line) in [
+            (
+                "newmtl a\nKd 0.5 0.5 0.5\nnewmtl b\nnewmtl a\nKd 0.1 0.1 0.1\n",
+                "a",
+                0.5,
+                4,
+            ),
+            ("newmtl \nKd 1 1 1\nnewmtl\n", "", 1.0, 3),
+        ] {
+            let mut r = Repairs::new(false);
+            let m = parse("a.mtl", text.as_bytes(), &mut r).unwrap();
+            let first = &m.materials[m.index[name]];
+            assert_eq!(
+                (first.line, first.kd.map(|k| k.0)),
+                (1, Some(Vec3::splat(kd)))
+            );
+            assert_eq!(m.materials.iter().filter(|m| m.name == name).count(), 1);
+            let said = r.into_warnings();
+            assert_eq!(said.len(), 1, "{said:?}");
+            let want = format!("a.mtl: line {line}: material '{name}' (first at line 1)");
+            assert!(
+                said[0].starts_with(&want) && said[0].contains("defined twice"),
+                "{said:?}"
+            );
+            let e = parse("a.mtl", text.as_bytes(), &mut Repairs::new(true)).unwrap_err();
+            assert!(format!("{e:#}").contains("defined twice"), "{e:#}");
+        }
+        // A material no face uses says nothing of its second definition.
+        let mut r = Repairs::new(false);
+        let text = "newmtl a\nKd 0.5 0.5 0.5\nnewmtl a\nKd 0.1 0.1 0.1\n";
+        parse_for("a.mtl", text.as_bytes(), &mut r, &|n| n != "a").unwrap();
+        assert!(r.into_warnings().is_empty());
     }
 
     #[test]

@@ -34,15 +34,15 @@ pub const SHORT_FACE: Kind = Kind {
     one: "face of fewer than 3 distinct vertices skipped",
     many: "faces of fewer than 3 distinct vertices skipped",
 };
-const POINTS: Kind = Kind {
+pub const POINTS: Kind = Kind {
     one: "points (p) ignored: reframe renders faces only",
     many: "points statements (p) ignored: reframe renders faces only",
 };
-const FREE_FORM: Kind = Kind {
+pub const FREE_FORM: Kind = Kind {
     one: "free-form geometry statement ignored (curves and surfaces are not rendered)",
     many: "free-form geometry statements ignored (curves and surfaces are not rendered)",
 };
-const POLYLINES: Kind = Kind {
+pub const POLYLINES: Kind = Kind {
     one: "polyline (l) ignored: reframe renders faces only",
     many: "polylines (l) ignored: reframe renders faces only",
 };
@@ -52,8 +52,10 @@ const WEIGHTS: Kind = Kind {
         "vertex weights w ignored (they weight rational curves and surfaces, not polygon corners)",
 };
 const NONE_DEFINED: Kind = Kind {
-    one: "texture coordinate or normal index where none is defined above: ignored (read as v)",
-    many: "texture coordinate or normal indices where none is defined above: ignored (read as v)",
+    one: "face with texture coordinate or normal indices where none is defined above: they are \
+          ignored (read as v)",
+    many: "faces with texture coordinate or normal indices where none is defined above: they \
+           are ignored (read as v)",
 };
 pub const UNKNOWN: Kind = Kind {
     one: "statement the OBJ format does not have: ignored",
@@ -788,7 +790,7 @@ mod tests {
         assert_eq!(second[0].vn, None);
         assert_eq!(w.len(), 1, "{w:?}");
         assert!(
-            w[0].starts_with("a.obj: 2 texture coordinate or normal indices where none"),
+            w[0].starts_with("a.obj: 2 faces with texture coordinate or normal indices where none"),
             "{w:?}"
         );
     }

@@ -70,7 +70,15 @@ impl Repairs {
 
     /// The warning about the first repair of one of `kinds`, if any (to explain a later error).
     pub fn first_of(&self, kinds: &[Kind]) -> Option<String> {
-        let s = self.seen.iter().find(|s| kinds.contains(&s.kind))?;
+        self.first_in(None, kinds)
+    }
+
+    /// `first_of`, among the repairs of file `file` only, where one is given.
+    pub fn first_in(&self, file: Option<&str>, kinds: &[Kind]) -> Option<String> {
+        let s = self
+            .seen
+            .iter()
+            .find(|s| kinds.contains(&s.kind) && file.is_none_or(|f| s.file == f))?;
         Some(format!(
             "{}: line {}: {}: {}",
             s.file, s.line, s.detail, s.kind.one
