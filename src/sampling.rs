@@ -492,8 +492,9 @@ pub fn sin_cos_turns(t: f32) -> (f32, f32) {
     let z = x * x;
     let s = x + x * z * (-1.666_665_5e-1 + z * (8.332_161e-3 + z * -1.951_529_6e-4));
     let c = 1.0 - 0.5 * z + z * z * (4.166_664_6e-2 + z * (-1.388_731_6e-3 + z * 2.443_315_7e-5));
-    // The quarter modulo 4 (`q` is a small whole number: the cast is exact).
-    let quarter = (q as i32) & 3;
+    // The quarter modulo 4, in floats (every step exact for a whole `q`; a cast of `q` itself
+    // saturates from 2^31 on), then cast (0 to 3).
+    let quarter = (q - 4.0 * (q * 0.25).floor()) as i32;
     let (s, c) = if quarter & 1 == 0 { (s, c) } else { (c, -s) };
     if quarter & 2 == 0 {
         (s, c)
@@ -775,6 +776,12 @@ mod tests {
             worst = worst.max((s as f64 - a.sin()).abs().max((c as f64 - a.cos()).abs()));
         }
         assert!(worst < 2.0 * f32::EPSILON as f64, "worst error {worst:e}");
+        // Whole turns, however many, are exact: a saturating cast of the quarter gave (-1, 0)
+        // from 2^29 on.
+        for t in [5.37e8f32, 1e9, 2.5e9, 1e20, -1e20, -3.0] {
+            let (s, c) = sin_cos_turns(t);
+            assert_eq!((s.abs(), c), (0.0, 1.0), "t = {t}");
+        }
         // The quarter turns are exact (the library's cos(pi / 2) in f32 is -4.4e-8).
         for (t, want) in [
             (0.0, (0.0, 1.0)),

@@ -285,6 +285,22 @@ fn interrupted_render_stops_cleanly_and_resumes() {
             "the refusals changed the output folder"
         );
         assert!(!other.exists(), "the refusals made the other folder");
+        if signal == "INT" {
+            // Another `--out` of the same stem shares the default folder, holds none of its
+            // frames, and renders with a folder of its own.
+            let png = format!("{}/f_####.png", sub.display());
+            let mut pargs = args.clone();
+            let at = pargs.iter().position(|a| *a == out).unwrap();
+            pargs[at] = png;
+            let o = reframe()
+                .args(&pargs)
+                .args(["--checkpoint", other.to_str().unwrap()])
+                .output()
+                .unwrap();
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(0), "{err}");
+            assert!(sub.join("f_0004.png").exists() && sub.join("f.checkpoint/state").exists());
+        }
         let aov: &[&str] = if method == "independent" {
             &["--aov"]
         } else {

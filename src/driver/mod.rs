@@ -238,17 +238,24 @@ pub fn progress_bar(enabled: bool, len: u64, what: &str) -> ProgressBar {
     pb
 }
 
-/// Refuse a render whose `--checkpoint` is the folder `d`, which holds no checkpoint, where this
-/// `--out` has one at its default place: an interrupted render of these frames, which the
-/// render would overwrite (its frames counted finished, so that it could no longer be resumed)
-/// or start again from the beginning (with `--resume`) without a word. `--resume` with that
-/// folder continues it; deleting it starts over.
+/// Refuse a render whose `--checkpoint` is the folder `d`, which holds no checkpoint, where the
+/// default folder of this `--out` holds the checkpoint of an interrupted render to this very
+/// `--out` (the state names it: outputs of one stem, `f_####.png` and `f_####.exr`, share the
+/// default folder): the render would overwrite its frames, counted finished, so that it could
+/// no longer be resumed, or (with `--resume`) start again from the beginning without a word.
+/// `--resume` with that folder continues it; deleting it starts over.
 fn check_no_checkpoint_elsewhere(d: &Path, opts: &RenderOptions) -> Result<()> {
     let default = default_checkpoint_dir(&opts.out, opts.chunk);
     let same = d == default
         || matches!((d.canonicalize(), default.canonicalize()), (Ok(a), Ok(b)) if a == b);
     let state = default.join("state");
     if same || d.join("state").exists() || !crate::state::is_state_file(&state) {
+        return Ok(());
+    }
+    // A state that cannot be read is no render's to protect here (the resume that names it
+    // says what is wrong with it).
+    let ours = crate::state::StateFile::open(&state).is_ok_and(|sf| sf.trailer.out == opts.out);
+    if !ours {
         return Ok(());
     }
     bail!(
@@ -402,9 +409,6 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         guard::check_folder_apart("--checkpoint", d, &outputs)?;
     }
     guard::check_outputs(outputs, &scene.inputs)?;
-    if let Some(d) = &opts.checkpoint {
-        check_no_checkpoint_elsewhere(d, opts)?;
-    }
     let frames = opts.chunk.is_none().then(|| guard::Frames {
         pattern: &out,
         frames: plan.frames.clone(),
@@ -420,6 +424,11 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         )?),
         None => None,
     };
+    // After the output's lock: a render of this `--out` that is running holds it (and is said
+    // as such), so a checkpoint found now is one an interrupted render left.
+    if let Some(d) = &opts.checkpoint {
+        check_no_checkpoint_elsewhere(d, opts)?;
+    }
     let (ckpt, resumed) = if opts.checkpoint.is_some() || opts.chunk.is_some() {
         let key = run_key(scene, opts, &plan)?;
         let mut template = Trailer::new(

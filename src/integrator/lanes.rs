@@ -128,7 +128,7 @@ mod tests {
         // Lambertian materials (one black) among Phong ones, whose samples are put over the
         // lanes' rows; normals and outgoing directions of every
         // orientation, some below the surface, some not quite unit; numbers on the ends of
-        // [0, 1). Rounds of 0 to 3000 rows, the room kept from one to the next (stale rows).
+        // [0, 1). Rounds of 0 to 3000 rows, the room kept from one round to the next.
         let mats = crate::bsdf::test_materials();
         let mut s = Sampler::new(11, 0, 0, 0);
         let dir = |s: &mut Sampler| {

@@ -201,9 +201,10 @@ impl Wavefront {
         let (recs, walks) = (&self.recs, &self.walks);
         let wo = |k: usize| {
             let i = self.continuations.paths[k] as usize;
-            match &walks[i] {
-                Some(walk) if depth > 2 => -walk.wi,
-                _ => -recs[i].w.expect("a continuation ray has a direction"),
+            match (depth, &walks[i]) {
+                (2, _) => -recs[i].w.expect("a continuation ray has a direction"),
+                (_, Some(walk)) => -walk.wi,
+                (_, None) => unreachable!("a continuation past the second vertex walks"),
             }
         };
         sample_bsdfs(

@@ -74,10 +74,10 @@ const TRANSPARENCY: Kind = Kind {
     many: "materials with transparency (Tr) rendered opaque (map_d cut-outs are rendered)",
 };
 const GLASS: Kind = Kind {
-    one: "glass (illum 4, 6, 7 or 9: transparency, refraction) not rendered: the surface is its \
-          Kd diffuse and Ks Phong lobes",
-    many: "materials of glass (illum 4, 6, 7 or 9: transparency, refraction) rendered as their \
-           Kd diffuse and Ks Phong lobes",
+    one: "glass (illum 4, 6, 7 or 9 with an Ni other than 1: refraction) not rendered: the \
+          surface is its Kd diffuse and Ks Phong lobes",
+    many: "materials of glass (illum 4, 6, 7 or 9 with an Ni other than 1: refraction) rendered \
+           as their Kd diffuse and Ks Phong lobes",
 };
 const METALLIC: Kind = Kind {
     one: "metallic (Pm) not rendered: the surface is its Kd diffuse and Ks Phong lobes",
@@ -207,8 +207,10 @@ pub struct MtlMaterial {
     pr: Option<(f32, usize)>,
     /// `map_Kd`, `map_Ks`, `map_Ke`, `map_d`, in that order.
     pub maps: [Option<MapSpec>; 4],
-    /// The statements after `newmtl`, trimmed, to tell a repeated definition from another one.
-    body: Vec<String>,
+    /// The statements after `newmtl`: line, key (as `canonical` gives it) and words, to tell a
+    /// repeated definition from another one (`drop_repeats`) and to see the whole material
+    /// before saying what of it is not rendered (`note_transparency`).
+    body: Vec<(usize, String, Vec<String>)>,
 }
 
 /// Which colour a texture map scales.
@@ -267,12 +269,15 @@ pub fn parse_for(
         };
         let key = canonical(key, &KEYS);
         if let (false, Some(m)) = (key == "newmtl", out.materials.last_mut()) {
-            m.body.push(text.trim().to_string());
+            let words = args.iter().map(|a| a.to_string()).collect();
+            m.body.push((n, key.to_string(), words));
         }
-        // What a statement of a material no face uses would say goes nowhere.
+        // What a statement of a material no face uses would say goes nowhere, and so does what
+        // one of a second definition of a name says (that definition is dropped: `drop_repeats`).
         let mut unsaid = Repairs::new(false);
+        let last = out.materials.len().wrapping_sub(1);
         let notes = match out.materials.last() {
-            Some(m) if !used(&m.name) => &mut unsaid,
+            Some(m) if !used(&m.name) || out.index[&m.name] != last => &mut unsaid,
             _ => &mut *repairs,
         };
         if key == "newmtl" {
@@ -341,33 +346,6 @@ pub fn parse_for(
                     })?;
                 }
             }
-            continue;
-        }
-        // Transparency written as `Tr` (some exporters' `1 - d`, others' `d`: strictly between 0
-        // and 1 it is partial either way) and the illumination models of glass and refraction
-        // (`illum 4`, `6`, `7`, `9`): not rendered, and said where they would show. `Tr 0` and
-        // `Tr 1` (MeshLab's opaque default) say nothing.
-        // A material that also gives `d` is said once, of its `d`.
-        let has_d = |m: &MtlMaterial| {
-            m.body.iter().any(|b| {
-                b.split_whitespace()
-                    .next()
-                    .is_some_and(|k| k.eq_ignore_ascii_case("d"))
-            })
-        };
-        let tr = key.eq_ignore_ascii_case("Tr")
-            && args
-                .first()
-                .and_then(|a| number(a))
-                .is_some_and(|t| t > 0.0 && t < 1.0)
-            && !out.materials.last().is_some_and(has_d);
-        let glass = key.eq_ignore_ascii_case("illum")
-            && matches!(args.first().copied(), Some("4" | "6" | "7" | "9"));
-        if let (true, Some(m)) = (tr || glass, out.materials.last()) {
-            let kind = if tr { TRANSPARENCY } else { GLASS };
-            notes.note(label, n, kind, || {
-                format!("'{}' in '{}'", quote(text), m.name)
-            })?;
             continue;
         }
         if key == "Pm" {
@@ -493,7 +471,48 @@ pub fn parse_for(
         *slot = Some((c, n));
     }
     drop_repeats(label, &mut out, repairs, used)?;
+    for m in out.materials.iter().filter(|m| used(&m.name)) {
+        note_transparency(label, m, repairs)?;
+    }
     Ok(out)
+}
+
+/// Transparency that is not rendered, said of a whole material (its statements may come in any
+/// order), where `d` (said as it is read) does not already say it:
+/// - `Tr` strictly between 0 and 1: partial transparency whichever way an exporter writes it
+///   (some write `1 - d`, others `d`); `Tr 0` and `Tr 1` (MeshLab's opaque default) say nothing.
+/// - the illumination models of glass (`illum 4`, `6`, `7`, `9`) with an index of refraction
+///   `Ni` other than 1: a refracting surface, rendered as its `Kd` and `Ks` lobes. Maya writes
+///   `illum 4` with `Ni 1` (and `Tf 1 1 1`) for every material, opaque ones too: nothing said.
+fn note_transparency(label: &str, m: &MtlMaterial, repairs: &mut Repairs) -> Result<()> {
+    let value = |key: &str| {
+        m.body
+            .iter()
+            .find(|(_, k, _)| k.eq_ignore_ascii_case(key))
+            .map(|(n, _, words)| (*n, words.first().and_then(|w| number(w)), words.join(" ")))
+    };
+    if value("d").is_some() {
+        return Ok(());
+    }
+    let statement = |key: &str, words: &str| {
+        format!(
+            "'{}' in '{}'",
+            quote(format!("{key} {words}").trim()),
+            m.name
+        )
+    };
+    if let Some((line, Some(t), words)) = value("Tr") {
+        if t > 0.0 && t < 1.0 {
+            return repairs.note(label, line, TRANSPARENCY, || statement("Tr", &words));
+        }
+    }
+    let refracts = value("Ni").is_some_and(|(_, ni, _)| ni.is_some_and(|ni| ni != 1.0));
+    if let (Some((line, _, words)), true) = (value("illum"), refracts) {
+        if matches!(words.as_str(), "4" | "6" | "7" | "9") {
+            return repairs.note(label, line, GLASS, || statement("illum", &words));
+        }
+    }
+    Ok(())
 }
 
 /// A name defined twice in one file: the later definition is dropped. Where it repeats the
@@ -520,7 +539,13 @@ fn drop_repeats(
             .iter()
             .find(|k: &&MtlMaterial| k.name == m.name)
             .expect("the first definition is kept");
-        if earlier.body != m.body && used(&m.name) {
+        let statements = |m: &MtlMaterial| -> Vec<(String, Vec<String>)> {
+            m.body
+                .iter()
+                .map(|(_, k, w)| (k.clone(), w.clone()))
+                .collect()
+        };
+        if statements(earlier) != statements(&m) && used(&m.name) {
             let first_line = earlier.line;
             repairs.note(label, m.line, DEFINED_AGAIN, || {
                 format!("material '{}' (first at line {first_line})", m.name)
@@ -702,14 +727,13 @@ fn map_spec<'a>(
                 }
                 // Texture coordinates are single floats: scaled or moved past 1e5, a repeat
                 // of the map is a few texels wide (it collapsed to one texel at 1e30); a scale
-                // of 0 maps the whole surface to one texel.
+                // of 0 maps the whole surface to one texel. The third number (w, for 3D
+                // textures) is not used, and not checked.
+                let mut uv = v.iter().take(2);
                 let (what, bad) = if opt == "-s" {
-                    (
-                        "a scale",
-                        v.iter().find(|x| **x == 0.0 || x.abs() > MAX_MAP_UV),
-                    )
+                    ("a scale", uv.find(|x| **x == 0.0 || x.abs() > MAX_MAP_UV))
                 } else {
-                    ("an offset", v.iter().find(|x| x.abs() > MAX_MAP_UV))
+                    ("an offset", uv.find(|x| x.abs() > MAX_MAP_UV))
                 };
                 if let Some(x) = bad {
                     return Err(format!(
@@ -874,12 +898,19 @@ mod tests {
 
     #[test]
     fn a_material_defined_twice_in_one_file() {
-        // Repeated statement for statement (Cinema 4D's export): one material, nothing said.
-        let repeated = "newmtl a\nKd 0.5 0.5 0.5\nnewmtl b\nKe 1 1 1\nnewmtl a\n  Kd 0.5 0.5 0.5\n";
+        // Repeated statement for statement (Cinema 4D's export; spacing and comments aside):
+        // one material, and what it has that is not rendered said of the first only.
+        let repeated = "newmtl a\nKd 0.5 0.5 0.5\nPm 0.5\nnewmtl b\nKe 1 1 1\nnewmtl a\n  Kd 0.5 \
+                        0.5  0.5 # grey\nPm 0.5\n";
         let mut r = Repairs::new(false);
         let m = parse("a.mtl", repeated.as_bytes(), &mut r).unwrap();
         assert_eq!((m.materials.len(), m.index["a"], m.index["b"]), (2, 0, 1));
-        assert!(r.into_warnings().is_empty());
+        let said = r.into_warnings();
+        assert_eq!(said.len(), 1, "{said:?}");
+        assert!(
+            said[0].starts_with("a.mtl: line 3: 'Pm 0.5' in 'a'"),
+            "{said:?}"
+        );
         // Defined otherwise: the first definition is used, said once; refused when strict; an
         // empty name too.
         for (text, name, kd, line) in [

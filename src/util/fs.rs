@@ -176,19 +176,30 @@ impl Drop for CreatedDirs {
 /// (`--out s.obj/f_####.exr`, `s.obj` a file, said "cannot create output folder s.obj: File
 /// exists").
 pub fn create_dir_all(dir: &Path) -> std::io::Result<()> {
-    std::fs::create_dir_all(dir).map_err(|e| {
-        let blocking = dir
-            .ancestors()
-            .collect::<Vec<_>>()
-            .into_iter()
-            .rev()
-            .find(|p| !p.as_os_str().is_empty() && std::fs::metadata(p).is_ok_and(|m| !m.is_dir()));
-        match blocking {
-            Some(p) => {
-                std::io::Error::new(e.kind(), format!("{} is a file, not a folder", p.display()))
-            }
-            None => e,
-        }
+    std::fs::create_dir_all(dir).map_err(|e| match not_a_folder(dir) {
+        Some(why) => std::io::Error::new(e.kind(), why),
+        None => e,
+    })
+}
+
+/// The first part of `path` (from the root down, `path` itself included) that exists and is not
+/// a folder, said as such (`s.obj is a file, not a folder`): why a folder cannot be made there,
+/// or a file cannot be opened below it (the system's "File exists" and "Not a directory" named
+/// no part).
+pub fn not_a_folder(path: &Path) -> Option<String> {
+    let mut parts: Vec<&Path> = path.ancestors().collect();
+    parts.reverse();
+    parts.into_iter().find_map(|p| {
+        let m = std::fs::metadata(p).ok()?;
+        (!p.as_os_str().is_empty() && !m.is_dir()).then(|| {
+            let t = m.file_type();
+            let what = if t.is_file() {
+                "a file"
+            } else {
+                crate::util::input::kind(t)
+            };
+            format!("{} is {what}, not a folder", p.display())
+        })
     })
 }
 
@@ -363,6 +374,11 @@ pub fn open_own_file(path: &Path, what: &str) -> Result<std::fs::File> {
                     "{what} {} is a symbolic link; remove it (reframe makes its own) and run again",
                     path.display()
                 )
+            } else if let Some(why) = (e.raw_os_error() == Some(libc::ENOTDIR))
+                .then(|| not_a_folder(&parent_dir(path)))
+                .flatten()
+            {
+                anyhow!("opening {what} {}: {why}", path.display())
             } else {
                 anyhow!("opening {what} {}: {e}", path.display())
             }
