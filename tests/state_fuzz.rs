@@ -324,4 +324,31 @@ fn partials_with_forged_record_headers_are_never_merged() {
             "forgery {i}: frames written"
         );
     }
+    // Both partials of another build (their trailers' build hash rewritten, CRC and all): a
+    // merge needs the build that rendered them, as a resume does. They merged without a word.
+    let case = d.join("other-build");
+    std::fs::create_dir_all(&case).unwrap();
+    let mut forged = Vec::new();
+    for p in &partials {
+        let mut b = std::fs::read(p).unwrap();
+        let n = b.len();
+        let json = u64::from_le_bytes(b[n - 16..n - 8].try_into().unwrap()) as usize;
+        let (start, end) = (n - 20 - json, n - 20);
+        let text = String::from_utf8(b[start..end].to_vec()).unwrap();
+        let at = text.find("\"build_hash\":\"").unwrap() + "\"build_hash\":\"".len();
+        let len = text[at..].find('"').unwrap();
+        b[start + at..start + at + len].fill(b'0');
+        let crc = crc32fast::hash(&b[start..end]);
+        b[end..end + 4].copy_from_slice(&crc.to_le_bytes());
+        let to = case.join(p.file_name().unwrap());
+        std::fs::write(&to, &b).unwrap();
+        forged.push(to.display().to_string());
+    }
+    let out = case.join("o").join("f_####.exr").display().to_string();
+    let mut args = strings(&["merge", "--out", &out]);
+    args.extend(forged);
+    let o = run_reframe(&args, Duration::from_secs(20));
+    let why = refusal(&o).unwrap();
+    assert!(why.contains("another build of reframe"), "{why}");
+    assert!(frames_in(&case.join("o")).is_empty(), "frames written");
 }

@@ -420,6 +420,9 @@ pub fn check_outputs<'a>(
                 input.display()
             );
         }
+        if matches!(flag, "--stats" | "--json") {
+            crate::util::fs::check_report_target(flag, &out)?;
+        }
         if let Some((other_flag, other)) = seen.get(&r) {
             bail!(
                 "{flag} {}: that is also where {other_flag} {} goes; one of them would \

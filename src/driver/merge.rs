@@ -127,6 +127,20 @@ pub fn merge(
         by_k.insert(c.k, i);
     }
     let n = n.unwrap();
+    // The chunks' build, which a merge needs as a resume does (README, "Building for the host
+    // CPU"): partials of another build merged without a word, and with `--denoise` this build
+    // traced the guides of frames another one rendered.
+    let mut own = crate::util::hash::Fnv::default();
+    crate::util::hash::hash_exe(&mut own)?;
+    if own.hex() != t0.key.build_hash {
+        bail!(
+            "{}: the chunks were rendered by another build of reframe (build {}, this one {}); \
+             merge them with the reframe that rendered them",
+            label(&files[0]),
+            t0.key.build_hash,
+            own.hex()
+        );
+    }
     // The pattern the chunks were given. A relative one was relative to the folder the chunks
     // ran in, which holds their partial files (written beside the frames): it is resolved
     // against the partials' folder, not the merge's own, so that a merge run from elsewhere

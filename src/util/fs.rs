@@ -355,6 +355,28 @@ pub fn check_file_target(flag: &str, p: &Path) -> Result<()> {
     check_writable_dir(&dir).with_context(|| format!("{flag} {}", p.display()))
 }
 
+/// Refuse a report (`--stats`, `--json`) at `p` where a file is that is not a JSON report: a
+/// report replaces what is there, so only an earlier report (or an empty file) may be. A frame
+/// named by mistake (`--stats out/v_0001.exr`) was replaced, and the render whose checkpoint
+/// counted it finished could no longer be resumed.
+pub fn check_report_target(flag: &str, p: &Path) -> Result<()> {
+    // (A regular file only: opening a FIFO would block.)
+    if let Some(mut f) = p.is_file().then(|| std::fs::File::open(p).ok()).flatten() {
+        use std::io::Read;
+        let mut head = [0u8; 256];
+        let n = f.read(&mut head).unwrap_or(0);
+        let first = head[..n].iter().find(|b| !b.is_ascii_whitespace());
+        if first.is_some_and(|&b| b != b'{') {
+            anyhow::bail!(
+                "{flag} {}: the file there is not a JSON report (an image or another file?), which \
+                 this would replace: name another file, or remove it",
+                p.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 /// Opens (creating it if need be) a file that reframe owns and rewrites in place, `what` naming
 /// it in messages ("the lock file", "the chunk log"): never through a symbolic link, never
 /// blocking on a FIFO, and only a regular file of one name, since a link planted there (or a
