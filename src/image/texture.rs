@@ -82,6 +82,8 @@ struct Info {
     alpha_opaque: bool,
     /// Values below zero in the texels read (`check_texels`), which lookups read as zero.
     negatives: u64,
+    /// Whether every texel read is zero or below (a mask that cuts away everything).
+    zero: bool,
     /// What its file says of its pixels that is not applied (`image::Meaning`).
     meaning: super::Meaning,
 }
@@ -250,6 +252,7 @@ impl Textures {
             colour_mask,
             alpha_opaque,
             negatives,
+            zero: img.data.iter().all(|&v| v <= 0.0),
             layers,
             meaning,
         });
@@ -321,6 +324,12 @@ impl Textures {
     pub fn is_colour_mask_of(&self, id: TextureId, colour: TextureId) -> bool {
         let (m, c) = (&self.info[id.0 as usize], &self.info[colour.0 as usize]);
         (m.colour_mask || m.alpha_opaque) && m.path == c.path
+    }
+
+    /// Whether every texel of texture `id` is zero or below: as a mask, it cuts away the whole
+    /// surface.
+    pub fn is_zero(&self, id: TextureId) -> bool {
+        self.info[id.0 as usize].zero
     }
 
     /// Whether mask `id` is read from its file's grey or first colour channel because the

@@ -62,6 +62,14 @@ const NEGATIVE_TEXELS: Kind = Kind {
     many: "textures with values below 0 (read as 0)",
 };
 
+/// A mask that is zero everywhere: the surface is cut away entirely.
+const MASK_CUTS_ALL: Kind = Kind {
+    one: "mask that is zero everywhere: the surface is cut away entirely (an alpha its writer \
+          left at zero? add -imfchan to read another channel, or drop map_d)",
+    many: "masks that are zero everywhere: their surfaces are cut away entirely (alphas their \
+           writers left at zero? add -imfchan to read another channel, or drop map_d)",
+};
+
 /// A mask file whose alpha is opaque everywhere, with the mask in its colour (`map_d` of a
 /// DDS or TGA saved with a filled alpha).
 const MASK_IN_COLOUR: Kind = Kind {
@@ -271,6 +279,14 @@ impl Maps {
         if let (Some(c), Some(t), Some(spec)) =
             (&cutout, textures.as_ref(), &m.maps[Slot::D as usize])
         {
+            // Rendered as it says (nothing of the surface), but said: an alpha left at zero by
+            // its writer (32-bit TGAs whose header calls the alpha undefined) made a textured
+            // surface vanish without a word.
+            if t.is_zero(c.tex) {
+                repairs.note(mtl_label, spec.line, MASK_CUTS_ALL, || {
+                    format!("'{}' in '{}'", quote(&spec.statement), m.name)
+                })?;
+            }
             if t.mask_alpha_opaque(c.tex) {
                 repairs.note(mtl_label, spec.line, MASK_IN_COLOUR, || {
                     format!("'{}' in '{}'", quote(&spec.statement), m.name)
