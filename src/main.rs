@@ -235,6 +235,7 @@ fn run(cli: Cli) -> Result<()> {
                 }
             }
             errln!("{}", cli::render_summary(&stats));
+            say_half_clamped();
             if stats.nonfinite_pixels > 0 {
                 errln!(
                     "warning: {} pixels are NaN or infinite",
@@ -311,6 +312,7 @@ fn run(cli: Cli) -> Result<()> {
             for w in &r.warnings {
                 errln!("warning: {}", printable(w));
             }
+            say_half_clamped();
             let frames: Vec<String> = r.frames.iter().map(|p| p.display().to_string()).collect();
             outln!("{}", printable(&cli::wrote(&frames)));
             Ok(())
@@ -416,5 +418,17 @@ fn run(cli: Cli) -> Result<()> {
             outln!("results in {}", printable(&opts.out.display().to_string()));
             Ok(())
         }
+    }
+}
+
+/// Where more than one frame was clamped to half float's largest, how many: the warning when the
+/// first was written named that one only.
+fn say_half_clamped() {
+    let n = reframe::image::half_clamped();
+    if n > 1 {
+        errln!(
+            "warning: {n} frames had values beyond ±65504 clamped to it (the first named above; \
+             --exr-float keeps them)"
+        );
     }
 }

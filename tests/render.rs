@@ -855,7 +855,8 @@ fn a_scene_spread_far_beyond_its_details_is_warned_of() {
 }
 
 /// Values past half float's largest (65504) in a default, half-float EXR are clamped with a
-/// warning naming the frame (a floor under a light of 1e7 came out at 65504 without a word);
+/// warning naming the first frame and a count of all of them at the end (a floor under a light
+/// of 1e7 came out at 65504 without a word);
 /// `--exr-float` keeps them, and says nothing.
 #[test]
 fn a_half_float_clamp_is_warned_of() {
@@ -872,13 +873,16 @@ fn a_half_float_clamp_is_warned_of() {
     .unwrap();
     for (extra, warned) in [(None, true), (Some("--exr-float"), false)] {
         let mut args = vec!["render".to_string(), d.join("s.toml").display().to_string()];
-        args.extend(["--spp", "1", "--frames", "0-0", "--out"].map(String::from));
+        args.extend(["--spp", "1", "--frames", "0-1", "--out"].map(String::from));
         args.push(d.join("o/f_####.exr").display().to_string());
         args.extend(extra.map(String::from));
         let o = common::reframe_ok(&args);
         let err = String::from_utf8_lossy(&o.stderr);
-        let said = err.contains("values above 65504, half float's largest, are clamped to it");
+        let said = err.contains("values beyond ±65504, half float's largest, are clamped to it");
         assert_eq!(said, warned, "{extra:?}: {err}");
+        // The first frame is named, and the summary counts both (it named the first only).
+        let counted = err.contains("warning: 2 frames had values beyond ±65504 clamped");
+        assert_eq!(counted, warned, "{extra:?}: {err}");
     }
 }
 

@@ -129,6 +129,14 @@ const HALF_MIN_NORMAL: f32 = 6.103_515_6e-5;
 
 /// Whether the clamp to `HALF_MAX` has been said (once a process).
 static HALF_CLAMP_SAID: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+/// The frames written so far whose values were clamped to half's largest (`half_clamped`).
+static HALF_CLAMPED: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// How many frames this process wrote with values clamped to 65504 (the first is named when it
+/// is written; the command's summary says how many in all).
+pub fn half_clamped() -> u64 {
+    HALF_CLAMPED.load(std::sync::atomic::Ordering::Relaxed)
+}
 /// Whether the warning of values below half's normal range was given (once a process).
 static HALF_SMALL_SAID: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
@@ -489,10 +497,14 @@ fn write_image_inner(
                 store_as,
             };
             let needs_clamp = !opts.exr_float && img.data.iter().any(|v| v.abs() > HALF_MAX);
+            if needs_clamp {
+                HALF_CLAMPED.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            }
             if needs_clamp && !HALF_CLAMP_SAID.swap(true, std::sync::atomic::Ordering::Relaxed) {
-                // Once a process: a light seen directly at 1e5 came out at 65504, 35% dark.
+                // Once a process (the command's summary counts the frames): a light seen
+                // directly at 1e5 came out at 65504, 35% dark.
                 errln!(
-                    "warning: {}: values above 65504, half float's largest, are clamped to it \
+                    "warning: {}: values beyond ±65504, half float's largest, are clamped to it \
                      (--exr-float keeps them)",
                     crate::util::text::printable(&path.display().to_string())
                 );
