@@ -1010,14 +1010,18 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     for r in &runs {
         let _ = writeln!(
             csv,
-            "{},{},{},{:.6},{:.8},{:.8},{:.8},{:.3},{:.6}",
+            "{},{},{},{:.6},{:.8},{:.8},{},{:.3},{:.6}",
             r.method.name(),
             r.window,
             r.spp,
             r.seconds,
             r.rmse,
             r.relmse,
-            r.flicker,
+            if r.flicker.is_nan() {
+                String::new()
+            } else {
+                format!("{:.8}", r.flicker)
+            },
             r.mean_effective_spp,
             r.denoise_seconds
         );

@@ -78,8 +78,10 @@ pub fn errors(frames: &[Vec<Vec3>], r: &Reference) -> (Vec<FrameError>, f64, f64
     let rmse = (sq_total / n_all).max(0.0).sqrt();
     let relmse = per.iter().map(|e| e.relmse).sum::<f64>() / per.len() as f64;
     let fl: Vec<f64> = per.iter().filter_map(|e| e.flicker).collect();
+    // Flicker is a change between consecutive frames: of one frame there is none, NaN here
+    // (`null` in the JSON, empty in the CSV: a 0 read as perfectly steady).
     let flicker = if fl.is_empty() {
-        0.0
+        f64::NAN
     } else {
         fl.iter().sum::<f64>() / fl.len() as f64
     };
@@ -277,7 +279,10 @@ mod tests {
         let noisy = reference_of(vec![vec![Vec3::splat(1.0); 4]], 0.0025);
         let (_, rmse, _, _) = errors(&[vec![Vec3::splat(1.1); 4]], &noisy);
         assert!((rmse - 0.0075f64.sqrt()).abs() < 1e-6, "{rmse}");
-        let (_, rmse, _, _) = errors(&[vec![Vec3::splat(1.0); 4]], &noisy);
+        let (_, rmse, _, flicker) = errors(&[vec![Vec3::splat(1.0); 4]], &noisy);
         assert_eq!(rmse, 0.0);
+        // One frame has no flicker: `null` in compare.json, not a 0 that reads as steady.
+        assert!(flicker.is_nan());
+        assert_eq!(serde_json::to_string(&flicker).unwrap(), "null");
     }
 }
