@@ -28,6 +28,7 @@ use std::sync::Arc;
 
 fn main() {
     reframe::sys::keep_stderr();
+    reframe::sys::say_aborts();
     reframe::sys::ignore_file_size_signal();
     // A panic's message goes to standard error as the process started with it, like every
     // other line: the default hook writes to descriptor 2, which a reader may have pointed at
@@ -184,7 +185,8 @@ fn run(cli: Cli) -> Result<()> {
     reframe::image::set_threads(match threads {
         0 => reframe::driver::options::cores(),
         t => t,
-    });
+    })
+    .map_err(|e| anyhow::anyhow!("{e:#}{}", reframe::util::mem::address_space_note()))?;
     match cli.command {
         Command::Render(a) => {
             let scene_name = a.scene.unwrap_or_else(|| "vase".into());

@@ -61,3 +61,62 @@ pub fn write_stderr(bytes: &[u8]) -> std::io::Result<()> {
         _ => std::io::stderr().write_all(bytes),
     }
 }
+
+/// The line to print if the process aborts while a file is being read (`reading`): a pointer to
+/// its bytes (leaked, never freed, so that a handler running at any moment reads valid memory)
+/// and their length; null while no file is being read.
+static CRASH_LINE: std::sync::atomic::AtomicPtr<u8> =
+    std::sync::atomic::AtomicPtr::new(std::ptr::null_mut());
+static CRASH_LINE_LEN: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+/// While held, an abort (SIGABRT) names the file being read. OpenImageIO 2.4 aborts on some
+/// files (a tiled CMYK TIFF with JPEG tiles corrupted its heap; a PSD its reader could not open
+/// made the RLA reader assert), and the process ended with status 134 and nothing said.
+pub struct Reading(());
+
+impl Drop for Reading {
+    fn drop(&mut self) {
+        CRASH_LINE.store(std::ptr::null_mut(), std::sync::atomic::Ordering::SeqCst);
+    }
+}
+
+/// Name `path` in the line an abort prints until the guard is dropped (`say_aborts` installs
+/// the handler).
+pub fn reading(path: &std::path::Path) -> Reading {
+    let line = format!(
+        "error: reading {} crashed the image library (OpenImageIO): the file is damaged, or of \
+         a kind it cannot read; convert it (to PNG or EXR, say) and run again\n",
+        crate::util::text::printable(&path.display().to_string())
+    );
+    let bytes: &'static mut [u8] = Box::leak(line.into_bytes().into_boxed_slice());
+    CRASH_LINE.store(std::ptr::null_mut(), std::sync::atomic::Ordering::SeqCst);
+    CRASH_LINE_LEN.store(bytes.len(), std::sync::atomic::Ordering::SeqCst);
+    CRASH_LINE.store(bytes.as_mut_ptr(), std::sync::atomic::Ordering::SeqCst);
+    Reading(())
+}
+
+/// The SIGABRT handler: the line of the file being read, if any, to standard error as the
+/// process started with it, then the default action (the process ends by SIGABRT, as it
+/// would have). Only async-signal-safe calls: atomic loads, `write`, `signal`, `raise`.
+extern "C" fn on_abort(sig: libc::c_int) {
+    let p = CRASH_LINE.load(std::sync::atomic::Ordering::SeqCst);
+    if !p.is_null() {
+        let n = CRASH_LINE_LEN.load(std::sync::atomic::Ordering::SeqCst);
+        let fd = STDERR.get().copied().filter(|&fd| fd >= 0).unwrap_or(2);
+        // SAFETY: `p` points to `n` leaked bytes that are never freed; `write`, `signal` and
+        // `raise` are async-signal-safe.
+        unsafe { libc::write(fd, p as *const libc::c_void, n) };
+    }
+    // SAFETY: as above.
+    unsafe {
+        libc::signal(sig, libc::SIG_DFL);
+        libc::raise(sig);
+    }
+}
+
+/// Install the handler that names the file being read when a library aborts (`reading`).
+pub fn say_aborts() {
+    let handler = on_abort as extern "C" fn(libc::c_int) as libc::sighandler_t;
+    // SAFETY: `on_abort` makes only async-signal-safe calls.
+    unsafe { libc::signal(libc::SIGABRT, handler) };
+}

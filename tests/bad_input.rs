@@ -461,3 +461,33 @@ fn a_reference_cache_that_is_a_file_is_refused_naming_the_flag() {
         );
     }
 }
+
+/// A library that aborts while a file is being read (OpenImageIO 2.4 does on some TIFF and PSD
+/// files) ends the process as before, by SIGABRT, but names the file: it ended with status 134
+/// and nothing said. This test runs itself again as the process that aborts.
+#[test]
+fn an_abort_while_reading_a_file_names_the_file() {
+    const CHILD: &str = "REFRAME_TEST_ABORT_WHILE_READING";
+    if std::env::var_os(CHILD).is_some() {
+        reframe::sys::keep_stderr();
+        reframe::sys::say_aborts();
+        let _reading = reframe::sys::reading(Path::new("textures/odd.psd"));
+        std::process::abort();
+    }
+    use std::os::unix::process::ExitStatusExt;
+    let o = std::process::Command::new(std::env::current_exe().unwrap())
+        .args([
+            "an_abort_while_reading_a_file_names_the_file",
+            "--exact",
+            "--nocapture",
+        ])
+        .env(CHILD, "1")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.signal(), Some(libc::SIGABRT), "{err}");
+    assert!(
+        err.contains("error: reading textures/odd.psd crashed the image library (OpenImageIO)"),
+        "{err}"
+    );
+}

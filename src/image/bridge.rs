@@ -87,7 +87,7 @@ pub(crate) mod ffi {
 
         /// Threads OpenImageIO and OpenEXR may use for their own parallel work (an EXR
         /// frame's compression, format conversions); 0 means one per core.
-        fn set_threads(n: i32);
+        fn set_threads(n: i32) -> Result<()>;
 
         /// Succeeds when OIIO has a writer for the file name's extension.
         fn check_output_format(path: &[u8]) -> Result<()>;

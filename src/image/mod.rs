@@ -828,6 +828,7 @@ pub fn read_image(path: &Path) -> Result<Image> {
             data,
         })
     };
+    let _reading = crate::sys::reading(path);
     read().map_err(|e| read_error(path, e))
 }
 
@@ -1385,6 +1386,7 @@ pub fn read_colour(
             },
         ))
     };
+    let _reading = crate::sys::reading(path);
     read().map_err(|e| read_error(path, e))
 }
 
@@ -1537,6 +1539,7 @@ pub fn read_mask(
         };
         Ok((img, layout))
     };
+    let _reading = crate::sys::reading(path);
     read().map_err(|e| read_error(path, e))
 }
 
@@ -1584,8 +1587,12 @@ fn metadata_pair(a: ffi::Attribute) -> Option<(String, String)> {
 /// threads, as the render does, rather than one per core of the machine. Once, before any
 /// image is read or written (the command line does it first thing): OpenEXR's pool resized
 /// while other threads wrote EXR files left them waiting on it for ever.
-pub fn set_threads(threads: usize) {
+/// `Err` where a thread cannot be started (under a tight `ulimit -v`, a thread's stack may not
+/// fit): OpenEXR starts its pool at once, and the C++ exception that says so ended the process
+/// in `terminate` (exit 134) before a word was said.
+pub fn set_threads(threads: usize) -> Result<()> {
     ffi::set_threads(threads.min(i32::MAX as usize) as i32)
+        .map_err(|e| anyhow!("cannot start the image library's threads: {}", e.what()))
 }
 
 /// The version of the OpenImageIO library in use, e.g. "2.4.7".
