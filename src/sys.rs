@@ -80,14 +80,9 @@ impl Drop for Reading {
     }
 }
 
-/// Name `path` in the line an abort prints until the guard is dropped (`say_aborts` installs
-/// the handler).
-pub fn reading(path: &std::path::Path) -> Reading {
-    let line = format!(
-        "error: reading {} crashed the image library (OpenImageIO): the file is damaged, or of \
-         a kind it cannot read; convert it (to PNG or EXR, say) and run again\n",
-        crate::util::text::printable(&path.display().to_string())
-    );
+/// `line` is what an abort prints until the guard is dropped (`say_aborts` installs the
+/// handler; the caller words it, naming the file).
+pub fn reading(line: String) -> Reading {
     let bytes: &'static mut [u8] = Box::leak(line.into_bytes().into_boxed_slice());
     CRASH_LINE.store(std::ptr::null_mut(), std::sync::atomic::Ordering::SeqCst);
     CRASH_LINE_LEN.store(bytes.len(), std::sync::atomic::Ordering::SeqCst);

@@ -471,7 +471,8 @@ fn an_abort_while_reading_a_file_names_the_file() {
     if std::env::var_os(CHILD).is_some() {
         reframe::sys::keep_stderr();
         reframe::sys::say_aborts();
-        let _reading = reframe::sys::reading(Path::new("textures/odd.psd"));
+        let line = reframe::image::crash_line(Path::new("textures/odd.psd"));
+        let _reading = reframe::sys::reading(line);
         std::process::abort();
     }
     use std::os::unix::process::ExitStatusExt;

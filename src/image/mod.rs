@@ -828,7 +828,7 @@ pub fn read_image(path: &Path) -> Result<Image> {
             data,
         })
     };
-    let _reading = crate::sys::reading(path);
+    let _reading = crate::sys::reading(crash_line(path));
     read().map_err(|e| read_error(path, e))
 }
 
@@ -1386,7 +1386,7 @@ pub fn read_colour(
             },
         ))
     };
-    let _reading = crate::sys::reading(path);
+    let _reading = crate::sys::reading(crash_line(path));
     read().map_err(|e| read_error(path, e))
 }
 
@@ -1539,7 +1539,7 @@ pub fn read_mask(
         };
         Ok((img, layout))
     };
-    let _reading = crate::sys::reading(path);
+    let _reading = crate::sys::reading(crash_line(path));
     read().map_err(|e| read_error(path, e))
 }
 
@@ -1587,6 +1587,15 @@ fn metadata_pair(a: ffi::Attribute) -> Option<(String, String)> {
 /// threads, as the render does, rather than one per core of the machine. Once, before any
 /// image is read or written (the command line does it first thing): OpenEXR's pool resized
 /// while other threads wrote EXR files left them waiting on it for ever.
+/// The line an abort inside the image library prints while `path` is read (`sys::reading`).
+pub fn crash_line(path: &Path) -> String {
+    format!(
+        "error: reading {} crashed the image library (OpenImageIO): the file is damaged, or of a \
+         kind it cannot read; convert it (to PNG or EXR, say) and run again\n",
+        crate::util::text::printable(&path.display().to_string())
+    )
+}
+
 /// `Err` where a thread cannot be started (under a tight `ulimit -v`, a thread's stack may not
 /// fit): OpenEXR starts its pool at once, and the C++ exception that says so ended the process
 /// in `terminate` (exit 134) before a word was said.
