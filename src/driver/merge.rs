@@ -130,15 +130,13 @@ pub fn merge(
     // The chunks' build, which a merge needs as a resume does (README, "Building for the host
     // CPU"): partials of another build merged without a word, and with `--denoise` this build
     // traced the guides of frames another one rendered.
-    let mut own = crate::util::hash::Fnv::default();
-    crate::util::hash::hash_exe(&mut own)?;
-    if own.hex() != t0.key.build_hash {
+    let own = crate::state::key::build_hash()?;
+    if own != t0.key.build_hash {
         bail!(
-            "{}: the chunks were rendered by another build of reframe (build {}, this one {}); \
-             merge them with the reframe that rendered them",
+            "{}: the chunks were rendered by another build of reframe (build {}, this one \
+             {own}); merge them with the reframe that rendered them",
             label(&files[0]),
-            t0.key.build_hash,
-            own.hex()
+            t0.key.build_hash
         );
     }
     // The pattern the chunks were given. A relative one was relative to the folder the chunks

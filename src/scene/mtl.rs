@@ -528,24 +528,21 @@ fn drop_repeats(
     if out.index.len() == out.materials.len() {
         return Ok(());
     }
-    let mut kept = Vec::with_capacity(out.index.len());
+    let mut kept: Vec<MtlMaterial> = Vec::with_capacity(out.index.len());
+    // Each kept definition's place among the kept, by its place in the file.
+    let mut kept_at = HashMap::new();
     for (i, m) in std::mem::take(&mut out.materials).into_iter().enumerate() {
         let first = out.index[&m.name];
         if first == i {
+            kept_at.insert(i, kept.len());
             kept.push(m);
             continue;
         }
-        let earlier = kept
-            .iter()
-            .find(|k: &&MtlMaterial| k.name == m.name)
-            .expect("the first definition is kept");
-        let statements = |m: &MtlMaterial| -> Vec<(String, Vec<String>)> {
-            m.body
-                .iter()
-                .map(|(_, k, w)| (k.clone(), w.clone()))
-                .collect()
-        };
-        if statements(earlier) != statements(&m) && used(&m.name) {
+        let earlier = &kept[kept_at[&first]];
+        // The same statements in the same order, wherever their lines are.
+        let same =
+            (earlier.body.iter().map(|(_, k, w)| (k, w))).eq(m.body.iter().map(|(_, k, w)| (k, w)));
+        if !same && used(&m.name) {
             let first_line = earlier.line;
             repairs.note(label, m.line, DEFINED_AGAIN, || {
                 format!("material '{}' (first at line {first_line})", m.name)

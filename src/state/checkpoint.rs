@@ -254,11 +254,8 @@ impl Checkpointer {
                     );
                 }
                 if !d.is_dir() {
-                    let what = if d.is_file() {
-                        "a file"
-                    } else {
-                        crate::util::input::kind(std::fs::metadata(d).map_or(t, |m| m.file_type()))
-                    };
+                    let what =
+                        crate::util::input::kind(std::fs::metadata(d).map_or(t, |m| m.file_type()));
                     bail!(
                         "--checkpoint {}: that is {what}, not a folder (the checkpoint is a \
                          folder)",

@@ -64,9 +64,14 @@ pub fn hash_scene(f: &mut Fnv, scene: &Scene) {
 pub fn scene_and_build_hashes(scene: &Scene) -> Result<(String, String)> {
     let mut f = Fnv::default();
     hash_scene(&mut f, scene);
+    Ok((f.hex(), build_hash()?))
+}
+
+/// The hash of this build of reframe (its executable), as run keys hold it.
+pub fn build_hash() -> Result<String> {
     let mut b = Fnv::default();
     hash_exe(&mut b)?;
-    Ok((f.hex(), b.hex()))
+    Ok(b.hex())
 }
 
 /// The settings a state file was made with; resuming or merging needs them all equal.

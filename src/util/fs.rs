@@ -192,12 +192,7 @@ pub fn not_a_folder(path: &Path) -> Option<String> {
     parts.into_iter().find_map(|p| {
         let m = std::fs::metadata(p).ok()?;
         (!p.as_os_str().is_empty() && !m.is_dir()).then(|| {
-            let t = m.file_type();
-            let what = if t.is_file() {
-                "a file"
-            } else {
-                crate::util::input::kind(t)
-            };
+            let what = crate::util::input::kind(m.file_type());
             format!("{} is {what}, not a folder", p.display())
         })
     })

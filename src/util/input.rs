@@ -49,9 +49,11 @@ impl std::fmt::Display for InputError {
 
 impl std::error::Error for InputError {}
 
-/// What a file of type `t` is, in words (for anything but a regular file).
+/// What a file of type `t` is, in words.
 pub fn kind(t: FileType) -> &'static str {
-    if t.is_dir() {
+    if t.is_file() {
+        "a file"
+    } else if t.is_dir() {
         "a directory"
     } else if t.is_fifo() {
         "a named pipe (FIFO)"
