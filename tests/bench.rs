@@ -454,4 +454,21 @@ fn two_runs_of_one_reference_render_it_once() {
     let rendered = outs.iter().filter(|o| o.contains("rendered in")).count();
     assert_eq!(rendered, 1, "{outs:?}");
     assert!(outs.iter().any(|o| o.contains("(cached)")), "{outs:?}");
+    // A folder planted at the entry's lock is refused, before anything is rendered: the run had
+    // gone on unlocked, so two runs could render (and write) one entry at once.
+    let entry = std::fs::read_dir(&cache)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.is_dir())
+        .unwrap();
+    std::fs::remove_dir_all(&entry).unwrap();
+    let name = entry.file_name().unwrap().to_str().unwrap();
+    let lock = cache.join(format!(".{name}.lock"));
+    std::fs::remove_file(&lock).unwrap();
+    std::fs::create_dir(&lock).unwrap();
+    let o = common::reframe(&args).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(err.contains("lock file") && err.contains(name), "{err}");
+    assert!(!entry.exists());
 }

@@ -93,6 +93,25 @@ fn stops_at_once(dir: &Path, args: &[&str], after: Duration, sig: &str) {
     assert_eq!(stops, 1, "{args:?}: {err}");
     assert!(!err.contains("error"), "{args:?}: {err}");
     assert_eq!(leftovers(dir), Vec::<String>::new(), "{args:?}");
+    // Nor a folder it made and left empty (an output folder, a cache entry).
+    assert_eq!(empty_folders(dir), Vec::<String>::new(), "{args:?}");
+}
+
+/// The folders under `d` (not `d` itself) that hold nothing.
+fn empty_folders(d: &Path) -> Vec<String> {
+    let mut empty = Vec::new();
+    let mut todo = vec![d.to_path_buf()];
+    while let Some(dir) = todo.pop() {
+        let entries: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        if entries.is_empty() && dir != d {
+            empty.push(dir.display().to_string());
+        }
+        todo.extend(entries.into_iter().filter(|p| p.is_dir()));
+    }
+    empty
 }
 
 #[test]

@@ -159,8 +159,10 @@ pub fn reference_key(
 /// The lock of the cache entry `dir` (`cache/.NAME.lock`), held until dropped: taken at once,
 /// or after waiting (with a note) for the process that holds it. The lock file stays (a process
 /// waiting on it must find the same file when its holder is done). `None` where the cache
-/// folder cannot be made or the lock file cannot be opened as a regular file (the render
-/// goes on unlocked, and fails later where the folder cannot be written).
+/// folder cannot be made or this process may not write the lock (a cache shared read-only:
+/// its finished entries are read unlocked, and a missing one fails where it cannot be
+/// written). Anything else at the lock's path (a folder, a link, a FIFO, a hard link) is
+/// refused, as an output's lock is: it had let two processes render one entry at once.
 fn lock_entry(cache: &Path, dir: &Path) -> Result<Option<std::fs::File>> {
     use std::os::unix::fs::OpenOptionsExt;
     if std::fs::create_dir_all(cache).is_err() {
@@ -168,19 +170,22 @@ fn lock_entry(cache: &Path, dir: &Path) -> Result<Option<std::fs::File>> {
     }
     let name = dir.file_name().unwrap_or_default().to_string_lossy();
     let path = cache.join(format!(".{name}.lock"));
-    let Ok(f) = std::fs::OpenOptions::new()
+    let opened = std::fs::OpenOptions::new()
         .read(true)
         .write(true)
         .create(true)
         .truncate(false)
         .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
-        .open(&path)
-    else {
-        return Ok(None);
-    };
-    if !f.metadata().is_ok_and(|m| m.is_file()) {
-        return Ok(None);
+        .open(&path);
+    if let Err(e) = opened {
+        if matches!(
+            e.raw_os_error(),
+            Some(libc::EACCES | libc::EPERM | libc::EROFS)
+        ) {
+            return Ok(None);
+        }
     }
+    let f = crate::util::fs::open_own_file(&path, "the reference cache's lock file")?;
     if f.try_lock().is_err() {
         errln!(
             "note: another reframe is rendering this reference (its lock is {}); waiting for it",
@@ -282,7 +287,9 @@ pub fn reference(
             ),
         }
     }
-    crate::util::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    // Removed again if nothing is written in it (an error, a stop by signal).
+    let _made = crate::util::fs::MadeFolder::create(&dir)
+        .with_context(|| format!("creating {}", dir.display()))?;
     check_writable_dir(&dir)?;
     let integrator = Integrator::new(scene, max_depth);
     let n = (last - first + 1) as u64;

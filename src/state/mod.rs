@@ -294,7 +294,7 @@ fn write_sums(s: &FixedSums, w: &mut impl Write) -> std::io::Result<()> {
 
 /// `n` fixed-point cells and their carries, as `write_sums` wrote them.
 fn read_sums(r: &mut impl Read, n: usize) -> std::io::Result<RawSums> {
-    let cells = read_u32s(r, n)?.into_iter().map(|c| c as i32).collect();
+    let cells: Vec<i32> = read_u32s(r, n)?.into_iter().map(|c| c as i32).collect();
     let mut b8 = [0u8; 8];
     let mut u64_ = |r: &mut dyn Read| -> std::io::Result<u64> {
         r.read_exact(&mut b8)?;
@@ -311,7 +311,23 @@ fn read_sums(r: &mut impl Read, n: usize) -> std::io::Result<RawSums> {
         if i as usize >= n {
             return Err(bad("carry outside the frame"));
         }
+        // The writer lists each carried cell once, in order (`FixedSums::carries`).
+        if carry.last().is_some_and(|&(j, _)| i <= j) {
+            return Err(bad("carry table out of order or with a cell twice"));
+        }
         carry.push((i, c));
+    }
+    // Every splat is at least zero (radiance, MIS weights), and rounds to at least zero
+    // (`film::fixed::quantize` of v >= 0), so every exact sum a render writes is too: a
+    // negative one is damage or forgery, which would develop into a pixel of -65504.
+    let mut carried = carry.iter().peekable();
+    for (i, &c) in cells.iter().enumerate() {
+        let lift = carried
+            .next_if(|&&(j, _)| j as usize == i)
+            .map_or(0, |&(_, k)| k as i128);
+        if c as i128 + lift < 0 {
+            return Err(bad("a negative sum, which no render writes"));
+        }
     }
     Ok((cells, carry))
 }
@@ -813,8 +829,11 @@ mod tests {
             view(frame),
             LAYOUT,
             AccumParts {
-                cells: (0..3 * p as i32).map(|i| i * 1000 - 5).collect(),
-                carry: vec![(4, 1 << 32), (17, -(1 << 33))],
+                // Cell 17 wrapped below zero, and its carry lifts it back.
+                cells: (0..3 * p as i32)
+                    .map(|i| if i == 17 { -5 } else { i * 1000 + 5 })
+                    .collect(),
+                carry: vec![(4, 1 << 32), (17, 1 << 33)],
                 weights: None,
                 landed: Some(vec![3; p]),
                 loss: Some((vec![2; p], vec![1; p])),
@@ -877,6 +896,56 @@ mod tests {
     }
 
     #[test]
+    fn forged_sums_with_a_valid_checksum_are_refused() {
+        let bytes = bytes_of(&Record::Sums(Box::new(accum(2))));
+        let len = bytes.len() as u64;
+        let cells = HEADER_BYTES as usize;
+        let table = cells + 18 * 4 + 8;
+        // Each forgery rewrites bytes and then the record's CRC-32, as a forger would.
+        let forge = |edits: &[(usize, Vec<u8>)]| {
+            let mut b = bytes.clone();
+            for (at, new) in edits {
+                b[*at..at + new.len()].copy_from_slice(new);
+            }
+            let n = b.len() - 4;
+            let crc = crc32fast::hash(&b[..n]);
+            b[n..].copy_from_slice(&crc.to_le_bytes());
+            read_record(&mut b.as_slice(), Norm::Count, len)
+        };
+        assert!(forge(&[]).is_ok());
+        type Edits = Vec<(usize, Vec<u8>)>;
+        let cases: [(&str, Edits); 4] = [
+            // Cell 0 below zero, with no carry.
+            (
+                "negative sum",
+                vec![(cells, (-5i32).to_le_bytes().to_vec())],
+            ),
+            // Cell 17's carry turned negative: -5 - 2^33.
+            (
+                "negative sum",
+                vec![(table + 24, (-(1i64 << 33)).to_le_bytes().to_vec())],
+            ),
+            // Cell 4's carry listed twice (the second in place of cell 17's).
+            ("twice", vec![(table + 16, 4u64.to_le_bytes().to_vec())]),
+            // The two carries in the wrong order.
+            (
+                "out of order",
+                vec![
+                    (table, 17u64.to_le_bytes().to_vec()),
+                    (table + 16, 4u64.to_le_bytes().to_vec()),
+                ],
+            ),
+        ];
+        for (want, edits) in cases {
+            let Err(err) = forge(&edits) else {
+                panic!("{want}: accepted");
+            };
+            let err = err.to_string();
+            assert!(err.contains(want), "{want}: {err}");
+        }
+    }
+
+    #[test]
     fn absorbing_adds_the_exact_sums() {
         let (mut a, b) = (accum(1), accum(1));
         a.absorb(&b).unwrap();
@@ -885,13 +954,14 @@ mod tests {
             t,
             b.sums().totals().iter().map(|v| 2 * v).collect::<Vec<_>>()
         );
-        assert_eq!(t[4], 2 * (3995 + (1 << 32)));
+        assert_eq!(t[4], 2 * (4005 + (1 << 32)));
+        assert_eq!(t[17], 2 * ((1 << 33) - 5));
         assert_eq!(a.groups, [2, 2]);
         assert_eq!(a.landed_counts().unwrap().next(), Some(6));
         assert_eq!(a.counts(), [36, 24, 12]);
-        // Developed by count: pixel 0's red is 2 * (-5) steps, times the unit, over 6 landed.
+        // Developed by count: pixel 0's red is 2 * 5 steps, times the unit, over 6 landed.
         let d = crate::film::develop(&a, None);
-        assert_eq!(d.data[0], (-10.0 / FIXED) as f32 * 7.0 / 6.0);
+        assert_eq!(d.data[0], (10.0 / FIXED) as f32 * 7.0 / 6.0);
         let other = FrameAccum::new(
             view(1),
             Layout {

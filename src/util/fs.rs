@@ -139,13 +139,23 @@ pub fn unique() -> u64 {
 
 /// Folders this process created for an output, removed again (deepest first, each only if still
 /// empty) when the guard is dropped, unless `keep` was called first: a command refused after
-/// it created its output folder leaves no folder behind.
-#[derive(Debug)]
+/// it created its output folder leaves no folder behind. Each is registered as a `Temporary`
+/// for as long as the process runs, kept or not, so that a stop by signal before anything was
+/// written in it removes it too (an interrupted `compare` left its empty output folder).
 #[must_use = "dropping it removes the folders again"]
-pub struct CreatedDirs(Vec<PathBuf>);
+pub struct CreatedDirs(Vec<(PathBuf, Temporary)>);
+
+impl std::fmt::Debug for CreatedDirs {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_list()
+            .entries(self.0.iter().map(|(p, _)| p))
+            .finish()
+    }
+}
 
 impl CreatedDirs {
-    /// Create `dir` and its missing parents.
+    /// Create `dir` and its missing parents, registered while the registry is locked (as
+    /// `create_registered` does).
     pub fn create(dir: &Path) -> std::io::Result<CreatedDirs> {
         let mut missing = Vec::new();
         let mut d = Some(dir);
@@ -153,19 +163,35 @@ impl CreatedDirs {
             missing.push(p.to_path_buf());
             d = p.parent();
         }
+        let mut files = live();
         create_dir_all(dir)?;
-        Ok(CreatedDirs(missing))
+        // Registered outermost first: a stop goes newest first, so it tries the deepest first.
+        let mut made: Vec<(PathBuf, Temporary)> = missing
+            .into_iter()
+            .rev()
+            .map(|p| {
+                let id = unique();
+                files.push((id, p.clone()));
+                (p, Temporary(id))
+            })
+            .collect();
+        drop(files);
+        made.reverse();
+        Ok(CreatedDirs(made))
     }
 
-    /// The command goes ahead: the folders stay.
+    /// The command goes ahead: the folders stay (a stop by signal still removes those that
+    /// are empty).
     pub fn keep(mut self) {
-        self.0.clear();
+        for (_, live) in self.0.drain(..) {
+            std::mem::forget(live);
+        }
     }
 }
 
 impl Drop for CreatedDirs {
     fn drop(&mut self) {
-        for d in &self.0 {
+        for (d, _) in &self.0 {
             let _ = std::fs::remove_dir(d);
         }
     }
@@ -386,9 +412,13 @@ pub fn open_own_file(path: &Path, what: &str) -> Result<std::fs::File> {
         .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
         .open(path)
         .map_err(|e| {
-            if e.raw_os_error() == Some(libc::ELOOP) {
+            if let Some(kind) = match e.raw_os_error() {
+                Some(libc::ELOOP) => Some("a symbolic link"),
+                Some(libc::EISDIR) => Some("a folder"),
+                _ => None,
+            } {
                 anyhow!(
-                    "{what} {} is a symbolic link; remove it (reframe makes its own) and run again",
+                    "{what} {} is {kind}; remove it (reframe makes its own) and run again",
                     path.display()
                 )
             } else if let Some(why) = (e.raw_os_error() == Some(libc::ENOTDIR))
