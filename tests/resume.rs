@@ -657,6 +657,42 @@ fn a_report_never_replaces_a_state_file() {
 }
 
 #[test]
+fn a_chunk_never_replaces_another_renders_partial() {
+    // `f_####.exr` and `f_####.png` share partial names: a chunk of the PNG sequence at other
+    // settings replaced the EXR render's finished chunk (exit 0), and its merge was refused.
+    let dir = tempfile::tempdir().unwrap();
+    let chunk = |ext: &str, spp: &str, more: &[&str]| -> Vec<String> {
+        let out = format!("{}/f_####.{ext}", dir.path().display());
+        let args = [
+            "render", "cornell", "--frames", "0-1", "--res", "16x12", "--chunk", "1/2", "--spp",
+            spp, "--out", &out,
+        ];
+        args.iter().chain(more).map(|a| a.to_string()).collect()
+    };
+    run(&chunk("exr", "2", &[]));
+    let partial = dir.path().join("f.chunk-1-of-2.partial");
+    let before = std::fs::read(&partial).unwrap();
+    for resume in [&[][..], &["--resume"]] {
+        let o = reframe().args(chunk("png", "1", resume)).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{err}");
+        assert!(
+            err.contains("partial file of another render") && err.contains("spp: 2 vs 1"),
+            "{err}"
+        );
+        assert!(std::fs::read(&partial).unwrap() == before);
+    }
+    // The same render's partial is its own: rendered again (it replaces it) and merged.
+    run(&chunk("exr", "2", &[]));
+    run(&chunk("exr", "2", &[])
+        .iter()
+        .map(|a| a.replace("1/2", "2/2"))
+        .collect::<Vec<_>>());
+    let out = format!("{}/f_####.exr", dir.path().display());
+    run(&["merge", "--chunks", "2", "--out", &out]);
+}
+
+#[test]
 fn sequences_named_apart_after_the_frame_number_keep_their_own_chunks() {
     // A stereo pair, `e-####-L.exr` and `e-####-R.exr` with other seeds, rendered in chunks
     // in turn: both once shared one partial file per chunk (the name's stem stopped at the

@@ -220,6 +220,7 @@ impl Checkpointer {
         // other than a regular file of one name is in its place (a link planted there to the
         // scene's OBJ had the OBJ overwritten; a FIFO blocked the open).
         if let Some(c) = template.chunk {
+            check_partial_is_ours(&partial_path(&template.out, c), &template)?;
             let lp = log_path(&partial_path(&template.out, c));
             if let Ok(m) = std::fs::symlink_metadata(&lp) {
                 use std::os::unix::fs::MetadataExt;
@@ -583,6 +584,38 @@ fn same_file(f: &File, path: &Path) -> bool {
         (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
         _ => false,
     }
+}
+
+/// A chunk's partial file left by another render (other settings, another chunking of the
+/// frames) is refused, with or without `--resume`, as another render's checkpoint is: outputs of
+/// one stem share partial names (`f_####.exr` and `f_####.png`), and the chunk replaced the
+/// other's finished result without a word, which its merge then refused. A partial of this
+/// render's settings is replaced (or, complete with `--resume`, kept), and anything that is not
+/// a reframe partial file is left to the checks that follow.
+fn check_partial_is_ours(partial: &Path, template: &Trailer) -> Result<()> {
+    let Ok(theirs) = StateFile::open(partial).map(|f| f.trailer) else {
+        return Ok(());
+    };
+    if theirs.kind != Kind::Partial {
+        return Ok(());
+    }
+    let diff = theirs.key.difference(&template.key).or_else(|| {
+        (theirs.chunk != template.chunk || theirs.units != template.units)
+            .then(|| "another split of its frames into chunks".to_string())
+    });
+    let Some(diff) = diff else {
+        return Ok(());
+    };
+    let of = if theirs.out == template.out {
+        String::new()
+    } else {
+        format!(" of --out {}", theirs.out)
+    };
+    bail!(
+        "{} is the partial file of another render{of} ({diff}): remove it to render this chunk, \
+         or give this render another --out",
+        partial.display()
+    )
 }
 
 /// The append-only log of a chunk whose partial file is `partial`: `NAME.partial.log`.

@@ -126,7 +126,12 @@ impl RunKey {
         let (a, b) = (a.as_object()?, b.as_object()?);
         // Text as itself, not JSON-quoted; the scene's hash said for what it is.
         let show = |v: &serde_json::Value| v.as_str().map_or_else(|| v.to_string(), str::to_string);
-        a.iter().find_map(|(k, v)| {
+        // `radiance_unit` follows from other settings (the seed's pilot, the scene, the
+        // samples): looked at last, so that the setting the user changed is the one named (a
+        // changed `--seed` was said as "radiance_unit: 1.0 vs 0.5"; the map is alphabetical).
+        let derived = "radiance_unit";
+        let fields = a.iter().filter(|(k, _)| k.as_str() != derived);
+        fields.chain(a.get_key_value(derived)).find_map(|(k, v)| {
             let (v, w) = (show(v), show(&b[k]));
             (v != w).then(|| match k.as_str() {
                 "scene_hash" => format!("the scene's files differ: content hash {v} vs {w}"),
@@ -288,6 +293,28 @@ mod tests {
             .to_vec();
         assert_eq!(found, want);
         assert!(chunk_partials(&pattern, u32::MAX).is_empty());
+    }
+
+    /// The setting a user changed is named, not one that follows from it.
+    #[test]
+    fn a_difference_names_the_setting_given() {
+        let a = RunKey {
+            seed: 0,
+            radiance_unit: 1.0,
+            ..RunKey::default()
+        };
+        let b = RunKey {
+            seed: 1,
+            radiance_unit: 0.5,
+            ..a.clone()
+        };
+        assert_eq!(a.difference(&b).unwrap(), "seed: 0 vs 1");
+        let c = RunKey {
+            radiance_unit: 0.5,
+            ..a.clone()
+        };
+        assert_eq!(a.difference(&c).unwrap(), "radiance_unit: 1.0 vs 0.5");
+        assert_eq!(a.difference(&a), None);
     }
 
     #[test]
