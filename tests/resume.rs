@@ -693,6 +693,53 @@ fn a_chunk_never_replaces_another_renders_partial() {
 }
 
 #[test]
+fn a_merge_never_writes_over_an_interrupted_renders_frames() {
+    // A merge into frames an interrupted render's checkpoint counts finished wrote over them
+    // (exit 0), and the render's resume was then refused.
+    let dir = tempfile::tempdir().unwrap();
+    let (c, o) = (dir.path().join("c"), dir.path().join("o"));
+    let args = |out: &Path, more: &[&str]| -> Vec<String> {
+        let out = format!("{}/f_####.exr", out.display());
+        let base = [
+            "render", "cornell", "--frames", "0-5", "--res", "64x48", "--out", &out,
+        ];
+        base.iter().chain(more).map(|a| a.to_string()).collect()
+    };
+    run(&args(&c, &["--spp", "1", "--chunk", "1/1"]));
+    let render = args(
+        &o,
+        &["--spp", "512", "--threads", "1", "--checkpoint-every", "0"],
+    );
+    let mut child = reframe()
+        .args(&render)
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    interrupt_when(&mut child, "INT", || o.join("f_0000.exr").exists());
+    assert_eq!(child.wait().unwrap().code(), Some(130));
+    let first = std::fs::read(o.join("f_0000.exr")).unwrap();
+    let partial = c.join("f.chunk-1-of-1.partial");
+    let out = format!("{}/f_####.exr", o.display());
+    let m = reframe()
+        .args(["merge", partial.to_str().unwrap(), "--out", &out])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&m.stderr);
+    assert!(!m.status.success(), "{err}");
+    assert!(
+        err.contains("holds the checkpoint of an interrupted render"),
+        "{err}"
+    );
+    assert!(std::fs::read(o.join("f_0000.exr")).unwrap() == first);
+    // The render resumes; then the merge may write (over finished frames, as asked).
+    run(&with(
+        &render.iter().map(String::as_str).collect::<Vec<_>>(),
+        &["--resume"],
+    ));
+    run(&["merge", partial.to_str().unwrap(), "--out", &out]);
+}
+
+#[test]
 fn sequences_named_apart_after_the_frame_number_keep_their_own_chunks() {
     // A stereo pair, `e-####-L.exr` and `e-####-R.exr` with other seeds, rendered in chunks
     // in turn: both once shared one partial file per chunk (the name's stem stopped at the

@@ -250,6 +250,8 @@ pub fn merge(
         frames: range.clone(),
     };
     let _lock = super::guard::OutputLock::acquire(&lock, pattern, Some(frames))?;
+    // After the lock: a render of these frames that is running holds it, and is said as such.
+    super::check_no_interrupted_render(pattern, &range)?;
     super::remove_stale_frames(&out, range.clone());
     // Where each frame's shares are: frame -> (file, offset).
     let mut shares: BTreeMap<u32, Vec<(usize, u64)>> = BTreeMap::new();

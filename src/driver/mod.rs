@@ -270,6 +270,42 @@ fn check_no_checkpoint_elsewhere(d: &Path, opts: &RenderOptions) -> Result<()> {
     )
 }
 
+/// Refuse a merge into `frames` of `pattern` where the default checkpoint folder of `pattern`
+/// holds the checkpoint of an interrupted render to these frames (the same file names): the
+/// merge would write over frames that checkpoint counts finished, and its resume was then
+/// refused. `render` refuses the same (`Checkpointer::open`: a checkpoint needs `--resume`).
+pub(super) fn check_no_interrupted_render(
+    pattern: &str,
+    frames: &std::ops::RangeInclusive<u32>,
+) -> Result<()> {
+    let dir = default_checkpoint_dir(pattern, None);
+    let state = dir.join("state");
+    if !crate::state::is_state_file(&state) {
+        return Ok(());
+    }
+    // A state that cannot be read is no render's to protect here (its resume says what is wrong).
+    let Ok(t) = crate::state::StateFile::open(&state).map(|sf| sf.trailer) else {
+        return Ok(());
+    };
+    let name = |p: &str| Path::new(p).file_name().map(|n| n.to_owned());
+    let (first, last) = (t.key.first_frame, t.key.last_frame);
+    if t.kind != crate::state::Kind::Checkpoint
+        || name(&t.out) != name(pattern)
+        || last < *frames.start()
+        || *frames.end() < first
+    {
+        return Ok(());
+    }
+    bail!(
+        "{} holds the checkpoint of an interrupted render to --out {} (frames {first}-{last}): \
+         the merge would write over the frames it counts finished, and it could no longer be \
+         resumed; finish it with --resume, or delete {} first",
+        dir.display(),
+        t.out,
+        dir.display()
+    )
+}
+
 /// The settings that make a render's pixels what they are (a resume or merge needs them equal).
 fn run_key(scene: &Scene, opts: &RenderOptions, plan: &Plan) -> Result<RunKey> {
     let (scene_hash, build_hash) = scene_and_build_hashes(scene)?;
