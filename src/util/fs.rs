@@ -376,24 +376,38 @@ pub fn check_file_target(flag: &str, p: &Path) -> Result<()> {
     check_writable_dir(&dir).with_context(|| format!("{flag} {}", p.display()))
 }
 
-/// Refuse a report (`--stats`, `--json`) at `p` where a file is that is not a JSON report: a
-/// report replaces what is there, so only an earlier report (or an empty file) may be. A frame
-/// named by mistake (`--stats out/v_0001.exr`) was replaced, and the render whose checkpoint
-/// counted it finished could no longer be resumed.
+/// Refuse a report (`--stats`, `--json`) at `p` where a file is that is not a reframe report: a
+/// report replaces what is there, so only an earlier report (`--stats`'s or `bench --json`'s,
+/// known by their keys) or an empty file may be. A frame named by mistake (`--stats
+/// out/v_0001.exr`) was replaced, and the render whose checkpoint counted it finished could no
+/// longer be resumed; so was any JSON file (a cached reference's description, a camera file,
+/// a `compare.json`), since only its first byte was looked at.
 pub fn check_report_target(flag: &str, p: &Path) -> Result<()> {
     // (A regular file only: opening a FIFO would block.)
-    if let Some(mut f) = p.is_file().then(|| std::fs::File::open(p).ok()).flatten() {
-        use std::io::Read;
-        let mut head = [0u8; 256];
-        let n = f.read(&mut head).unwrap_or(0);
-        let first = head[..n].iter().find(|b| !b.is_ascii_whitespace());
-        if first.is_some_and(|&b| b != b'{') {
-            anyhow::bail!(
-                "{flag} {}: the file there is not a JSON report (an image or another file?), which \
-                 this would replace: name another file, or remove it",
-                p.display()
-            );
-        }
+    let Some(f) = p.is_file().then(|| std::fs::File::open(p).ok()).flatten() else {
+        return Ok(());
+    };
+    use std::io::Read;
+    // A report of a long render lists every frame: a few MB. Past this it is no report.
+    const MAX_REPORT: u64 = 256 << 20;
+    let mut text = Vec::new();
+    let read = f.take(MAX_REPORT + 1).read_to_end(&mut text);
+    if read.is_ok() && text.iter().all(u8::is_ascii_whitespace) {
+        return Ok(());
+    }
+    let json = read
+        .ok()
+        .filter(|&n| n as u64 <= MAX_REPORT)
+        .and_then(|_| serde_json::from_slice::<serde_json::Value>(&text).ok());
+    let has = |k: &str| json.as_ref().is_some_and(|v| v.get(k).is_some());
+    let report = has("cost_unit") || (has("method") && has("rays_per_second"));
+    if !report {
+        anyhow::bail!(
+            "{flag} {}: the file there is not a reframe report (an image, another program's \
+             JSON, a cached reference's description?), which this would replace: name another \
+             file, or remove it",
+            p.display()
+        );
     }
     Ok(())
 }
