@@ -103,6 +103,7 @@ fn main() {
         }
         // One line: the chain of contexts, outermost first.
         errln!("error: {}", printable(&format!("{e:#}")));
+        reframe::util::fs::remove_empty_made_folders();
         exit_with(1);
     }
     if let Some(e) = reframe::util::stdout_error() {

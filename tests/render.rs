@@ -765,12 +765,18 @@ fn a_frame_that_cannot_be_written_is_an_error_and_leaves_nothing() {
             "{ext}: {err}"
         );
         assert!(left.is_empty(), "{ext}: left {left:?}");
+        // Nor the folder it made for them, empty.
+        assert!(!out.exists(), "{ext}: left its empty folder");
     }
     // A chunk's frames go to its log as they finish: a log that no checkpoint counts is of no
     // use to a later run, and goes too (a 4 KiB NAME.chunk-1-of-1.partial.log was left).
     let (err, left) = limited("--frames 0-1 --chunk 1/1", &dir.path().join("chunk"), "exr");
     assert!(err.contains("File too large"), "{err}");
     assert!(left.is_empty(), "chunk: left {left:?}");
+    assert!(
+        !dir.path().join("chunk").exists(),
+        "chunk: left its empty folder"
+    );
 }
 
 /// A render whose standard output and error are closed by their reader (piped into `head -1`,

@@ -420,12 +420,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     // a link or a FIFO at a frame's path), not after every chunk has rendered.
     let mut outputs: Vec<(&str, PathBuf)> = opts
         .chunk
-        .map(|c| {
-            (
-                "the chunk's partial file of --out",
-                partial_path(&opts.out, c),
-            )
-        })
+        .map(|c| ("the chunk's partial file", partial_path(&opts.out, c)))
         .into_iter()
         .chain(plan.frames.clone().map(|f| ("--out", out.path(f))))
         .collect();

@@ -218,8 +218,10 @@ pub fn reference(
     // is said as such before the reference is rendered.
     if let Some(p) = cache.ancestors().find(|p| p.exists()) {
         if !p.is_dir() {
+            let what = std::fs::metadata(p)
+                .map_or("not a folder", |m| crate::util::input::kind(m.file_type()));
             bail!(
-                "--cache {}: {} is a file, not a folder (the cache is a folder of references)",
+                "--cache {}: {} is {what}, not a folder (the cache is a folder of references)",
                 cache.display(),
                 p.display()
             );

@@ -470,6 +470,23 @@ fn number<T: std::str::FromStr>(key: &str, text: &str) -> Result<T, String> {
 }
 
 fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
+    // Lines ended by a bare CR (a classic Mac editor's) are counted as lines: CR and LF are both
+    // white space to JSON, so each bare CR read as an LF changes nothing but the line numbers,
+    // which serde counts by LF alone (an error on the last line was said to be on line 1).
+    let with_lf;
+    let text = if text.contains('\r') {
+        let mut b = text.as_bytes().to_vec();
+        for i in 0..b.len() {
+            if b[i] == b'\r' && b.get(i + 1) != Some(&b'\n') {
+                b[i] = b'\n';
+            }
+        }
+        // One ASCII byte for another: still UTF-8.
+        with_lf = String::from_utf8(b).expect("ASCII for ASCII");
+        with_lf.as_str()
+    } else {
+        text
+    };
     // serde would read an array as the struct's fields in order, and complain about the first.
     if text.trim_start().starts_with('[') {
         bail!(
@@ -653,9 +670,9 @@ fn decimal_point((f, quoted): (String, bool), sep: char) -> String {
 
 /// A CSV header line (without a comment's `#`): its separator as spreadsheets write it (a comma,
 /// or a semicolon where the locale's decimal mark is a comma, as German or French Excel and
-/// LibreOffice write it, or a tab), its column names in lower case, and whether it ends in a
-/// separator (an empty last name: a column of nothing, left out of the names).
-fn csv_header(text: &str) -> (char, Vec<String>, bool) {
+/// LibreOffice write it, or a tab), and its column names in lower case; a separator at its end
+/// (an empty last name: a column of nothing) is left out of the names.
+fn csv_header(text: &str) -> (char, Vec<String>) {
     let sep = [',', ';', '\t']
         .into_iter()
         .find(|c| text.contains(*c))
@@ -666,11 +683,10 @@ fn csv_header(text: &str) -> (char, Vec<String>, bool) {
         .into_iter()
         .map(|(n, _)| n.to_ascii_lowercase())
         .collect();
-    let trailing = names.len() > 1 && names.last().is_some_and(String::is_empty);
-    if trailing {
+    if names.len() > 1 && names.last().is_some_and(String::is_empty) {
         names.pop();
     }
-    (sep, names, trailing)
+    (sep, names)
 }
 
 fn csv_entries(label: &str, text: &str, repairs: &mut Repairs) -> Result<Vec<Entry>> {
@@ -694,7 +710,7 @@ fn csv_entries(label: &str, text: &str, repairs: &mut Repairs) -> Result<Vec<Ent
     // (`# frame,fov,...`, as `savetxt(..., header=...)` writes it) before it; other comments
     // before it are passed over.
     let mut passed_over = None;
-    let (hline, header, (sep, names, trailing)) = loop {
+    let (hline, header, (sep, names)) = loop {
         let Some((n, line)) = rows.next() else {
             bail!(
                 "{label}: no header line naming the columns ('{}' or '{}'): the file holds only \
@@ -769,10 +785,9 @@ fn csv_entries(label: &str, text: &str, repairs: &mut Repairs) -> Result<Vec<Ent
         if fields.iter().all(String::is_empty) {
             continue;
         }
-        if trailing
-            && fields.len() == names.len() + 1
-            && fields.last().is_some_and(String::is_empty)
-        {
+        // A separator after the last column, on the header or not (a spreadsheet ends every
+        // data row with one and the header without, or the other way round).
+        if fields.len() == names.len() + 1 && fields.last().is_some_and(String::is_empty) {
             fields.pop();
         }
         let fields: Vec<&str> = fields.iter().map(String::as_str).collect();
@@ -1203,6 +1218,9 @@ mod tests {
                 "c.json: line 1: the file is an array: a camera file is an object, {\"frames\": [...]}",
             ),
             (json(&[entry(0, ID).replace("fov", "fvo")]), "c.json: line 2 (entry 1): unknown field `fvo`"),
+            // Lines ended by a bare CR are lines (serde counted LFs alone: line 1).
+            (json(&[entry(0, ID), entry(1, ID).replace("fov", "fvo")]).replace('\n', "\r"), "c.json: line 3 (entry 2): unknown field `fvo`"),
+            (json(&[entry(0, ID), entry(1, ID).replace("fov", "fvo")]).replace('\n', "\r\n"), "c.json: line 3 (entry 2): unknown field `fvo`"),
             (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 0.5")]), "c.json: line 2 (entry 1): frame '0.5' is not a frame number (a whole number from 0 to 4294967295)"),
             (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 1e-400")]), "c.json: line 2 (entry 1): frame '1e-400' is not a frame number"),
             (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 0.99999999999999999")]), "c.json: line 2 (entry 1): frame '0.99999999999999999' is not a frame number"),
@@ -1264,6 +1282,9 @@ mod tests {
                 h.to_uppercase()
             ),
             format!("{h},\n0,40,0.5,0,3,0,0,0,0,1,0,\n1,40.5,0.25,0,3,0,0,0,0,1,0,\n"),
+            // The separator after the last column on the data rows alone, or the header alone.
+            format!("{h}\n0,40,0.5,0,3,0,0,0,0,1,0,\n1,40.5,0.25,0,3,0,0,0,0,1,0,\n"),
+            format!("{h},\n0,40,0.5,0,3,0,0,0,0,1,0\n1,40.5,0.25,0,3,0,0,0,0,1,0\n"),
             // Comments as numpy's savetxt writes them and loadtxt reads them: a header of
             // several comment lines (`header="a\\nb"`), a footer (`footer=`), a comment after a
             // row's numbers, a comment line between rows; and a comment before a plain header.
@@ -1338,7 +1359,7 @@ mod tests {
                 format!("{h}\n0,40,0,0,3,0,0,0,0,1\n"),
                 "c.csv: line 2: 10 fields, but the header (line 1) names 11",
             ),
-            (format!("{h}\n{ok},\n"), "c.csv: line 2: 12 fields"),
+            (format!("{h}\n{ok},5\n"), "c.csv: line 2: 12 fields"),
             (
                 format!("{h}\n0,40,nan,0,3,0,0,0,0,1,0\n"),
                 "c.csv: line 2: frame 0: position [NaN, 0.0, 3.0] is not finite",

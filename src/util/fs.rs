@@ -122,6 +122,19 @@ pub fn exit_removing_temporaries(code: i32) -> ! {
     crate::sys::exit_now(code)
 }
 
+/// Remove the folders this process made that are still registered and empty (an output folder
+/// kept by `CreatedDirs::keep`), newest first: a command that ends in an error after it made
+/// them (a merge whose first frame could not be written, a full disk) leaves none behind.
+/// Files are left alone: their guards remove them.
+pub fn remove_empty_made_folders() {
+    let files = live();
+    for (_, p) in files.iter().rev() {
+        if std::fs::symlink_metadata(p).is_ok_and(|m| m.is_dir()) {
+            let _ = std::fs::remove_dir(p);
+        }
+    }
+}
+
 /// The folder of `path`, `.` for a bare file name.
 pub fn parent_dir(path: &Path) -> PathBuf {
     match path.parent() {
