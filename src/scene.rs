@@ -84,6 +84,7 @@ mod mesh;
 mod mtl;
 mod obj;
 mod objects;
+mod precision;
 mod repairs;
 mod text;
 pub use crate::util::input::{read_input, read_input_or_missing, InputError, MAX_INPUT_BYTES};
@@ -976,6 +977,10 @@ impl Scene {
             offset_floor,
             origin,
         };
+        let mut scene = scene;
+        scene
+            .warnings
+            .extend(precision::near_huge_triangles(&scene, &obj_label));
         // Lights so dim that the render's arithmetic loses them: every frame black, no word.
         let brightest = scene.brightest_emission();
         if brightest > 0.0 && brightest < MIN_LIGHT {
