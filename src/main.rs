@@ -163,10 +163,11 @@ fn install_signal_handler() -> Result<Arc<AtomicBool>> {
             );
             return;
         }
+        let note = reframe::util::fs::stop_note().map_or(String::new(), |n| format!(" ({n})"));
         if again {
-            errln!("\nstopping now; a checkpoint already written is kept");
+            errln!("\nstopping now; a checkpoint already written is kept{note}");
         } else {
-            errln!("\ninterrupted: stopped at once; nothing is left half-written");
+            errln!("\ninterrupted: stopped at once; nothing is left half-written{note}");
         }
         exit_removing_temporaries(130);
     })

@@ -327,3 +327,38 @@ fn an_interrupt_during_the_last_frame_ends_a_complete_render() {
     assert!(!dir.join("out/f.checkpoint").exists(), "{err}");
     assert_eq!(leftovers(dir), Vec::<String>::new(), "{err}");
 }
+
+/// A merge stopped at once says which frames it had written (they are in place, whole, and no
+/// checkpoint counts them: its line had said only that nothing was left half-written).
+#[test]
+fn an_interrupted_merge_says_what_it_wrote() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    common::reframe_ok(&[
+        "render",
+        "vase",
+        "--spp",
+        "1",
+        "--res",
+        "640x480",
+        "--chunk",
+        "1/1",
+        "--exr-float",
+        "--out",
+        dir.join("c/f_####.exr").to_str().unwrap(),
+    ]);
+    let child = start(dir, "merge c/f.chunk-1-of-1.partial --out out/f_####.exr");
+    wait_for(&dir.join("out/f_0001.exr"), "no frame written");
+    assert!(signal(&child, "INT"), "the merge ended before the signal");
+    let (code, err) = wait(child, Duration::from_secs(10));
+    assert_eq!(code, Some(130), "{err}");
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("interrupted: stopped at once"))
+        .unwrap_or_else(|| panic!("{err}"));
+    assert!(
+        line.contains("frame file(s) written whole before it, the last out/f_00"),
+        "{line}"
+    );
+    assert_eq!(leftovers(dir), Vec::<String>::new());
+}

@@ -70,6 +70,13 @@ impl Sink for FileSink {
         )
         .with_context(|| format!("writing frame {frame}"))?;
         self.digests.push((frame, digest));
+        // What a stop by signal from now on says was written (a merge's frames are not in a
+        // checkpoint: its message had said nothing of them).
+        crate::util::fs::set_stop_note(format!(
+            "{} frame file(s) written whole before it, the last {}",
+            self.written.len() + 1,
+            crate::util::text::printable(&path.display().to_string())
+        ));
         self.written.push(path);
         Ok(())
     }

@@ -88,6 +88,20 @@ impl Drop for MadeFolder {
     }
 }
 
+/// A line of what is in place so far (the frames written), which a stop by signal adds to its
+/// message.
+static STOP_NOTE: Mutex<Option<String>> = Mutex::new(None);
+
+/// Set what a stop by signal says is in place (`stop_note`).
+pub fn set_stop_note(note: String) {
+    *STOP_NOTE.lock().unwrap_or_else(|e| e.into_inner()) = Some(note);
+}
+
+/// What a stop by signal says is in place, if anything was set and no thread is setting it.
+pub fn stop_note() -> Option<String> {
+    STOP_NOTE.try_lock().ok().and_then(|n| n.clone())
+}
+
 static STOPPING: AtomicBool = AtomicBool::new(false);
 
 /// Whether a stop by signal has begun: an error another thread meets now (a temporary file
