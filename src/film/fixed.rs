@@ -58,7 +58,8 @@ pub fn quantize3(v: [f32; 3], u: [f64; 3]) -> [i64; 3] {
         v[2] as f64 * FIXED + u[2],
         0.0,
     ];
-    if x.iter().all(|x| x.abs() < LIMIT) {
+    // Without short-circuits: one packed comparison instead of a branch per channel.
+    if (x[0].abs() < LIMIT) & (x[1].abs() < LIMIT) & (x[2].abs() < LIMIT) {
         let mut q = [0i64; 4];
         for c in 0..4 {
             q[c] = floor_small(x[c]);

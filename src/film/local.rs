@@ -87,8 +87,9 @@ impl<'a> LocalFilm<'a> {
     /// more on that side) unless it would pass `MAX_PIXELS`; then `None`.
     #[inline]
     fn local(&mut self, i: usize) -> Option<usize> {
-        let fw = self.film.view.width as usize;
-        let (x, y) = ((i % fw) as u32, (i / fw) as u32);
+        // A frame's pixel indices fit in u32 (`Landing`): a 32-bit division.
+        let fw = self.film.view.width;
+        let (x, y) = ((i as u32) % fw, (i as u32) / fw);
         let (dx, dy) = (x.wrapping_sub(self.x0), y.wrapping_sub(self.y0));
         if dx < self.w && dy < self.h {
             return Some((dy * self.w + dx) as usize);
@@ -219,15 +220,16 @@ impl<'a> LocalFilm<'a> {
     }
 
     /// `splat` into window pixel `l`, which is frame pixel `i`.
-    #[inline]
+    #[inline(always)]
     fn splat_at(&mut self, l: usize, i: usize, fold: usize, v: Vec3, dither: u64) -> bool {
         let Some(q) = self.film.quantize_rgb(v, dither) else {
             return false;
         };
         let base = self.film.rgb_cell(i, fold);
         let cell = l * self.cells_px + 3 * fold;
+        let cells = &mut self.cells[cell..cell + 3];
         for (c, q) in q.into_iter().enumerate() {
-            Self::add(&mut self.cells, cell + c, &self.film.sum, base + c, q);
+            Self::add(cells, c, &self.film.sum, base + c, q);
         }
         true
     }

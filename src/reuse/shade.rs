@@ -13,7 +13,7 @@
 //! sums with a hashed rounding dither: integer addition is associative, so the frames are
 //! bitwise identical for any thread count and any window.
 use super::visibility::{landings, EyeView, HitLanes, Landing, NativeHit};
-use super::weights::{EyeTerms, Weighing};
+use super::weights::{EyeTerms, Weighing, SIDE_UNKNOWN};
 use super::{Params, Weights};
 use crate::camera::Camera;
 use crate::embree::{Hit, Packet16, Ray};
@@ -267,8 +267,11 @@ fn shade_eye(
     // each eye sees it.
     land.clear();
     land.resize(hits.len() * n_f, None);
-    views.clear();
-    views.resize(hits.len() * n_f, EyeView::default());
+    // (`landings` writes every hit's view from every eye, so what an earlier tile left in
+    // `views` needs no clearing.)
+    if views.len() < hits.len() * n_f {
+        views.resize(hits.len() * n_f, EyeView::default());
+    }
     lanes.fill(hits);
     for (k, t) in group.iter().enumerate() {
         if k == m {
@@ -311,6 +314,7 @@ fn shade_eye(
             let v = &views[hi * n_f + k];
             e.wo = v.wo;
             e.f = None;
+            e.side = SIDE_UNKNOWN;
             match land[hi * n_f + k] {
                 Some(i) => {
                     e.j_over_a = v.j_over_a;

@@ -35,7 +35,15 @@ pub struct EyeTerms {
     /// surface), evaluated once per hit by `denominators` beside the pdfs, for the eyes that
     /// see x; `None` until then.
     pub f: Option<(Vec3, Vec3)>,
+    /// On a Lambertian hit, the eye's side of the surface as `Lambert::side` gives it (`0` or
+    /// `1` where the shading normal on that side faces the eye, `2` where it does not), found
+    /// once by `denominators` for the eyes that see x and read again by the value;
+    /// `SIDE_UNKNOWN` until then.
+    pub side: u8,
 }
+
+/// `EyeTerms::side` not yet found.
+pub const SIDE_UNKNOWN: u8 = u8::MAX;
 
 impl EyeTerms {
     pub fn new(wo: Vec3, j_over_a: f32, n: f32) -> EyeTerms {
@@ -44,6 +52,7 @@ impl EyeTerms {
             j_over_a,
             n,
             f: None,
+            side: SIDE_UNKNOWN,
         }
     }
 }
@@ -85,12 +94,13 @@ pub fn denominators(
     let m = &fh.m;
     let mut q = Denominators::default();
     if let Some(lambert) = Lambert::of(m, fh) {
-        for e in eyes.iter() {
+        for e in eyes.iter_mut() {
             let d = density(weights, e, spp);
             if d == 0.0 {
                 continue;
             }
-            let (p_w, p_l) = lambert.pdfs(e.wo);
+            e.side = lambert.side_code(e.wo);
+            let (p_w, p_l) = lambert.pdfs_of(e.side);
             q.emit += d;
             if fh.w.is_some() {
                 q.ind += d * p_w;
@@ -185,12 +195,21 @@ impl Lambert {
         }
     }
 
-    /// `(p(w), p(w_l))` for the eye in direction `wo`.
+    /// `side` as one number: the side where its shading normal faces the eye, else 2.
     #[inline]
-    fn pdfs(&self, wo: Vec3) -> (f32, f32) {
+    fn side_code(&self, wo: Vec3) -> u8 {
         match self.side(wo) {
-            (s, true) => (self.pdf_w[s], self.pdf_l[s]),
-            (_, false) => (0.0, 0.0),
+            (s, true) => s as u8,
+            (_, false) => 2,
+        }
+    }
+
+    /// `(p(w), p(w_l))` for the eye whose `side_code` is `side`.
+    #[inline]
+    fn pdfs_of(&self, side: u8) -> (f32, f32) {
+        match side {
+            0 | 1 => (self.pdf_w[side as usize], self.pdf_l[side as usize]),
+            _ => (0.0, 0.0),
         }
     }
 
@@ -293,9 +312,13 @@ impl<'a> Weighing<'a> {
     /// of the walk, each over its denominator.
     fn balance(&self, eye: Vec3, e: &EyeTerms, scale: f32) -> Vec3 {
         if let Some((lambert, sums)) = &self.lambert {
-            return match lambert.side(e.wo) {
-                (s, true) => sums[s] * scale,
-                (_, false) => Vec3::ZERO * scale,
+            let side = match e.side {
+                SIDE_UNKNOWN => lambert.side_code(e.wo),
+                s => s,
+            };
+            return match side {
+                0 | 1 => sums[side as usize] * scale,
+                _ => Vec3::ZERO * scale,
             };
         }
         let (fh, q) = (self.fh, &self.q);
