@@ -2297,6 +2297,12 @@ const MTL_MISSING: Kind = Kind {
     one: "mtllib names a missing file: its materials get the grey default (Kd 0.5)",
     many: "missing files named by mtllib: their materials get the grey default (Kd 0.5)",
 };
+/// `usemtl floor # the ground`: names keep their `#` (3ds Max names materials `Material #25`),
+/// but where the whole is no material and the name before the `#` is one, that one is meant.
+const COMMENT_AFTER_NAME: Kind = Kind {
+    one: "usemtl with a comment after the material's name: the name before the '#' is used",
+    many: "usemtl lines with a comment after the material's name: the name before the '#' is used",
+};
 const NO_MTLLIB: Kind = Kind {
     one: "usemtl without any mtllib: grey default material (Kd 0.5)",
     many: "usemtl lines without any mtllib: grey default material (Kd 0.5)",
@@ -2752,8 +2758,19 @@ fn load_obj_files(
     let mut need_default = false;
     let mut usemtl_material = Vec::with_capacity(parsed.usemtl.len());
     for (line, name) in &parsed.usemtl {
+        // The name before a ` #` (a comment after it), where the whole names no material.
+        let before_comment = || {
+            let (head, _) = name.split_once(" #").or_else(|| name.split_once("\t#"))?;
+            by_name.get(head.trim_end()).copied()
+        };
         let id = match by_name.get(name) {
             Some(&id) => id,
+            None if before_comment().is_some() => {
+                repairs.note(label, *line, COMMENT_AFTER_NAME, || {
+                    format!("'usemtl {}'", quote(name))
+                })?;
+                before_comment().expect("checked")
+            }
             None => {
                 let kind = if parsed.mtllib.is_empty() {
                     NO_MTLLIB
