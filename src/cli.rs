@@ -54,7 +54,7 @@ pub struct ReferenceArgs {
     /// camera move either side, long enough for the steady state of n_f = 33).
     pub scene: Option<String>,
     /// Frames, "A-B" (default: 17 around the middle of the animation).
-    #[arg(long, value_parser = parse_frames)]
+    #[arg(long, value_parser = parse_frames, allow_negative_numbers = true)]
     pub frames: Option<(u32, u32)>,
     /// Resolution "WxH" (default: the scene's).
     #[arg(long, value_parser = parse_res)]
@@ -176,7 +176,7 @@ pub struct RenderArgs {
     #[arg(long)]
     pub aov: bool,
     /// Frames to render, 0-based and inclusive: "A-B" or "A" (default: all).
-    #[arg(long, value_parser = parse_frames)]
+    #[arg(long, value_parser = parse_frames, allow_negative_numbers = true)]
     pub frames: Option<(u32, u32)>,
     /// Resolution "WxH" (default: the scene's).
     #[arg(long, value_parser = parse_res)]
@@ -329,6 +329,11 @@ pub struct BenchArgs {
 
 pub fn parse_frames(s: &str) -> Result<(u32, u32), String> {
     let err = || format!("'{s}': expected A-B or A (0-based frame numbers)");
+    if s.trim_start().starts_with('-') {
+        return Err(format!(
+            "'{s}': frames are numbered from 0, never below (the first frame is 0)"
+        ));
+    }
     let (a, b) = match s.split_once('-') {
         Some((a, b)) => (
             a.trim().parse().map_err(|_| err())?,

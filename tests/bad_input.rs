@@ -227,6 +227,11 @@ fn usage_errors_are_one_line_that_says_what_is_missing() {
             &["bench", "--spp", "x"],
             "invalid value 'x' for '--spp <SPP>'",
         ),
+        // A negative frame is a value, not a flag (clap said "unexpected argument '-1'").
+        (
+            &["render", "--frames", "-1"],
+            "'-1': frames are numbered from 0, never below",
+        ),
     ] {
         let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
         let line = refusal(&run_reframe(&args, Duration::from_secs(60)))
