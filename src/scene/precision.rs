@@ -9,7 +9,6 @@
 //! 0.7%; at 5x10^4, none measurable. Such a scene is warned of at load.
 use super::Scene;
 use glam::{Mat4, Vec3};
-use rayon::prelude::*;
 
 /// `R / d` above which a triangle is warned of: about where a reuse's visibility tests start
 /// to fail measurably (half a percent of them, by the figures above).
@@ -80,8 +79,11 @@ fn worst_of(
     let scale = to_world.map_or(1.0, |m| {
         glam::Mat3::from_mat4(*m).determinant().abs().cbrt()
     });
+    // One thread: the scene loads before the render's pool exists, and rayon's global pool
+    // would start a thread per core whatever `--threads` says (and panic where it cannot,
+    // under `ulimit -v`).
     let worst = tris
-        .par_iter()
+        .iter()
         .filter_map(|t| {
             let v = t.map(|i| positions[i as usize]);
             eyes.iter()
@@ -94,7 +96,7 @@ fn worst_of(
             reach,
             near,
         })
-        .reduce(Worst::default, Worst::merge);
+        .fold(Worst::default(), Worst::merge);
     Worst {
         reach: worst.reach * scale,
         near: worst.near * scale,
