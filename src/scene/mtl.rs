@@ -788,8 +788,20 @@ fn map_spec<'a>(
     if i >= args.len() {
         return Err("expected a file name".into());
     }
-    spec.file = args[i..].join(" ");
+    // The name as written, from its first word to the end of the line: a run of spaces or a tab
+    // in it is kept (`my  tex.png`; joined from its words it named 'my tex.png', another file).
+    spec.file = rest_from(text, args[i]).map_or_else(|| args[i..].join(" "), str::to_string);
     Ok((spec, ignored))
+}
+
+/// `text` from the word `word` (a slice of it, as `Line::statement` gives its words) to its end,
+/// less trailing white space; `None` if `word` is not a slice of `text`.
+fn rest_from<'t>(text: &'t str, word: &str) -> Option<&'t str> {
+    let start = (word.as_ptr() as usize).checked_sub(text.as_ptr() as usize)?;
+    (start + word.len() <= text.len())
+        .then(|| text.get(start..))
+        .flatten()
+        .map(str::trim_end)
 }
 
 /// A number as a message shows it: short, in exponent form when large.
