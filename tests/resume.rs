@@ -677,12 +677,18 @@ fn a_chunk_never_replaces_another_renders_partial() {
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success(), "{err}");
         assert!(
-            err.contains("partial file of another render") && err.contains("spp: 2 vs 1"),
+            err.contains("partial file of another render, of --out") && err.contains("f_####.exr"),
             "{err}"
         );
         assert!(std::fs::read(&partial).unwrap() == before);
     }
-    // The same render's partial is its own: rendered again (it replaces it) and merged.
+    // Of the same settings but another --out, it is still another sequence's.
+    let o = reframe().args(chunk("png", "2", &[])).output().unwrap();
+    assert!(!o.status.success());
+    assert!(std::fs::read(&partial).unwrap() == before);
+    // The same --out's partial is its own, whatever its settings (a resubmitted array after a
+    // change): rendered again with --resume, and again at the first settings, and merged.
+    run(&chunk("exr", "1", &["--resume"]));
     run(&chunk("exr", "2", &[]));
     run(&chunk("exr", "2", &[])
         .iter()

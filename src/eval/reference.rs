@@ -177,15 +177,21 @@ fn lock_entry(cache: &Path, dir: &Path) -> Result<Option<std::fs::File>> {
         .truncate(false)
         .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
         .open(&path);
-    if let Err(e) = opened {
-        if matches!(
-            e.raw_os_error(),
-            Some(libc::EACCES | libc::EPERM | libc::EROFS)
-        ) {
-            return Ok(None);
-        }
+    // Planted in the lock's place, a link, a folder or a FIFO is refused (as an output's lock
+    // is); any other failure to open it (a read-only cache, a full disk) reads unlocked. A hard
+    // link is harmless here (nothing is written in the lock): a cache copied with `cp -al`.
+    let planted = matches!(
+        opened.as_ref().map_err(|e| e.raw_os_error()),
+        Err(Some(libc::ELOOP | libc::EISDIR))
+    ) || opened
+        .as_ref()
+        .is_ok_and(|f| !f.metadata().is_ok_and(|m| m.is_file()));
+    if planted {
+        crate::util::fs::open_own_file(&path, "the reference cache's lock file")?;
     }
-    let f = crate::util::fs::open_own_file(&path, "the reference cache's lock file")?;
+    let Ok(f) = opened else {
+        return Ok(None);
+    };
     if f.try_lock().is_err() {
         errln!(
             "note: another reframe is rendering this reference (its lock is {}); waiting for it",

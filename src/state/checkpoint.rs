@@ -586,35 +586,25 @@ fn same_file(f: &File, path: &Path) -> bool {
     }
 }
 
-/// A chunk's partial file left by another render (other settings, another chunking of the
-/// frames) is refused, with or without `--resume`, as another render's checkpoint is: outputs of
-/// one stem share partial names (`f_####.exr` and `f_####.png`), and the chunk replaced the
-/// other's finished result without a word, which its merge then refused. A partial of this
-/// render's settings is replaced (or, complete with `--resume`, kept), and anything that is not
-/// a reframe partial file is left to the checks that follow.
+/// A chunk's partial file left by a render of another `--out` is refused, with or without
+/// `--resume`: outputs of one stem share partial names (`f_####.exr` and `f_####.png`), and a
+/// chunk of one replaced the other's finished result without a word (its merge then wrote the
+/// other sequence's frames, or was refused). A partial of this `--out` is this sequence's: an
+/// earlier run's, of other settings (a scene fixed, a new build) is rendered again, as a
+/// resubmitted Slurm array expects. Anything that is not a reframe partial file is left to the
+/// checks that follow.
 fn check_partial_is_ours(partial: &Path, template: &Trailer) -> Result<()> {
     let Ok(theirs) = StateFile::open(partial).map(|f| f.trailer) else {
         return Ok(());
     };
-    if theirs.kind != Kind::Partial {
+    if theirs.kind != Kind::Partial || theirs.out == template.out {
         return Ok(());
     }
-    let diff = theirs.key.difference(&template.key).or_else(|| {
-        (theirs.chunk != template.chunk || theirs.units != template.units)
-            .then(|| "another split of its frames into chunks".to_string())
-    });
-    let Some(diff) = diff else {
-        return Ok(());
-    };
-    let of = if theirs.out == template.out {
-        String::new()
-    } else {
-        format!(" of --out {}", theirs.out)
-    };
     bail!(
-        "{} is the partial file of another render{of} ({diff}): remove it to render this chunk, \
-         or give this render another --out",
-        partial.display()
+        "{} is the partial file of another render, of --out {}: remove it to render this \
+         chunk, or give this render another --out",
+        partial.display(),
+        theirs.out
     )
 }
 
