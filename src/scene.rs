@@ -949,7 +949,7 @@ impl Scene {
             offset_floor,
             &mesh.tri_area,
         ));
-        let scene = Scene {
+        let mut scene = Scene {
             inputs,
             warnings,
             name,
@@ -977,7 +977,6 @@ impl Scene {
             offset_floor,
             origin,
         };
-        let mut scene = scene;
         scene
             .warnings
             .extend(precision::near_huge_triangles(&scene, &obj_label));
@@ -2763,15 +2762,15 @@ fn load_obj_files(
             let (head, _) = name.split_once(" #").or_else(|| name.split_once("\t#"))?;
             by_name.get(head.trim_end()).copied()
         };
-        let id = match by_name.get(name) {
-            Some(&id) => id,
-            None if before_comment().is_some() => {
+        let id = match by_name.get(name).copied().ok_or_else(before_comment) {
+            Ok(id) => id,
+            Err(Some(id)) => {
                 repairs.note(label, *line, COMMENT_AFTER_NAME, || {
                     format!("'usemtl {}'", quote(name))
                 })?;
-                before_comment().expect("checked")
+                id
             }
-            None => {
+            Err(None) => {
                 let kind = if parsed.mtllib.is_empty() {
                     NO_MTLLIB
                 } else {

@@ -159,10 +159,10 @@ pub fn reference_key(
 /// The lock of the cache entry `dir` (`cache/.NAME.lock`), held until dropped: taken at once,
 /// or after waiting (with a note) for the process that holds it. The lock file stays (a process
 /// waiting on it must find the same file when its holder is done). `None` where the cache
-/// folder cannot be made or this process may not write the lock (a cache shared read-only:
-/// its finished entries are read unlocked, and a missing one fails where it cannot be
-/// written). Anything else at the lock's path (a folder, a link, a FIFO, a hard link) is
-/// refused, as an output's lock is: it had let two processes render one entry at once.
+/// folder cannot be made or the lock cannot be opened (a cache shared read-only: its finished
+/// entries are read unlocked, and a missing one fails where it cannot be written). A folder, a
+/// link or a FIFO planted at the lock's path is refused, as at an output's lock: the run had
+/// gone on unlocked, and two processes could render one entry at once.
 fn lock_entry(cache: &Path, dir: &Path) -> Result<Option<std::fs::File>> {
     use std::os::unix::fs::OpenOptionsExt;
     if std::fs::create_dir_all(cache).is_err() {
