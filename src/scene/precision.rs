@@ -8,7 +8,7 @@
 //! short of the hit (its floor 10% dark, without a word); at 2x10^6 across, 2.6%; at 5x10^5,
 //! 0.7%; at 5x10^4, none measurable. Such a scene is warned of at load.
 use super::Scene;
-use glam::{Mat4, Vec3};
+use glam::{DVec3, Mat4, Vec3};
 
 /// `R / d` above which a triangle is warned of: about where a reuse's visibility tests start
 /// to fail measurably (half a percent of them, by the figures above).
@@ -36,46 +36,75 @@ impl Worst {
     }
 }
 
-/// What of a triangle does not depend on the eye: its corners, its box and the box's diagonal,
-/// and its unit normal (zero for a triangle without area).
+/// What of a triangle does not depend on the eye: its corners, its box and the box's diagonal.
 struct Tri {
     v: [Vec3; 3],
     lo: Vec3,
     hi: Vec3,
     diagonal: f32,
-    normal: Vec3,
 }
 
 impl Tri {
     fn new(v: [Vec3; 3]) -> Tri {
         let (lo, hi) = (v[0].min(v[1]).min(v[2]), v[0].max(v[1]).max(v[2]));
-        let n = (v[1] - v[0]).cross(v[2] - v[0]);
         Tri {
             v,
             lo,
             hi,
             diagonal: (hi - lo).length(),
-            normal: if n.length_squared() > 0.0 {
-                n.normalize()
-            } else {
-                Vec3::ZERO
-            },
         }
     }
 
-    /// `R / d` seen from `eye`, with `d` bounded from below by the larger of the distances from
-    /// `eye` to the triangle's plane and to its box (both at most the distance to the
-    /// triangle); `None` where it cannot exceed `MAX_REACH` (cheaply, by the box).
+    /// `R / d` seen from `eye`, `d` its distance to the triangle; `None` where it cannot
+    /// exceed `MAX_REACH` (found cheaply by the box, which is nearer than the triangle).
     fn reach(&self, eye: Vec3) -> Option<(f32, f32, f32)> {
         let to_box = distance_to_box(eye, self.lo, self.hi);
         // R <= to_box + diagonal, and d >= to_box.
         if to_box + self.diagonal <= MAX_REACH * to_box {
             return None;
         }
-        let to_plane = (eye - self.v[0]).dot(self.normal).abs();
-        let near = to_box.max(to_plane);
+        let near = distance_to_triangle(eye, self.v);
         let far = self.v.iter().map(|p| p.distance(eye)).fold(0.0, f32::max);
         (far > MAX_REACH * near).then(|| (far / near.max(f32::MIN_POSITIVE), far, near))
+    }
+}
+
+/// The distance from `p` to the triangle `v` (its nearest point, inside or on an edge or a
+/// corner), in double precision: the triangles weighed here reach `MAX_REACH` times farther
+/// than they pass, so single precision would lose the distance in their coordinates. An eye
+/// in a triangle's plane and inside its box may lie far from it; bounding the distance by the
+/// plane's and the box's had called that eye's distance 0 and warned of any triangle so seen.
+fn distance_to_triangle(p: Vec3, v: [Vec3; 3]) -> f32 {
+    let (p, a, b, c) = (
+        p.as_dvec3(),
+        v[0].as_dvec3(),
+        v[1].as_dvec3(),
+        v[2].as_dvec3(),
+    );
+    // The nearest point on each edge (or the point itself where it projects inside).
+    let on_segment = |s: DVec3, e: DVec3| {
+        let d = e - s;
+        let len2 = d.length_squared();
+        let t = if len2 > 0.0 {
+            ((p - s).dot(d) / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        p.distance(s + d * t)
+    };
+    let edges = on_segment(a, b).min(on_segment(b, c)).min(on_segment(c, a));
+    let n = (b - a).cross(c - a);
+    if n.length_squared() == 0.0 {
+        return edges as f32;
+    }
+    // Inside the prism over the triangle: the distance to the plane.
+    let inside = [(a, b), (b, c), (c, a)]
+        .iter()
+        .all(|&(s, e)| (e - s).cross(p - s).dot(n) >= 0.0);
+    if inside {
+        ((p - a).dot(n.normalize()).abs()) as f32
+    } else {
+        edges as f32
     }
 }
 
@@ -211,4 +240,69 @@ pub fn near_huge_triangles(scene: &Scene, label: &str) -> Option<String> {
             worst.count, worst.reach, worst.near, worst.ratio,
         )
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The least distance from `p` to points spread densely over the triangle (barycentric
+    /// grid), an upper bound within about a grid cell of the true distance.
+    fn sampled(p: Vec3, v: [Vec3; 3]) -> f32 {
+        const N: u32 = 400;
+        let mut best = f32::INFINITY;
+        for i in 0..=N {
+            for j in 0..=N - i {
+                let (a, b) = (i as f32 / N as f32, j as f32 / N as f32);
+                let q = v[0] * (1.0 - a - b) + v[1] * a + v[2] * b;
+                best = best.min(q.distance(p));
+            }
+        }
+        best
+    }
+
+    #[test]
+    fn the_distance_to_a_triangle_is_its_nearest_points() {
+        let v = [
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(4.0, 0.0, 1.0),
+            Vec3::new(1.0, 3.0, -1.0),
+        ];
+        // Above the inside, beyond each edge, beyond each corner, in the plane outside it.
+        let points = [
+            Vec3::new(1.5, 1.0, 2.0),
+            Vec3::new(2.0, -2.0, 0.5),
+            Vec3::new(4.0, 3.0, 0.0),
+            Vec3::new(-2.0, 1.5, 0.0),
+            Vec3::new(-1.0, -1.0, -1.0),
+            Vec3::new(6.0, -1.0, 2.0),
+            Vec3::new(1.0, 5.0, -2.0),
+            Vec3::new(-3.0, 0.0, 0.0),
+        ];
+        for p in points {
+            let (d, s) = (distance_to_triangle(p, v), sampled(p, v));
+            assert!(d <= s + 1e-5 && s - d < 0.02, "{p}: {d} against {s}");
+        }
+        // A triangle without area is its segment.
+        let flat = [Vec3::ZERO, Vec3::X * 2.0, Vec3::X];
+        assert!((distance_to_triangle(Vec3::new(1.0, 3.0, 4.0), flat) - 5.0).abs() < 1e-6);
+        assert!((distance_to_triangle(Vec3::new(-3.0, 4.0, 0.0), flat) - 5.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn an_eye_in_a_huge_triangles_plane_but_far_from_it_is_not_near() {
+        // The triangle x >= y of the square 0..10^6 in the plane z = 0; the eye in that plane,
+        // inside the box but 3.5x10^5 from the triangle.
+        let v = [
+            Vec3::ZERO,
+            Vec3::new(1.0e6, 0.0, 0.0),
+            Vec3::new(1.0e6, 1.0e6, 0.0),
+        ];
+        let tri = Tri::new(v);
+        assert!(tri.reach(Vec3::new(1.0, 5.0e5, 0.0)).is_none());
+        assert!(tri.reach(Vec3::new(1.0, 5.0e5, 1.0e-3)).is_none());
+        // Just above the triangle, it is.
+        let (ratio, _, near) = tri.reach(Vec3::new(5.0e5, 1.0, 1.5)).expect("near");
+        assert!((near - 1.5).abs() < 1e-3 && ratio > 4.0e5, "{ratio} {near}");
+    }
 }
