@@ -2757,10 +2757,14 @@ fn load_obj_files(
     let mut need_default = false;
     let mut usemtl_material = Vec::with_capacity(parsed.usemtl.len());
     for (line, name) in &parsed.usemtl {
-        // The name before a ` #` (a comment after it), where the whole names no material.
+        // The name before a ` #` (a comment after it), where the whole names no material:
+        // the longest such head that names one (`usemtl Material #25 # x` is `Material #25`).
         let before_comment = || {
-            let (head, _) = name.split_once(" #").or_else(|| name.split_once("\t#"))?;
-            by_name.get(head.trim_end()).copied()
+            let b = name.as_bytes();
+            (1..b.len())
+                .rev()
+                .filter(|&i| b[i] == b'#' && matches!(b[i - 1], b' ' | b'\t'))
+                .find_map(|i| by_name.get(name[..i].trim_end()).copied())
         };
         let id = match by_name.get(name).copied().ok_or_else(before_comment) {
             Ok(id) => id,
