@@ -2302,6 +2302,12 @@ const COMMENT_AFTER_NAME: Kind = Kind {
     one: "usemtl with a comment after the material's name: the name before the '#' is used",
     many: "usemtl lines with a comment after the material's name: the name before the '#' is used",
 };
+const NEWMTL_COMMENT: Kind = Kind {
+    one: "usemtl names a material whose newmtl has a comment after the name: that material is \
+          used",
+    many: "usemtl lines name materials whose newmtl has a comment after the name: those \
+           materials are used",
+};
 const NO_MTLLIB: Kind = Kind {
     one: "usemtl without any mtllib: grey default material (Kd 0.5)",
     many: "usemtl lines without any mtllib: grey default material (Kd 0.5)",
@@ -2622,6 +2628,49 @@ pub(crate) const FOUND_ELSEWHERE: Kind = Kind {
     many: "paths not found as written (from another machine?): the files were found as shown",
 };
 
+/// How a `usemtl` name led to its material (`resolve_usemtl`).
+#[derive(Clone, Copy, PartialEq, Debug)]
+enum Via {
+    /// The material's name.
+    Name,
+    /// The name before a comment after it (`usemtl floor # the floor`).
+    UsemtlComment,
+    /// The name of a material whose `newmtl` has a comment after it (`newmtl floor # wood`).
+    NewmtlComment,
+}
+
+/// Each name before a comment in the names of `materials` (`text::before_comments`), and the
+/// whole name it is the head of: the first material's where two share one.
+fn names_by_comment_head<'m>(
+    materials: impl Iterator<Item = &'m mtl::MtlMaterial>,
+) -> HashMap<&'m str, &'m str> {
+    let mut heads = HashMap::new();
+    for m in materials {
+        for head in text::before_comments(&m.name) {
+            heads.entry(head).or_insert(m.name.as_str());
+        }
+    }
+    heads
+}
+
+/// The material `usemtl name` names, among those `defined`: the one of that name; else the
+/// longest name before a comment after it that one has (`usemtl Material #25 # x` is
+/// `Material #25`, a name Blender gives); else the one whose `newmtl` has a comment after that
+/// name (`heads`, from `names_by_comment_head`).
+fn resolve_usemtl<'a>(
+    name: &'a str,
+    defined: &dyn Fn(&str) -> bool,
+    heads: &HashMap<&'a str, &'a str>,
+) -> Option<(&'a str, Via)> {
+    if defined(name) {
+        return Some((name, Via::Name));
+    }
+    if let Some(head) = text::before_comments(name).find(|h| defined(h)) {
+        return Some((head, Via::UsemtlComment));
+    }
+    heads.get(name).map(|&full| (full, Via::NewmtlComment))
+}
+
 /// Load the OBJ and the MTL files it names into a checked mesh, noting repairs.
 #[cfg(test)]
 fn load_obj(label: &str, bytes: &[u8], files: &MtlSource, repairs: &mut Repairs) -> Result<Mesh> {
@@ -2647,11 +2696,20 @@ fn load_obj_files(
     let mut texture_seen: HashSet<PathBuf> = HashSet::new();
     let mut names = Vec::new();
     let mut by_name: HashMap<String, u32> = HashMap::new();
-    let used: std::collections::HashSet<&str> = parsed
+    let used: HashSet<&str> = parsed
         .usemtl
         .iter()
         .map(|(_, name)| name.as_str())
         .collect();
+    // What an MTL's reader says of a material goes only to one some face may use: by its name,
+    // or with a comment after the name in `usemtl` or in `newmtl` (`resolve_usemtl`).
+    let used_heads: HashSet<&str> = used.iter().flat_map(|n| text::before_comments(n)).collect();
+    let maybe_used = |name: &str| {
+        used.contains(name)
+            || used_heads.contains(name)
+            || text::before_comments(name).any(|h| used.contains(h))
+    };
+    let mut mtls: Vec<(String, Option<PathBuf>, mtl::Mtl)> = Vec::new();
     let mut read: HashSet<PathBuf> = HashSet::new();
     for (line, rest) in &parsed.mtllib {
         let shown = String::from_utf8_lossy(rest);
@@ -2699,82 +2757,97 @@ fn load_obj_files(
             }
         };
         for (mtl_label, mtl_dir, b) in loaded {
-            let mtl = mtl::parse_for(&mtl_label, &b, repairs, &|name| used.contains(name))?;
-            // The maps reframe does not open are inputs too, never written over: those it does
-            // not render, and those of the materials no `usemtl` names.
-            if let Some(dir) = &mtl_dir {
-                let unused = mtl
-                    .materials
-                    .iter()
-                    .filter(|m| !used.contains(m.name.as_str()))
-                    .flat_map(|m| m.maps.iter().flatten().map(|spec| &spec.file));
-                for f in mtl
-                    .other_files
-                    .iter()
-                    .chain(unused)
-                    .filter(|f| !f.is_empty())
-                {
-                    let (path, _) = locate_named_file(dir, f);
-                    if texture_seen.insert(path.clone()) {
-                        texture_files.push(path);
-                    }
+            let mtl = mtl::parse_for(&mtl_label, &b, repairs, &maybe_used)?;
+            mtls.push((mtl_label, mtl_dir, mtl));
+        }
+    }
+    // Which material each `usemtl` names, now that every MTL's names are known: the materials
+    // in use are those whose maps are opened.
+    let mut defined: HashSet<&str> = HashSet::new();
+    for (_, _, mtl) in &mtls {
+        for m in &mtl.materials {
+            defined.insert(m.name.as_str());
+        }
+    }
+    let names_by_head = names_by_comment_head(mtls.iter().flat_map(|(_, _, m)| &m.materials));
+    let resolved: Vec<Option<(&str, Via)>> = parsed
+        .usemtl
+        .iter()
+        .map(|(_, name)| resolve_usemtl(name, &|n| defined.contains(n), &names_by_head))
+        .collect();
+    let in_use: HashSet<&str> = resolved.iter().flatten().map(|&(n, _)| n).collect();
+    for (mtl_label, mtl_dir, mtl) in &mtls {
+        let (mtl_label, mtl_dir) = (mtl_label.as_str(), mtl_dir.as_deref());
+        // The maps reframe does not open are inputs too, never written over: those it does
+        // not render, and those of the materials no `usemtl` names.
+        if let Some(dir) = mtl_dir {
+            let unused = mtl
+                .materials
+                .iter()
+                .filter(|m| !in_use.contains(m.name.as_str()))
+                .flat_map(|m| m.maps.iter().flatten().map(|spec| &spec.file));
+            for f in mtl
+                .other_files
+                .iter()
+                .chain(unused)
+                .filter(|f| !f.is_empty())
+            {
+                let (path, _) = locate_named_file(dir, f);
+                if texture_seen.insert(path.clone()) {
+                    texture_files.push(path);
                 }
             }
-            for m in &mtl.materials {
-                if by_name.contains_key(&m.name) {
-                    repairs.note(&mtl_label, m.line, DEFINED_AGAIN, || {
-                        format!("material '{}'", m.name)
-                    })?;
-                    continue;
-                }
-                by_name.insert(m.name.clone(), materials.len() as u32);
-                // A material no `usemtl` names colours nothing: its maps are not opened (a
-                // library MTL naming textures that are not shipped refused the scene) and its
-                // repairs are not said.
-                let in_use = used.contains(m.name.as_str());
-                let mut unsaid = Repairs::new(false);
-                let notes = if in_use { &mut *repairs } else { &mut unsaid };
-                let material = m.material(&mtl_label, notes)?;
-                materials.push(material);
-                maps.push(if in_use {
-                    Maps::open(
-                        &mtl_label,
-                        mtl_dir.as_deref(),
-                        (m, material.ke),
-                        textures,
-                        &mut texture_files,
-                        repairs,
-                    )?
-                } else {
-                    Maps::default()
-                });
-                names.push(m.name.clone());
+        }
+        for m in &mtl.materials {
+            if by_name.contains_key(&m.name) {
+                repairs.note(mtl_label, m.line, DEFINED_AGAIN, || {
+                    format!("material '{}'", m.name)
+                })?;
+                continue;
             }
+            by_name.insert(m.name.clone(), materials.len() as u32);
+            // A material no `usemtl` names colours nothing: its maps are not opened (a
+            // library MTL naming textures that are not shipped refused the scene) and its
+            // repairs are not said.
+            let in_use = in_use.contains(m.name.as_str());
+            let mut unsaid = Repairs::new(false);
+            let notes = if in_use { &mut *repairs } else { &mut unsaid };
+            let material = m.material(mtl_label, notes)?;
+            materials.push(material);
+            maps.push(if in_use {
+                Maps::open(
+                    mtl_label,
+                    mtl_dir,
+                    (m, material.ke),
+                    textures,
+                    &mut texture_files,
+                    repairs,
+                )?
+            } else {
+                Maps::default()
+            });
+            names.push(m.name.clone());
         }
     }
     // Faces with no material (or an unknown one) share one grey default, added if needed.
     let default = materials.len() as u32;
     let mut need_default = false;
     let mut usemtl_material = Vec::with_capacity(parsed.usemtl.len());
-    for (line, name) in &parsed.usemtl {
-        // The name before a ` #` (a comment after it), where the whole names no material:
-        // the longest such head that names one (`usemtl Material #25 # x` is `Material #25`).
-        let before_comment = || {
-            let b = name.as_bytes();
-            (1..b.len())
-                .rev()
-                .filter(|&i| b[i] == b'#' && matches!(b[i - 1], b' ' | b'\t'))
-                .find_map(|i| by_name.get(name[..i].trim_end()).copied())
-        };
-        let id = match by_name.get(name).copied().ok_or_else(before_comment) {
-            Ok(id) => id,
-            Err(Some(id)) => {
-                repairs.note(label, *line, COMMENT_AFTER_NAME, || {
-                    format!("'usemtl {}'", quote(name))
-                })?;
-                id
+    for ((line, name), resolved) in parsed.usemtl.iter().zip(&resolved) {
+        let id = match *resolved {
+            Some((full, via)) => {
+                match via {
+                    Via::Name => {}
+                    Via::UsemtlComment => repairs.note(label, *line, COMMENT_AFTER_NAME, || {
+                        format!("'usemtl {}'", quote(name))
+                    })?,
+                    Via::NewmtlComment => repairs.note(label, *line, NEWMTL_COMMENT, || {
+                        format!("'usemtl {}': 'newmtl {}'", quote(name), quote(full))
+                    })?,
+                }
+                by_name[full]
             }
-            Err(None) => {
+            None => {
                 let kind = if parsed.mtllib.is_empty() {
                     NO_MTLLIB
                 } else {

@@ -4,7 +4,7 @@
 //! `image::Textures` (OpenImageIO's texture system).
 use super::mtl::{MapSpec, MtlMaterial, Slot, MAX_KE};
 use super::repairs::{Kind, Repairs};
-use super::text::quote;
+use super::text::{self, quote};
 use crate::bsdf::Material;
 use crate::image::{TextureId, Textures};
 use crate::util::input::{open_input_or_missing, InputError};
@@ -164,6 +164,12 @@ pub fn note_images_read(
     Ok(())
 }
 
+/// A map's file name with a comment after it, read without the comment.
+const COMMENT_AFTER_FILE: Kind = Kind {
+    one: "a map's file name with a comment after it: the name before the '#' is used",
+    many: "maps' file names with a comment after them: the names before the '#' are used",
+};
+
 const KE_MAP_CAPPED: Kind = Kind {
     one: "emission map capped at 1e9 (radiance sums would overflow above it)",
     many: "emission maps capped at 1e9 (radiance sums would overflow above it)",
@@ -200,7 +206,20 @@ impl Maps {
             let Some(dir) = dir else {
                 return Err(anyhow!("{at}: a shipped scene has no texture files"));
             };
-            let (path, elsewhere) = super::locate_named_file(dir, &spec.file);
+            let (mut path, mut elsewhere) = super::locate_named_file(dir, &spec.file);
+            if !path.exists() {
+                // A comment after the name (`map_Kd wood.png # oak`), where the whole names no
+                // file: the name before it, where that names one.
+                let found = text::before_comments(&spec.file)
+                    .map(|head| super::locate_named_file(dir, head))
+                    .find(|(p, _)| p.exists());
+                if let Some(found) = found {
+                    repairs.note(mtl_label, spec.line, COMMENT_AFTER_FILE, || {
+                        format!("'{}'", quote(&spec.statement))
+                    })?;
+                    (path, elsewhere) = found;
+                }
+            }
             if elsewhere {
                 repairs.note(mtl_label, spec.line, super::FOUND_ELSEWHERE, || {
                     format!("'{}': found '{}'", quote(&spec.statement), path.display())

@@ -276,6 +276,18 @@ pub fn latin1_bytes(text: &str) -> Vec<u8> {
     text.chars().map(|c| c as u32 as u8).collect()
 }
 
+/// What a name written to the end of its line (`usemtl`'s, a map's file) may mean where the
+/// whole names nothing: each part before a `#` that follows white space (a comment after the
+/// name), longest first, less its trailing white space (`Material #25 # x`: `Material #25`,
+/// then `Material`).
+pub fn before_comments(name: &str) -> impl Iterator<Item = &str> {
+    let b = name.as_bytes();
+    (1..b.len())
+        .rev()
+        .filter(move |&i| b[i] == b'#' && matches!(b[i - 1], b' ' | b'\t'))
+        .map(move |i| name[..i].trim_end())
+}
+
 /// The rest of `line` after its first word (a name that may hold spaces), trimmed.
 pub fn rest(line: &str) -> &str {
     let t = line.trim_start();
