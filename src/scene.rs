@@ -687,7 +687,8 @@ impl Scene {
             Source::Builtin(i)
         } else {
             bail!(
-                "scene '{name_or_path}': no such file, and not a shipped scene ({})",
+                "scene '{name_or_path}': no such file{}, and not a shipped scene ({})",
+                crate::util::input::other_case(p),
                 builtin_names().join(", ")
             );
         };

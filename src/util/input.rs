@@ -68,6 +68,42 @@ pub fn kind(t: FileType) -> &'static str {
     }
 }
 
+/// For the message of a missing `path`: the names in its folder that differ from its name
+/// only in case (a scene written on Windows or macOS, which ignore case, naming `Tree.OBJ` for
+/// `tree.obj`), said but not taken: which one was meant is the user's to say. Empty where there
+/// are none, or the folder cannot be read or is too large to look through.
+pub fn other_case(path: &Path) -> String {
+    const MOST_ENTRIES: usize = 100_000;
+    let (Some(name), Some(dir)) = (path.file_name().and_then(|n| n.to_str()), path.parent()) else {
+        return String::new();
+    };
+    let dir = if dir.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        dir
+    };
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return String::new();
+    };
+    let mut found: Vec<String> = entries
+        .take(MOST_ENTRIES)
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .filter(|n| n != name && n.to_lowercase() == name.to_lowercase())
+        .collect();
+    found.sort();
+    match found.as_slice() {
+        [] => String::new(),
+        [one] => format!(" ('{one}' is there, in another case)"),
+        many => format!(
+            " ({} are there, in other cases)",
+            many.iter()
+                .map(|n| format!("'{n}'"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
 /// Open the regular file at `path` for reading, as `read_input` does, without reading it (for
 /// files read piece by piece, such as state files).
 pub fn open_input(path: &Path, what: &str, max_bytes: u64) -> Result<File> {
@@ -81,7 +117,7 @@ pub fn open_input_or_missing(path: &Path, what: &str, max_bytes: u64) -> Result<
     let io = |e: std::io::Error| match e.kind() {
         ErrorKind::NotFound => InputError::NotFound(match path.symlink_metadata() {
             Ok(_) => format!("{what} '{p}': a symbolic link to nothing"),
-            Err(_) => format!("{what} '{p}': no such file"),
+            Err(_) => format!("{what} '{p}': no such file{}", other_case(path)),
         }),
         _ => refuse(format!("cannot read: {e}")),
     };
@@ -126,7 +162,9 @@ pub fn read_input_or_missing(
     let p = path.display();
     let refuse = |why: String| InputError::Refused(format!("{what} '{p}': {why}"));
     let io = |e: std::io::Error| match e.kind() {
-        ErrorKind::NotFound => InputError::NotFound(format!("{what} '{p}': no such file")),
+        ErrorKind::NotFound => {
+            InputError::NotFound(format!("{what} '{p}': no such file{}", other_case(path)))
+        }
         _ => refuse(format!("cannot read: {e}")),
     };
     let mut file = open_input_or_missing(path, what, max_bytes)?;
