@@ -26,8 +26,9 @@ use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
 pub const MARGIN: u32 = 8;
 
 /// The most pixels a window grows to (128 x 128); splats beyond go to the frame directly. A
-/// worker holds one window per frame of the group: at most `n_f` x 16384 x 32 bytes (`mis-cv`;
-/// 12 for `mis-exact`), 17 MB at n_f = 33; on `vase` they grow to about 4400 pixels.
+/// worker holds one window per frame of the group: at most `n_f` x 16384 x 32 bytes (`mis-cv`
+/// where a frame's splats go to both folds; 16 where they go to one, as in most frames; 12 for
+/// `mis-exact`), 17 MB at n_f = 33; on `vase` they grow to about 4400 pixels.
 pub const MAX_PIXELS: usize = 1 << 14;
 
 /// A window of one frame's sums, private to one worker.
@@ -38,8 +39,12 @@ pub struct LocalFilm<'a> {
     y0: u32,
     w: u32,
     h: u32,
-    /// Cells per window pixel: the RGB cells of every fold, then one weight cell per fold (the
-    /// control variate's), in the frame's order.
+    /// The folds the window holds: `folds` of them from `fold0` (all the frame's, or the one
+    /// a group's splats go to); a splat into another goes to the frame directly.
+    fold0: usize,
+    folds: usize,
+    /// Cells per window pixel: the RGB cells of each fold held, then one weight cell per fold
+    /// held (the control variate's), in the frame's order.
     rgb: usize,
     cells_px: usize,
     cells: Vec<i32>,
@@ -53,15 +58,31 @@ pub struct LocalFilm<'a> {
 
 impl<'a> LocalFilm<'a> {
     /// An empty window of `film` around `tile` (a block of tiles, grown by `MARGIN`, clipped
-    /// to the frame).
-    pub fn new(film: &'a FrameAccum, (tx0, ty0, tx1, ty1): Tile) -> LocalFilm<'a> {
+    /// to the frame), holding every fold of the frame's sums, or only `fold` (`Some`): a group
+    /// whose splats into the frame all go to one of the control variate's folds needs no room
+    /// for the other, and a window half the size stays in cache.
+    pub fn new(
+        film: &'a FrameAccum,
+        (tx0, ty0, tx1, ty1): Tile,
+        fold: Option<usize>,
+    ) -> LocalFilm<'a> {
         let (fw, fh) = (film.view.width, film.view.height);
         let x0 = tx0.saturating_sub(MARGIN);
         let y0 = ty0.saturating_sub(MARGIN);
         let w = (tx1 + MARGIN).min(fw).saturating_sub(x0);
         let h = (ty1 + MARGIN).min(fh).saturating_sub(y0);
-        let rgb = film.layout.sum_cells();
-        let cells_px = rgb + film.layout.weight_cells();
+        let all = film.layout.norm.folds();
+        let (fold0, folds) = match fold {
+            Some(f) if f < all => (f, 1),
+            _ => (0, all),
+        };
+        let rgb = 3 * folds;
+        let cells_px = rgb
+            + if film.layout.weight_cells() > 0 {
+                folds
+            } else {
+                0
+            };
         let counts_px = film.layout.count_cells();
         let px = (w * h) as usize;
         LocalFilm {
@@ -70,6 +91,8 @@ impl<'a> LocalFilm<'a> {
             y0,
             w,
             h,
+            fold0,
+            folds,
             rgb,
             cells_px,
             cells: vec![0; px * cells_px],
@@ -140,12 +163,19 @@ impl<'a> LocalFilm<'a> {
         }
     }
 
+    /// Fold `fold`'s place among the folds the window holds, if it holds it.
+    #[inline]
+    fn held(&self, fold: usize) -> Option<usize> {
+        let f = fold.wrapping_sub(self.fold0);
+        (f < self.folds).then_some(f)
+    }
+
     /// As `FrameAccum::splat`: add `v` to pixel `i` of fold `fold`; false (nothing added) if
     /// `v` is not finite.
     #[inline]
     pub fn splat(&mut self, i: usize, fold: usize, v: Vec3, dither: u64) -> bool {
-        match self.local(i) {
-            Some(l) => self.splat_at(l, i, fold, v, dither),
+        match self.held(fold).and_then(|f| Some((self.local(i)?, f))) {
+            Some((l, f)) => self.splat_at(l, i, (fold, f), v, dither),
             None => self.film.splat(i, fold, v, dither),
         }
     }
@@ -163,7 +193,7 @@ impl<'a> LocalFilm<'a> {
         dither: u64,
         count: bool,
     ) -> bool {
-        let Some(l) = self.local(i) else {
+        let Some((l, f)) = self.held(fold).and_then(|f| Some((self.local(i)?, f))) else {
             if count {
                 self.film.land(i, 1);
                 self.film.try_reuse(i, false);
@@ -178,9 +208,9 @@ impl<'a> LocalFilm<'a> {
             self.try_reuse_at(l, false);
         }
         if !w.is_nan() {
-            self.weight_at(l, i, fold, w, mix64(dither));
+            self.weight_at(l, i, (fold, f), w, mix64(dither));
         }
-        self.splat_at(l, i, fold, v, dither)
+        self.splat_at(l, i, (fold, f), v, dither)
     }
 
     /// As `FrameAccum::splat_weight`.
@@ -189,8 +219,8 @@ impl<'a> LocalFilm<'a> {
         if self.film.weights.is_none() {
             return;
         }
-        match self.local(i) {
-            Some(l) => self.weight_at(l, i, fold, w, dither),
+        match self.held(fold).and_then(|f| Some((self.local(i)?, f))) {
+            Some((l, f)) => self.weight_at(l, i, (fold, f), w, dither),
             None => self.film.splat_weight(i, fold, w, dither),
         }
     }
@@ -219,14 +249,22 @@ impl<'a> LocalFilm<'a> {
         }
     }
 
-    /// `splat` into window pixel `l`, which is frame pixel `i`.
+    /// `splat` into window pixel `l`, which is frame pixel `i`, of fold `fold`, the window's
+    /// `f`th.
     #[inline(always)]
-    fn splat_at(&mut self, l: usize, i: usize, fold: usize, v: Vec3, dither: u64) -> bool {
+    fn splat_at(
+        &mut self,
+        l: usize,
+        i: usize,
+        (fold, f): (usize, usize),
+        v: Vec3,
+        dither: u64,
+    ) -> bool {
         let Some(q) = self.film.quantize_rgb(v, dither) else {
             return false;
         };
         let base = self.film.rgb_cell(i, fold);
-        let cell = l * self.cells_px + 3 * fold;
+        let cell = l * self.cells_px + 3 * f;
         let cells = &mut self.cells[cell..cell + 3];
         for (c, q) in q.into_iter().enumerate() {
             Self::add(cells, c, &self.film.sum, base + c, q);
@@ -234,13 +272,13 @@ impl<'a> LocalFilm<'a> {
         true
     }
 
-    /// `splat_weight` into window pixel `l`, which is frame pixel `i` (nothing where the film
-    /// keeps no weights).
+    /// `splat_weight` into window pixel `l`, which is frame pixel `i`, of fold `fold`, the
+    /// window's `f`th (nothing where the film keeps no weights).
     #[inline]
-    fn weight_at(&mut self, l: usize, i: usize, fold: usize, w: f32, dither: u64) {
+    fn weight_at(&mut self, l: usize, i: usize, (fold, f): (usize, usize), w: f32, dither: u64) {
         if let Some(ws) = &self.film.weights {
             let q = FrameAccum::quantize_weight(w, dither);
-            let cell = l * self.cells_px + self.rgb + fold;
+            let cell = l * self.cells_px + self.rgb + f;
             Self::add(&mut self.cells, cell, ws, 2 * i + fold, q);
         }
     }
@@ -285,7 +323,8 @@ impl<'a> LocalFilm<'a> {
             let counts = &self.counts[l * self.counts_px..(l + 1) * self.counts_px];
             let (dx, dy) = (l % self.w as usize, l / self.w as usize);
             let i = (self.y0 as usize + dy) * fw + self.x0 as usize + dx;
-            let fold_base = film.rgb_cell(i, 0);
+            // The folds held are consecutive in the frame's cells too.
+            let fold_base = film.rgb_cell(i, self.fold0);
             for (c, &q) in cells[..self.rgb].iter().enumerate() {
                 if q != 0 {
                     film.sum.add(fold_base + c, q as i64);
@@ -294,7 +333,7 @@ impl<'a> LocalFilm<'a> {
             if let Some(ws) = &film.weights {
                 for (f, &q) in cells[self.rgb..].iter().enumerate() {
                     if q != 0 {
-                        ws.add(2 * i + f, q as i64);
+                        ws.add(2 * i + self.fold0 + f, q as i64);
                     }
                 }
             }
@@ -341,13 +380,17 @@ mod tests {
         // window (a frame of 75000 pixels), some so large that a window cell overflows i32 or a
         // single splat passes 2^31 steps: the developed frames and the raw totals agree with
         // splats made directly into the frame.
-        for (norm, aov) in [
-            (Norm::Groups, false),
-            (Norm::Count, true),
-            (Norm::ControlVariate, true),
+        // A window of the control variate's frame holds both folds, or one (the other's splats
+        // go to the frame directly).
+        for (norm, aov, held) in [
+            (Norm::Groups, false, None),
+            (Norm::Count, true, None),
+            (Norm::ControlVariate, true, None),
+            (Norm::ControlVariate, true, Some(0)),
+            (Norm::ControlVariate, false, Some(1)),
         ] {
             let (direct, windowed) = (film(norm, aov), film(norm, aov));
-            let mut local = LocalFilm::new(&windowed, (16, 8, 32, 24));
+            let mut local = LocalFilm::new(&windowed, (16, 8, 32, 24), held);
             let folds = norm.folds();
             for k in 0..200_000u64 {
                 let h = mix64(k);

@@ -37,6 +37,13 @@ pub struct Target<'a> {
 }
 
 impl Target<'_> {
+    /// The one fold that every splat of the group starting at frame `g0` into this frame goes
+    /// to, where the film has two and the group is not split by sample index (`fold`).
+    #[inline]
+    fn only_fold(&self, g0: u32) -> Option<usize> {
+        (self.film.layout.norm.folds() >= 2 && !self.split).then_some((g0 % 2) as usize)
+    }
+
     /// The control variate's fold of the splats of sample `s` (its index within its pixel) of
     /// the group starting at frame `g0` into this frame (0 where the film has one fold).
     #[inline]
@@ -87,7 +94,7 @@ pub fn shade_block(
 ) -> u64 {
     let mut films: Vec<LocalFilm> = group
         .iter()
-        .map(|t| LocalFilm::new(t.film, block))
+        .map(|t| LocalFilm::new(t.film, block, t.only_fold(g0)))
         .collect();
     let mut scratch = Scratch {
         pixel_areas: group.iter().map(|t| t.cam.pixel_area()).collect(),
