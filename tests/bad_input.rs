@@ -497,3 +497,56 @@ fn an_abort_while_reading_a_file_names_the_file() {
         "{err}"
     );
 }
+
+/// A `usemtl` name no material has, beside a material's name of about its length, both long:
+/// the hint's edit distance took a time in the product of their lengths (two names of 10^5
+/// characters took 16 s to load, of 10^6 about half an hour). Long names are compared case
+/// aside only; the scene loads at once, with the warning.
+#[test]
+fn long_unknown_material_names_load_at_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = corpus().join("base");
+    for f in ["s.toml", "s.obj", "s.mtl"] {
+        std::fs::copy(base.join(f), tmp.path().join(f)).unwrap();
+    }
+    let edit = |f: &str, from: &str, to: String| {
+        let p = tmp.path().join(f);
+        let text = std::fs::read_to_string(&p).unwrap().replace(from, &to);
+        std::fs::write(p, text).unwrap();
+    };
+    edit(
+        "s.obj",
+        "usemtl floor",
+        format!("usemtl {}", "a".repeat(1_000_000)),
+    );
+    edit(
+        "s.mtl",
+        "newmtl floor",
+        format!("newmtl {}", "b".repeat(1_000_001)),
+    );
+    let out = tmp
+        .path()
+        .join("o")
+        .join("f_####.png")
+        .display()
+        .to_string();
+    let scene = tmp.path().join("s.toml").display().to_string();
+    let args = [
+        "render",
+        &scene,
+        "--spp",
+        "1",
+        "--threads",
+        "1",
+        "--out",
+        &out,
+    ];
+    let o = run_reframe(&args, Duration::from_secs(60));
+    assert!(!o.timed_out, "still loading after 60 s");
+    assert_eq!(o.code, Some(0), "{}", o.stderr);
+    assert!(
+        o.stderr.contains("usemtl names a material no MTL defines"),
+        "{}",
+        o.stderr
+    );
+}

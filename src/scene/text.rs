@@ -279,14 +279,19 @@ pub fn latin1_bytes(text: &str) -> Vec<u8> {
 /// What a name written to the end of its line (`usemtl`'s, a map's file) may mean where the
 /// whole names nothing: each part before a `#` that follows white space (a comment after the
 /// name), longest first, less its trailing white space (`Material #25 # x`: `Material #25`,
-/// then `Material`).
+/// then `Material`); at most `MOST_COMMENT_HEADS` of them, since each is hashed whole to be
+/// looked up (a name of 10^5 ` #` would have cost 10^10 steps).
 pub fn before_comments(name: &str) -> impl Iterator<Item = &str> {
     let b = name.as_bytes();
     (1..b.len())
         .rev()
         .filter(move |&i| b[i] == b'#' && matches!(b[i - 1], b' ' | b'\t'))
+        .take(MOST_COMMENT_HEADS)
         .map(move |i| name[..i].trim_end())
 }
+
+/// How many places a comment may start in a name, counted from its end (`before_comments`).
+pub const MOST_COMMENT_HEADS: usize = 16;
 
 /// The rest of `line` after its first word (a name that may hold spaces), trimmed.
 pub fn rest(line: &str) -> &str {
@@ -432,6 +437,9 @@ pub fn did_you_mean<'a>(name: &str, defined: impl IntoIterator<Item = &'a str>) 
         .unwrap_or_default()
 }
 
+/// The longest name `nearest_name` measures the edit distance of.
+const MOST_FUZZY_CHARS: usize = 256;
+
 /// The name of `defined` that `name` most likely meant, where it names none of them: one that
 /// differs only in case or surrounding spaces, else the nearest within a few edits, case aside
 /// (one for names of up to 5 characters, two up to 12, three beyond; a swap of neighbours is
@@ -456,7 +464,10 @@ pub fn nearest_name<'a>(name: &str, defined: impl IntoIterator<Item = &'a str>) 
             return Some(d);
         }
         // The distance is at least the difference in length: most names are skipped unread.
-        if d.chars().count().abs_diff(chars) > limit {
+        // Long names are only compared case aside: the distance takes a time in the product
+        // of the lengths (two names of 10^6 characters took half an hour), and a hint of a few
+        // edits in so long a name says little.
+        if d.chars().count().abs_diff(chars) > limit || chars.max(d.len()) > MOST_FUZZY_CHARS {
             continue;
         }
         let e = strsim::osa_distance(&lower, &d.to_lowercase());
