@@ -170,6 +170,40 @@ const COMMENT_AFTER_FILE: Kind = Kind {
     many: "maps' file names with a comment after them: the names before the '#' are used",
 };
 
+/// A map's file name in double quotes, read without them.
+const QUOTED_FILE: Kind = Kind {
+    one: "a map's file name in quotes: the name within them is used",
+    many: "maps' file names in quotes: the names within them are used",
+};
+
+/// A map's file name with its spaces escaped by backslashes, as `mtllib` names may be.
+const ESCAPED_FILE: Kind = Kind {
+    one: "a map's file name with backslash-escaped spaces: read as spaces",
+    many: "maps' file names with backslash-escaped spaces: read as spaces",
+};
+
+/// What a map's file name `file` may mean where as written it names no file, in the order
+/// tried: within double quotes (`"my tex.png"`), with its spaces escaped (`my\ tex.png`, as
+/// tinyobjloader writes `mtllib` names), and before a comment after it (`wood.png # oak`, each
+/// of those heads also within quotes).
+fn other_spellings(file: &str) -> impl Iterator<Item = (String, Kind)> + '_ {
+    let unquoted = |s: &str| {
+        (s.len() >= 2 && s.starts_with('"') && s.ends_with('"'))
+            .then(|| s[1..s.len() - 1].to_string())
+    };
+    let quoted = unquoted(file).map(|n| (n, QUOTED_FILE));
+    let escaped = file
+        .contains("\\ ")
+        .then(|| (file.replace("\\ ", " "), ESCAPED_FILE));
+    let heads = text::before_comments(file).flat_map(move |h| {
+        [Some(h.to_string()), unquoted(h)]
+            .into_iter()
+            .flatten()
+            .map(|n| (n, COMMENT_AFTER_FILE))
+    });
+    quoted.into_iter().chain(escaped).chain(heads)
+}
+
 const KE_MAP_CAPPED: Kind = Kind {
     one: "emission map capped at 1e9 (radiance sums would overflow above it)",
     many: "emission maps capped at 1e9 (radiance sums would overflow above it)",
@@ -208,13 +242,12 @@ impl Maps {
             };
             let (mut path, mut elsewhere) = super::locate_named_file(dir, &spec.file);
             if !path.exists() {
-                // A comment after the name (`map_Kd wood.png # oak`), where the whole names no
-                // file: the name before it, where that names one.
-                let found = text::before_comments(&spec.file)
-                    .map(|head| super::locate_named_file(dir, head))
-                    .find(|(p, _)| p.exists());
-                if let Some(found) = found {
-                    repairs.note(mtl_label, spec.line, COMMENT_AFTER_FILE, || {
+                // The name as another tool wrote it, where as written it names no file.
+                let found = other_spellings(&spec.file)
+                    .map(|(name, kind)| (super::locate_named_file(dir, &name), kind))
+                    .find(|((p, _), _)| p.exists());
+                if let Some((found, kind)) = found {
+                    repairs.note(mtl_label, spec.line, kind, || {
                         format!("'{}'", quote(&spec.statement))
                     })?;
                     (path, elsewhere) = found;
