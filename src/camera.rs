@@ -76,17 +76,34 @@ impl Pose {
     }
 
     /// Why this pose makes no camera (view or up degenerate), if it does not.
+    ///
+    /// Directions are found as `Camera::from_pose` finds them (`unit`), so only a view or up of
+    /// length zero is refused: a scene modelled in tiny units renders as it does at any scale
+    /// (a view of 3e-7 units was refused under a fixed 1e-6, and an up of 1e-19 passed here
+    /// but made the camera's axes NaN).
     pub fn fault(&self) -> Option<String> {
-        if self.view.length() <= 1e-6 {
-            Some("look_at coincides with position".to_string())
-        } else if self.up.normalize_or_zero() == Vec3::ZERO {
-            Some("up has zero length".to_string())
-        } else if self.view.normalize().cross(self.up.normalize()).length() <= 1e-4 {
-            Some(format!("up {} is parallel to the view direction", self.up))
-        } else {
-            None
+        match (unit(self.view), unit(self.up)) {
+            (None, _) => Some("look_at coincides with position".to_string()),
+            (_, None) => Some("up has zero length".to_string()),
+            (Some(v), Some(u)) if v.cross(u).length() <= 1e-4 => {
+                Some(format!("up {} is parallel to the view direction", self.up))
+            }
+            _ => None,
         }
     }
+}
+
+/// `v` made unit length, `None` for a zero vector (or one not finite): divided by its largest
+/// element first where its squared length is not a normal float, so that a tiny vector keeps
+/// its direction (`up = [0, 1e-19, 0]` made the camera's axes NaN and every frame black);
+/// elsewhere `normalize`, to the bit.
+pub fn unit(v: Vec3) -> Option<Vec3> {
+    let l2 = v.length_squared();
+    if l2.is_finite() && l2 >= f32::MIN_POSITIVE {
+        return Some(v.normalize());
+    }
+    let big = v.abs().max_element();
+    (big > 0.0 && big.is_finite()).then(|| (v / big).normalize())
 }
 
 /// `v` made unit length, `None` for a zero vector: divided by its largest element first, so
@@ -125,8 +142,10 @@ impl Camera {
     }
 
     pub fn from_pose(p: &Pose, width: u32, height: u32) -> Camera {
-        let forward = p.view.normalize();
-        let right = forward.cross(p.up).normalize();
+        // `fault` has made sure both are some direction; `unit` is `normalize` but for tiny
+        // vectors (an up of 1e-19, or a cross product of that size).
+        let forward = unit(p.view).unwrap_or(Vec3::NAN);
+        let right = unit(forward.cross(p.up)).unwrap_or(Vec3::NAN);
         let up = right.cross(forward);
         Camera {
             eye: p.eye,
@@ -436,6 +455,49 @@ mod tests {
             fov: 50.0,
         };
         Camera::new(&k, 80, 60)
+    }
+
+    #[test]
+    fn a_tiny_up_or_view_makes_the_camera_a_unit_one_does() {
+        // An up of 1e-19 (its cross product with the view has a squared length below the
+        // smallest normal float) made the axes NaN and every frame black; a view of 3e-7 was
+        // refused as coinciding with the position.
+        let pose = |view: Vec3, up: Vec3| Pose {
+            eye: Vec3::new(0.0, 1.0e-7, 3.0e-7),
+            view,
+            up,
+            fov: 50.0,
+        };
+        let view = Vec3::new(0.0, -1.0e-7, -3.0e-7);
+        let unit_up = Camera::from_pose(&pose(view, Vec3::Y), 80, 60);
+        for up in [
+            Vec3::Y * 1.0e-19,
+            Vec3::Y * 1.0e-30,
+            Vec3::Y * 1.0e-44,
+            Vec3::Y * 1.0e30,
+        ] {
+            assert_eq!(pose(view, up).fault(), None, "{up}");
+            let c = Camera::from_pose(&pose(view, up), 80, 60);
+            for (a, b) in [
+                (c.forward, unit_up.forward),
+                (c.right, unit_up.right),
+                (c.up, unit_up.up),
+            ] {
+                assert!((a - b).length() < 1e-6, "{up}: {a} against {b}");
+            }
+        }
+        let far = Camera::from_pose(&pose(view * 1.0e7, Vec3::Y), 80, 60);
+        assert!((far.forward - unit_up.forward).length() < 1e-6);
+        // Only length zero is refused.
+        assert!(pose(Vec3::ZERO, Vec3::Y)
+            .fault()
+            .unwrap()
+            .contains("coincides"));
+        assert!(pose(view, Vec3::ZERO)
+            .fault()
+            .unwrap()
+            .contains("zero length"));
+        assert!(pose(view, view * 2.0).fault().unwrap().contains("parallel"));
     }
 
     #[test]

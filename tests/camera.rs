@@ -520,3 +520,47 @@ fn blender_worlds_sky_comes_out_turned_as_blender_shows_it() {
         }
     }
 }
+
+/// A camera's up of any length but zero is a direction: `vase`'s cameras with their up scaled
+/// by 1e-19 (the cross product with the view then has a squared length below the smallest
+/// normal float) render what they render with a unit up. They rendered black frames, exit 0,
+/// the camera's axes NaN.
+#[test]
+fn a_tiny_up_renders_as_a_unit_up() {
+    // As the binary's threads do, where the product underflowed.
+    reframe::embree::set_flush_denormals();
+    let device = Device::new().unwrap();
+    let vase = Scene::load("vase", &device).unwrap();
+    let entries: Vec<String> = vase_keys(&vase)
+        .iter()
+        .map(|k| {
+            format!(
+                "  {{\"frame\": {}, \"fov\": {}, \"position\": {}, \"look_at\": {}, \"up\": {}}}",
+                k.frame,
+                k.fov,
+                v3(k.position),
+                v3(k.look_at),
+                v3(k.up * 1e-19)
+            )
+        })
+        .collect();
+    let json = format!("{{\"frames\": [\n{}\n]}}\n", entries.join(",\n"));
+    let dir = tempfile::tempdir().unwrap();
+    let toml = vase_with_camera_file(dir.path(), "shot.json", &json);
+    let tiny = Scene::load(&toml, &device).unwrap();
+    let (want, got) = (
+        render(&vase, Method::Independent),
+        render(&tiny, Method::Independent),
+    );
+    for ((f, a), (_, b)) in want.iter().zip(&got) {
+        let (a, b): (Vec<f32>, Vec<f32>) = (
+            a.iter().map(|&x| f32::from_bits(x)).collect(),
+            b.iter().map(|&x| f32::from_bits(x)).collect(),
+        );
+        let (sa, sb) = (a.iter().sum::<f32>(), b.iter().sum::<f32>());
+        assert!(
+            sa > 0.0 && (sa - sb).abs() <= 1e-3 * sa,
+            "frame {f}: {sa} against {sb}"
+        );
+    }
+}
