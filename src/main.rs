@@ -194,9 +194,7 @@ fn run(cli: Cli) -> Result<()> {
             let scene_name = a.scene.unwrap_or_else(|| "vase".into());
             let device = Device::new()?;
             let scene = load(&scene_name, &device, a.strict)?;
-            let out = a
-                .out
-                .unwrap_or_else(|| format!("out/{}_####.exr", scene.name));
+            let out = a.out.unwrap_or_else(|| default_out(&scene.name));
             let opts = RenderOptions {
                 method: a.method,
                 spp: a.spp,
@@ -435,4 +433,11 @@ fn say_half_clamped() {
              --exr-float keeps them)"
         );
     }
+}
+
+/// `--out`'s default for scene `name`: `out/<name>_####.exr`, with each `#` of the name made
+/// `_` (a `#` is the frame number's field: `shot#2.toml` was refused for two runs of `#` in an
+/// output path the user never gave).
+fn default_out(name: &str) -> String {
+    format!("out/{}_####.exr", name.replace('#', "_"))
 }

@@ -550,3 +550,54 @@ fn long_unknown_material_names_load_at_once() {
         o.stderr
     );
 }
+
+/// An output folder that is a symbolic link to nothing is said as such, by every command that
+/// makes one (making it had said only "File exists").
+#[test]
+fn an_output_folder_linked_to_nothing_is_said_as_such() {
+    let tmp = tempfile::tempdir().unwrap();
+    let link = tmp.path().join("dl");
+    std::os::unix::fs::symlink(tmp.path().join("nowhere"), &link).unwrap();
+    let out = link.join("f_####.exr").display().to_string();
+    let folder = link.display().to_string();
+    let common = ["--res", "16x12", "--spp", "1", "--threads", "1"];
+    let runs: Vec<Vec<&str>> = vec![
+        [&["render", "cornell"], &common[..], &["--out", &out]].concat(),
+        [
+            &["render", "cornell", "--chunk", "1/2"],
+            &common[..],
+            &["--out", &out],
+        ]
+        .concat(),
+        vec!["compare", "cornell", "--out", &folder],
+    ];
+    for args in runs {
+        let line = refusal(&run_reframe(&args, Duration::from_secs(60))).unwrap();
+        assert!(
+            line.contains("is a symbolic link to nothing"),
+            "{args:?}: {line}"
+        );
+    }
+    assert!(
+        !tmp.path().join("nowhere").exists(),
+        "nothing made through the link"
+    );
+}
+
+/// A scene whose name holds a `#` renders to the default `--out`, its `#` made `_` (the
+/// default output path had two runs of `#` and was refused).
+#[test]
+fn a_scene_named_with_a_hash_renders_to_the_default_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let base = corpus().join("base");
+    for f in ["s.obj", "s.mtl"] {
+        std::fs::copy(base.join(f), tmp.path().join(f)).unwrap();
+    }
+    std::fs::copy(base.join("s.toml"), tmp.path().join("shot#2.toml")).unwrap();
+    let o = common::reframe(&["render", "shot#2.toml", "--spp", "1", "--threads", "1"])
+        .current_dir(tmp.path())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(tmp.path().join("out/shot_2_0000.exr").is_file());
+}

@@ -243,8 +243,18 @@ pub fn not_a_folder(path: &Path) -> Option<String> {
     let mut parts: Vec<&Path> = path.ancestors().collect();
     parts.reverse();
     parts.into_iter().find_map(|p| {
-        let m = std::fs::metadata(p).ok()?;
-        (!p.as_os_str().is_empty() && !m.is_dir()).then(|| {
+        if p.as_os_str().is_empty() {
+            return None;
+        }
+        let m = match std::fs::metadata(p) {
+            Ok(m) => m,
+            // A link that leads nowhere: making the folder said only "File exists".
+            Err(_) if std::fs::symlink_metadata(p).is_ok_and(|l| l.is_symlink()) => {
+                return Some(format!("{} is a symbolic link to nothing", p.display()));
+            }
+            Err(_) => return None,
+        };
+        (!m.is_dir()).then(|| {
             let what = crate::util::input::kind(m.file_type());
             format!("{} is {what}, not a folder", p.display())
         })
