@@ -2334,7 +2334,7 @@ fn mtl_paths(dir: &Path, rest: &[u8]) -> Vec<(PathBuf, bool)> {
         return vec![found];
     }
     let as_written = |name: &[u8]| (dir.join(std::ffi::OsStr::from_bytes(name)), false);
-    if !rest.iter().any(|b| b.is_ascii_whitespace()) {
+    if !rest.iter().any(|b| b.is_ascii_whitespace() || *b == b'"') {
         return vec![as_written(rest)];
     }
     // The list ends at a comment (`mtllib a.mtl b.mtl # materials`); each name found as one
@@ -2366,12 +2366,26 @@ fn find_mtl(dir: &Path, name: &[u8]) -> Option<(PathBuf, bool)> {
 }
 
 /// The names of an `mtllib` list: split at white space, where a backslash before a space or
-/// tab escapes it (`mtl\ file\ with\ spaces.mtl`, as tinyobjloader reads it).
+/// tab escapes it (`mtl\ file\ with\ spaces.mtl`, as tinyobjloader reads it), and a name in
+/// double quotes is one name (`"my mats.mtl"`).
 fn mtllib_words(rest: &[u8]) -> Vec<Vec<u8>> {
     let mut words = vec![Vec::new()];
+    let quoted = rest.iter().filter(|&&c| c == b'"').count() >= 2;
     let mut bytes = rest.iter().copied().peekable();
     while let Some(b) = bytes.next() {
         match b {
+            // A name in double quotes, as some exporters write one with spaces: to the next
+            // quote, without them (it had been split at its spaces, and the quotes kept).
+            b'"' if quoted && words.last().unwrap().is_empty() => {
+                let word = words.last_mut().unwrap();
+                for c in bytes.by_ref() {
+                    if c == b'"' {
+                        break;
+                    }
+                    word.push(c);
+                }
+                words.push(Vec::new());
+            }
             b'\\' if bytes.peek().is_some_and(|c| *c == b' ' || *c == b'\t') => {
                 words.last_mut().unwrap().push(bytes.next().unwrap());
             }
