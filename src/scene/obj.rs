@@ -42,6 +42,13 @@ pub const FREE_FORM: Kind = Kind {
     one: "free-form geometry statement ignored (curves and surfaces are not rendered)",
     many: "free-form geometry statements ignored (curves and surfaces are not rendered)",
 };
+/// `call`: another OBJ's geometry read in at that point, which reframe does not do.
+pub const CALL: Kind = Kind {
+    one: "call ignored: the file it names is not read (give its geometry as an [[object]] of \
+          the scene)",
+    many: "call statements ignored: the files they name are not read (give their geometry as \
+           [[object]]s of the scene)",
+};
 pub const POLYLINES: Kind = Kind {
     one: "polyline (l) ignored: reframe renders faces only",
     many: "polylines (l) ignored: reframe renders faces only",
@@ -255,6 +262,8 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
             }
             "p" => repairs.note(label, n, POINTS, || format!("'{}'", quote(text)))?,
             "l" => repairs.note(label, n, POLYLINES, || format!("'{}'", quote(text)))?,
+            // Geometry from another file: lost without a word when it was passed over.
+            "call" => repairs.note(label, n, CALL, || format!("'{}'", quote(text)))?,
             // Free-form geometry (Rhino, Maya exports; `bsp`, `bzp`, `cdc` and `cdp` are the
             // format's older patches): curves and surfaces are not tessellated.
             "cstype" | "deg" | "bmat" | "step" | "curv" | "curv2" | "surf" | "parm" | "trim"
@@ -330,13 +339,13 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
 /// The statements reframe reads, read in any case (`V`, `VT`, `F`, `Usemtl`: old exporters
 /// write capitals, which were unknown statements and the file's geometry lost;
 /// `text::canonical`).
-const KEYS: [&str; 10] = [
-    "v", "vt", "vn", "f", "fo", "usemtl", "mtllib", "s", "l", "p",
+const KEYS: [&str; 11] = [
+    "v", "vt", "vn", "f", "fo", "usemtl", "mtllib", "s", "l", "p", "call",
 ];
 
 /// Statements passed over without a word: groups, merging groups, and display and rendering
 /// attributes, nothing reframe renders differently.
-const PASSED_OVER: [&str; 16] = [
+const PASSED_OVER: [&str; 15] = [
     "o",
     "g",
     "mg",
@@ -350,7 +359,6 @@ const PASSED_OVER: [&str; 16] = [
     "maplib",
     "ctech",
     "stech",
-    "call",
     "csh",
     "res",
 ];
