@@ -9,7 +9,7 @@ use std::fs::File;
 use std::io::{Read, Seek, Write};
 use std::ops::RangeInclusive;
 use std::os::unix::fs::MetadataExt;
-use std::path::{Path, PathBuf};
+use std::path::{Component, Path, PathBuf};
 
 /// An exclusive lock on a lock file, held until dropped; the file (which holds the holder's pid)
 /// is removed on release.
@@ -341,6 +341,37 @@ pub fn resolved(p: &Path) -> Option<PathBuf> {
     Some(dir.join(p.file_name()?))
 }
 
+/// `resolved` for many paths, most in a few folders (a shot's frames): each folder is
+/// canonicalised once, and a path costs one `lstat` (a chunk of a shot of 10^6 frames took 21
+/// s to check the merge's outputs, each canonicalised whole, a `readlink` per component).
+#[derive(Default)]
+pub struct Resolver {
+    folders: HashMap<PathBuf, Option<PathBuf>>,
+}
+
+impl Resolver {
+    /// What `resolved(p)` gives.
+    pub fn resolve(&mut self, p: &Path) -> Option<PathBuf> {
+        let name = match p.file_name() {
+            // `..` and the like: as `resolved` finds them.
+            Some(n) if !matches!(p.components().next_back(), Some(Component::ParentDir)) => n,
+            _ => return resolved(p),
+        };
+        let folder = parent_dir(p);
+        let dir = self
+            .folders
+            .entry(folder)
+            .or_insert_with_key(|f| f.canonicalize().ok())
+            .as_ref()?;
+        let path = dir.join(name);
+        match std::fs::symlink_metadata(&path) {
+            // A link: where it leads, or (leading nowhere) where it is.
+            Ok(m) if m.file_type().is_symlink() => Some(path.canonicalize().unwrap_or(path)),
+            _ => Some(path),
+        }
+    }
+}
+
 /// Refuse a folder a command creates (`flag`, `--checkpoint`) at the path of one of its
 /// `outputs` (a checkpoint named like a later frame made that frame's write fail at its turn).
 pub fn check_folder_apart(flag: &str, dir: &Path, outputs: &[(&str, PathBuf)]) -> Result<()> {
@@ -349,9 +380,10 @@ pub fn check_folder_apart(flag: &str, dir: &Path, outputs: &[(&str, PathBuf)]) -
     let Some(d) = place(dir) else {
         return Ok(());
     };
+    let mut resolver = Resolver::default();
     if let Some((other, out)) = outputs
         .iter()
-        .find(|(_, o)| resolved(o).as_ref() == Some(&d))
+        .find(|(_, o)| resolver.resolve(o).as_ref() == Some(&d))
     {
         bail!(
             "{flag} {}: that is also where {other} {} goes; nothing was written",
@@ -388,6 +420,7 @@ pub fn check_outputs<'a>(
         .filter_map(|p| Some((p.canonicalize().ok()?, p)))
         .collect();
     let mut seen: HashMap<PathBuf, (&str, PathBuf)> = HashMap::new();
+    let mut resolver = Resolver::default();
     for (flag, out) in outputs {
         crate::util::fs::check_replaceable(&out)
             .map_err(|e| anyhow!("{flag} {e}; nothing was written"))?;
@@ -412,7 +445,9 @@ pub fn check_outputs<'a>(
             check_report_apart(flag, &out)?;
             check_report_off_state(flag, &out)?;
         }
-        let Some(r) = resolved(&out) else { continue };
+        let Some(r) = resolver.resolve(&out) else {
+            continue;
+        };
         if let Some((_, input)) = inputs.iter().find(|(c, _)| *c == r) {
             bail!(
                 "{flag} {}: that is an input of this command ({}); nothing was written",
@@ -434,4 +469,44 @@ pub fn check_outputs<'a>(
         seen.insert(r, (flag, out));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_resolver_finds_what_resolved_finds() {
+        let tmp = tempfile::tempdir().unwrap();
+        let t = tmp.path();
+        std::fs::create_dir(t.join("real")).unwrap();
+        std::fs::write(t.join("real/f_0001.exr"), b"x").unwrap();
+        std::os::unix::fs::symlink(t.join("real"), t.join("linked")).unwrap();
+        std::os::unix::fs::symlink(t.join("real/f_0001.exr"), t.join("real/f_0002.exr")).unwrap();
+        std::os::unix::fs::symlink(t.join("nowhere"), t.join("real/f_0003.exr")).unwrap();
+        let paths = [
+            "real/f_0001.exr",
+            "real/f_0002.exr",
+            "real/f_0003.exr",
+            "real/f_0004.exr",
+            "linked/f_0001.exr",
+            "linked/f_0002.exr",
+            "linked/../real/f_0004.exr",
+            "real/..",
+            "real/.",
+            "missing/f_0001.exr",
+            "real",
+        ];
+        let mut resolver = Resolver::default();
+        for _ in 0..2 {
+            for p in paths {
+                let p = t.join(p);
+                assert_eq!(resolver.resolve(&p), resolved(&p), "{}", p.display());
+            }
+        }
+        assert_eq!(
+            resolver.resolve(&t.join("linked/f_0002.exr")),
+            Some(t.canonicalize().unwrap().join("real/f_0001.exr"))
+        );
+    }
 }
