@@ -219,6 +219,38 @@ fn the_scripts_take_resume_and_refuse_a_shared_checkpoint() {
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(dir.path().join("f.chunk-1-of-2.partial").is_file());
+    // `--stats FILE`: each task's report its own file (one file kept only the last task's).
+    let other = dir.path().join("g_####.exr").display().to_string();
+    for (k, stats) in [("1", "--stats"), ("2", "--stats=")] {
+        let report = dir.path().join("st.json").display().to_string();
+        let flag: Vec<String> = if stats == "--stats" {
+            vec![stats.into(), report]
+        } else {
+            vec![format!("{stats}{report}")]
+        };
+        let o = Command::new("bash")
+            .arg(format!("{ROOT}/scripts/slurm/chunk.sbatch"))
+            .args([
+                "vase", "--res", "16x12", "--spp", "1", "--frames", "0-3", "--out", &other,
+            ])
+            .args(&flag)
+            .env("REFRAME", env!("CARGO_BIN_EXE_reframe"))
+            .env("SLURM_ARRAY_TASK_ID", k)
+            .env("REFRAME_CHUNKS", "2")
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    for k in ["1", "2"] {
+        let report = dir.path().join(format!("st.chunk-{k}-of-2.json"));
+        let text = std::fs::read_to_string(&report).unwrap_or_default();
+        assert!(
+            text.contains(&format!("{k}/2")),
+            "{}: {text}",
+            report.display()
+        );
+    }
+    assert!(!dir.path().join("st.json").exists());
     let o = Command::new("bash")
         .arg(format!("{ROOT}/scripts/slurm/submit.sh"))
         .args(["-n", "2", "--", "vase", "--out", &out, "--checkpoint", "ck"])

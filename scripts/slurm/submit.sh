@@ -15,6 +15,9 @@
 #   --only K,K..    resubmit only these chunks (after one failed), with a new merge job
 #   --sbatch ARG    passed to both sbatch calls (e.g. --sbatch=--partition=render), repeatable
 #
+# With --stats FILE among the render flags, each chunk writes its own report, FILE with
+# .chunk-K-of-N before its extension (stats.json: stats.chunk-3-of-8.json).
+#
 # With --denoise among the render flags, the merge job denoises the merged frames: it is given
 # SCENE (the first render argument) to trace the denoiser's guides in.
 #
