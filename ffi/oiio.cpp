@@ -170,12 +170,20 @@ std::string read_back_fault(const std::string& path, int width, int height, bool
         return "it reads back at another size";
     }
     const size_t row = size_t(std::max(s.width, 1)) * size_t(std::max(s.nchannels, 1));
-    std::vector<float> back(whole ? row * size_t(s.height) : row);
-    const bool ok = whole ? in->read_image(0, 0, 0, s.nchannels, OIIO::TypeDesc::FLOAT,
-                                           back.data()) &&
-                                !in->has_error()
-                          : in->read_scanline(s.y + height - 1, 0, OIIO::TypeDesc::FLOAT,
-                                              back.data());
+    // The last row, or in a tiled file (Maya IFF) the last band of tiles, which holds it.
+    const int band = s.tile_width > 0 ? std::max(1, s.tile_height) : 1;
+    const int last = s.tile_width > 0 ? ((height - 1) / band) * band : height - 1;
+    std::vector<float> back(whole ? row * size_t(s.height) : row * size_t(band));
+    bool ok;
+    if (whole) {
+        ok = in->read_image(0, 0, 0, s.nchannels, OIIO::TypeDesc::FLOAT, back.data()) &&
+             !in->has_error();
+    } else if (s.tile_width > 0) {
+        ok = in->read_tiles(0, 0, s.x, s.x + s.width, s.y + last, s.y + height, s.z, s.z + 1, 0,
+                            s.nchannels, OIIO::TypeDesc::FLOAT, back.data());
+    } else {
+        ok = in->read_scanline(s.y + height - 1, 0, OIIO::TypeDesc::FLOAT, back.data());
+    }
     if (!ok) {
         const std::string msg = in->geterror();
         return msg.empty() ? "it does not read back" : msg;
@@ -284,9 +292,19 @@ void probe_output(rust::Slice<const uint8_t> path, rust::Slice<const uint8_t> pr
     std::string msg = opened ? std::string() : out->geterror();
     std::string writer_said;
     if (opened) {
-        const std::vector<float> row(size_t(desc.width) * desc.channels.size(), 0.0f);
-        for (int y = 0; y < int(desc.height) && opened; ++y) {
-            opened = out->write_scanline(y, 0, OIIO::TypeDesc::FLOAT, row.data());
+        // A tiled-only writer (Maya IFF) takes no scanlines: a band of tiles at a time (the
+        // probe failed it, "the writer gives no reason", though frames write whole).
+        const size_t channels = desc.channels.size();
+        const int band = out->spec().tile_width > 0 ? std::max(1, out->spec().tile_height) : 1;
+        const std::vector<float> rows(size_t(desc.width) * channels * size_t(band), 0.0f);
+        for (int y = 0; y < int(desc.height) && opened; y += band) {
+            if (out->spec().tile_width > 0) {
+                const int end = std::min(y + band, int(desc.height));
+                opened = out->write_tiles(0, int(desc.width), y, end, 0, 1,
+                                          OIIO::TypeDesc::FLOAT, rows.data());
+            } else {
+                opened = out->write_scanline(y, 0, OIIO::TypeDesc::FLOAT, rows.data());
+            }
         }
         if (!opened) {
             msg = out->geterror();

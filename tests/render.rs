@@ -1024,3 +1024,35 @@ fn a_dim_frame_in_half_floats_is_said_to_lose_digits() {
     assert!(!render(&scene, &["--exr-float"]));
     assert!(!render("cornell", &[]));
 }
+
+/// A format whose writer takes tiles only (Maya IFF) writes frames: the start's probe wrote
+/// its test frame by scanlines and read it back by a scanline, both of which that writer and
+/// reader refuse, so `--out f_####.iff` was refused ("the writer gives no reason"). The frame
+/// holds what the PNG of the same render holds.
+#[test]
+fn a_tiled_only_format_writes_frames() {
+    let d = tempfile::tempdir().unwrap();
+    let d = d.path();
+    let run = |ext: &str| {
+        let out = d.join(format!("f_####.{ext}")).display().to_string();
+        reframe_ok(&[
+            "render",
+            "cornell",
+            "--res",
+            "24x16",
+            "--spp",
+            "2",
+            "--frames",
+            "0",
+            "--threads",
+            "1",
+            "--out",
+            &out,
+        ]);
+        reframe::image::read_image(&d.join(format!("f_0000.{ext}"))).unwrap()
+    };
+    let (iff, png) = (run("iff"), run("png"));
+    assert_eq!((iff.width, iff.height), (24, 16));
+    assert!(iff.data.iter().any(|&v| v > 0.0), "black frame");
+    assert_eq!(iff.data, png.data);
+}
