@@ -24,7 +24,7 @@ use anyhow::Result;
 use std::fs::{File, FileType, OpenOptions};
 use std::io::{ErrorKind, Read};
 use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The largest scene TOML, OBJ or MTL file reframe reads (1 GiB): a larger one is refused before
 /// it is read, rather than filling memory.
@@ -69,11 +69,27 @@ pub fn kind(t: FileType) -> &'static str {
 }
 
 /// For the message of a missing `path`: the names in its folder that differ from its name
-/// only in case (a scene written on Windows or macOS, which ignore case, naming `Tree.OBJ` for
-/// `tree.obj`), said but not taken: which one was meant is the user's to say. Empty where there
-/// are none, or the folder cannot be read or is too large to look through.
+/// only in case or in how its accented letters are composed (a scene written on Windows or
+/// macOS, which ignore case, naming `Tree.OBJ` for `tree.obj`; an `Ö` typed as one character,
+/// stored by macOS as `O` and its accent), each said a folder where it is one; or, for a name
+/// written with `\` (a Windows path), the path with `/` where that is there. Said, not taken:
+/// which one was meant is the user's to say. Empty where there is none, or the folder cannot
+/// be read or is too large to look through.
 pub fn other_case(path: &Path) -> String {
+    use unicode_normalization::UnicodeNormalization;
     const MOST_ENTRIES: usize = 100_000;
+    let Some(written) = path.to_str() else {
+        return String::new();
+    };
+    if written.contains('\\') {
+        let slashed = PathBuf::from(written.replace('\\', "/"));
+        if slashed.exists() {
+            return format!(
+                " ('{}' is there: write '/' between folders)",
+                slashed.display()
+            );
+        }
+    }
     let (Some(name), Some(dir)) = (path.file_name().and_then(|n| n.to_str()), path.parent()) else {
         return String::new();
     };
@@ -85,22 +101,32 @@ pub fn other_case(path: &Path) -> String {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return String::new();
     };
-    let mut found: Vec<String> = entries
+    let key = |n: &str| n.nfc().collect::<String>().to_lowercase();
+    let wanted = key(name);
+    let mut found: Vec<(String, bool)> = entries
         .take(MOST_ENTRIES)
-        .filter_map(|e| e.ok()?.file_name().into_string().ok())
-        .filter(|n| n != name && n.to_lowercase() == name.to_lowercase())
+        .filter_map(|e| {
+            let e = e.ok()?;
+            let n = e.file_name().into_string().ok()?;
+            (n != name && key(&n) == wanted).then(|| {
+                let folder = e.file_type().is_ok_and(|t| t.is_dir());
+                let composed = n.nfc().eq(name.nfc());
+                (
+                    format!("'{n}'{}", if folder { ", a folder," } else { "" }),
+                    composed,
+                )
+            })
+        })
         .collect();
     found.sort();
     match found.as_slice() {
         [] => String::new(),
-        [one] => format!(" ('{one}' is there, in another case)"),
-        many => format!(
-            " ({} are there, in other cases)",
-            many.iter()
-                .map(|n| format!("'{n}'"))
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
+        [(one, true)] => format!(" ({one} is there, its accented letters composed otherwise)"),
+        [(one, false)] => format!(" ({one} is there, in another case)"),
+        many => {
+            let names: Vec<&str> = many.iter().map(|(n, _)| n.as_str()).collect();
+            format!(" ({} are there, written otherwise)", names.join(", "))
+        }
     }
 }
 
