@@ -281,4 +281,28 @@ mod tests {
             "{e}"
         );
     }
+
+    #[test]
+    fn a_missing_name_is_hinted_at_what_is_there_written_otherwise() {
+        let tmp = tempfile::tempdir().unwrap();
+        let t = tmp.path();
+        std::fs::write(t.join("tree.obj"), b"").unwrap();
+        // 'Ö' stored as 'O' and its combining accent.
+        std::fs::write(t.join("O\u{308}l.obj"), b"").unwrap();
+        std::fs::create_dir(t.join("rock.obj")).unwrap();
+        std::fs::create_dir(t.join("models")).unwrap();
+        std::fs::write(t.join("models/s.obj"), b"").unwrap();
+        let hint = |n: &str| other_case(&t.join(n));
+        assert_eq!(hint("Tree.OBJ"), " ('tree.obj' is there, in another case)");
+        assert_eq!(
+            hint("\u{d6}l.obj"),
+            " ('O\u{308}l.obj' is there, its accented letters composed otherwise)"
+        );
+        assert_eq!(
+            hint("ROCK.obj"),
+            " ('rock.obj', a folder, is there, in another case)"
+        );
+        assert!(hint("models\\s.obj").contains("models/s.obj' is there: write '/'"));
+        assert_eq!(hint("bush.obj"), "");
+    }
 }
