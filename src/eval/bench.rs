@@ -375,7 +375,7 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     check_spp("--spp", opts.spp)?;
     check_spp("--speedup-spp", opts.speedup_spp)?;
     if let Some(&n) = opts.windows.iter().find(|&&n| n < 3 || n % 2 == 0) {
-        bail!("window {n}: a reuse group is an odd number of frames, at least 3");
+        bail!("--windows {n}: a reuse group is an odd number of frames, at least 3");
     }
     if let Some(n) = super::first_repeat(&opts.windows) {
         bail!("--windows {n}: given twice (each window is measured once; the JSON keys its figures by n_f)");

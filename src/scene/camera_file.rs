@@ -511,7 +511,22 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
         } else {
             ""
         };
-        anyhow!("{label}: line {}: {}{hint}", e.line(), json_message(&e))
+        // A file written on one line (Python's `json.dump`) says where on it, too.
+        let long = text
+            .lines()
+            .nth(e.line().saturating_sub(1))
+            .map_or(0, str::len)
+            > 120;
+        let column = if long {
+            format!(", column {}", e.column())
+        } else {
+            String::new()
+        };
+        anyhow!(
+            "{label}: line {}{column}: {}{hint}",
+            e.line(),
+            json_message(&e)
+        )
     })?;
     let mut entries = Vec::with_capacity(file.frames.len());
     let lines = Lines::new(text.as_bytes());
@@ -1218,6 +1233,11 @@ mod tests {
                 "c.json: line 1: the file is an array: a camera file is an object, {\"frames\": [...]}",
             ),
             (json(&[entry(0, ID).replace("fov", "fvo")]), "c.json: line 2 (entry 1): unknown field `fvo`"),
+            // A file on one line (Python's `json.dump`) says the column too.
+            (
+                format!("{{\"frames\": [{}, {}, , {}]}}", entry(0, ID), entry(1, ID), entry(2, ID)),
+                "c.json: line 1, column ",
+            ),
             // Lines ended by a bare CR are lines (serde counted LFs alone: line 1).
             (json(&[entry(0, ID), entry(1, ID).replace("fov", "fvo")]).replace('\n', "\r"), "c.json: line 3 (entry 2): unknown field `fvo`"),
             (json(&[entry(0, ID), entry(1, ID).replace("fov", "fvo")]).replace('\n', "\r\n"), "c.json: line 3 (entry 2): unknown field `fvo`"),

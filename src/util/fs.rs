@@ -385,6 +385,13 @@ pub fn write_json<T: Serialize>(p: &Path, v: &T) -> Result<()> {
 
 /// The folder of a JSON or stats file must exist and be writable before the work starts.
 pub fn check_file_target(flag: &str, p: &Path) -> Result<()> {
+    // `-` reads as standard output to a shell user; a file of that name was written instead.
+    if p.as_os_str() == "-" {
+        anyhow::bail!(
+            "{flag} -: a report is written to a file, not to standard output: give a file name \
+             (./- for a file named '-')"
+        );
+    }
     if p.is_dir() {
         anyhow::bail!("{flag} {}: that is a folder, not a file", p.display());
     }
