@@ -752,9 +752,35 @@ fn csv_entries(label: &str, text: &str, repairs: &mut Repairs) -> Result<Vec<Ent
         let comment = passed_over
             .map(|(n, c)| format!("; the comment at line {n}: '{}' names no columns", quote(c)))
             .unwrap_or_default();
+        // Where it parts from the form its third column points to (`m00`: the matrix form).
+        let form: Vec<&str> = if names.get(2).is_some_and(|n| n.starts_with('m')) {
+            matrix.iter().map(String::as_str).collect()
+        } else {
+            LOOK_AT_HEADER.to_vec()
+        };
+        let parts = (0..names.len().max(form.len()))
+            .find(|&i| names.get(i).map(String::as_str) != form.get(i).copied())
+            .map(|i| match (names.get(i), form.get(i)) {
+                (Some(got), Some(want)) => {
+                    format!(
+                        "; column {} is '{}' where '{want}' belongs",
+                        i + 1,
+                        quote(got)
+                    )
+                }
+                (Some(got), None) => format!(
+                    "; column {} ('{}') is one past the form's {}",
+                    i + 1,
+                    quote(got),
+                    form.len()
+                ),
+                (None, Some(want)) => format!("; it ends before column {} ('{want}')", i + 1),
+                (None, None) => String::new(),
+            })
+            .unwrap_or_default();
         bail!(
             "{label}: line {hline}: header '{}' is neither '{}' nor '{}' (in any case, \
-             separated by commas, or by semicolons with decimal commas){comment}",
+             separated by commas or tabs, or by semicolons with decimal commas){parts}{comment}",
             quote(header),
             "frame,fov,m00,m01,...,m33",
             LOOK_AT_HEADER.join(",")
@@ -1374,6 +1400,23 @@ mod tests {
             (
                 format!("frame,fov,x,y,z\n{ok}\n"),
                 "c.csv: line 1: header 'frame,fov,x,y,z' is neither",
+            ),
+            // Where the header parts from its form is said.
+            (
+                format!("frame,fov,x,y,z\n{ok}\n"),
+                "; column 3 is 'x' where 'px' belongs",
+            ),
+            (
+                format!("{h},focal\n{ok}\n"),
+                "; column 12 ('focal') is one past the form's 11",
+            ),
+            (
+                format!("frame\tfov\tpx\n{ok}\n"),
+                "separated by commas or tabs",
+            ),
+            (
+                format!("frame\tfov\tpx\n{ok}\n"),
+                "; it ends before column 4 ('py')",
             ),
             (
                 format!("{h}\n0,40,0,0,3,0,0,0,0,1\n"),
