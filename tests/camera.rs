@@ -57,6 +57,24 @@ fn vase_with_camera_file(dir: &Path, camera: &str, text: &str) -> String {
     toml.display().to_string()
 }
 
+/// A JSON camera file of `keys` (position, look-at, up), each up scaled by `up_scale`.
+fn camera_json(keys: &[Keyframe], up_scale: f32) -> String {
+    let entries: Vec<String> = keys
+        .iter()
+        .map(|k| {
+            format!(
+                "  {{\"frame\": {}, \"fov\": {}, \"position\": {}, \"look_at\": {}, \"up\": {}}}",
+                k.frame,
+                k.fov,
+                v3(k.position),
+                v3(k.look_at),
+                v3(k.up * up_scale)
+            )
+        })
+        .collect();
+    format!("{{\"frames\": [\n{}\n]}}\n", entries.join(",\n"))
+}
+
 fn v3(v: glam::Vec3) -> String {
     format!("[{}, {}, {}]", v.x, v.y, v.z)
 }
@@ -95,20 +113,7 @@ fn camera_files_of_vase_render_vase_bitwise() {
     let device = Device::new().unwrap();
     let vase = Scene::load("vase", &device).unwrap();
     let keys = vase_keys(&vase);
-    let entries: Vec<String> = keys
-        .iter()
-        .map(|k| {
-            format!(
-                "  {{\"frame\": {}, \"fov\": {}, \"position\": {}, \"look_at\": {}, \"up\": {}}}",
-                k.frame,
-                k.fov,
-                v3(k.position),
-                v3(k.look_at),
-                v3(k.up)
-            )
-        })
-        .collect();
-    let json = format!("{{\"frames\": [\n{}\n]}}\n", entries.join(",\n"));
+    let json = camera_json(&keys, 1.0);
     let mut csv = "frame,fov,px,py,pz,lx,ly,lz,ux,uy,uz\n".to_string();
     for k in &keys {
         let (p, l, u) = (k.position, k.look_at, k.up);
@@ -531,20 +536,7 @@ fn a_tiny_up_renders_as_a_unit_up() {
     reframe::embree::set_flush_denormals();
     let device = Device::new().unwrap();
     let vase = Scene::load("vase", &device).unwrap();
-    let entries: Vec<String> = vase_keys(&vase)
-        .iter()
-        .map(|k| {
-            format!(
-                "  {{\"frame\": {}, \"fov\": {}, \"position\": {}, \"look_at\": {}, \"up\": {}}}",
-                k.frame,
-                k.fov,
-                v3(k.position),
-                v3(k.look_at),
-                v3(k.up * 1e-19)
-            )
-        })
-        .collect();
-    let json = format!("{{\"frames\": [\n{}\n]}}\n", entries.join(",\n"));
+    let json = camera_json(&vase_keys(&vase), 1e-19);
     let dir = tempfile::tempdir().unwrap();
     let toml = vase_with_camera_file(dir.path(), "shot.json", &json);
     let tiny = Scene::load(&toml, &device).unwrap();
