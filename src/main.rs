@@ -80,6 +80,12 @@ fn main() {
                 .collect();
             let line = match first.join(" ") {
                 l if l.is_empty() => "invalid arguments".to_string(),
+                // `merge` with neither its partial files nor `--chunks`: clap names the files
+                // alone.
+                l if l.contains("<PARTIALS>") => format!(
+                    "{l}: name the chunks' partial files, or give --chunks N and the --out \
+                     they were rendered with"
+                ),
                 l => l,
             };
             errln!("{} (see --help)", printable(&line));

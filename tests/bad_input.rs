@@ -601,3 +601,16 @@ fn a_scene_named_with_a_hash_renders_to_the_default_output() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(tmp.path().join("out/shot_2_0000.exr").is_file());
 }
+
+/// `merge` with neither partial files nor `--chunks` says both ways (clap named the files only).
+#[test]
+fn a_merge_of_nothing_names_both_ways_to_name_the_chunks() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f_####.exr").display().to_string();
+    let line = refusal(&run_reframe(
+        &["merge", "--out", &out],
+        Duration::from_secs(60),
+    ))
+    .unwrap();
+    assert!(line.contains("or give --chunks N"), "{line}");
+}
