@@ -59,6 +59,7 @@ use crate::camera::{Camera, CameraPath, Cameras, Interpolation, Keyframe, Pose};
 use crate::embree::{Cutout, Cutouts, Device, Hit, MeshRef, Placement, Ray, TriangleScene};
 use crate::image::Textures;
 use crate::sampling::uniform_triangle;
+use crate::util::text::folded;
 use anyhow::{anyhow, bail, Context, Result};
 use cutout::MeshCutout;
 use environment::Environment;
@@ -2473,17 +2474,8 @@ fn named_file_matches(dir: &Path, name: &str) -> Result<PathBuf, Vec<PathBuf>> {
     }
 }
 
-/// A name as `ignoring_case` compares it: composed (Unicode NFC: an `Ö` written as one
-/// character and as `O` and its accent, as macOS stores names and archives made there keep
-/// them, are one name) and in lower case (any letter's, not only ASCII's: `Ölfass.png` is
-/// `ölfass.png`).
-fn folded(name: &str) -> String {
-    use unicode_normalization::UnicodeNormalization;
-    name.nfc().collect::<String>().to_lowercase()
-}
-
 /// The file at relative path `rel` under `dir`, each part of it matched in any case and
-/// composition of its letters (`folded`) where it is not there as written, found where exactly
+/// composition of its letters (`util::text::folded`) where it is not there as written, found where exactly
 /// one path that way leads to a file; `Err` with the files (sorted) where several do (a
 /// folder of another case that leads nowhere, `TEX/` beside `tex/wood.png`, is no candidate).
 fn ignoring_case(dir: &Path, rel: &str) -> Result<Option<PathBuf>, Vec<PathBuf>> {

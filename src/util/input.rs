@@ -76,6 +76,7 @@ pub fn kind(t: FileType) -> &'static str {
 /// which one was meant is the user's to say. Empty where there is none, or the folder cannot
 /// be read or is too large to look through.
 pub fn other_case(path: &Path) -> String {
+    use crate::util::text::folded;
     use unicode_normalization::UnicodeNormalization;
     const MOST_ENTRIES: usize = 100_000;
     let Some(written) = path.to_str() else {
@@ -101,14 +102,13 @@ pub fn other_case(path: &Path) -> String {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return String::new();
     };
-    let key = |n: &str| n.nfc().collect::<String>().to_lowercase();
-    let wanted = key(name);
+    let wanted = folded(name);
     let mut found: Vec<(String, bool)> = entries
         .take(MOST_ENTRIES)
         .filter_map(|e| {
             let e = e.ok()?;
             let n = e.file_name().into_string().ok()?;
-            (n != name && key(&n) == wanted).then(|| {
+            (n != name && folded(&n) == wanted).then(|| {
                 let folder = e.file_type().is_ok_and(|t| t.is_dir());
                 let composed = n.nfc().eq(name.nfc());
                 (

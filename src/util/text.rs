@@ -23,6 +23,15 @@ pub fn printable(s: &str) -> String {
     out
 }
 
+/// A file name as names are matched in another case: composed (Unicode NFC: an `Ö` written
+/// as one character and as `O` and its accent, as macOS stores names and archives made there
+/// keep them, are one name) and in lower case (any letter's, not only ASCII's: `Ölfass.png` is
+/// `ölfass.png`).
+pub fn folded(name: &str) -> String {
+    use unicode_normalization::UnicodeNormalization;
+    name.nfc().collect::<String>().to_lowercase()
+}
+
 #[cfg(test)]
 mod tests {
     use super::printable;
