@@ -163,18 +163,23 @@ impl<'a> LocalFilm<'a> {
         }
     }
 
-    /// Fold `fold`'s place among the folds the window holds, if it holds it.
+    /// Where a splat into pixel `i` of fold `fold` goes in the window: its window pixel and the
+    /// fold's place among those the window holds; `None` where the window does not hold the
+    /// fold, or cannot grow to the pixel (the splat goes to the frame directly).
     #[inline]
-    fn held(&self, fold: usize) -> Option<usize> {
+    fn place(&mut self, i: usize, fold: usize) -> Option<(usize, usize)> {
         let f = fold.wrapping_sub(self.fold0);
-        (f < self.folds).then_some(f)
+        if f >= self.folds {
+            return None;
+        }
+        Some((self.local(i)?, f))
     }
 
     /// As `FrameAccum::splat`: add `v` to pixel `i` of fold `fold`; false (nothing added) if
     /// `v` is not finite.
     #[inline]
     pub fn splat(&mut self, i: usize, fold: usize, v: Vec3, dither: u64) -> bool {
-        match self.held(fold).and_then(|f| Some((self.local(i)?, f))) {
+        match self.place(i, fold) {
             Some((l, f)) => self.splat_at(l, i, (fold, f), v, dither),
             None => self.film.splat(i, fold, v, dither),
         }
@@ -193,7 +198,7 @@ impl<'a> LocalFilm<'a> {
         dither: u64,
         count: bool,
     ) -> bool {
-        let Some((l, f)) = self.held(fold).and_then(|f| Some((self.local(i)?, f))) else {
+        let Some((l, f)) = self.place(i, fold) else {
             if count {
                 self.film.land(i, 1);
                 self.film.try_reuse(i, false);
@@ -219,7 +224,7 @@ impl<'a> LocalFilm<'a> {
         if self.film.weights.is_none() {
             return;
         }
-        match self.held(fold).and_then(|f| Some((self.local(i)?, f))) {
+        match self.place(i, fold) {
             Some((l, f)) => self.weight_at(l, i, (fold, f), w, dither),
             None => self.film.splat_weight(i, fold, w, dither),
         }
