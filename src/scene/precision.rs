@@ -8,7 +8,7 @@
 //! short of the hit (its floor 10% dark, without a word); at 2x10^6 across, 2.6%; at 5x10^5,
 //! 0.7%; at 5x10^4, none measurable. Such a scene is warned of at load.
 use super::Scene;
-use glam::{DVec3, Mat4, Vec3};
+use glam::{DVec3, Vec3};
 
 /// `R / d` above which a triangle is warned of: about where a reuse's visibility tests start
 /// to fail measurably (half a percent of them, by the figures above).
@@ -92,20 +92,19 @@ fn distance_to_triangle(p: Vec3, v: [Vec3; 3]) -> f32 {
         };
         p.distance(s + d * t)
     };
-    let edges = on_segment(a, b).min(on_segment(b, c)).min(on_segment(c, a));
+    // Inside the prism over the triangle: the distance to the plane; elsewhere (and for a
+    // triangle without area) to the nearest edge.
     let n = (b - a).cross(c - a);
-    if n.length_squared() == 0.0 {
-        return edges as f32;
-    }
-    // Inside the prism over the triangle: the distance to the plane.
-    let inside = [(a, b), (b, c), (c, a)]
-        .iter()
-        .all(|&(s, e)| (e - s).cross(p - s).dot(n) >= 0.0);
-    if inside {
-        ((p - a).dot(n.normalize()).abs()) as f32
+    let inside = n.length_squared() > 0.0
+        && [(a, b), (b, c), (c, a)]
+            .iter()
+            .all(|&(s, e)| (e - s).cross(p - s).dot(n) >= 0.0);
+    let d = if inside {
+        (p - a).dot(n.normalize()).abs()
     } else {
-        edges as f32
-    }
+        on_segment(a, b).min(on_segment(b, c)).min(on_segment(c, a))
+    };
+    d as f32
 }
 
 /// The distance from `p` to the box from `lo` to `hi` (0 inside it).
@@ -113,27 +112,10 @@ fn distance_to_box(p: Vec3, lo: Vec3, hi: Vec3) -> f32 {
     (lo - p).max(p - hi).max(Vec3::ZERO).length()
 }
 
-/// The triangles `tris` of `positions` (placed by `to_world`, or in world space) that some eye
-/// of `eyes` sees with `R / d` above `MAX_REACH`: their count and the worst.
-fn worst_of(
-    positions: &[Vec3],
-    tris: &[[u32; 3]],
-    to_world: Option<&Mat4>,
-    eyes: &[Vec3],
-) -> Worst {
-    // In the object's own space, as Embree intersects an instance (`R / d` is unchanged by a
-    // uniform scale and a rotation).
-    let eyes: Vec<Vec3> = match to_world {
-        Some(m) => {
-            let inv = m.inverse();
-            eyes.iter().map(|&e| inv.transform_point3(e)).collect()
-        }
-        None => eyes.to_vec(),
-    };
-    // Distances said in world units: the placement's mean scale.
-    let scale = to_world.map_or(1.0, |m| {
-        glam::Mat3::from_mat4(*m).determinant().abs().cbrt()
-    });
+/// The triangles `tris` of `positions` that some eye of `eyes` (in the same space) sees with
+/// `R / d` above `MAX_REACH`: their count and the worst, its distances times `scale` (world
+/// units, where the triangles are a placed prototype's).
+fn worst_of(positions: &[Vec3], tris: &[[u32; 3]], eyes: &[Vec3], scale: f32) -> Worst {
     // One thread: the scene loads before the render's pool exists, and rayon's global pool
     // would start a thread per core whatever `--threads` says (and panic where it cannot,
     // under `ulimit -v`).
@@ -177,10 +159,9 @@ impl Bound {
             diagonal: 0.0,
         };
         for t in tris {
-            let v = t.map(|i| positions[i as usize]);
-            let (lo, hi) = (v[0].min(v[1]).min(v[2]), v[0].max(v[1]).max(v[2]));
-            (b.lo, b.hi) = (b.lo.min(lo), b.hi.max(hi));
-            b.diagonal = b.diagonal.max((hi - lo).length());
+            let t = Tri::new(t.map(|i| positions[i as usize]));
+            (b.lo, b.hi) = (b.lo.min(t.lo), b.hi.max(t.hi));
+            b.diagonal = b.diagonal.max(t.diagonal);
         }
         b
     }
@@ -210,7 +191,7 @@ pub fn near_huge_triangles(scene: &Scene, label: &str) -> Option<String> {
         })
         .filter(|e| e.is_finite())
         .collect();
-    let mut worst = worst_of(&scene.positions, &scene.triangles, None, &eyes);
+    let mut worst = worst_of(&scene.positions, &scene.triangles, &eyes, 1.0);
     let bounds: Vec<Bound> = scene
         .prototypes
         .iter()
@@ -221,15 +202,16 @@ pub fn near_huge_triangles(scene: &Scene, label: &str) -> Option<String> {
             &scene.prototypes[i.proto as usize],
             &bounds[i.proto as usize],
         );
-        // In the prototype's own space, as `worst_of` weighs its triangles.
+        // In the prototype's own space, as Embree intersects an instance (`R / d` is unchanged
+        // by a uniform scale and a rotation).
         let inv = i.to_world.inverse();
-        if eyes.iter().all(|&e| b.clear_of(inv.transform_point3(e))) {
+        let local: Vec<Vec3> = eyes.iter().map(|&e| inv.transform_point3(e)).collect();
+        if local.iter().all(|&e| b.clear_of(e)) {
             continue;
         }
-        worst = Worst::merge(
-            worst,
-            worst_of(&p.positions, &p.triangles, Some(&i.to_world), &eyes),
-        );
+        // Distances said in world units: the placement's mean scale.
+        let scale = glam::Mat3::from_mat4(i.to_world).determinant().abs().cbrt();
+        worst = Worst::merge(worst, worst_of(&p.positions, &p.triangles, &local, scale));
     }
     (worst.count > 0).then(|| {
         format!(
