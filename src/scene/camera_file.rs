@@ -496,12 +496,9 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
         );
     }
     let file: JsonFile = serde_json::from_str(text).map_err(|e| {
+        let at_line = text.lines().nth(e.line().saturating_sub(1)).unwrap_or("");
         // Python's json module writes NaN and Infinity, which JSON does not have: say so.
-        let here = text
-            .lines()
-            .nth(e.line().saturating_sub(1))
-            .and_then(|l| l.get(e.column().saturating_sub(1)..))
-            .unwrap_or("");
+        let here = at_line.get(e.column().saturating_sub(1)..).unwrap_or("");
         let here = here.trim_start_matches(['-', '+']);
         let hint = if ["NaN", "nan", "Infinity", "inf"]
             .iter()
@@ -512,12 +509,7 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
             ""
         };
         // A file written on one line (Python's `json.dump`) says where on it, too.
-        let long = text
-            .lines()
-            .nth(e.line().saturating_sub(1))
-            .map_or(0, str::len)
-            > 120;
-        let column = if long {
+        let column = if at_line.len() > 120 {
             format!(", column {}", e.column())
         } else {
             String::new()
