@@ -2768,19 +2768,18 @@ fn load_obj_files(
             mtls.push((mtl_label, mtl_dir, mtl));
         }
     }
-    // Which material each `usemtl` names, now that every MTL's names are known: the materials
-    // in use are those whose maps are opened.
-    let mut defined: HashSet<&str> = HashSet::new();
-    for (_, _, mtl) in &mtls {
-        for m in &mtl.materials {
-            defined.insert(m.name.as_str());
-        }
+    // Each material's number, the first definition of a name's (a later one is said and
+    // dropped below, in the same order); then which material each `usemtl` names, now that
+    // every MTL's names are known: the materials in use are those whose maps are opened.
+    for m in mtls.iter().flat_map(|(_, _, m)| &m.materials) {
+        let next = by_name.len() as u32;
+        by_name.entry(m.name.clone()).or_insert(next);
     }
     let names_by_head = names_by_comment_head(mtls.iter().flat_map(|(_, _, m)| &m.materials));
     let resolved: Vec<Option<(&str, Via)>> = parsed
         .usemtl
         .iter()
-        .map(|(_, name)| resolve_usemtl(name, &|n| defined.contains(n), &names_by_head))
+        .map(|(_, name)| resolve_usemtl(name, &|n| by_name.contains_key(n), &names_by_head))
         .collect();
     let in_use: HashSet<&str> = resolved.iter().flatten().map(|&(n, _)| n).collect();
     for (mtl_label, mtl_dir, mtl) in &mtls {
@@ -2806,13 +2805,12 @@ fn load_obj_files(
             }
         }
         for m in &mtl.materials {
-            if by_name.contains_key(&m.name) {
+            if by_name[&m.name] as usize != materials.len() {
                 repairs.note(mtl_label, m.line, DEFINED_AGAIN, || {
                     format!("material '{}'", m.name)
                 })?;
                 continue;
             }
-            by_name.insert(m.name.clone(), materials.len() as u32);
             // A material no `usemtl` names colours nothing: its maps are not opened (a
             // library MTL naming textures that are not shipped refused the scene) and its
             // repairs are not said.
