@@ -171,14 +171,15 @@ std::string read_back_fault(const std::string& path, int width, int height, bool
     }
     const size_t row = size_t(std::max(s.width, 1)) * size_t(std::max(s.nchannels, 1));
     // The last row, or in a tiled file (Maya IFF) the last band of tiles, which holds it.
-    const int band = s.tile_width > 0 ? std::max(1, s.tile_height) : 1;
-    const int last = s.tile_width > 0 ? ((height - 1) / band) * band : height - 1;
+    const bool tiled = s.tile_width > 0;
+    const int band = tiled ? std::max(1, s.tile_height) : 1;
+    const int last = tiled ? ((height - 1) / band) * band : height - 1;
     std::vector<float> back(whole ? row * size_t(s.height) : row * size_t(band));
     bool ok;
     if (whole) {
         ok = in->read_image(0, 0, 0, s.nchannels, OIIO::TypeDesc::FLOAT, back.data()) &&
              !in->has_error();
-    } else if (s.tile_width > 0) {
+    } else if (tiled) {
         ok = in->read_tiles(0, 0, s.x, s.x + s.width, s.y + last, s.y + height, s.z, s.z + 1, 0,
                             s.nchannels, OIIO::TypeDesc::FLOAT, back.data());
     } else {
@@ -295,10 +296,11 @@ void probe_output(rust::Slice<const uint8_t> path, rust::Slice<const uint8_t> pr
         // A tiled-only writer (Maya IFF) takes no scanlines: a band of tiles at a time (the
         // probe failed it, "the writer gives no reason", though frames write whole).
         const size_t channels = desc.channels.size();
-        const int band = out->spec().tile_width > 0 ? std::max(1, out->spec().tile_height) : 1;
+        const bool tiled = out->spec().tile_width > 0;
+        const int band = tiled ? std::max(1, out->spec().tile_height) : 1;
         const std::vector<float> rows(size_t(desc.width) * channels * size_t(band), 0.0f);
         for (int y = 0; y < int(desc.height) && opened; y += band) {
-            if (out->spec().tile_width > 0) {
+            if (tiled) {
                 const int end = std::min(y + band, int(desc.height));
                 opened = out->write_tiles(0, int(desc.width), y, end, 0, 1,
                                           OIIO::TypeDesc::FLOAT, rows.data());
