@@ -182,7 +182,10 @@ impl std::fmt::Debug for CreatedDirs {
 
 impl CreatedDirs {
     /// Create `dir` and its missing parents, registered while the registry is locked (as
-    /// `create_registered` does).
+    /// `create_registered` does). Only the folders this call made are its own: one that
+    /// another process made in the meantime (two renders into one new folder) is neither
+    /// registered nor removed again, and where a folder cannot be made, those made before it
+    /// are removed.
     pub fn create(dir: &Path) -> std::io::Result<CreatedDirs> {
         let mut missing = Vec::new();
         let mut d = Some(dir);
@@ -191,20 +194,35 @@ impl CreatedDirs {
             d = p.parent();
         }
         let mut files = live();
-        create_dir_all(dir)?;
-        // Registered outermost first: a stop goes newest first, so it tries the deepest first.
-        let mut made: Vec<(PathBuf, Temporary)> = missing
-            .into_iter()
-            .rev()
-            .map(|p| {
-                let id = unique();
-                files.push((id, p.clone()));
-                (p, Temporary(id))
-            })
-            .collect();
+        let mut made = CreatedDirs(Vec::new());
+        // Outermost first, each registered as it is made: a stop goes newest first, so it
+        // tries the deepest first.
+        for p in missing.into_iter().rev() {
+            match std::fs::create_dir(&p) {
+                Ok(()) => {
+                    let id = unique();
+                    files.push((id, p.clone()));
+                    made.0.push((p, Temporary(id)));
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && p.is_dir() => {}
+                Err(e) => {
+                    // Those made are removed as `made` drops, deepest first, after the
+                    // registry is unlocked; the error is named as `create_dir_all` names it.
+                    drop(files);
+                    made.0.reverse();
+                    return Err(match not_a_folder(dir) {
+                        Some(why) => std::io::Error::new(e.kind(), why),
+                        None => e,
+                    });
+                }
+            }
+        }
         drop(files);
-        made.reverse();
-        Ok(CreatedDirs(made))
+        made.0.reverse();
+        // A part of the path that is there but is no folder (a file, a link to nothing): the
+        // error that names it.
+        create_dir_all(dir)?;
+        Ok(made)
     }
 
     /// The command goes ahead: the folders stay (a stop by signal still removes those that
@@ -530,6 +548,40 @@ mod tests {
             drop(live);
             assert!(!super::live().iter().any(|(_, q)| q == &p));
         });
+    }
+
+    /// Folders made for an output: where a deeper one cannot be made (a name too long), those
+    /// made before it are removed again and the error says why; where a folder was there
+    /// already, it is not this command's to remove; where all are made, they go again when the
+    /// guard drops unless kept.
+    #[test]
+    fn made_folders_are_removed_again_and_only_those() {
+        let d = tempfile::tempdir().unwrap();
+        let deep = d.path().join("new").join("inner").join("x".repeat(300));
+        let e = super::CreatedDirs::create(&deep).unwrap_err();
+        assert_eq!(e.raw_os_error(), Some(36), "{e}"); // ENAMETOOLONG
+        assert!(
+            !d.path().join("new").exists(),
+            "made before the error, left behind"
+        );
+        assert!(!live().iter().any(|(_, q)| q.starts_with(d.path())));
+
+        std::fs::create_dir(d.path().join("old")).unwrap();
+        let made = super::CreatedDirs::create(&d.path().join("old/a/b")).unwrap();
+        assert_eq!(
+            live()
+                .iter()
+                .filter(|(_, q)| q.starts_with(d.path()))
+                .count(),
+            2,
+            "registered other than a and b"
+        );
+        drop(made);
+        assert!(d.path().join("old").is_dir() && !d.path().join("old/a").exists());
+        super::CreatedDirs::create(&d.path().join("old/a/b"))
+            .unwrap()
+            .keep();
+        assert!(d.path().join("old/a/b").is_dir());
     }
 
     /// A temporary file of a process that runs (pid 1 runs wherever this does) is another
