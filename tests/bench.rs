@@ -339,6 +339,44 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
     let o = common::run_reframe(&ref_args, std::time::Duration::from_secs(20));
     assert_eq!(o.code, Some(1), "{}", o.stderr);
     assert!(o.stderr.contains("is a named pipe (FIFO)"), "{}", o.stderr);
+    // So is a FIFO, a device or a folder in a cached frame's place (the FIFO and `/dev/zero`
+    // hung the reader; each was found only after the whole reference had been rendered again,
+    // when its file could not be replaced).
+    std::fs::remove_file(&info).unwrap();
+    reference();
+    let frame = refdir.join("ref_0006.exr");
+    for (how, what) in [
+        ("fifo", "a named pipe (FIFO)"),
+        ("zero", "a character device"),
+        ("folder", "a directory"),
+    ] {
+        std::fs::remove_file(&frame).unwrap();
+        match how {
+            "fifo" => assert!(std::process::Command::new("mkfifo")
+                .arg(&frame)
+                .status()
+                .unwrap()
+                .success()),
+            "zero" => std::os::unix::fs::symlink("/dev/zero", &frame).unwrap(),
+            _ => std::fs::create_dir(&frame).unwrap(),
+        }
+        let o = common::run_reframe(&ref_args, std::time::Duration::from_secs(20));
+        assert_eq!(o.code, Some(1), "{how}: {}", o.stderr);
+        assert!(
+            o.stderr
+                .contains(&format!("ref_0006.exr: it is {what}, not a regular file"))
+                && o.stderr.contains("cannot be made again in its place")
+                && !o.stderr.contains("rendering it again"),
+            "{how}: {}",
+            o.stderr
+        );
+        if how == "folder" {
+            std::fs::remove_dir(&frame).unwrap();
+        } else {
+            std::fs::remove_file(&frame).unwrap();
+        }
+        std::fs::write(&frame, b"").unwrap();
+    }
 }
 
 /// An image from its file's bytes (through a temporary file).

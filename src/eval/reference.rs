@@ -269,13 +269,22 @@ pub fn reference(
         seconds: 0.0,
         digests: vec![],
     };
+    // Where the entry is to be written again, each of its files must be one a rename can
+    // replace: a folder, a link, a FIFO or a device in a frame's place was found only after
+    // the whole reference had been rendered again.
+    let replaceable = range
+        .clone()
+        .map(frame_path)
+        .chain([info_path.clone()])
+        .try_for_each(|p| crate::util::fs::check_replaceable(&p));
     if let Some(text) = text {
         let info = serde_json::from_str::<ReferenceInfo>(&text)
             .with_context(|| format!("{}: not a reference description", info_path.display()));
-        match info.and_then(|info| {
+        let cached = info.and_then(|info| {
             read_cached(&info, &want, &range, frame_path).map(|frames| (info, frames))
-        }) {
-            Ok((info, frames)) => {
+        });
+        match (cached, &replaceable) {
+            (Ok((info, frames)), _) => {
                 return Ok(Reference {
                     first,
                     frames,
@@ -285,8 +294,15 @@ pub fn reference(
                     seconds: info.seconds,
                 })
             }
+            (Err(e), Err(why)) => {
+                bail!(
+                    "the cached reference in {} is damaged ({e:#}), and cannot be made again \
+                     in its place: {why:#}",
+                    dir.display()
+                );
+            }
             // A cache is a copy of what can be made again: made again, said once.
-            Err(e) => errln!(
+            (Err(e), Ok(())) => errln!(
                 "warning: {}",
                 crate::util::text::printable(&format!(
                     "the cached reference in {} is damaged ({e:#}); rendering it again",
@@ -295,6 +311,7 @@ pub fn reference(
             ),
         }
     }
+    replaceable?;
     // Removed again if nothing is written in it (an error, a stop by signal).
     let _made = crate::util::fs::MadeFolder::create(&dir)
         .with_context(|| format!("creating {}", dir.display()))?;

@@ -850,7 +850,8 @@ fn read_error(path: &Path, e: anyhow::Error) -> anyhow::Error {
 /// anything else.
 fn radiance_hint(path: &Path) -> Option<&'static str> {
     use std::io::Read;
-    let mut f = std::fs::File::open(path).ok()?;
+    // Never blocking on a FIFO, and never reading a device.
+    let mut f = crate::util::fs::open_regular(path).ok()?;
     let len = f.metadata().ok()?.len();
     let mut head = vec![0u8; 65536];
     let n = f.read(&mut head).ok()?;
@@ -895,14 +896,30 @@ fn radiance_hint(path: &Path) -> Option<&'static str> {
     )
 }
 
+/// OpenImageIO's reader of the image at `path`, which must be a regular file (through any
+/// links): a named pipe blocked the reader until something wrote into it, and a device such as
+/// `/dev/zero` was read without end (a cached reference frame replaced by either hung
+/// `reference` and `compare`). Every read of an image file starts here.
+fn open_reader(path: &Path) -> Result<cxx::UniquePtr<ffi::ImageReader>> {
+    if let Ok(m) = std::fs::metadata(path) {
+        if !m.is_file() {
+            bail!(
+                "it is {}, not a regular file",
+                crate::util::input::kind(m.file_type())
+            );
+        }
+    }
+    // What OpenImageIO's words leave out of a Radiance file is added by `read_error`.
+    ffi::open_reader(path_bytes(path)).map_err(|e| anyhow!("{}", e.what()))
+}
+
 /// `path` opened for reading, with its description; more than `max_pixels` pixels are refused
 /// before any is read.
 fn open_checked(
     path: &Path,
     max_pixels: u64,
 ) -> Result<(cxx::UniquePtr<ffi::ImageReader>, ffi::ImageInfo)> {
-    // What OpenImageIO's words leave out of a Radiance file is added by `read_error`.
-    let reader = ffi::open_reader(path_bytes(path)).map_err(|e| anyhow!("{}", e.what()))?;
+    let reader = open_reader(path)?;
     let info = reader.info();
     // A LogLuv TIFF (SGI's log-encoded HDR) comes out of this OpenImageIO as 8-bit codes of
     // another meaning, which would light a scene with the wrong values without a word.
@@ -1549,7 +1566,7 @@ pub fn read_mask(
 /// parse back to the same value.
 pub fn read_metadata(path: &Path) -> Result<Vec<(String, String)>> {
     let read = || -> Result<Vec<(String, String)>> {
-        let reader = ffi::open_reader(path_bytes(path)).map_err(|e| anyhow!("{}", e.what()))?;
+        let reader = open_reader(path)?;
         Ok(reader
             .attributes()
             .into_iter()

@@ -133,7 +133,7 @@ fn libraries_beside(lib: &std::path::Path) -> Vec<PathBuf> {
 fn elf_whole(path: &std::path::Path) -> std::result::Result<(), String> {
     use std::os::unix::fs::FileExt;
     let bad = |why: &str| format!("{}: {why}", path.display());
-    let f = std::fs::File::open(path).map_err(|e| bad(&e.to_string()))?;
+    let f = crate::util::fs::open_regular(path).map_err(|e| bad(&e.to_string()))?;
     let size = f.metadata().map_err(|e| bad(&e.to_string()))?.len();
     let mut h = [0u8; 64];
     f.read_exact_at(&mut h, 0)

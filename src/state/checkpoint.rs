@@ -142,8 +142,9 @@ fn check_log(
     if recs.is_empty() {
         return Ok(Vec::new());
     }
-    let mut r =
-        BufReader::new(File::open(lp).with_context(|| format!("opening {}", lp.display()))?);
+    let mut r = BufReader::new(
+        crate::util::fs::open_regular(lp).with_context(|| format!("opening {}", lp.display()))?,
+    );
     let mut read = Vec::with_capacity(recs.len());
     for (k, &(frame, off)) in recs.iter().enumerate() {
         let end = recs.get(k + 1).map_or(len, |n| n.1);
@@ -357,7 +358,7 @@ impl Checkpointer {
                         }
                         Ok(true)
                     };
-                    match File::open(&partial) {
+                    match crate::util::fs::open_regular(&partial) {
                         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
                         // One that cannot be opened (another user's, in a shared folder) is not
                         // damaged: rendered again, the chunk failed only at its end, on the

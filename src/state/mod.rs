@@ -42,9 +42,11 @@ const VERSION: u32 = 2;
 /// another chunk's finished partial would destroy it).
 pub fn is_state_file(p: &Path) -> bool {
     let read = || -> std::io::Result<bool> {
-        let mut f = File::open(p)?;
+        let Ok(mut f) = crate::util::fs::open_regular(p) else {
+            return Ok(false);
+        };
         let m = f.metadata()?;
-        if !m.is_file() || m.len() < MAGIC.len() as u64 {
+        if m.len() < MAGIC.len() as u64 {
             return Ok(false);
         }
         f.seek(SeekFrom::End(-(MAGIC.len() as i64)))?;

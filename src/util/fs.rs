@@ -346,6 +346,27 @@ pub fn remove_stale_tmp(dir: &Path, ours: impl Fn(&str) -> bool) -> usize {
     removed
 }
 
+/// Open the file at `p` (through any links) for reading, never blocking: a named pipe put in
+/// a file's place (opening one for reading waits for a writer) or a device (`/dev/zero` reads
+/// without end) is an error that says what it is, of kind `InvalidInput`; a missing file is
+/// `NotFound`, as `File::open` says it.
+pub fn open_regular(p: &Path) -> std::io::Result<std::fs::File> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let f = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK)
+        .open(p)?;
+    let t = f.metadata()?.file_type();
+    if !t.is_file() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("it is {}, not a regular file", super::input::kind(t)),
+        ));
+    }
+    // Reads from here on wait for data as usual (a regular file's never do).
+    Ok(f)
+}
+
 /// Fail if `p` exists as anything but a regular file. Outputs are written under a temporary name
 /// and renamed into place, and a rename replaces what is there: a device (`/dev/null`), a FIFO,
 /// a socket or a symbolic link would be replaced by a plain file, not written through.
@@ -446,7 +467,7 @@ pub fn check_file_target(flag: &str, p: &Path) -> Result<()> {
 /// a `compare.json`), since only its first byte was looked at.
 pub fn check_report_target(flag: &str, p: &Path) -> Result<()> {
     // (A regular file only: opening a FIFO would block.)
-    let Some(f) = p.is_file().then(|| std::fs::File::open(p).ok()).flatten() else {
+    let Ok(f) = open_regular(p) else {
         return Ok(());
     };
     use std::io::Read;
