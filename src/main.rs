@@ -13,7 +13,6 @@
 mod cli;
 
 use anyhow::{bail, Context, Result};
-use clap::Parser;
 use cli::{Cli, Command, Visibility};
 use reframe::driver::{self, RenderOptions};
 use reframe::embree::Device;
@@ -66,7 +65,10 @@ fn main() {
         );
         std::process::exit(2);
     }
-    let cli = match Cli::try_parse() {
+    let parsed = negative_numbers(<Cli as clap::CommandFactory>::command())
+        .try_get_matches()
+        .and_then(|m| <Cli as clap::FromArgMatches>::from_arg_matches(&m));
+    let cli = match parsed {
         Ok(cli) => cli,
         Err(e) if !e.use_stderr() => e.exit(), // --help, --version
         Err(e) => {
@@ -132,6 +134,20 @@ fn print_warnings(scene: &Scene) {
 }
 
 /// This process's command line with `--resume` added, quoted for a POSIX shell.
+/// Every option that takes a value takes one that looks like a negative number as its value,
+/// which its parser then refuses for what it is (`--threads -1`: "invalid value '-1' for
+/// '--threads <THREADS>'"); clap otherwise read `-1` as an unknown flag and named no option.
+fn negative_numbers(cmd: clap::Command) -> clap::Command {
+    cmd.mut_args(|a| {
+        if a.get_action().takes_values() {
+            a.allow_negative_numbers(true)
+        } else {
+            a
+        }
+    })
+    .mut_subcommands(negative_numbers)
+}
+
 fn resume_command() -> String {
     let mut args: Vec<String> = std::env::args().collect();
     if !args.iter().any(|a| a == "--resume") {

@@ -232,6 +232,32 @@ fn usage_errors_are_one_line_that_says_what_is_missing() {
             &["render", "--frames", "-1"],
             "'-1': frames are numbered from 0, never below",
         ),
+        // So is a negative number given to any option of any command: its parser refuses it,
+        // naming the option (clap said "unexpected argument '-1'", naming none).
+        (
+            &["render", "--threads", "-1"],
+            "invalid value '-1' for '--threads <THREADS>'",
+        ),
+        (
+            &["render", "--window", "-3"],
+            "invalid value '-3' for '--window <WINDOW>'",
+        ),
+        (
+            &["bench", "--repeats", "-1"],
+            "invalid value '-1' for '--repeats <REPEATS>'",
+        ),
+        (
+            &["compare", "--bias-seeds", "-1"],
+            "invalid value '-1' for '--bias-seeds <BIAS_SEEDS>'",
+        ),
+        (
+            &["reference", "--reference-spp", "-8"],
+            "invalid value '-8' for '--reference-spp <REFERENCE_SPP>'",
+        ),
+        (
+            &["merge", "--chunks", "-1", "--out", "x/f_####.exr"],
+            "invalid value '-1' for '--chunks <CHUNKS>'",
+        ),
     ] {
         let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
         let line = refusal(&run_reframe(&args, Duration::from_secs(60)))
