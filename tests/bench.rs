@@ -71,8 +71,18 @@ fn bench_writes_the_cost_model_figures() {
         ),
         // A window given twice was measured twice, one run's figures lost under its key.
         (["--windows", "3,3"], "--windows 3: given twice"),
+        // A speed-up run past the samples a group may hold, refused before the cost passes
+        // (it was refused after them, naming the render's --spp and --window).
+        (
+            ["--speedup-spp", "400000"],
+            "--method mis-exact at --speedup-spp 400000 and --windows 3: --spp 400000 with \
+             --window 3: 1200000 samples per pixel per group",
+        ),
     ] {
         let mut a = vec!["bench", "cornell", "--res", "16x16"];
+        if args[0] == "--speedup-spp" {
+            a.extend(["--windows", "3"]);
+        }
         a.extend(args);
         let o = common::reframe(&a).output().unwrap();
         let err = String::from_utf8_lossy(&o.stderr);
@@ -416,6 +426,14 @@ fn compare_rejects_bad_settings_before_rendering() {
             "--reuse-budgets: 2 is given twice",
         ),
         (vec!["--windows", "3,5,3"], "--windows: 3 is given twice"),
+        // Every run is checked as its render will check it before the reference is rendered
+        // (one past the samples a group may hold was refused after the reference and the runs
+        // before it, naming the render's flags).
+        (
+            vec!["--reuse-budgets", "1,400000", "--windows", "3"],
+            "--methods havran at --reuse-budgets 400000 and --windows 3: --spp 400000 with \
+             --window 3: 1200000 samples per pixel per group",
+        ),
     ] {
         let mut a = vec!["compare", "cornell", "--res", "40x40", "--out"];
         a.push(out.to_str().unwrap());

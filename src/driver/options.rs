@@ -230,10 +230,9 @@ impl RenderOptions {
         self.adaptive.filter(|_| self.window > 1)
     }
 
-    /// Every setting checked against `scene`, before anything is traced or written: the frames,
-    /// resolution, samples, window, method-specific flags, checkpoint interval and depth. The
-    /// files (`--out`, `--stats`) are checked by `check_files`.
-    pub fn validate(&self, scene: &Scene) -> Result<Plan> {
+    /// `validate`'s checks alone, nothing traced: the frames and the resolution the render
+    /// would take. `compare` and `bench` check each of their runs with it before the first.
+    pub fn check(&self, scene: &Scene) -> Result<(RangeInclusive<u32>, (u32, u32))> {
         let range = self.frames.clone().unwrap_or(0..=scene.frames - 1);
         check_frames(scene, &range)?;
         let (w, h) = self.resolution.unwrap_or((scene.width, scene.height));
@@ -309,6 +308,14 @@ impl RenderOptions {
             crate::util::mem::available_bytes(),
             scene.texture_cache_bytes(),
         )?;
+        Ok((range, (w, h)))
+    }
+
+    /// Every setting checked against `scene`, before anything is traced or written: the frames,
+    /// resolution, samples, window, method-specific flags, checkpoint interval and depth. The
+    /// files (`--out`, `--stats`) are checked by `check_files`.
+    pub fn validate(&self, scene: &Scene) -> Result<Plan> {
+        let (range, (w, h)) = self.check(scene)?;
         let all_units = run_units(*range.start(), *range.end(), self.window);
         let units = match self.chunk {
             Some(c) => c.share(all_units.clone()).with_context(|| {

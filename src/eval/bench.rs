@@ -47,7 +47,7 @@ use crate::reuse::visibility::{landings, HitLanes, Landing, NativeHit};
 use crate::reuse::Method;
 use crate::sampling::Sampler;
 use crate::scene::Scene;
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -350,6 +350,28 @@ fn window_frames(scene: &Scene, frame: u32, n_f: u32) -> std::ops::RangeInclusiv
     first..=first + n_f - 1
 }
 
+/// The render of the speed-up run of `n_f` frames around `frame`.
+fn speedup_options(
+    scene: &Scene,
+    opts: &BenchOptions,
+    frame: u32,
+    res: (u32, u32),
+    n_f: u32,
+) -> RenderOptions {
+    RenderOptions {
+        method: opts.speedup_method,
+        spp: opts.speedup_spp,
+        window: n_f,
+        seed: opts.seed,
+        frames: Some(window_frames(scene, frame, n_f)),
+        resolution: Some(res),
+        max_depth: opts.max_depth,
+        threads: opts.threads,
+        progress: false,
+        ..RenderOptions::default()
+    }
+}
+
 pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     let (w, h) = opts.res.unwrap_or((scene.width, scene.height));
     check_resolution((w, h))?;
@@ -386,7 +408,10 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
             scene.frames
         );
     }
-    // The groups of the speed-up runs (`window_frames`), checked before anything is timed.
+    check_max_depth(opts.max_depth)?;
+    // The speed-up runs (`window_frames`), each checked as its render will check it (the
+    // reuse film, samples per group, memory) before anything is timed: a run refused after the
+    // cost passes had taken seconds, naming the render's `--spp` and `--window`.
     for &n_f in &opts.windows {
         check_reuse_film(
             scene,
@@ -394,10 +419,18 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
             (w, h),
             opts.speedup_method.name(),
         )?;
+        speedup_options(scene, opts, frame, (w, h), n_f)
+            .check(scene)
+            .with_context(|| {
+                format!(
+                    "--method {} at --speedup-spp {} and --windows {n_f}",
+                    opts.speedup_method.name(),
+                    opts.speedup_spp
+                )
+            })?;
     }
     let pool = thread_pool(opts.threads)?;
     let threads = pool.current_num_threads();
-    check_max_depth(opts.max_depth)?;
     let integrator = Integrator::new(scene, opts.max_depth);
     let cam = scene.camera(frame, w, h);
     let (spp, seed) = (opts.spp, opts.seed);
@@ -419,17 +452,7 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     for &n_f in &opts.windows {
         let frames = window_frames(scene, frame, n_f);
         let (first, last) = (*frames.start(), *frames.end());
-        let ropts = RenderOptions {
-            method: opts.speedup_method,
-            spp: opts.speedup_spp,
-            window: n_f,
-            seed,
-            frames: Some(first..=last),
-            resolution: Some((w, h)),
-            max_depth: opts.max_depth,
-            progress: false,
-            ..RenderOptions::default()
-        };
+        let ropts = speedup_options(scene, opts, frame, (w, h), n_f);
         // The reuse run and the independent one alternate, so that load on the machine hits
         // both alike; the medians are reported.
         let (mut reuse_all, mut independent_all) = (Vec::new(), Vec::new());

@@ -412,6 +412,27 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         say_skipped();
         bail!("nothing to compare: no method with a budget and a window that fits the frames");
     }
+    // Every run checked as its render will check it (samples per group, memory), before the
+    // reference: a run refused after the reference and the runs before it had rendered.
+    for (c, window, spp, rendered) in &plan {
+        let spec = RunSpec {
+            c: *c,
+            window: *window,
+            spp: *spp,
+            seed: opts.seed,
+            rendered: rendered.clone(),
+            res: (w, h),
+            max_depth: opts.max_depth,
+            threads: opts.threads,
+        };
+        spec.options().check(scene).with_context(|| {
+            if c.method.reuses() {
+                format!("--methods {c} at --reuse-budgets {spp} and --windows {window}")
+            } else {
+                format!("--methods {c} at --budgets {spp}")
+            }
+        })?;
+    }
     let created = CreatedDirs::create(&opts.out)
         .with_context(|| format!("--out {}: cannot create the folder", opts.out.display()))?;
     check_writable_dir(&opts.out).with_context(|| format!("--out {}", opts.out.display()))?;
@@ -495,6 +516,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
                 rendered: rendered.clone(),
                 res: (w, h),
                 max_depth: opts.max_depth,
+                threads: opts.threads,
             },
             &range,
         )?;
@@ -931,6 +953,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
                     rendered: span.clone(),
                     res: (w, h),
                     max_depth: opts.max_depth,
+                    threads: opts.threads,
                 },
                 &(crop_frame..=crop_frame),
             )?;
@@ -1210,6 +1233,26 @@ struct RunSpec {
     rendered: RangeInclusive<u32>,
     res: (u32, u32),
     max_depth: u32,
+    /// `--threads` (0: one per core), for the memory the run's check counts.
+    threads: usize,
+}
+
+impl RunSpec {
+    /// The render this run is.
+    fn options(&self) -> RenderOptions {
+        RenderOptions {
+            method: self.c.method,
+            spp: self.spp,
+            window: self.window,
+            seed: self.seed,
+            frames: Some(self.rendered.clone()),
+            resolution: Some(self.res),
+            max_depth: self.max_depth,
+            threads: self.threads,
+            progress: false,
+            ..RenderOptions::default()
+        }
+    }
 }
 
 /// What `render_run` gives back.
@@ -1232,17 +1275,7 @@ fn render_run(
     keep: &RangeInclusive<u32>,
 ) -> Result<Rendered> {
     let start = Instant::now();
-    let ropts = RenderOptions {
-        method: spec.c.method,
-        spp: spec.spp,
-        window: spec.window,
-        seed: spec.seed,
-        frames: Some(spec.rendered.clone()),
-        resolution: Some(spec.res),
-        max_depth: spec.max_depth,
-        progress: false,
-        ..RenderOptions::default()
-    };
+    let ropts = spec.options();
     let mut frames = Vec::new();
     let mut denoise_seconds = 0.0;
     let mut sink = |mut d: Developed| {
