@@ -528,3 +528,58 @@ fn two_runs_of_one_reference_render_it_once() {
     assert!(err.contains("lock file") && err.contains(name), "{err}");
     assert!(!entry.exists());
 }
+
+/// The summary says which run a missing measured speed-up lacks: with a mis-exact run but no
+/// independent one it had said "no mis-exact run", listed just above it.
+#[test]
+fn compare_says_which_run_a_missing_speedup_lacks() {
+    let dir = tempfile::tempdir().unwrap();
+    let (out, cache) = (dir.path().join("cmp"), dir.path().join("cache"));
+    let run = |methods: &str| {
+        let o = common::reframe(&[
+            "compare",
+            "vase",
+            "--frames",
+            "10-12",
+            "--res",
+            "16x12",
+            "--reference-spp",
+            "8",
+            "--threads",
+            "1",
+            "--regime",
+            "range",
+            "--methods",
+            methods,
+            "--budgets",
+            "1",
+            "--reuse-budgets",
+            "1",
+            "--windows",
+            "3",
+            "--out",
+            out.to_str().unwrap(),
+            "--cache",
+            cache.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let text =
+            String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
+        let line = text
+            .lines()
+            .find(|l| l.starts_with("same-spp speed-up"))
+            .unwrap_or_else(|| panic!("{text}"))
+            .to_string();
+        line
+    };
+    let line = run("mis-exact");
+    assert!(
+        line.contains("n_f 3: ")
+            && line.ends_with("x / - (no independent run to measure it against)"),
+        "{line}"
+    );
+    let line = run("independent,mis");
+    assert!(line.ends_with("/ - (no mis-exact run)"), "{line}");
+}

@@ -1166,6 +1166,14 @@ pub fn summary(r: &CompareReport) -> String {
         .iter()
         .map(|(n, x)| match r.measured_speedup.get(&n.to_string()) {
             Some(m) => format!("n_f {n}: {x:.2}x / {m:.2}x"),
+            // The measured speed-up is a mis-exact run's time against the independent
+            // runs' time per sample: say which of the two is missing.
+            None if r.runs.iter().any(|run| {
+                run.method == Candidate::plain(Method::MisExact) && run.window as f64 == *n
+            }) =>
+            {
+                format!("n_f {n}: {x:.2}x / - (no independent run to measure it against)")
+            }
             None => format!("n_f {n}: {x:.2}x / - (no mis-exact run)"),
         })
         .collect();
