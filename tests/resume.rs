@@ -1212,3 +1212,46 @@ fn frames_swapped_before_resume(ext: &str, why: &str) {
     run(&args.iter().copied().chain(["--resume"]).collect::<Vec<_>>());
     assert!(frame(47).exists());
 }
+
+/// A checkpoint folder whose parents are missing has them made, as an output's folder has
+/// (it failed on opening the lock file beside it, naming no flag); those made go again when
+/// the render completes. Where one cannot be made, the refusal names `--checkpoint`.
+#[test]
+fn a_checkpoint_folder_gets_its_parents() {
+    let d = tempfile::tempdir().unwrap();
+    let at = |p: &str| d.path().join(p).to_str().unwrap().to_string();
+    let base = [
+        "render",
+        "vase",
+        "--method",
+        "mis-exact",
+        "--window",
+        "3",
+        "--spp",
+        "1",
+        "--res",
+        "16x12",
+        "--frames",
+        "0-4",
+        "--threads",
+        "1",
+    ];
+    let (out, ck) = (at("out/v_####.exr"), at("ck/sub/deeper"));
+    run(&with(&base, &["--out", &out, "--checkpoint", &ck]));
+    assert!(d.path().join("out/v_0004.exr").exists());
+    assert!(!d.path().join("ck").exists(), "{:?}", leftovers(d.path()));
+    std::fs::write(d.path().join("file"), b"").unwrap();
+    let o = reframe()
+        .args(with(
+            &base,
+            &["--out", &out, "--checkpoint", &at("file/sub/c")],
+        ))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("--checkpoint ") && err.contains("file is a file, not a folder"),
+        "{err}"
+    );
+}

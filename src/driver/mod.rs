@@ -42,8 +42,8 @@ use crate::state::key::{
     default_checkpoint_dir, output_stem, partial_path, scene_and_build_hashes, Chunk, RunKey,
 };
 use crate::state::Trailer;
-use crate::util::fs::{parent_dir, remove_stale_tmp, write_json};
-use anyhow::{bail, Result};
+use crate::util::fs::{parent_dir, remove_stale_tmp, write_json, CreatedDirs};
+use anyhow::{bail, Context, Result};
 use groups::{run_groups, GroupSettings};
 use indicatif::{ProgressBar, ProgressStyle};
 use run::Run;
@@ -447,12 +447,25 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     let _lock = guard::OutputLock::acquire(&lock, &opts.out, frames)?;
     // One render per checkpoint folder too: two renders of other outputs given one
     // `--checkpoint` wrote over each other's state.
+    // The folders above the checkpoint folder are made as an output's are (its lock lies
+    // beside it: `--checkpoint a/b/c` under no `a` failed on opening `a/b/.c.lock`); those
+    // made go again when the render ends and they are empty, the checkpoint folder gone.
+    let _checkpoint_parents =
+        match &opts.checkpoint {
+            Some(d) => Some(CreatedDirs::create(&parent_dir(d)).with_context(|| {
+                format!("--checkpoint {}: cannot create its folder", d.display())
+            })?),
+            None => None,
+        };
     let _checkpoint_lock = match &opts.checkpoint {
-        Some(d) => Some(guard::OutputLock::acquire(
-            &guard::folder_lock_path(d),
-            &format!("the checkpoint folder {}", d.display()),
-            None,
-        )?),
+        Some(d) => Some(
+            guard::OutputLock::acquire(
+                &guard::folder_lock_path(d),
+                &format!("the checkpoint folder {}", d.display()),
+                None,
+            )
+            .with_context(|| format!("--checkpoint {}", d.display()))?,
+        ),
         None => None,
     };
     // After the output's lock: a render of this `--out` that is running holds it (and is said
