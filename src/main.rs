@@ -185,13 +185,14 @@ fn install_signal_handler() -> Result<Arc<AtomicBool>> {
             );
             return;
         }
-        let note = reframe::util::fs::stop_note().map_or(String::new(), |n| format!(" ({n})"));
-        if again {
-            errln!("\nstopping now; a checkpoint already written is kept{note}");
-        } else {
-            errln!("\ninterrupted: stopped at once; nothing is left half-written{note}");
-        }
-        exit_removing_temporaries(130);
+        exit_removing_temporaries(130, || {
+            let note = reframe::util::fs::stop_note().map_or(String::new(), |n| format!(" ({n})"));
+            if again {
+                errln!("\nstopping now; a checkpoint already written is kept{note}");
+            } else {
+                errln!("\ninterrupted: stopped at once; nothing is left half-written{note}");
+            }
+        });
     })
     .context("installing the signal handler")?;
     Ok(flag)

@@ -118,12 +118,16 @@ pub fn exit_with(code: i32) -> ! {
     std::process::exit(code)
 }
 
-/// Remove every registered temporary file and exit with `code`. The registry stays locked
-/// until the process is gone, so no other thread can register (and then create) a new one in
-/// between; a writer that has the file open loses it, which is the point.
-pub fn exit_removing_temporaries(code: i32) -> ! {
+/// Remove every registered temporary file and exit with `code`, after `say` (the stop's line)
+/// has run. The registry stays locked until the process is gone, so no other thread can
+/// register (and then create) a new one in between; a writer that has the file open loses
+/// it, which is the point. `say` runs once the registry is held: where the command's own end
+/// holds it first (`exit_with`, the work done), that end is the one that happens and the stop
+/// says nothing (a merge stopped as it ended had said "interrupted" and exited 0).
+pub fn exit_removing_temporaries(code: i32, say: impl FnOnce()) -> ! {
     STOPPING.store(true, Ordering::SeqCst);
     let files = live();
+    say();
     // Newest first, so that a folder registered before the files in it (a checkpoint folder
     // this process created) is tried once they are gone; only an empty folder is removed.
     for (_, p) in files.iter().rev() {
