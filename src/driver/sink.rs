@@ -2,7 +2,7 @@
 //! carries (method, samples, window, seed, time, scene, frame and the camera's matrices).
 use crate::film::{Developed, Sink};
 use crate::image::{
-    bytes_digest, write_image_hashed, Image, Metadata, OutputPattern, WriteOptions,
+    bytes_digest, write_image_placing, Image, Metadata, OutputPattern, WriteOptions,
 };
 use anyhow::{Context, Result};
 
@@ -60,23 +60,30 @@ impl Sink for FileSink {
             channels: d.channels.iter().map(|c| c.to_string()).collect(),
             data: d.data,
         };
-        let digest = write_image_hashed(
+        // What a stop by signal from the rename on says was written (a merge's frames are not
+        // in a checkpoint: its message had said nothing of them), set as the frame is renamed
+        // into place: set after, a stop between the two counted one frame less than was there.
+        let note = format!(
+            "{} frame file(s) written whole before it, the last {}",
+            self.written.len() + 1,
+            crate::util::text::printable(&path.display().to_string())
+        );
+        let mut note = Some(note);
+        let digest = write_image_placing(
             &path,
             &img,
             &meta,
             &WriteOptions {
                 exr_float: self.meta.exr_float,
             },
+            &mut || {
+                if let Some(n) = note.take() {
+                    crate::util::fs::set_stop_note(n);
+                }
+            },
         )
         .with_context(|| format!("writing frame {frame}"))?;
         self.digests.push((frame, digest));
-        // What a stop by signal from now on says was written (a merge's frames are not in a
-        // checkpoint: its message had said nothing of them).
-        crate::util::fs::set_stop_note(format!(
-            "{} frame file(s) written whole before it, the last {}",
-            self.written.len() + 1,
-            crate::util::text::printable(&path.display().to_string())
-        ));
         self.written.push(path);
         Ok(())
     }

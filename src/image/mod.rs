@@ -437,7 +437,21 @@ pub fn write_image_hashed(
     meta: &Metadata,
     opts: &WriteOptions,
 ) -> Result<u64> {
-    write_image_inner(path, img, meta, opts)
+    write_image_placing(path, img, meta, opts, &mut || {})
+}
+
+/// `write_image_hashed`, running `placed` as the file is renamed into place, both while a stop
+/// by signal cannot come between them (`util::fs::holding_registry`): what `placed` records
+/// (the stop note's count of frames written) is true of the files on disk whenever a stop
+/// reads it.
+pub fn write_image_placing(
+    path: &Path,
+    img: &Image,
+    meta: &Metadata,
+    opts: &WriteOptions,
+    placed: &mut dyn FnMut(),
+) -> Result<u64> {
+    write_image_inner(path, img, meta, opts, placed)
         .map_err(|e| anyhow!("cannot write {}: {e}", path.display()))
 }
 
@@ -453,6 +467,7 @@ fn write_image_inner(
     img: &Image,
     meta: &Metadata,
     opts: &WriteOptions,
+    placed: &mut dyn FnMut(),
 ) -> Result<u64> {
     img.check()?;
     crate::util::fs::check_replaceable(path)?;
@@ -585,7 +600,7 @@ fn write_image_inner(
     file.and_then(|f| f.sync_all())
         .map_err(|e| anyhow!("{e}"))?;
 
-    fs::rename(&tmp.path, path)
+    crate::util::fs::holding_registry(|| fs::rename(&tmp.path, path).map(|()| placed()))
         .map_err(|e| anyhow!("cannot move the finished file into place: {e}"))?;
     tmp.keep = true;
     Ok(digest)

@@ -52,6 +52,14 @@ pub fn create_registered<T>(
     Ok((Temporary(id), made))
 }
 
+/// Run `f` holding the registry: a stop by signal, which holds it from before its line until
+/// the process is gone, sees all that `f` did or none of it (a frame renamed into place and the
+/// stop note that counts it).
+pub fn holding_registry<T>(f: impl FnOnce() -> T) -> T {
+    let _files = live();
+    f()
+}
+
 /// `create_registered` for a new, empty file: one already there is an error.
 pub fn create_temporary(path: &Path) -> std::io::Result<(Temporary, std::fs::File)> {
     create_registered(path, |p| {
