@@ -104,6 +104,26 @@ fn killed_render_resumes_to_identical_frames() {
         !o.status.success() && err.contains("spp: 3 vs 2") | err.contains("spp: 2 vs 3"),
         "{err}"
     );
+    // A checkpoint whose trailer counts other units (edited, its CRC made to match) is said
+    // to be damaged, not "of another chunk" (the render is no chunk).
+    let kept_state = std::fs::read(&state).unwrap();
+    let mut b = kept_state.clone();
+    let n = b.len();
+    let json = u64::from_le_bytes(b[n - 16..n - 8].try_into().unwrap()) as usize;
+    let (start, end) = (n - 20 - json, n - 20);
+    let text = String::from_utf8(b[start..end].to_vec()).unwrap();
+    let at = start + text.find("\"units\":[").unwrap() + "\"units\":[".len();
+    b[at] = if b[at] == b'9' { b'8' } else { b[at] + 1 };
+    let crc = crc32fast::hash(&b[start..end]);
+    b[end..end + 4].copy_from_slice(&crc.to_le_bytes());
+    std::fs::write(&state, &b).unwrap();
+    let o = reframe().args(&args).arg("--resume").output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("counts units") && err.contains("it is damaged"),
+        "{err}"
+    );
+    std::fs::write(&state, &kept_state).unwrap();
     // A finished frame deleted or damaged since the stop is refused, naming it, and so is a
     // resume that writes elsewhere (another --out with the same checkpoint).
     let f0 = killed.join("f_0004.exr");

@@ -311,10 +311,21 @@ impl Checkpointer {
                         d.display()
                     );
                 }
-                if t.chunk != template.chunk || t.units != template.units {
+                if t.chunk != template.chunk {
                     bail!(
                         "--resume: the checkpoint in {} is of another chunk",
                         d.display()
+                    );
+                }
+                // The same settings (the key holds the frames and the window) give the same
+                // units: other units are a damaged or edited trailer.
+                if t.units != template.units {
+                    bail!(
+                        "--resume: the checkpoint in {} counts units {:?}, where this render's \
+                         are {:?}: it is damaged; delete the folder to start over",
+                        d.display(),
+                        t.units,
+                        template.units
                     );
                 }
                 // Only this checkpoint's own temporary (`state.tmp-PID`), which a process
