@@ -133,7 +133,6 @@ fn print_warnings(scene: &Scene) {
     }
 }
 
-/// This process's command line with `--resume` added, quoted for a POSIX shell.
 /// Every option that takes a value takes one that looks like a negative number as its value,
 /// which its parser then refuses for what it is (`--threads -1`: "invalid value '-1' for
 /// '--threads <THREADS>'"); clap otherwise read `-1` as an unknown flag and named no option.
@@ -148,6 +147,7 @@ fn negative_numbers(cmd: clap::Command) -> clap::Command {
     .mut_subcommands(negative_numbers)
 }
 
+/// This process's command line with `--resume` added, quoted for a POSIX shell.
 fn resume_command() -> String {
     let mut args: Vec<String> = std::env::args().collect();
     if !args.iter().any(|a| a == "--resume") {

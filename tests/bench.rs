@@ -401,6 +401,7 @@ fn read_image_bytes(bytes: &[u8]) -> reframe::image::Image {
 fn compare_rejects_bad_settings_before_rendering() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("cmp");
+    let cache = dir.path().join("cache");
     for (args, needle) in [
         (vec!["--reference-spp", "12"], "multiple of 8"),
         (vec!["--windows", "4"], "odd"),
@@ -437,12 +438,16 @@ fn compare_rejects_bad_settings_before_rendering() {
     ] {
         let mut a = vec!["compare", "cornell", "--res", "40x40", "--out"];
         a.push(out.to_str().unwrap());
+        a.extend(["--cache", cache.to_str().unwrap()]);
         a.extend(args);
         let o = common::reframe(&a).output().unwrap();
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success(), "{a:?} succeeded");
         assert!(err.contains(needle), "{a:?}: {err}");
         assert_eq!(err.trim().lines().count(), 1, "{a:?}: {err}");
+        // Nothing made: no output folder, no reference in the cache.
+        assert!(!out.exists(), "{a:?}: {out:?} made");
+        assert!(!cache.exists(), "{a:?}: a reference was cached");
     }
 }
 

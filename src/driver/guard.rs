@@ -397,8 +397,9 @@ pub fn check_folder_apart(flag: &str, dir: &Path, outputs: &[(&str, PathBuf)]) -
         matches!(*f, "--stats" | "--json") && place(&parent_dir(o)).as_ref() == Some(&d)
     }) {
         bail!(
-            "{other} {}: that is inside the {flag} folder {}, which the render removes when it \
-             completes; nothing was written",
+            "{other} {}: that is inside the {flag} folder {}, which holds the render's \
+             checkpoint and is removed when the render completes if reframe made it; put the \
+             report elsewhere; nothing was written",
             out.display(),
             dir.display()
         );

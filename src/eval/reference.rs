@@ -311,7 +311,8 @@ pub fn reference(
             ),
         }
     }
-    replaceable?;
+    replaceable
+        .with_context(|| format!("the cached reference in {} cannot be made", dir.display()))?;
     // Removed again if nothing is written in it (an error, a stop by signal).
     let _made = crate::util::fs::MadeFolder::create(&dir)
         .with_context(|| format!("creating {}", dir.display()))?;

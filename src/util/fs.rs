@@ -133,8 +133,11 @@ pub fn exit_with(code: i32) -> ! {
 /// holds it first (`exit_with`, the work done), that end is the one that happens and the stop
 /// says nothing (a merge stopped as it ended had said "interrupted" and exited 0).
 pub fn exit_removing_temporaries(code: i32, say: impl FnOnce()) -> ! {
-    STOPPING.store(true, Ordering::SeqCst);
+    // The registry first: set before it, `stopping` let the main thread take an error of its
+    // own for this stop's doing and exit 130 with neither line said. Errors a stop causes come
+    // from its removals, which follow.
     let files = live();
+    STOPPING.store(true, Ordering::SeqCst);
     say();
     // Newest first, so that a folder registered before the files in it (a checkpoint folder
     // this process created) is tried once they are gone; only an empty folder is removed.
@@ -478,7 +481,12 @@ pub fn check_file_target(flag: &str, p: &Path) -> Result<()> {
 /// longer be resumed; so was any JSON file (a cached reference's description, a camera file,
 /// a `compare.json`), since only its first byte was looked at.
 pub fn check_report_target(flag: &str, p: &Path) -> Result<()> {
-    // (A regular file only: opening a FIFO would block.)
+    // A regular file only, looked at before it is opened: opening a FIFO would block (or
+    // release a writer waiting on it), and opening a device may act on it (a serial line, a
+    // tape).
+    if !p.is_file() {
+        return Ok(());
+    }
     let Ok(f) = open_regular(p) else {
         return Ok(());
     };
