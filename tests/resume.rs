@@ -1275,3 +1275,47 @@ fn a_checkpoint_folder_gets_its_parents() {
         "{err}"
     );
 }
+
+/// A checkpoint folder you made is kept when a resume completes the render, and one the render
+/// made goes (the trailer says which: a resume took every folder holding a checkpoint for one
+/// a run had made, and removed yours).
+#[test]
+fn a_resume_keeps_a_checkpoint_folder_you_made() {
+    let d = tempfile::tempdir().unwrap();
+    for (name, yours) in [("mine", true), ("made", false)] {
+        let ck = d.path().join(name);
+        if yours {
+            std::fs::create_dir(&ck).unwrap();
+        }
+        let out = d.path().join(format!("o_{name}/f_####.exr"));
+        let args = with(
+            &REUSE,
+            &[
+                "--out",
+                out.to_str().unwrap(),
+                "--checkpoint",
+                ck.to_str().unwrap(),
+                "--checkpoint-every",
+                "0",
+            ],
+        );
+        let mut child = reframe().args(&args).spawn().unwrap();
+        let state = ck.join("state");
+        interrupt_when(&mut child, "KILL", || state.exists());
+        child.wait().unwrap();
+        assert!(state.exists(), "{name}: no checkpoint");
+        run(&args
+            .iter()
+            .map(String::as_str)
+            .chain(["--resume"])
+            .collect::<Vec<_>>());
+        assert_eq!(ck.exists(), yours, "{name}");
+        if yours {
+            assert_eq!(
+                std::fs::read_dir(&ck).unwrap().count(),
+                0,
+                "{name}: left in it"
+            );
+        }
+    }
+}

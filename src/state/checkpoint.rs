@@ -209,7 +209,7 @@ impl Checkpointer {
         dir: Option<PathBuf>,
         every: Duration,
         resume: bool,
-        template: Trailer,
+        mut template: Trailer,
         norm: Norm,
     ) -> Result<(Checkpointer, Option<Resumed>)> {
         let mut resumed = None;
@@ -451,6 +451,17 @@ impl Checkpointer {
                 Some((f, lp, len, recs, crcs))
             }
         };
+        // Whether the folder is this render's to remove when it completes: made now, or by
+        // the run resumed (its trailer says; older checkpoints do not, and count as made), or
+        // by a run killed while writing its first checkpoint (its temporary was there).
+        let made_by_a_run = match &resumed {
+            Some(r) => r.trailer.dir_made.unwrap_or(true),
+            None => left_by_a_run,
+        };
+        let own_dir = made.is_some() || made_by_a_run;
+        if dir.is_some() {
+            template.dir_made = Some(own_dir);
+        }
         Ok((
             Checkpointer {
                 dir,
@@ -461,7 +472,7 @@ impl Checkpointer {
                 partial,
                 spent: Duration::ZERO,
                 written: 0,
-                own_dir: made.is_some() || resumed.is_some() || left_by_a_run,
+                own_dir,
                 _made: made,
                 log_counted: resumed.is_some(),
             },

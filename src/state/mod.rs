@@ -102,6 +102,12 @@ pub struct Trailer {
     /// checked).
     #[serde(default)]
     pub frame_digests: Vec<(u32, u64)>,
+    /// A checkpoint: whether a run of this render made its folder, so that the run that
+    /// completes it removes the folder, and a folder you made for it is kept, also when a
+    /// resume completes the render (absent in older files and in partials: taken as made by
+    /// a run, as before).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dir_made: Option<bool>,
 }
 
 impl Trailer {
@@ -131,6 +137,7 @@ impl Trailer {
             out,
             exr_float,
             inputs: vec![],
+            dir_made: None,
         }
     }
 }
