@@ -65,8 +65,12 @@ fn main() {
         );
         std::process::exit(2);
     }
+    // (Every argument is UTF-8, checked above.)
+    let args: Vec<String> = std::env::args_os()
+        .map(|a| a.to_string_lossy().into_owned())
+        .collect();
     let parsed = negative_numbers(<Cli as clap::CommandFactory>::command())
-        .try_get_matches()
+        .try_get_matches_from(negative_values_joined(args))
         .and_then(|m| <Cli as clap::FromArgMatches>::from_arg_matches(&m));
     let cli = match parsed {
         Ok(cli) => cli,
@@ -131,6 +135,33 @@ fn print_warnings(scene: &Scene) {
     for w in &scene.warnings {
         errln!("warning: {}", printable(w));
     }
+}
+
+/// The command line with each value that starts with a minus and a digit joined to the option
+/// before it (`--res -5x3` as `--res=-5x3`), so that the option's parser refuses it naming the
+/// option: clap takes a value that starts with `-` for a flag unless all of it is a number
+/// (`negative_numbers`), so `--res -5x3`, `--crop -1,0,4,4` and `--budgets -1,2` said
+/// "unexpected argument '-5'", naming none. Nothing after a bare `--` is touched.
+fn negative_values_joined(args: Vec<String>) -> Vec<String> {
+    let mut out = Vec::with_capacity(args.len());
+    let mut it = args.into_iter().peekable();
+    while let Some(a) = it.next() {
+        if a == "--" {
+            out.push(a);
+            out.extend(it);
+            break;
+        }
+        let option = a.len() > 2 && a.starts_with("--") && !a.contains('=');
+        let negative = |v: &String| {
+            let mut c = v.chars();
+            c.next() == Some('-') && c.next().is_some_and(|d| d.is_ascii_digit() || d == '.')
+        };
+        match it.next_if(|v| option && negative(v)) {
+            Some(v) => out.push(format!("{a}={v}")),
+            None => out.push(a),
+        }
+    }
+    out
 }
 
 /// Every option that takes a value takes one that looks like a negative number as its value,

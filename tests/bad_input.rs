@@ -258,6 +258,24 @@ fn usage_errors_are_one_line_that_says_what_is_missing() {
             &["merge", "--chunks", "-1", "--out", "x/f_####.exr"],
             "invalid value '-1' for '--chunks <CHUNKS>'",
         ),
+        // And a value that starts with a negative number but is not one (a size, a list).
+        (
+            &["render", "--res", "-5x3"],
+            "invalid value '-5x3' for '--res <RES>'",
+        ),
+        (
+            &["compare", "--budgets", "-1,2"],
+            "invalid value '-1' for '--budgets <BUDGETS>'",
+        ),
+        (
+            &["compare", "--crop", "-1,0,4,4"],
+            "invalid value '-1,0,4,4' for '--crop <CROP>'",
+        ),
+        // An option followed by another still lacks its value.
+        (
+            &["render", "--res", "--spp", "4"],
+            "a value is required for '--res <RES>'",
+        ),
     ] {
         let args: Vec<String> = args.iter().map(|a| a.to_string()).collect();
         let line = refusal(&run_reframe(&args, Duration::from_secs(60)))
