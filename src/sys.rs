@@ -109,9 +109,55 @@ extern "C" fn on_abort(sig: libc::c_int) {
     }
 }
 
-/// Install the handler that names the file being read when a library aborts (`reading`).
+/// The faults a library's decoder can end the process with while it reads a damaged file
+/// (OpenImageIO 2.4's Softimage PIC and Maya IFF readers read and write out of bounds), and
+/// the action each had before `say_aborts` (Rust's own: the stack overflow report).
+const FAULTS: [libc::c_int; 4] = [libc::SIGSEGV, libc::SIGBUS, libc::SIGFPE, libc::SIGILL];
+static mut PREVIOUS: [std::mem::MaybeUninit<libc::sigaction>; 4] =
+    [std::mem::MaybeUninit::uninit(); 4];
+
+/// The handler of a fault (`FAULTS`): while a file is read, its line (as `on_abort`), then the
+/// default action; otherwise the action there was before, restored, so that the fault, which
+/// happens again as the handler returns, is handled as it would have been. Only
+/// async-signal-safe calls.
+extern "C" fn on_fault(sig: libc::c_int, _: *mut libc::siginfo_t, _: *mut libc::c_void) {
+    let p = CRASH_LINE.load(std::sync::atomic::Ordering::SeqCst);
+    if !p.is_null() {
+        on_abort(sig);
+        return;
+    }
+    if let Some(k) = FAULTS.iter().position(|&f| f == sig) {
+        // SAFETY: `PREVIOUS[k]` was written by `sigaction` before this handler was installed
+        // for `sig`, and is never written again; `sigaction` is async-signal-safe.
+        unsafe {
+            let previous = (*std::ptr::addr_of!(PREVIOUS))[k].as_ptr();
+            libc::sigaction(sig, previous, std::ptr::null_mut());
+        }
+    }
+}
+
+/// Install the handlers that name the file being read when a library aborts or faults while
+/// reading it (`reading`).
 pub fn say_aborts() {
     let handler = on_abort as extern "C" fn(libc::c_int) as libc::sighandler_t;
     // SAFETY: `on_abort` makes only async-signal-safe calls.
     unsafe { libc::signal(libc::SIGABRT, handler) };
+    for (k, &sig) in FAULTS.iter().enumerate() {
+        // SAFETY: called once, at start, before any other thread runs; `PREVIOUS[k]` is written
+        // by `sigaction` before the handler that reads it is installed. On the alternate signal
+        // stack (`SA_ONSTACK`), where Rust runs its own, so that a stack overflow still reaches
+        // Rust's report.
+        unsafe {
+            let mut action: libc::sigaction = std::mem::zeroed();
+            action.sa_sigaction = on_fault
+                as extern "C" fn(libc::c_int, *mut libc::siginfo_t, *mut libc::c_void)
+                as libc::sighandler_t;
+            action.sa_flags = libc::SA_SIGINFO | libc::SA_ONSTACK;
+            libc::sigemptyset(&mut action.sa_mask);
+            let previous = (*std::ptr::addr_of_mut!(PREVIOUS))[k].as_mut_ptr();
+            if libc::sigaction(sig, std::ptr::null(), previous) == 0 {
+                libc::sigaction(sig, &action, std::ptr::null_mut());
+            }
+        }
+    }
 }

@@ -1496,3 +1496,79 @@ fn a_map_beside_a_zero_ks_or_ke_is_said_to_do_nothing() {
         "{e}"
     );
 }
+
+/// A damaged image that makes the image library's decoder fault (OpenImageIO 2.4's Softimage
+/// PIC reader on a file cut short inside its pixels: a segmentation fault on every run) ends
+/// the process as before, but says which file: it ended with status 139 and nothing said.
+#[test]
+fn a_decoder_that_faults_on_a_damaged_texture_names_the_file() {
+    use std::os::unix::process::ExitStatusExt;
+    let d = tempfile::tempdir().unwrap();
+    // An 8x8 RLE PIC of four runs per row, cut inside its pixel data.
+    let mut pic = Vec::new();
+    pic.extend(0x5380_F634u32.to_be_bytes());
+    pic.extend(3.71f32.to_be_bytes());
+    let mut comment = [0u8; 80];
+    comment[0] = b't';
+    pic.extend(comment);
+    pic.extend(b"PICT");
+    pic.extend(8u16.to_be_bytes());
+    pic.extend(8u16.to_be_bytes());
+    pic.extend(1.0f32.to_be_bytes());
+    pic.extend(3u16.to_be_bytes());
+    pic.extend(0u16.to_be_bytes());
+    pic.extend([0, 8, 2, 0xE0]);
+    for y in 0..8 {
+        let runs: [[u8; 3]; 2] = if y < 4 {
+            [[255, 0, 0], [0, 255, 0]]
+        } else {
+            [[0, 0, 255], [255, 255, 255]]
+        };
+        for c in runs {
+            pic.push(128 + 3);
+            pic.extend(c);
+        }
+    }
+    pic.truncate(119);
+    std::fs::write(d.path().join("cut.pic"), &pic).unwrap();
+    let mtl = "newmtl m\nKd 0.5 0.5 0.5\nmap_Kd cut.pic\n";
+    let obj = "mtllib s.mtl\nv -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\n\
+               vt 0 1\nusemtl m\nf 1/1 2/2 3/3 4/4\n";
+    let sky = "[environment]\nradiance = [1, 1, 1]";
+    let scene = write_scene(
+        d.path(),
+        obj,
+        mtl,
+        &toml(16, 16, [0.0, 0.0, 2.0], 40.0, sky),
+    );
+    let out = d.path().join("out/f_####.exr");
+    let o = common::reframe(&[
+        "render",
+        &scene,
+        "--spp",
+        "1",
+        "--threads",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ])
+    // (Where the system writes a core file, it goes with the temporary folder.)
+    .current_dir(d.path())
+    .output()
+    .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    // The decoder's fault may also surface as an abort (a heap it damaged); either way the
+    // process ends by the signal, after the line.
+    assert!(
+        matches!(
+            o.status.signal(),
+            Some(libc::SIGSEGV | libc::SIGABRT | libc::SIGBUS)
+        ),
+        "{:?}: {err}",
+        o.status
+    );
+    assert!(
+        err.contains("cut.pic crashed the image library (OpenImageIO)"),
+        "{err}"
+    );
+}
