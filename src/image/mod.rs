@@ -916,6 +916,20 @@ fn radiance_hint(path: &Path) -> Option<&'static str> {
 /// `/dev/zero` was read without end (a cached reference frame replaced by either hung
 /// `reference` and `compare`). Every read of an image file starts here.
 fn open_reader(path: &Path) -> Result<cxx::UniquePtr<ffi::ImageReader>> {
+    // A name that picks OpenImageIO's "null" reader (`.null`, or `.null?RES=...`) is read as
+    // an image made from the name alone, the file's bytes never looked at: a PNG renamed so
+    // rendered black, and `x.null?RES=8000x8000` made a 0.9 GB image of nothing.
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if name.ends_with(".null") || name.contains(".null?") {
+        bail!(
+            "a name ending in .null picks the image library's null reader, which makes an \
+             image from the name and reads nothing of the file: name it for its format \
+             (.png, .exr, ...)"
+        );
+    }
     if let Ok(m) = std::fs::metadata(path) {
         if !m.is_file() {
             bail!(
