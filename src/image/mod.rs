@@ -956,6 +956,20 @@ fn open_checked(
         (a.name == "compression" && a.text.to_ascii_lowercase().starts_with("sgilog"))
             || (a.name == "tiff:PhotometricInterpretation" && matches!(a.int_value, 32844 | 32845))
     });
+    // A "white is zero" greyscale TIFF (photometric 0) of more than 8 bits: OpenImageIO 2.4
+    // turns 1- and 8-bit ones the right way up and hands the others over as stored, a
+    // negative (as a colour map, and as a cut-out its other half).
+    let attr = |name: &str| reader.attributes().into_iter().find(|a| a.name == name);
+    let white_is_zero = attr("tiff:PhotometricInterpretation").is_some_and(|a| a.int_value == 0);
+    let bits = attr("oiio:BitsPerSample").map_or(8, |a| a.int_value);
+    if white_is_zero && bits > 8 {
+        bail!(
+            "a {bits}-bit 'white is zero' greyscale TIFF, which OpenImageIO {} reads as its \
+             negative: convert it (to a 'black is zero' TIFF, PNG or EXR; oiiotool reads it \
+             the same wrong way)",
+            ffi::oiio_version()
+        );
+    }
     if logluv {
         bail!(
             "a LogLuv (SGILog) TIFF, which OpenImageIO {} does not decode as HDR: convert it \
