@@ -367,18 +367,26 @@ pub fn remove_stale_tmp(dir: &Path, ours: impl Fn(&str) -> bool) -> usize {
 /// `NotFound`, as `File::open` says it.
 pub fn open_regular(p: &Path) -> std::io::Result<std::fs::File> {
     use std::os::unix::fs::OpenOptionsExt;
+    let refuse = |t: std::fs::FileType| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("it is {}, not a regular file", super::input::kind(t)),
+        )
+    };
+    // Looked at before it is opened (opening a device may act on it: a serial line, a tape),
+    // and again after, in case something else took its place in between.
+    let t = std::fs::metadata(p)?.file_type();
+    if !t.is_file() {
+        return Err(refuse(t));
+    }
     let f = std::fs::OpenOptions::new()
         .read(true)
         .custom_flags(libc::O_NONBLOCK)
         .open(p)?;
     let t = f.metadata()?.file_type();
     if !t.is_file() {
-        return Err(std::io::Error::new(
-            std::io::ErrorKind::InvalidInput,
-            format!("it is {}, not a regular file", super::input::kind(t)),
-        ));
+        return Err(refuse(t));
     }
-    // Reads from here on wait for data as usual (a regular file's never do).
     Ok(f)
 }
 
@@ -481,12 +489,7 @@ pub fn check_file_target(flag: &str, p: &Path) -> Result<()> {
 /// longer be resumed; so was any JSON file (a cached reference's description, a camera file,
 /// a `compare.json`), since only its first byte was looked at.
 pub fn check_report_target(flag: &str, p: &Path) -> Result<()> {
-    // A regular file only, looked at before it is opened: opening a FIFO would block (or
-    // release a writer waiting on it), and opening a device may act on it (a serial line, a
-    // tape).
-    if !p.is_file() {
-        return Ok(());
-    }
+    // A regular file only, looked at before it is opened (`open_regular`).
     let Ok(f) = open_regular(p) else {
         return Ok(());
     };
