@@ -542,6 +542,62 @@ fn an_abort_while_reading_a_file_names_the_file() {
     );
 }
 
+/// The handler that names a file whose decoder faults leaves a fault outside a read to the
+/// handler there was before: a stack overflow is still reported as one by Rust (and the
+/// process still ends by SIGABRT). This test runs itself again as the process that overflows.
+#[test]
+fn a_stack_overflow_outside_a_read_is_still_reported_as_one() {
+    const CHILD: &str = "REFRAME_TEST_STACK_OVERFLOW";
+    if std::env::var_os(CHILD).is_some() {
+        reframe::sys::keep_stderr();
+        reframe::sys::say_aborts();
+        fn deeper(n: u64) -> u64 {
+            let room = std::hint::black_box([n; 64]);
+            room[(n % 64) as usize] + if n == u64::MAX { 0 } else { deeper(n + 1) }
+        }
+        // A thread of Rust's own, with a small stack and its guard page.
+        let t = std::thread::Builder::new()
+            .name("deep".into())
+            .stack_size(256 << 10)
+            .spawn(|| deeper(0))
+            .unwrap();
+        let _ = t.join();
+        return;
+    }
+    use std::os::unix::process::ExitStatusExt;
+    let mut child = std::process::Command::new(std::env::current_exe().unwrap())
+        .args([
+            "a_stack_overflow_outside_a_read_is_still_reported_as_one",
+            "--exact",
+            "--nocapture",
+        ])
+        .env(CHILD, "1")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // A handler that returned to the fault without passing it on would fault for ever.
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > Duration::from_secs(60) {
+            let _ = child.kill();
+            panic!("the overflowing process did not end");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+    assert_eq!(status.signal(), Some(libc::SIGABRT), "{err}");
+    assert!(
+        err.contains("thread 'deep'") && err.contains("overflowed its stack"),
+        "{err}"
+    );
+    assert!(!err.contains("crashed the image library"), "{err}");
+}
+
 /// A `usemtl` name no material has, beside a material's name of about its length, both long:
 /// the hint's edit distance took a time in the product of their lengths (two names of 10^5
 /// characters took 16 s to load, of 10^6 about half an hour). Long names are compared case
