@@ -490,8 +490,12 @@ rust::Vec<Attribute> ImageReader::attributes() const {
     return result;
 }
 
-void ImageReader::read_f32(rust::Slice<float> out) {
-    const size_t nch = size_t(spec_.nchannels);
+void ImageReader::read_f32(uint32_t chbegin, uint32_t chend, rust::Slice<float> out) {
+    if (chbegin >= chend || int(chend) > spec_.nchannels) {
+        throw std::runtime_error("channels out of the image's range");
+    }
+    const int cb = int(chbegin), ce = int(chend);
+    const size_t nch = size_t(ce - cb);
     const bool w = windowed(spec_, in_->format_name());
     const size_t n = size_t(w ? spec_.full_width : spec_.width) *
                      size_t(w ? spec_.full_height : spec_.height) * nch;
@@ -501,7 +505,7 @@ void ImageReader::read_f32(rust::Slice<float> out) {
     bool ok = true;
     if (!w) {
         QuietStderr quiet;
-        ok = in_->read_image(0, 0, 0, spec_.nchannels, OIIO::TypeDesc::FLOAT, out.data());
+        ok = in_->read_image(0, 0, cb, ce, OIIO::TypeDesc::FLOAT, out.data());
     } else {
         // The stored rows that fall inside the display window, one at a time, each placed
         // where it belongs (rows and columns outside it are not kept: an overscan frame's
@@ -528,7 +532,7 @@ void ImageReader::read_f32(rust::Slice<float> out) {
                     continue;
                 }
                 ok = in_->read_tiles(0, 0, xb, xe, y0, y1, spec_.z, spec_.z + std::max(spec_.depth, 1),
-                                     0, spec_.nchannels, OIIO::TypeDesc::FLOAT, band.data());
+                                     cb, ce, OIIO::TypeDesc::FLOAT, band.data());
                 for (int y = y0; y < y1 && ok; ++y) {
                     const int dy = y - spec_.full_y;
                     if (dy < 0 || dy >= spec_.full_height) {
@@ -550,7 +554,8 @@ void ImageReader::read_f32(rust::Slice<float> out) {
             if (dy < 0 || dy >= spec_.full_height) {
                 continue;
             }
-            ok = in_->read_scanline(spec_.y + y, 0, OIIO::TypeDesc::FLOAT, row.data());
+            ok = in_->read_scanlines(0, 0, spec_.y + y, spec_.y + y + 1, spec_.z, cb, ce,
+                                     OIIO::TypeDesc::FLOAT, row.data());
             if (ok && x0 < x1) {
                 std::copy(row.data() + size_t(x0 - spec_.x) * nch,
                           row.data() + size_t(x1 - spec_.x) * nch,

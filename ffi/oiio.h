@@ -33,7 +33,7 @@ public:
     ImageReader(std::unique_ptr<OIIO::ImageInput> in, int subimages);
     ImageInfo info() const;
     rust::Vec<Attribute> attributes() const;
-    void read_f32(rust::Slice<float> out);
+    void read_f32(uint32_t chbegin, uint32_t chend, rust::Slice<float> out);
 
 private:
     std::unique_ptr<OIIO::ImageInput> in_;

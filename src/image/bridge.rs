@@ -133,8 +133,14 @@ pub(crate) mod ffi {
         fn info(self: &ImageReader) -> ImageInfo;
         /// Every attribute of the first subimage's spec.
         fn attributes(self: &ImageReader) -> Vec<Attribute>;
-        /// Converts to f32; `out` must hold exactly width * height * channels values.
-        fn read_f32(self: Pin<&mut ImageReader>, out: &mut [f32]) -> Result<()>;
+        /// Channels `chbegin..chend`, converted to f32; `out` must hold exactly width * height
+        /// * (chend - chbegin) values.
+        fn read_f32(
+            self: Pin<&mut ImageReader>,
+            chbegin: u32,
+            chend: u32,
+            out: &mut [f32],
+        ) -> Result<()>;
     }
 }
 
