@@ -930,12 +930,11 @@ fn open_reader(path: &Path) -> Result<cxx::UniquePtr<ffi::ImageReader>> {
              (.png, .exr, ...)"
         );
     }
-    if let Ok(m) = std::fs::metadata(path) {
-        if !m.is_file() {
-            bail!(
-                "it is {}, not a regular file",
-                crate::util::input::kind(m.file_type())
-            );
+    // (Opened here to be looked at; a missing or unreadable file is left for OpenImageIO to
+    // say.)
+    if let Err(e) = crate::util::fs::open_regular(path) {
+        if crate::util::fs::not_regular(&e) {
+            bail!("it {e}");
         }
     }
     // What OpenImageIO's words leave out of a Radiance file is added by `read_error`.
@@ -950,16 +949,17 @@ fn open_checked(
 ) -> Result<(cxx::UniquePtr<ffi::ImageReader>, ffi::ImageInfo)> {
     let reader = open_reader(path)?;
     let info = reader.info();
+    let attrs = reader.attributes();
     // A LogLuv TIFF (SGI's log-encoded HDR) comes out of this OpenImageIO as 8-bit codes of
     // another meaning, which would light a scene with the wrong values without a word.
-    let logluv = reader.attributes().iter().any(|a| {
+    let logluv = attrs.iter().any(|a| {
         (a.name == "compression" && a.text.to_ascii_lowercase().starts_with("sgilog"))
             || (a.name == "tiff:PhotometricInterpretation" && matches!(a.int_value, 32844 | 32845))
     });
     // A "white is zero" greyscale TIFF (photometric 0) of more than 8 bits: OpenImageIO 2.4
     // turns 1- and 8-bit ones the right way up and hands the others over as stored, a
     // negative (as a colour map, and as a cut-out its other half).
-    let attr = |name: &str| reader.attributes().into_iter().find(|a| a.name == name);
+    let attr = |name: &str| attrs.iter().find(|a| a.name == name);
     let white_is_zero = attr("tiff:PhotometricInterpretation").is_some_and(|a| a.int_value == 0);
     let bits = attr("oiio:BitsPerSample").map_or(8, |a| a.int_value);
     if white_is_zero && bits > 8 {

@@ -363,14 +363,15 @@ pub fn remove_stale_tmp(dir: &Path, ours: impl Fn(&str) -> bool) -> usize {
 
 /// Open the file at `p` (through any links) for reading, never blocking: a named pipe put in
 /// a file's place (opening one for reading waits for a writer) or a device (`/dev/zero` reads
-/// without end) is an error that says what it is, of kind `InvalidInput`; a missing file is
-/// `NotFound`, as `File::open` says it.
+/// without end) is an error that says what it is (`is a named pipe (FIFO), not a regular
+/// file`; `not_regular` tells it apart); a missing file is `NotFound`, as `File::open` says it.
+/// Every input that reframe opens itself is opened here (`util::input::open_input`).
 pub fn open_regular(p: &Path) -> std::io::Result<std::fs::File> {
     use std::os::unix::fs::OpenOptionsExt;
     let refuse = |t: std::fs::FileType| {
         std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
-            format!("it is {}, not a regular file", super::input::kind(t)),
+            format!("is {}, not a regular file", super::input::kind(t)),
         )
     };
     // Looked at before it is opened (opening a device may act on it: a serial line, a tape),
@@ -388,6 +389,12 @@ pub fn open_regular(p: &Path) -> std::io::Result<std::fs::File> {
         return Err(refuse(t));
     }
     Ok(f)
+}
+
+/// Whether `e` is `open_regular`'s refusal of a file that is not a regular file (its own
+/// error, not the system's).
+pub fn not_regular(e: &std::io::Error) -> bool {
+    e.kind() == std::io::ErrorKind::InvalidInput && e.raw_os_error().is_none()
 }
 
 /// Fail if `p` exists as anything but a regular file. Outputs are written under a temporary name

@@ -21,9 +21,9 @@
 //! # anyhow::Ok(())
 //! ```
 use anyhow::Result;
-use std::fs::{File, FileType, OpenOptions};
+use std::fs::{File, FileType};
 use std::io::{ErrorKind, Read};
-use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+use std::os::unix::fs::FileTypeExt;
 use std::path::{Path, PathBuf};
 
 /// The largest scene TOML, OBJ or MTL file reframe reads (1 GiB): a larger one is refused before
@@ -147,28 +147,20 @@ pub fn open_input_or_missing(path: &Path, what: &str, max_bytes: u64) -> Result<
         }),
         _ => refuse(format!("cannot read: {e}")),
     };
-    let check = |t: FileType, len: u64| -> Result<(), InputError> {
-        if !t.is_file() {
-            let k = kind(t);
-            return Err(refuse(format!("is {k}, not a regular file")));
+    // A regular file only, never blocking (`fs::open_regular`), then within the limit.
+    let file = crate::util::fs::open_regular(path).map_err(|e| {
+        if crate::util::fs::not_regular(&e) {
+            refuse(e.to_string())
+        } else {
+            io(e)
         }
-        if len > max_bytes {
-            return Err(refuse(format!(
-                "{len} bytes, over the limit of {max_bytes} bytes"
-            )));
-        }
-        Ok(())
-    };
-    let m = std::fs::metadata(path).map_err(io)?;
-    check(m.file_type(), m.len())?;
-    // Non-blocking, in case a FIFO took the file's place since `metadata`.
-    let file: File = OpenOptions::new()
-        .read(true)
-        .custom_flags(libc::O_NONBLOCK)
-        .open(path)
-        .map_err(io)?;
-    let m = file.metadata().map_err(io)?;
-    check(m.file_type(), m.len())?;
+    })?;
+    let len = file.metadata().map_err(io)?.len();
+    if len > max_bytes {
+        return Err(refuse(format!(
+            "{len} bytes, over the limit of {max_bytes} bytes"
+        )));
+    }
     Ok(file)
 }
 
