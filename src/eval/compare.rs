@@ -412,19 +412,23 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         say_skipped();
         bail!("nothing to compare: no method with a budget and a window that fits the frames");
     }
-    // Every run checked as its render will check it (samples per group, memory), before the
-    // reference: a run refused after the reference and the runs before it had rendered.
-    for (c, window, spp, rendered) in &plan {
-        let spec = RunSpec {
-            c: *c,
-            window: *window,
-            spp: *spp,
-            seed: opts.seed,
-            rendered: rendered.clone(),
+    // A run of `c` at `window` and `spp`, with `seed`, rendering `rendered`; the rest is
+    // every run's.
+    let run_spec =
+        |c: Candidate, window: u32, spp: u32, seed: u64, rendered: RangeInclusive<u32>| RunSpec {
+            c,
+            window,
+            spp,
+            seed,
+            rendered,
             res: (w, h),
             max_depth: opts.max_depth,
             threads: opts.threads,
         };
+    // Every run checked as its render will check it (samples per group, memory), before the
+    // reference: a run refused after the reference and the runs before it had rendered.
+    for (c, window, spp, rendered) in &plan {
+        let spec = run_spec(*c, *window, *spp, opts.seed, rendered.clone());
         spec.options().check(scene).with_context(|| {
             if c.method.reuses() {
                 format!("--methods {c} at --reuse-budgets {spp} and --windows {window}")
@@ -508,16 +512,7 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             &integrator,
             &pool,
             &mut denoiser,
-            &RunSpec {
-                c: method,
-                window,
-                spp,
-                seed: opts.seed,
-                rendered: rendered.clone(),
-                res: (w, h),
-                max_depth: opts.max_depth,
-                threads: opts.threads,
-            },
+            &run_spec(method, window, spp, opts.seed, rendered.clone()),
             &range,
         )?;
         let mut frames = std::mem::take(&mut out.frames);
@@ -945,16 +940,13 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
                 &integrator,
                 &pool,
                 &mut denoiser,
-                &RunSpec {
+                &run_spec(
                     c,
-                    window: r.window,
-                    spp: r.spp,
-                    seed: opts.seed.wrapping_add(k as u64),
-                    rendered: span.clone(),
-                    res: (w, h),
-                    max_depth: opts.max_depth,
-                    threads: opts.threads,
-                },
+                    r.window,
+                    r.spp,
+                    opts.seed.wrapping_add(k as u64),
+                    span.clone(),
+                ),
                 &(crop_frame..=crop_frame),
             )?;
             seeds.extend(out.frames);
