@@ -288,6 +288,31 @@ fn masks_read_alpha_grey_or_first_channel_as_stored() {
         e.contains("-imfchan m names a channel it does not have"),
         "{e}"
     );
+    // `l` is the luminance: a grey file's grey, and of a colour file without one, its red,
+    // green and blue weighted as BT.709 (not its red: pure red, 0.2126, is cut out; pure green,
+    // 0.7152, kept), each below zero read as zero, as the lookups read them.
+    let grey_l = t.open_mask(&grey, Some('l')).unwrap();
+    assert_eq!(t.value(grey_l, Vec2::new(0.75, 0.5)), 128.0 / 255.0);
+    let hues = d.path().join("hues.exr");
+    let mut img = Image::new(2, 2, &["B", "G", "R"]);
+    for (i, px) in img.data.chunks_exact_mut(3).enumerate() {
+        // Left red (and blue below zero), right green; as B, G, R.
+        let bgr = if i % 2 == 0 {
+            [-4.0, 0.0, 1.0]
+        } else {
+            [0.0, 1.0, 0.0]
+        };
+        px.copy_from_slice(&bgr);
+    }
+    write_image(&hues, &img, &Metadata::default(), &exr_opts).unwrap();
+    let lum = t.open_mask(&hues, Some('l')).unwrap();
+    for (u, want) in [(0.25, 0.2126), (0.75, 0.7152), (0.5, 0.4639)] {
+        let got = t.value(lum, Vec2::new(u, 0.5));
+        assert!(
+            (got - want).abs() < 1e-6,
+            "luminance at u {u}: {got}, want {want}"
+        );
+    }
 }
 
 /// What reframe does not render is said: `d` below 1 (the surface stays opaque) and a mask on

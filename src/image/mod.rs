@@ -1490,7 +1490,14 @@ struct MaskPick {
     /// coverage) to read instead if the alpha is opaque everywhere (a mask saved in the colour
     /// of an RGBA file whose alpha was filled), its grey channel or else its first other one.
     if_opaque: Option<(usize, bool)>,
+    /// With `-imfchan l` and no grey channel: the red, green and blue channels whose luminance
+    /// is the mask (`LUMINANCE`); `channel` is then the red one.
+    luminance: Option<[usize; 3]>,
 }
+
+/// The weights of linear red, green and blue in luminance (ITU-R BT.709, as the rest of reframe
+/// takes colours): what `-imfchan l` reads from a colour file that has no grey channel.
+pub const LUMINANCE: [f32; 3] = [0.2126, 0.7152, 0.0722];
 
 /// `mask_source`, and the channel to read instead where the alpha it picks is opaque.
 fn mask_pick(names: &[String], imfchan: Option<char>) -> Result<MaskPick> {
@@ -1527,6 +1534,16 @@ fn mask_pick(names: &[String], imfchan: Option<char>) -> Result<MaskPick> {
         Some('l') => grey.or(first),
         Some(_) => first,
     };
+    // The luminance of a colour file's red, green and blue (each found by name or role); an
+    // image of fewer channels is grey already.
+    let luminance = match (imfchan, grey) {
+        (Some('l'), None) => match (find("R"), find("G"), find("B")) {
+            (Some(r), Some(g), Some(b)) => Some([r, g, b]),
+            _ => None,
+        },
+        _ => None,
+    };
+    let picked = luminance.map_or(picked, |[r, _, _]| Some(r));
     let channel = picked.ok_or_else(|| {
         anyhow!(
             "-imfchan {} names a channel it does not have (its channels: {})",
@@ -1545,6 +1562,7 @@ fn mask_pick(names: &[String], imfchan: Option<char>) -> Result<MaskPick> {
         channel,
         coverage,
         if_opaque,
+        luminance,
     })
 }
 
@@ -1555,6 +1573,9 @@ pub struct MaskLayout {
     /// (`mask_source`).
     pub channel: usize,
     pub coverage: bool,
+    /// The red, green and blue channels (their indices in the file) whose luminance is the
+    /// mask (`-imfchan l` on a colour file without a grey channel), `channel` then the red.
+    pub luminance: Option<[usize; 3]>,
     /// As `ColourLayout`'s: the images the file holds, and its layers of colour where several.
     pub parts: u32,
     pub layers: Vec<String>,
@@ -1592,8 +1613,14 @@ pub fn read_mask(
         // Only the channels the mask may be in are read (`read_channels`): `at` and
         // `instead_at` are the picked channel's and the one that stands in for an opaque
         // alpha's places among them.
-        let (range, [at, instead_at]) =
-            span_of([Some(pick.channel), pick.if_opaque.map(|(c, _)| c)]);
+        let lum = |k: usize| pick.luminance.map(|c| c[k]);
+        let (range, [at, instead_at, r, g, b]) = span_of([
+            Some(pick.channel),
+            pick.if_opaque.map(|(c, _)| c),
+            lum(0),
+            lum(1),
+            lum(2),
+        ]);
         let nch = range.len();
         let need = pixels * (4 * nch as u64 + 4);
         check_room(&info, nch, need)?;
@@ -1611,15 +1638,27 @@ pub fn read_mask(
             }
             _ => (pick.channel, pick.coverage, false, at),
         };
+        // Below zero a channel reads as zero, in the luminance as in the lookups
+        // (`Textures::rgb`); one that is not finite makes the luminance so, to be refused.
+        let clamp = |v: f32| if v.is_finite() { v.max(0.0) } else { v };
+        let value = |px: &[f32]| match (r, g, b) {
+            (Some(r), Some(g), Some(b)) => [r, g, b]
+                .iter()
+                .zip(LUMINANCE)
+                .map(|(&c, w)| w * clamp(px[c]))
+                .sum(),
+            _ => px[local],
+        };
         let img = Image {
             width: info.width,
             height: info.height,
             channels: vec!["A".into()],
-            data: data.chunks_exact(nch).map(|px| px[local]).collect(),
+            data: data.chunks_exact(nch).map(value).collect(),
         };
         let layout = MaskLayout {
             channel,
             coverage,
+            luminance: pick.luminance,
             parts,
             layers: several_layers(&info.channels),
             alpha_opaque,

@@ -84,6 +84,9 @@ struct Info {
     negatives: u64,
     /// Whether every texel read is zero or below (a mask that cuts away everything).
     zero: bool,
+    /// Whether the mask is the luminance of the colour fetched (`image::LUMINANCE`), not its
+    /// first channel.
+    luminance: bool,
     /// What its file says of its pixels that is not applied (`image::Meaning`).
     meaning: super::Meaning,
 }
@@ -202,22 +205,33 @@ impl Textures {
                 layers,
                 alpha_opaque,
                 meaning,
+                luminance,
             },
         ) = read_mask(path, MAX_TEXELS, imfchan)?;
         let negatives = check_texels(path, &img.data)?;
+        // The channels fetched: the mask's one, or the span of the three whose luminance it is.
+        let (first, last, pick) = match luminance {
+            Some(c) => {
+                let (lo, hi) = (c.iter().min().unwrap(), c.iter().max().unwrap());
+                (*lo, *hi, c.map(|c| Some(c - lo)))
+            }
+            None => (channel, channel, [Some(0), None, None]),
+        };
         let id = self
             .set
             .pin_mut()
-            .add(path_bytes(path), channel as u32, channel as u32 + 1)
+            .add(path_bytes(path), first as u32, last as u32 + 1)
             .map_err(|e| anyhow!("cannot open {} as a texture: {}", path.display(), e.what()))?;
-        Ok(self.add(
+        let id = self.add(
             key,
             id,
             &img,
-            (1, [Some(0), None, None], false, parts, layers),
+            (last - first + 1, pick, false, parts, layers),
             (!coverage, alpha_opaque),
             (negatives, meaning),
-        ))
+        );
+        self.info[id.0 as usize].luminance = luminance.is_some();
+        Ok(id)
     }
 
     /// Record texture `id` of the texture set, opened as `key` and read as `img` (what its
@@ -253,6 +267,7 @@ impl Textures {
             alpha_opaque,
             negatives,
             zero: img.data.iter().all(|&v| v <= 0.0),
+            luminance: false,
             layers,
             meaning,
         });
@@ -342,7 +357,12 @@ impl Textures {
     /// four texels around it, as `rgb`.
     #[inline]
     pub fn value(&self, id: TextureId, uv: Vec2) -> f32 {
-        self.rgb(id, uv).x
+        let c = self.rgb(id, uv);
+        if self.info[id.0 as usize].luminance {
+            c.dot(Vec3::from(super::LUMINANCE))
+        } else {
+            c.x
+        }
     }
 
     /// The linear RGB of texture `id` at texture coordinates `uv` (`v` up, as in OBJ files:
