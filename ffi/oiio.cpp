@@ -78,7 +78,7 @@ private:
 [[noreturn]] void throw_global_error(const std::string& context) {
     std::string msg = OIIO::geterror();
     if (msg.empty()) {
-        msg = "unknown OpenImageIO error";
+        msg = "OpenImageIO gave no reason";
     }
     throw std::runtime_error(context + ": " + msg);
 }
@@ -90,7 +90,7 @@ private:
         msg = OIIO::geterror();
     }
     if (msg.empty()) {
-        msg = "unknown OpenImageIO error";
+        msg = "OpenImageIO's writer gave no reason";
     }
     throw std::runtime_error(context + ": " + msg);
 }
@@ -101,7 +101,8 @@ private:
         msg = OIIO::geterror();
     }
     if (msg.empty()) {
-        msg = "unknown OpenImageIO error";
+        // Some readers fail a file cut short without a word (PNM, DPX).
+        msg = "OpenImageIO's reader gave no reason (the file may be cut short or damaged)";
     }
     throw std::runtime_error(context + ": " + msg);
 }
@@ -218,7 +219,7 @@ std::unique_ptr<std::vector<uint8_t>> write_pixels(const std::string& path,
         std::string msg = out->geterror();
         out->close();
         throw std::runtime_error("cannot write pixels: " +
-                                 (msg.empty() ? std::string("unknown OpenImageIO error") : msg));
+                                 (msg.empty() ? std::string("OpenImageIO's writer gave no reason") : msg));
     }
     // Writers flush and compress on close; some report a failure only as an error left set
     // (TIFF's "failed TIFFWriteDirectory()" with close() true).
