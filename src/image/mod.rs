@@ -1254,7 +1254,9 @@ fn role(c: &str) -> Option<char> {
 /// (`space`, OIIO's `oiio:ColorSpace`), whether it stores 8- or 16-bit unsigned codes, and its
 /// format (OIIO's name):
 /// - a file that names sRGB is sRGB, one that names a linear space (`linear`, `scene_linear`,
-///   `lin_*`, ACES, `GammaCorrected1.0`) is linear;
+///   `lin_*`, ACEScg and ACES2065, `GammaCorrected1.0`) is linear;
+/// - a file in a log encoding (`log_encoding`: Cineon's and DPX's `KodakLog`, `ACEScct`,
+///   `LogC`, ...) is read as its values, not decoded (and warned of: `Meaning::encoding`);
 /// - a file that names another gamma (`GammaCorrected2.2` or `Gamma2.2`: a PNG with a `gAMA`
 ///   chunk and no `sRGB` chunk; `g22_rec709`) is decoded as sRGB, the curve that gamma stands
 ///   for in practice; data that is no colour (`Non-Color`, `raw`) is not decoded;
@@ -1265,6 +1267,9 @@ fn role(c: &str) -> Option<char> {
 ///   and read up to 20 times too dark) or is an EXR.
 pub fn srgb_encoded(space: Option<&str>, codes: bool, format: &str) -> bool {
     let s = space.unwrap_or("").trim().to_ascii_lowercase();
+    if log_encoding(&s) {
+        return false;
+    }
     // A gamma by number: OIIO 2.4's `GammaCorrected2.2`, later versions' `Gamma2.2`.
     let gamma = s
         .strip_prefix("gammacorrected")
@@ -1288,6 +1293,15 @@ pub fn srgb_encoded(space: Option<&str>, codes: bool, format: &str) -> bool {
     } else {
         codes && !format.eq_ignore_ascii_case("openexr")
     }
+}
+
+/// Whether colour space `space` (OIIO's `oiio:ColorSpace`, any case) is a logarithmic encoding,
+/// which reframe does not decode: film scans' `KodakLog` (Cineon, DPX), ACES's `ACEScc` and
+/// `ACEScct` (the others of its spaces are linear), cameras' `LogC`, `S-Log3`, `Log3G10`, `V-Log`
+/// and the like, and ADX film densities.
+pub fn log_encoding(space: &str) -> bool {
+    let s = space.to_ascii_lowercase().replace(['-', '_', ' ', '.'], "");
+    s.contains("log") || s.starts_with("acescc") || s.contains("cineon") || s.starts_with("adx")
 }
 
 /// Reads a colour input (an environment map, a texture) as linear RGB: refuses images of more
@@ -1344,6 +1358,9 @@ pub struct Meaning {
     pub orientation: Option<i32>,
     /// Its EXR `chromaticities` (red, green, blue and white x, y), where not Rec.709's.
     pub chromaticities: Option<String>,
+    /// The log encoding it names (`log_encoding`: its `oiio:ColorSpace`, or a DPX's
+    /// `dpx:Transfer`), whose values are read as they are, not decoded.
+    pub encoding: Option<String>,
 }
 
 /// EXIF's names of the orientations (`Meaning::orientation`).
@@ -1381,9 +1398,20 @@ fn meaning(attrs: &[ffi::Attribute]) -> Meaning {
         let rec709 = v.len() == 8 && v.iter().zip(REC709).all(|(a, b)| (a - b).abs() < 2e-3);
         (!rec709).then(|| a.text.clone())
     });
+    // A DPX says its encoding in its transfer characteristic too (OIIO names the colour space
+    // from it for some values only).
+    let text = |name: &str| find(name).map(|a| a.text.trim().to_string());
+    let encoding = text("oiio:ColorSpace")
+        .filter(|s| log_encoding(s))
+        .or_else(|| {
+            text("dpx:Transfer")
+                .filter(|t| matches!(t.as_str(), "Logarithmic" | "Printing density"))
+                .map(|t| format!("dpx:Transfer {t}"))
+        });
     Meaning {
         orientation,
         chromaticities,
+        encoding,
     }
 }
 
@@ -2205,6 +2233,12 @@ mod tests {
             ("lin_srgb", true, "tiff", false),
             ("scene_linear", true, "tiff", false),
             ("ACEScg", false, "openexr", false),
+            // Log encodings are read as their values (and warned of).
+            ("ACEScct", true, "png", false),
+            ("ACEScc", true, "tiff", false),
+            ("KodakLog", true, "dpx", false),
+            ("ARRI LogC3 (EI800)", true, "tiff", false),
+            ("S-Log3", true, "tiff", false),
         ];
         for (space, integer, format, want) in named {
             assert_eq!(srgb_encoded(Some(space), integer, format), want, "{space}");

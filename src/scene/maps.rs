@@ -114,8 +114,14 @@ const PRIMARIES: Kind = Kind {
     many: "images with other primaries than Rec.709 read as Rec.709 (convert them, e.g. with oiiotool --colorconvert)",
 };
 
+/// A file in a log encoding (a film scan's DPX or Cineon, an ACEScct grade, a camera's log).
+const LOG_ENCODED: Kind = Kind {
+    one: "image in a log encoding read as its values, not decoded (convert it to linear or sRGB, e.g. with oiiotool --colorconvert)",
+    many: "images in a log encoding read as their values, not decoded (convert them to linear or sRGB, e.g. with oiiotool --colorconvert)",
+};
+
 /// Note what the image file `what` (at `file`'s `line`) says of its pixels that reframe does
-/// not apply (`image::Meaning`): an orientation, other primaries.
+/// not apply (`image::Meaning`): an orientation, other primaries, a log encoding.
 pub fn note_meaning(
     repairs: &mut Repairs,
     (file, line): (&str, usize),
@@ -133,6 +139,11 @@ pub fn note_meaning(
     if let Some(c) = &meaning.chromaticities {
         repairs.note(file, line, PRIMARIES, || {
             format!("{what}: its chromaticities are {}", quote(c))
+        })?;
+    }
+    if let Some(e) = &meaning.encoding {
+        repairs.note(file, line, LOG_ENCODED, || {
+            format!("{what}: the file says its encoding is {}", quote(e))
         })?;
     }
     Ok(())
