@@ -2402,26 +2402,29 @@ fn mtllib_words(rest: &[u8]) -> Vec<Vec<u8>> {
     words
 }
 
-/// The file that an OBJ or MTL in `dir` names as `name`: as written if it is there, else where
-/// `find_named_file` finds it (then `true`: a repair to note), else as written (for the caller
-/// to report missing).
-pub(crate) fn locate_named_file(dir: &Path, name: &str) -> (PathBuf, bool) {
+/// The file that an OBJ or MTL in `dir` names as `name` (from a line read as Latin-1 where
+/// `latin1`): as written if it is there, else where `find_named_file` finds it (then `true`: a
+/// repair to note), else as written (for the caller to report missing).
+pub(crate) fn locate_named_file(dir: &Path, name: &str, latin1: bool) -> (PathBuf, bool) {
     let path = dir.join(name);
     if path.exists() {
         return (path, false);
     }
+    // A name read from a Latin-1 line is held as text; the file may be stored under the bytes
+    // the line holds, as the system that wrote the line named it (`mtllib` names are tried both
+    // ways too). From a Latin-1 line that is the path as written, tried before a `\` in it is
+    // taken for a Windows separator (the second byte of a Shift-JIS character may be one:
+    // `ソ.png`); from a UTF-8 line (`café.png` stored as Latin-1 bytes) it is found elsewhere.
+    let high = !name.is_ascii() && name.chars().all(|c| (c as u32) < 0x100);
+    let raw = || dir.join(std::ffi::OsStr::from_bytes(&text::latin1_bytes(name)));
+    if high && latin1 && raw().exists() {
+        return (raw(), false);
+    }
     if let Some(found) = find_named_file(dir, name) {
         return (found, true);
     }
-    // A name read from a Latin-1 line is held as text; the file may be stored under the
-    // Latin-1 bytes themselves, as the system that wrote the line named it (`mtllib` names are
-    // tried both ways too).
-    let high = !name.is_ascii();
-    if high && name.chars().all(|c| (c as u32) < 0x100) {
-        let p = dir.join(std::ffi::OsStr::from_bytes(&text::latin1_bytes(name)));
-        if p.is_file() {
-            return (p, true);
-        }
+    if high && raw().is_file() {
+        return (raw(), true);
     }
     (path, false)
 }
@@ -2798,7 +2801,7 @@ fn load_obj_files(
                 .chain(unused)
                 .filter(|f| !f.is_empty())
             {
-                let (path, _) = locate_named_file(dir, f);
+                let (path, _) = locate_named_file(dir, f, false);
                 if texture_seen.insert(path.clone()) {
                     texture_files.push(path);
                 }

@@ -251,11 +251,11 @@ impl Maps {
             let Some(dir) = dir else {
                 return Err(anyhow!("{at}: a shipped scene has no texture files"));
             };
-            let (mut path, mut elsewhere) = super::locate_named_file(dir, &spec.file);
+            let (mut path, mut elsewhere) = super::locate_named_file(dir, &spec.file, spec.latin1);
             if !path.exists() {
                 // The name as another tool wrote it, where as written it names no file.
                 let found = other_spellings(&spec.file)
-                    .map(|(name, kind)| (super::locate_named_file(dir, &name), kind))
+                    .map(|(name, kind)| (super::locate_named_file(dir, &name, spec.latin1), kind))
                     .find(|((p, _), _)| p.exists());
                 if let Some((found, kind)) = found {
                     repairs.note(mtl_label, spec.line, kind, || {

@@ -234,6 +234,8 @@ pub struct MapSpec {
     pub statement: String,
     /// `-imfchan r|g|b|m|l|z`: the channel a scalar map reads (`map_d` honours it).
     pub channel: Option<char>,
+    /// Whether its line was read as Latin-1 (not UTF-8): `file` is then the line's bytes.
+    pub latin1: bool,
 }
 
 /// The materials of one MTL file, in order, and where each name is.
@@ -306,7 +308,8 @@ pub fn parse_for(
             let Some(m) = out.materials.last_mut() else {
                 return Err(err(format!("'{key}' before any newmtl")));
             };
-            let (spec, ignored) = map_spec(n, text, &args, slot == Slot::D).map_err(err)?;
+            let (mut spec, ignored) = map_spec(n, text, &args, slot == Slot::D).map_err(err)?;
+            spec.latin1 = line.latin1;
             if let Some(opt) = ignored.unknown {
                 notes.note(label, n, UNKNOWN_MAP_OPTION, || {
                     format!("'{}': '{}'", quote(text), quote(opt))
@@ -697,6 +700,7 @@ fn map_spec<'a>(
         line: n,
         statement: text.trim().to_string(),
         channel: None,
+        latin1: false,
     };
     let mut i = 0;
     // Up to `most` numbers after an option (fewer if a word is not a number).

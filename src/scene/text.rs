@@ -178,7 +178,7 @@ pub fn joined<'a>(mut lines: impl Iterator<Item = Line<'a>>) -> impl Iterator<It
         let mut line = lines.next()?;
         {
             let t = line.text.trim_end();
-            if !t.ends_with('\\') || t.trim_start().starts_with('#') || ends_in_comment(t) {
+            if !continues(t, line.latin1) || t.trim_start().starts_with('#') || ends_in_comment(t) {
                 return Some(line);
             }
             // The statement grows in one string, and each line is looked at once: what the test
@@ -198,7 +198,7 @@ pub fn joined<'a>(mut lines: impl Iterator<Item = Line<'a>>) -> impl Iterator<It
                 hash_word |= next.text.split_whitespace().any(|w| w.starts_with('#'));
                 let t = s.trim_end();
                 let comment = hash_word && s.split_whitespace().next().is_some_and(numeric);
-                if !t.ends_with('\\') || t.trim_start().starts_with('#') || comment {
+                if !continues(t, next.latin1) || t.trim_start().starts_with('#') || comment {
                     line.text = s.into();
                     return Some(line);
                 }
@@ -206,6 +206,16 @@ pub fn joined<'a>(mut lines: impl Iterator<Item = Line<'a>>) -> impl Iterator<It
             }
         }
     })
+}
+
+/// Whether a statement `t` (trimmed at its end) goes on in the next line: it ends in `\`, and
+/// that is no second byte of a double-byte character (`latin1`: its line was not UTF-8, and the
+/// byte before the `\` is above ASCII: Shift-JIS, GBK and Big5 names such as `表`, `ソ` and
+/// `功` end in the byte of `\`, and `usemtl 表` swallowed the face below it). UTF-8 never
+/// holds that byte inside a character.
+fn continues(t: &str, latin1: bool) -> bool {
+    let mut end = t.chars().rev();
+    end.next() == Some('\\') && !(latin1 && end.next().is_some_and(|c| !c.is_ascii()))
 }
 
 /// Whether the statement `t` is one of numbers with a comment at its end (a word from `#` on).
@@ -621,6 +631,24 @@ mod tests {
         assert_eq!(
             join(b"\\\nf 1 2 3\nf 4 5\\"),
             owned(&[(1, " f 1 2 3"), (3, "f 4 5")])
+        );
+        // Shift-JIS names (a line that is not UTF-8) whose last character's second byte is the
+        // byte of `\` (`表` is 0x95 0x5C) end there, in a first line and in a line continued;
+        // an ASCII `\` in such a line goes on, as does one after `é` in UTF-8.
+        assert_eq!(
+            join(b"usemtl \x95\\\nf 1 2 3\nf 4 \\\n5 \x95\\\nv 0 0 0\ng a\xe9 \\\nb\n"),
+            owned(&[
+                (1, "usemtl \u{95}\\"),
+                (2, "f 1 2 3"),
+                (3, "f 4  5 \u{95}\\"),
+                (5, "v 0 0 0"),
+                (6, "g a\u{e9}  b"),
+                (8, "")
+            ])
+        );
+        assert_eq!(
+            join("g caf\u{e9}\\\nx\n".as_bytes()),
+            owned(&[(1, "g caf\u{e9} x"), (3, "")])
         );
     }
 
