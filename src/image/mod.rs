@@ -1011,9 +1011,19 @@ fn open_checked(
         );
     }
     if info.width as u64 * info.height as u64 > max_pixels {
+        // Halved until it fits, in the file's own format: a copy in another one may be read
+        // otherwise (an 8-bit JPEG resized into an EXR keeps its sRGB codes, which an EXR's
+        // reader takes for linear values).
+        let (mut w, mut h) = (info.width as u64, info.height as u64);
+        while w * h > max_pixels {
+            (w, h) = (w.div_ceil(2), h.div_ceil(2));
+        }
+        let ext = path
+            .extension()
+            .map_or("exr".into(), |e| e.to_string_lossy().to_lowercase());
         bail!(
-            "{}x{} pixels, more than the {max_pixels} reframe reads (make a smaller copy, e.g. \
-             'oiiotool {} --resize 50% -o smaller.exr')",
+            "{}x{} pixels, more than the {max_pixels} reframe reads (make a smaller copy in the \
+             same format, e.g. 'oiiotool {} --resize {w}x{h} -o smaller.{ext}')",
             info.width,
             info.height,
             path.display()
@@ -2253,6 +2263,27 @@ mod tests {
         assert!(!srgb_encoded(None, true, "openexr"));
         // A sRGB float file (rare, but named) is decoded as it says.
         assert!(srgb_encoded(Some("sRGB"), false, "tiff"));
+    }
+
+    /// An image past the limit is refused with a way to a smaller copy that fits, in its own
+    /// format (a JPEG copied into an EXR kept its sRGB codes, read then as linear).
+    #[test]
+    fn an_image_too_large_names_a_copy_that_fits_in_its_own_format() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("atlas.PNG");
+        let img = Image::new(10, 7, &["R", "G", "B"]);
+        write_image(&path, &img, &test_metadata(), &WriteOptions::default()).unwrap();
+        // 70 pixels against 17: halved twice, 3 x 2.
+        let e = read_linear_rgb(&path, 17, 0).unwrap_err().to_string();
+        assert!(
+            e.ends_with(&format!(
+                "10x7 pixels, more than the 17 reframe reads (make a smaller copy in the same \
+                 format, e.g. 'oiiotool {} --resize 3x2 -o smaller.png')",
+                path.display()
+            )),
+            "{e}"
+        );
+        assert!(read_linear_rgb(&path, 70, 0).is_ok());
     }
 
     #[test]
