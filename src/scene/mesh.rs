@@ -76,10 +76,6 @@ pub fn orient_emitters(mesh: &mut Mesh) -> usize {
     turned
 }
 
-/// Polygons of at most this many corners go to ear clipping unchecked (its slow passes cost
-/// little there).
-const MAX_UNCHECKED_CORNERS: usize = 32;
-
 /// Whether the closed 2D polygon `flat` (x, y pairs) winds over itself: a directed edge
 /// repeated (a loop walked twice: `f 1 2 3 1 2 3 ...`) or two edges that cross (each
 /// passes strictly through the other's line; a vertex shared by a polygon with a hole bridged
@@ -212,10 +208,11 @@ pub fn triangulate(p: &[Vec3]) -> Option<Vec<[usize; 3]>> {
     if is_convex(&flat) {
         return Some((1..p.len() - 1).map(|i| [0, i, i + 1]).collect());
     }
-    // Ear clipping meets a polygon that winds over itself with passes of cubic cost (a
-    // 2000-corner face took 37 s): such a polygon has no inside to triangulate anyway, and
-    // is split as a fan (the caller's repair) instead.
-    if p.len() > MAX_UNCHECKED_CORNERS && winds_over_itself(&flat) {
+    // A polygon that winds over itself has no inside to triangulate: ear clipping filled
+    // some of it, as it happened to clip (a pentagram `f 1 3 5 2 4` lost two arms' notch,
+    // unsaid), and met a large one with passes of cubic cost (a 2000-corner face took 37 s).
+    // It is split as a fan (the caller's repair) instead.
+    if winds_over_itself(&flat) {
         return None;
     }
     let idx = earcutr::earcut(&flat, &[], 2).ok()?;
@@ -490,6 +487,26 @@ mod tests {
         // A quad with three corners on a line is not strictly convex: ear clipping.
         let flat = [0.0, 0.0, 1.0, 0.0, 2.0, 0.0, 1.0, 1.0];
         assert!(!is_convex(&flat));
+    }
+
+    #[test]
+    fn small_polygons_that_cross_themselves_are_left_to_the_fan() {
+        // A pentagram walked as `f 1 3 5 2 4` over a regular pentagon's corners, and a bow
+        // tie: ear clipping filled some of each, as it happened to clip, unsaid. A concave L is
+        // no crossing (a hole bridged to its outline neither: the test below).
+        let pentagon: Vec<Vec3> = (0..5)
+            .map(|k| {
+                let a = k as f32 * std::f32::consts::TAU / 5.0;
+                Vec3::new(a.cos(), a.sin(), 0.0)
+            })
+            .collect();
+        let star: Vec<Vec3> = [0, 2, 4, 1, 3].iter().map(|&k| pentagon[k]).collect();
+        let bow = [Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::new(1.0, 1.0, 0.0)];
+        assert!(triangulate(&star).is_none());
+        assert!(triangulate(&bow).is_none());
+        let l = [(0., 0.), (2., 0.), (2., 1.), (1., 1.), (1., 2.), (0., 2.)]
+            .map(|(x, y)| Vec3::new(x, y, 0.0));
+        assert!((area(&l, &triangulate(&l).unwrap()) - 3.0).abs() < 1e-6);
     }
 
     #[test]
