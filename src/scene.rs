@@ -2406,19 +2406,21 @@ fn mtllib_words(rest: &[u8]) -> Vec<Vec<u8>> {
 /// `latin1`): as written if it is there, else where `find_named_file` finds it (then `true`: a
 /// repair to note), else as written (for the caller to report missing).
 pub(crate) fn locate_named_file(dir: &Path, name: &str, latin1: bool) -> (PathBuf, bool) {
-    let path = dir.join(name);
-    if path.exists() {
-        return (path, false);
-    }
     // A name read from a Latin-1 line is held as text; the file may be stored under the bytes
-    // the line holds, as the system that wrote the line named it (`mtllib` names are tried both
-    // ways too). From a Latin-1 line that is the path as written, tried before a `\` in it is
-    // taken for a Windows separator (the second byte of a Shift-JIS character may be one:
-    // `ソ.png`); from a UTF-8 line (`café.png` stored as Latin-1 bytes) it is found elsewhere.
+    // the line holds, as the system that wrote the line named it, or under the UTF-8 of the
+    // same name, as an archive unpacked elsewhere stores it (`mtllib` names are tried both ways
+    // too). From a Latin-1 line the bytes are the path as written, tried first (and before a
+    // `\` in it is taken for a Windows separator: the second byte of a Shift-JIS character may
+    // be one, `ソ.png`) and the UTF-8 is found elsewhere; from a UTF-8 line (`café.png` stored
+    // as Latin-1 bytes) the other way round.
     let high = !name.is_ascii() && name.chars().all(|c| (c as u32) < 0x100);
     let raw = || dir.join(std::ffi::OsStr::from_bytes(&text::latin1_bytes(name)));
     if high && latin1 && raw().exists() {
         return (raw(), false);
+    }
+    let path = dir.join(name);
+    if path.exists() {
+        return (path, high && latin1);
     }
     if let Some(found) = find_named_file(dir, name) {
         return (found, true);
