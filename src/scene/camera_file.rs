@@ -126,6 +126,14 @@ pub fn parse_from(
                 format!("past the last frame ({})", frames - 1)
             } else if let Some(l) = later() {
                 format!("out of order: frame {want} comes after it, at {}", l.at)
+            } else if i == 0 {
+                // Blender's first frame is 1: numbered from there, within the scene's frames.
+                format!(
+                    "frame 0 is missing: a camera file numbers the scene's frames from 0 \
+                     (renumber the file's frames {}, {}, ... as 0, 1, ...)",
+                    e.frame,
+                    e.frame + 1
+                )
             } else {
                 format!(
                     "frame {want} is missing (a camera file gives every frame 0, 1, 2, ... in \
@@ -1031,6 +1039,7 @@ mod tests {
         let f = |frames: &[u32]| json(&frames.iter().map(|&f| entry(f, ID)).collect::<Vec<_>>());
         for (frames, n, want) in [
             (&[0, 2][..], 3, "c.json: line 3 (entry 2): frame 2: frame 1 is missing"),
+            (&[1, 2], 3, "c.json: line 2 (entry 1): frame 1: frame 0 is missing: a camera file numbers the scene's frames from 0 (renumber the file's frames 1, 2, ... as 0, 1, ...)"),
             (&[1, 0], 2, "c.json: line 2 (entry 1): frame 1: out of order: frame 0 comes after it, at line 3 (entry 2)"),
             (&[0, 2, 1], 3, "c.json: line 3 (entry 2): frame 2: out of order: frame 1 comes after it, at line 4 (entry 3)"),
             (&[0, 1, 1], 3, "c.json: line 4 (entry 3): frame 1: given twice (also at line 3 (entry 2))"),
