@@ -800,6 +800,7 @@ impl Scene {
                     Source::Builtin(_) => Vec::new(),
                 };
                 Objects {
+                    parts: vec![(0, obj_label.clone())],
                     label: obj_label,
                     mesh,
                     prototypes: Vec::new(),
@@ -832,9 +833,20 @@ impl Scene {
             inputs: object_inputs,
             origin,
             notes: object_notes,
+            parts,
         } = loaded;
         // Every light is in the scene's own mesh, placed: each emits to its normals' side.
         let turned = mesh::orient_emitters(&mut mesh);
+        // How many were turned over in each object (copies of one counted together).
+        let mut turned_in: Vec<(&str, usize)> = Vec::new();
+        for (k, (start, name)) in parts.iter().enumerate() {
+            let end = parts.get(k + 1).map_or(mesh.triangles.len(), |p| p.0);
+            let n = turned.partition_point(|&t| t < end) - turned.partition_point(|&t| t < *start);
+            match turned_in.iter_mut().find(|(o, _)| *o == name) {
+                Some((_, count)) => *count += n,
+                None => turned_in.push((name, n)),
+            }
+        }
         let (width, height, cameras) = if origin == DVec3::ZERO {
             first_cameras?
         } else {
@@ -929,9 +941,9 @@ impl Scene {
         let mut warnings = repairs.into_warnings();
         warnings.extend(object_notes);
         warnings.extend(cache_note);
-        if turned > 0 {
+        for (object, n) in turned_in.into_iter().filter(|&(_, n)| n > 0) {
             warnings.push(format!(
-                "{obj_label}: {turned} emitting triangle(s) wound against their vertex normals \
+                "{object}: {n} emitting triangle(s) wound against their vertex normals \
                  emit to the side the normals point to, as pbrt-v4 and Mitsuba 3 take them (a \
                  light made two-sided by a reversed copy of its faces that shares their normals \
                  emits to that side twice: give the copy its own normals)"
@@ -2120,6 +2132,9 @@ struct Objects {
     origin: DVec3,
     /// Warnings of the placements (not repairs: `--strict` keeps them).
     notes: Vec<String>,
+    /// Where each object's triangles start in `mesh`, in order, and the object as messages
+    /// name it (the OBJ's file, or the `[[object]]` table's line and file).
+    parts: Vec<(usize, String)>,
 }
 
 /// The `[[object]]` tables of scene file `label` (text `text`, in folder `dir`): each OBJ read
@@ -2202,6 +2217,7 @@ fn load_objects(
     let mut prototypes = Vec::new();
     let mut instances = Vec::new();
     let mut notes = Vec::new();
+    let mut parts = Vec::new();
     for ((_, at, placements), (mesh, anchor)) in groups.iter().zip(meshes) {
         // From the OBJ's anchor to the file's space, placed, then to the render's origin (no
         // product where both are zero: the matrices as given, to the bit).
@@ -2261,6 +2277,7 @@ fn load_objects(
                 );
             }
             for m in &placements {
+                parts.push((own.triangles.len(), at.clone()));
                 objects::append(&mut own, objects::transformed(&mesh, m));
             }
         } else {
@@ -2278,6 +2295,7 @@ fn load_objects(
         inputs,
         origin,
         notes,
+        parts,
     })
 }
 

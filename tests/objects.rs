@@ -401,9 +401,13 @@ fn a_light_emits_to_the_side_of_its_vertex_normals() {
             })
         };
         let case = format!("vn '{vn}', scale {scale}");
-        // Said where the placed winding and the normals disagree.
+        // Said where the placed winding and the normals disagree, naming the object (the
+        // warning named the scene file alone).
         let said = s.warnings.iter().any(|w| {
-            w.contains("2 emitting triangle(s) wound against their vertex normals emit to the side")
+            w.contains(
+                "object 'lamp.obj': 2 emitting triangle(s) wound against their vertex normals \
+                 emit to the side",
+            )
         });
         assert_eq!(said, turned, "{case}: {:?}", s.warnings);
         assert_eq!(lit(Vec3::new(0.0, -0.5, 0.0)), lit_below, "{case}");

@@ -52,10 +52,10 @@ pub struct Mesh {
 /// the side of the shading normal, so that a lamp exported with outward normals but faces
 /// wound inward lit the other side than in them (and a mirrored placement of a lamp with
 /// normals shines as the mirror image of it, as in them). Without vertex normals the winding
-/// decides. Other triangles keep their winding (their shading follows it). Returns how many
-/// were turned over.
-pub fn orient_emitters(mesh: &mut Mesh) -> usize {
-    let mut turned = 0;
+/// decides. Other triangles keep their winding (their shading follows it). Returns those
+/// turned over (their indices, in order).
+pub fn orient_emitters(mesh: &mut Mesh) -> Vec<usize> {
+    let mut turned = Vec::new();
     if mesh.normals.is_empty() {
         return turned;
     }
@@ -70,7 +70,7 @@ pub fn orient_emitters(mesh: &mut Mesh) -> usize {
         if (n[0] + n[1] + n[2]).dot(mesh.tri_normal[t]) < 0.0 {
             tri.swap(1, 2);
             mesh.tri_normal[t] = -mesh.tri_normal[t];
-            turned += 1;
+            turned.push(t);
         }
     }
     turned
