@@ -2901,7 +2901,9 @@ fn load_obj_files(
         }
         need_default = true;
     }
-    let mut mesh = mesh::build(label, bytes, &parsed, &usemtl_material, default, repairs)?;
+    let emissive = |m: u32| materials.get(m as usize).is_some_and(Material::is_emissive);
+    let material_of = (&usemtl_material[..], default);
+    let mut mesh = mesh::build(label, bytes, &parsed, material_of, &emissive, repairs)?;
     if need_default {
         materials.push(Material {
             kd: Vec3::splat(0.5),
@@ -3170,7 +3172,8 @@ mod tests {
     fn materials_fall_back_to_the_default_with_one_warning_per_kind() {
         // No mtllib at all: every usemtl falls back (a scene file could not render this: it
         // has no light, so the loader is called directly).
-        let obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\nusemtl b\nf 1 2 3\nf 3 2 1\n";
+        let obj =
+            b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl a\nf 1 2 3\nusemtl b\nf 2 4 3\nf 3 4 1\n";
         let dir = tempfile::tempdir().unwrap();
         let files = MtlSource::Dir(dir.path().to_path_buf());
         let mut r = Repairs::new(false);
@@ -3182,7 +3185,7 @@ mod tests {
             r.into_warnings(),
             [
                 "a.obj: 2 usemtl lines without any mtllib: grey default material (Kd 0.5) (first \
-              at line 4: 'usemtl a')"
+              at line 5: 'usemtl a')"
             ]
         );
         let e = load_obj("a.obj", obj, &files, &mut Repairs::new(true))
@@ -3190,8 +3193,42 @@ mod tests {
             .unwrap();
         assert_eq!(
             e.to_string(),
-            "a.obj: line 4: 'usemtl a': usemtl without any mtllib: grey default material (Kd \
+            "a.obj: line 5: 'usemtl a': usemtl without any mtllib: grey default material (Kd \
              0.5) (refused: strict loading)"
+        );
+    }
+
+    /// SketchUp's two-sided export writes each face again, reversed, with its back material:
+    /// the later face of each such pair is left out with a warning (the two fought over every
+    /// point, a speckle of both materials), whichever corner it starts from and however its
+    /// vertices are numbered; a face repeated in the same order too. Emitting faces are kept
+    /// (a reversed copy makes a lamp two-sided), and so are faces that share only some corners.
+    #[test]
+    fn a_face_on_the_corners_of_an_earlier_one_is_left_out() {
+        let obj = b"mtllib m.mtl\nv -1 -1 0\nv 1 -1 0\nv -1 1 0\nv 1 1 0\nv 1 1 0\n\
+                    usemtl Front\nf 1 2 4 3\nusemtl Back\nf 2 1 3 5\nf 4 3 1 2\nf 1 2 4\n\
+                    usemtl Lamp\nf 1 2 3\nf 3 2 1\n";
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("m.mtl"),
+            "newmtl Front\nKd 0.8 0 0\nnewmtl Back\nKd 0 0 0.8\nnewmtl Lamp\nKe 1 1 1\n",
+        )
+        .unwrap();
+        let files = MtlSource::Dir(dir.path().to_path_buf());
+        let mut r = Repairs::new(false);
+        let mesh = load_obj("a.obj", obj, &files, &mut r).unwrap();
+        let names = |m: &u32| mesh.material_names[*m as usize].as_str();
+        let kept: Vec<&str> = mesh.tri_material.iter().map(names).collect();
+        // The quad (two triangles), the triangle on three of its corners, both lamp faces.
+        assert_eq!(kept, ["Front", "Front", "Back", "Lamp", "Lamp"]);
+        let w = r.into_warnings();
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].starts_with(
+                "a.obj: 2 faces on the same corners as earlier ones (a two-sided export, as \
+                 SketchUp writes each face again, reversed, with its back material) left out"
+            ) && w[0].ends_with("(first at line 10: 'f 2 1 3 5' (the face of line 8))"),
+            "{w:?}"
         );
     }
 

@@ -8,7 +8,7 @@
 //! triangulated there by `earcutr` (Mapbox's ear clipping), which also copes with repeated
 //! vertices; each triangle is then wound like the polygon, so that its front (the emitting side
 //! of a light) stays where the OBJ put it.
-use super::obj::{Corner, Obj, FREE_FORM, POINTS, POLYLINES, SHORT_FACE};
+use super::obj::{Corner, Face, Obj, FREE_FORM, POINTS, POLYLINES, SHORT_FACE};
 use super::repairs::{Kind, Repairs};
 use super::text::quote_line;
 use crate::bsdf::Material;
@@ -258,12 +258,83 @@ pub fn measure(a: Vec3, b: Vec3, c: Vec3) -> (Vec3, f32, bool) {
     }
 }
 
+/// A face on the same points as an earlier one, left out (`repeated_faces`).
+const REPEATED_FACE: Kind = Kind {
+    one: "face on the same corners as an earlier one (a two-sided export, as SketchUp writes \
+          each face again, reversed, with its back material) left out: the two would fight over \
+          every point of the surface, a speckle of both materials; the earlier face's material \
+          shows from both sides",
+    many: "faces on the same corners as earlier ones (a two-sided export, as SketchUp writes \
+           each face again, reversed, with its back material) left out: the two would fight \
+           over every point of the surface, a speckle of both materials; the earlier faces' \
+           materials show from both sides",
+};
+
+/// For each face of `obj`, the earlier face it repeats, where it does: the same corner points
+/// (positions to the bit), in the same cyclic order or the reverse, where neither face emits
+/// (`emits(face)`; a lamp made two-sided by a reversed copy of its faces emits from both). Two
+/// such faces are one surface twice, and which a ray hits is a matter of rounding. Faces are
+/// grouped by a hash of their corners that does not depend on their order, then compared.
+fn repeated_faces(obj: &Obj, emits: &dyn Fn(&Face) -> bool) -> Vec<Option<usize>> {
+    let corners = |f: &Face| obj.corners[f.corners.clone()].iter();
+    let point = |c: &Corner| obj.positions[c.v as usize].to_array().map(f32::to_bits);
+    let mix = |p: [u32; 3]| {
+        let mut h = 0xcbf2_9ce4_8422_2325u64;
+        for w in p {
+            h = (h ^ w as u64).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+        h ^ (h >> 29)
+    };
+    let mut keys: Vec<(u64, u32)> = obj
+        .faces
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.corners.len() >= 3)
+        .map(|(i, f)| {
+            let h = corners(f).fold(0u64, |h, c| h.wrapping_add(mix(point(c))));
+            (h ^ f.corners.len() as u64, i as u32)
+        })
+        .collect();
+    keys.sort_unstable();
+    let mut repeats = vec![None; obj.faces.len()];
+    let same = |a: &Face, b: &Face| {
+        let (p, q): (Vec<_>, Vec<_>) = (
+            corners(a).map(point).collect(),
+            corners(b).map(point).collect(),
+        );
+        let n = p.len();
+        q.len() == n
+            && (0..n).any(|r| {
+                (0..n).all(|k| q[k] == p[(r + k) % n]) || (0..n).all(|k| q[k] == p[(r + n - k) % n])
+            })
+    };
+    for run in keys.chunk_by(|a, b| a.0 == b.0).filter(|r| r.len() > 1) {
+        // Within a run, in the order of the file: each face against the earlier ones kept.
+        let mut faces: Vec<usize> = run.iter().map(|&(_, i)| i as usize).collect();
+        faces.sort_unstable();
+        for (k, &j) in faces.iter().enumerate() {
+            let fj = &obj.faces[j];
+            if emits(fj) {
+                continue;
+            }
+            repeats[j] = faces[..k].iter().copied().find(|&i| {
+                repeats[i].is_none() && !emits(&obj.faces[i]) && same(&obj.faces[i], fj)
+            });
+        }
+    }
+    repeats
+}
+
+/// The mesh of `obj`: `usemtl_material[k]` is the material of the faces after the k-th
+/// `usemtl`, `default_material` that of faces before any; `emissive(m)`: whether material `m`
+/// emits. A face on the same corners as an earlier one, neither emitting, is left out
+/// (`repeated_faces`). `bytes` is the OBJ text, for quoting.
 pub fn build(
     label: &str,
     bytes: &[u8],
     obj: &Obj,
-    usemtl_material: &[u32],
-    default_material: u32,
+    (usemtl_material, default_material): (&[u32], u32),
+    emissive: &dyn Fn(u32) -> bool,
     repairs: &mut Repairs,
 ) -> Result<Mesh> {
     let mut mesh = Mesh {
@@ -297,7 +368,22 @@ pub fn build(
             crate::util::mem::address_space_note()
         )
     };
-    for f in &obj.faces {
+    let material_of = |f: &Face| {
+        f.usemtl
+            .map_or(default_material, |k| usemtl_material[k as usize])
+    };
+    let repeats = repeated_faces(obj, &|f| emissive(material_of(f)));
+    for (f, repeat) in obj.faces.iter().zip(repeats) {
+        if let Some(earlier) = repeat {
+            repairs.note(label, f.line, REPEATED_FACE, || {
+                format!(
+                    "{} (the face of line {})",
+                    quote_line(bytes, f.line),
+                    obj.faces[earlier].line
+                )
+            })?;
+            continue;
+        }
         let corners = &obj.corners[f.corners.clone()];
         // Smooth only if every corner has a usable normal: interpolating a normal with the face
         // normal of a neighbour would shade a seam.
@@ -342,9 +428,7 @@ pub fn build(
                 (1..pts.len() - 1).map(|k| [0, k, k + 1]).collect()
             }
         };
-        let mat = f
-            .usemtl
-            .map_or(default_material, |k| usemtl_material[k as usize]);
+        let mat = material_of(f);
         for t in tris {
             let tri = t.map(|k| ids[k]);
             let [a, b, c] = t.map(|k| pts[k]);
