@@ -270,6 +270,9 @@ const REPEATED_FACE: Kind = Kind {
            materials show from both sides",
 };
 
+/// The earlier faces on the same points that a face is compared with (`repeated_faces`).
+const MAX_COMPARED: usize = 8;
+
 /// For each face of `obj`, the earlier face it repeats, where it does: the same corner points
 /// (positions to the bit), in the same cyclic order or the reverse, where neither face emits
 /// (`emits(face)`; a lamp made two-sided by a reversed copy of its faces emits from both). Two
@@ -317,9 +320,15 @@ fn repeated_faces(obj: &Obj, emits: &dyn Fn(&Face) -> bool) -> Vec<Option<usize>
             if emits(fj) {
                 continue;
             }
-            repeats[j] = faces[..k].iter().copied().find(|&i| {
-                repeats[i].is_none() && !emits(&obj.faces[i]) && same(&obj.faces[i], fj)
-            });
+            // Against the first few kept: the faces on one set of points in other orders are
+            // few in any model, but a file of thousands of orders of ten points would take a
+            // time in the square of their count.
+            repeats[j] = faces[..k]
+                .iter()
+                .copied()
+                .filter(|&i| repeats[i].is_none() && !emits(&obj.faces[i]))
+                .take(MAX_COMPARED)
+                .find(|&i| same(&obj.faces[i], fj));
         }
     }
     repeats
