@@ -192,8 +192,11 @@ pub fn joined<'a>(mut lines: impl Iterator<Item = Line<'a>>) -> impl Iterator<It
                     line.text = s.into();
                     return Some(line);
                 };
+                // One space where the lines meet (the blanks around the `\` and at the next
+                // line's start separate words, and doubled they showed in messages).
+                s.truncate(s.trim_end().len());
                 s.push(' ');
-                s.push_str(&next.text);
+                s.push_str(next.text.trim_start());
                 line.latin1 |= next.latin1;
                 hash_word |= next.text.split_whitespace().any(|w| w.starts_with('#'));
                 let t = s.trim_end();
@@ -608,7 +611,7 @@ mod tests {
         // A face over three lines, trailing blanks after the `\`, then a vertex.
         assert_eq!(
             join(b"f 1 2 \\  \n3 4\\\n 5\nv 0 0 0\n"),
-            owned(&[(1, "f 1 2  3 4  5"), (4, "v 0 0 0"), (5, "")])
+            owned(&[(1, "f 1 2 3 4 5"), (4, "v 0 0 0"), (5, "")])
         );
         // A comment ending in `\` and a statement of numbers whose comment holds it swallow
         // nothing; a name's `\` goes on.
@@ -640,9 +643,9 @@ mod tests {
             owned(&[
                 (1, "usemtl \u{95}\\"),
                 (2, "f 1 2 3"),
-                (3, "f 4  5 \u{95}\\"),
+                (3, "f 4 5 \u{95}\\"),
                 (5, "v 0 0 0"),
-                (6, "g a\u{e9}  b"),
+                (6, "g a\u{e9} b"),
                 (8, "")
             ])
         );
