@@ -33,7 +33,18 @@ pub struct ObjectFile {
     translate: Option<Spanned<[f64; 3]>>,
     rotate: Option<Spanned<[f64; 3]>>,
     scale: Option<Spanned<Scale>>,
-    matrix: Option<Spanned<Vec<f64>>>,
+    matrix: Option<Spanned<Matrix>>,
+}
+
+/// `matrix`: 16 numbers, row by row, or 4 rows of 4 (as a camera file's JSON may give it).
+#[derive(Deserialize)]
+#[serde(
+    untagged,
+    expecting = "expected matrix as 16 numbers, row by row, or as 4 rows of 4 numbers"
+)]
+enum Matrix {
+    Flat(Vec<f64>),
+    Rows(Vec<Vec<f64>>),
 }
 
 #[derive(Deserialize)]
@@ -61,7 +72,20 @@ impl ObjectFile {
             if self.translate.is_some() || self.rotate.is_some() || self.scale.is_some() {
                 bail!("{at}: give either matrix or translate/rotate/scale, not both");
             }
-            let v = m.get_ref();
+            let v: Vec<f64> = match m.get_ref() {
+                Matrix::Flat(v) => v.clone(),
+                Matrix::Rows(rows) if rows.len() == 4 && rows.iter().all(|r| r.len() == 4) => {
+                    rows.concat()
+                }
+                Matrix::Rows(rows) => {
+                    let sizes: Vec<String> = rows.iter().map(|r| r.len().to_string()).collect();
+                    bail!(
+                        "{at}: matrix has {} rows of {} numbers, not 4 rows of 4",
+                        rows.len(),
+                        sizes.join(", ")
+                    );
+                }
+            };
             if v.len() != 16 {
                 bail!("{at}: matrix has {} numbers, not 16", v.len());
             }
@@ -308,9 +332,16 @@ mod tests {
         assert!((p - DVec3::Z).length() < 1e-12, "{p}");
         let m = parse("matrix = [1, 0, 0, 3,  0, 1, 0, 0,  0, 0, 1, -4,  0, 0, 0, 1]").unwrap();
         assert_eq!(m.transform_point3(DVec3::ZERO), DVec3::new(3.0, 0.0, -4.0));
+        // Or 4 rows of 4, the same matrix (it was refused: "invalid type: sequence").
+        let rows = parse("matrix = [[1, 0, 0, 3], [0, 1, 0, 0], [0, 0, 1, -4], [0, 0, 0, 1]]");
+        assert_eq!(rows.unwrap(), m);
         for (bad, want) in [
             ("scale = 0.0", "scale has a zero"),
             ("matrix = [1, 0, 0, 0]", "matrix has 4 numbers, not 16"),
+            (
+                "matrix = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]",
+                "matrix has 3 rows of 3, 3, 3 numbers, not 4 rows of 4",
+            ),
             (
                 "matrix = [1, 0, 0, 0,  0, 1, 0, 0,  0, 0, 1, 0,  0, 0, 1, 1]",
                 "bottom row is not 0 0 0 1",
