@@ -930,6 +930,10 @@ impl Scene {
             } else {
                 "no material has a positive Ke"
             };
+            // A black [environment] is the scene file's: named there, the OBJ beside it.
+            if environment.is_some() && obj_label != label {
+                bail!("{label}: the scene has no light: {none} in {obj_label}, and {env}{lost}");
+            }
             bail!("{obj_label}: the scene has no light: {none}, and {env}{lost}");
         }
         let env_select = match (env_emits, lights.tris.is_empty()) {
