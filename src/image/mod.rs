@@ -1055,7 +1055,15 @@ fn open_input_image(
     path: &Path,
     max_pixels: u64,
 ) -> Result<(cxx::UniquePtr<ffi::ImageReader>, ffi::ImageInfo, u64)> {
-    let (reader, info) = open_checked(path, max_pixels)?;
+    let (reader, mut info) = open_checked(path, max_pixels)?;
+    // Blanks around a channel's name are no part of it (`color.R `, as a converted file may
+    // hold): unmatched, the colour fell back to the channels' order in the file, B, G, R in an
+    // EXR, and red and blue swapped unsaid.
+    for name in &mut info.channels {
+        if name.trim().len() != name.len() {
+            *name = name.trim().to_string();
+        }
+    }
     let pixels = info.width as u64 * info.height as u64;
     if pixels == 0 || info.channels.is_empty() {
         bail!("the image has no pixels");
@@ -2263,6 +2271,20 @@ mod tests {
         assert!(!srgb_encoded(None, true, "openexr"));
         // A sRGB float file (rare, but named) is decoded as it says.
         assert!(srgb_encoded(Some("sRGB"), false, "tiff"));
+    }
+
+    /// Blanks around a channel's name are no part of it: `color.B `, `color.G `, `color.R ` in
+    /// an EXR (stored in that order) are blue, green and red, not red, green and blue by place.
+    #[test]
+    fn channel_names_are_read_without_blanks_around_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("spaced.exr");
+        let mut img = Image::new(1, 1, &["color.B ", "color.G ", "color.R "]);
+        img.data.copy_from_slice(&[0.25, 0.5, 1.0]);
+        let opts = WriteOptions { exr_float: true };
+        write_image(&path, &img, &test_metadata(), &opts).unwrap();
+        let back = read_linear_rgb(&path, 1 << 20, 0).unwrap();
+        assert_eq!(back.data, [1.0, 0.5, 0.25]);
     }
 
     /// An image past the limit is refused with a way to a smaller copy that fits, in its own
