@@ -530,7 +530,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     let mut sink = FileSink::new(meta, out);
     let mut denoise_seconds = 0.0;
     let completed = std::thread::scope(|scope| -> Result<bool> {
-        let mut writer = sink::Writer::spawn(scope, &mut sink);
+        let mut writer = sink::Writer::spawn(scope, &mut sink)?;
         let done = match denoiser {
             Some((denoiser, layers)) => {
                 let mut dsink = denoise::DenoiseSink {

@@ -124,10 +124,11 @@ pub struct Writer {
 impl Writer {
     /// Start the writer's thread in `scope`, writing to `inner` (which it borrows until the
     /// scope ends, when the frames handed over are written or the first failure is kept).
+    /// Refused where the thread cannot be started (its stack does not fit under `ulimit -v`).
     pub fn spawn<'scope, S: Sink + Send>(
         scope: &'scope std::thread::Scope<'scope, '_>,
         inner: &'scope mut S,
-    ) -> Writer {
+    ) -> anyhow::Result<Writer> {
         let (jobs, queue) = std::sync::mpsc::sync_channel::<Job>(1);
         let (answer, replies) = std::sync::mpsc::channel();
         let serve = move || {
@@ -165,12 +166,17 @@ impl Writer {
                     Err(_) => serve(),
                 }
             })
-            .expect("starting the frame writer's thread");
-        Writer {
+            .map_err(|e| {
+                anyhow::anyhow!(
+                    "starting the frame writer's thread: {e}{}",
+                    crate::util::mem::address_space_note()
+                )
+            })?;
+        Ok(Writer {
             jobs,
             replies,
             told: false,
-        }
+        })
     }
 
     /// Whether a failure of the writer's thread has been said by `put` or `sync`.
@@ -273,7 +279,7 @@ mod tests {
             .unwrap();
         let mut caller = None;
         let (first, second) = std::thread::scope(|s| {
-            let mut w = Writer::spawn(s, &mut rec);
+            let mut w = Writer::spawn(s, &mut rec).unwrap();
             pool.install(|| {
                 caller = Some(std::thread::current().id());
                 for f in 0..5 {
@@ -310,7 +316,7 @@ mod tests {
                 unsynced: vec![],
             };
             let err = std::thread::scope(|s| {
-                let mut w = Writer::spawn(s, &mut rec);
+                let mut w = Writer::spawn(s, &mut rec).unwrap();
                 w.put(frame(0)).unwrap();
                 // Handed over: the failure is said later, by a put or by sync.
                 let _ = w.put(frame(1));
@@ -363,7 +369,7 @@ mod tests {
         };
         let third_back = AtomicBool::new(false);
         std::thread::scope(|s| {
-            let mut w = Writer::spawn(s, &mut sink);
+            let mut w = Writer::spawn(s, &mut sink).unwrap();
             // One frame being written and one waiting: both puts return with neither written
             // (a writer on the caller's thread would wait for `go` here, which comes after).
             w.put(frame(0)).unwrap();
@@ -404,7 +410,7 @@ mod tests {
         let mut said = String::new();
         let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             std::thread::scope(|s| {
-                let mut w = Writer::spawn(s, &mut bug);
+                let mut w = Writer::spawn(s, &mut bug).unwrap();
                 w.put(frame(0)).unwrap();
                 said = w.sync().unwrap_err().to_string();
             })
