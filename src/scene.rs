@@ -1858,6 +1858,13 @@ const ENV_CLAMPED: Kind = Kind {
     many: "environment texels above 1e9 clamped to 1e9",
 };
 
+/// A one-colour environment brighter than `MAX_KE` (its `radiance` times its `intensity`),
+/// clamped to it as an image's texels are.
+const ENV_RADIANCE_CLAMPED: Kind = Kind {
+    one: "environment radiance times intensity above 1e9 clamped to 1e9",
+    many: "environment radiances times intensity above 1e9 clamped to 1e9",
+};
+
 /// An environment image that is not twice as wide as it is high: read as a lat-long map all
 /// the same, but a mirror ball, an angular map or a cube cross (square or 4:3 images) lights
 /// the scene wrongly that way.
@@ -2032,8 +2039,17 @@ fn load_environment(
                     c.map(text::shown).join(", ")
                 );
             }
-            let c = c.map(|c| c as f32);
-            Ok((Environment::uniform(Vec3::from(c) * intensity), None))
+            // Capped as an image's texels are (their product reached 1e18 unsaid).
+            let l = Vec3::from(c.map(|c| c as f32)) * intensity;
+            if l.max_element() > MAX_KE {
+                repairs.note(label, table_line, ENV_RADIANCE_CLAMPED, || {
+                    format!(
+                        "environment radiance times intensity is ({:e}, {:e}, {:e})",
+                        l.x, l.y, l.z
+                    )
+                })?;
+            }
+            Ok((Environment::uniform(l.min(Vec3::splat(MAX_KE))), None))
         }
         (Some(img), None) => {
             let Some(dir) = dir else {
