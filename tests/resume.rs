@@ -756,7 +756,37 @@ fn a_merge_never_writes_over_an_interrupted_renders_frames() {
         err.contains("holds the checkpoint of an interrupted render"),
         "{err}"
     );
+    // Nor under another pattern naming the same files (`f_0###.exr`; only the same pattern was
+    // refused), a merge or a render alike; a pattern of other names is free.
+    let other = format!("{}/f_0###.exr", o.display());
+    let m = reframe()
+        .args(["merge", partial.to_str().unwrap(), "--out", &other])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&m.stderr);
+    assert!(!m.status.success(), "{err}");
+    assert!(
+        err.contains("holds the checkpoint of an interrupted render")
+            && err.contains("which writes frames of the same names"),
+        "{err}"
+    );
+    let r = reframe()
+        .args([
+            "render", "cornell", "--frames", "2-3", "--res", "8x6", "--out", &other,
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success(), "{err}");
+    assert!(
+        err.contains("holds the checkpoint of an interrupted render"),
+        "{err}"
+    );
     assert!(std::fs::read(o.join("f_0000.exr")).unwrap() == first);
+    let free = format!("{}/g_####.exr", o.display());
+    run(&[
+        "render", "cornell", "--frames", "2-3", "--res", "8x6", "--out", &free,
+    ]);
     // The render resumes; then the merge may write (over finished frames, as asked).
     run(&with(
         &render.iter().map(String::as_str).collect::<Vec<_>>(),

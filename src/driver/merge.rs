@@ -251,7 +251,7 @@ pub fn merge(
     };
     let _lock = super::guard::OutputLock::acquire(&lock, pattern, Some(frames))?;
     // After the lock: a render of these frames that is running holds it, and is said as such.
-    super::check_no_interrupted_render(pattern, &range)?;
+    super::check_no_interrupted_render(pattern, &range, None)?;
     super::remove_stale_frames(&out, range.clone());
     // Where each frame's shares are: frame -> (file, offset).
     let mut shares: BTreeMap<u32, Vec<(usize, u64)>> = BTreeMap::new();

@@ -270,40 +270,66 @@ fn check_no_checkpoint_elsewhere(d: &Path, opts: &RenderOptions) -> Result<()> {
     )
 }
 
-/// Refuse a merge into `frames` of `pattern` where the default checkpoint folder of `pattern`
-/// holds the checkpoint of an interrupted render to these frames (the same file names): the
-/// merge would write over frames that checkpoint counts finished, and its resume was then
-/// refused. `render` refuses the same (`Checkpointer::open`: a checkpoint needs `--resume`).
+/// Refuse a merge or render into `frames` of `pattern` where a checkpoint folder in the
+/// output's folder (a render's default checkpoint, `<name>.checkpoint`; `own`, the render's own
+/// checkpoint, is left to its resume) holds the checkpoint of an interrupted render to frames
+/// of the same file names: the merge or render would write over frames that checkpoint counts
+/// finished, and its resume was then refused. Frames are compared by file name, whatever
+/// pattern names them (`v_####.exr` and `v_0###.exr` name the same files; only the same
+/// pattern was caught). `render` refuses its own checkpoint the same way (`Checkpointer::open`:
+/// a checkpoint needs `--resume`).
 pub(super) fn check_no_interrupted_render(
     pattern: &str,
     frames: &std::ops::RangeInclusive<u32>,
+    own: Option<&Path>,
 ) -> Result<()> {
-    let dir = default_checkpoint_dir(pattern, None);
-    let state = dir.join("state");
-    if !crate::state::is_state_file(&state) {
-        return Ok(());
-    }
-    // A state that cannot be read is no render's to protect here (its resume says what is wrong).
-    let Ok(t) = crate::state::StateFile::open(&state).map(|sf| sf.trailer) else {
+    let Ok(ours) = crate::image::OutputPattern::parse(pattern) else {
         return Ok(());
     };
-    let name = |p: &str| Path::new(p).file_name().map(|n| n.to_owned());
-    let (first, last) = (t.key.first_frame, t.key.last_frame);
-    if t.kind != crate::state::Kind::Checkpoint
-        || name(&t.out) != name(pattern)
-        || last < *frames.start()
-        || *frames.end() < first
-    {
+    let name = |p: PathBuf| p.file_name().map(|n| n.to_owned());
+    let (dir, _) = crate::state::key::output_stem(pattern);
+    let Ok(entries) = std::fs::read_dir(&dir) else {
         return Ok(());
+    };
+    let own = own.and_then(|d| d.canonicalize().ok());
+    let mut names: Option<std::collections::HashSet<_>> = None;
+    for e in entries.flatten() {
+        let folder = e.path();
+        let is_checkpoint = folder.extension().is_some_and(|x| x == "checkpoint");
+        if !is_checkpoint || folder.canonicalize().ok().is_some_and(|f| Some(f) == own) {
+            continue;
+        }
+        let state = folder.join("state");
+        if !crate::state::is_state_file(&state) {
+            continue;
+        }
+        // A state that cannot be read is no render's to protect here (its resume says what is
+        // wrong); a chunk's checkpoint counts frames of its partial file, not of the output.
+        let Ok(t) = crate::state::StateFile::open(&state).map(|sf| sf.trailer) else {
+            continue;
+        };
+        let Ok(theirs) = crate::image::OutputPattern::parse(&t.out) else {
+            continue;
+        };
+        if t.kind != crate::state::Kind::Checkpoint || t.chunk.is_some() {
+            continue;
+        }
+        let ours = names
+            .get_or_insert_with(|| frames.clone().filter_map(|f| name(ours.path(f))).collect());
+        let (first, last) = (t.key.first_frame, t.key.last_frame);
+        if (first..=last).any(|f| name(theirs.path(f)).is_some_and(|n| ours.contains(&n))) {
+            bail!(
+                "{} holds the checkpoint of an interrupted render to --out {} (frames \
+                 {first}-{last}), which writes frames of the same names: this would write over \
+                 frames it counts finished or is still to write, and it could no longer be \
+                 resumed; finish it with --resume, or delete {} first",
+                folder.display(),
+                t.out,
+                folder.display()
+            );
+        }
     }
-    bail!(
-        "{} holds the checkpoint of an interrupted render to --out {} (frames {first}-{last}): \
-         the merge would write over the frames it counts finished, and it could no longer be \
-         resumed; finish it with --resume, or delete {} first",
-        dir.display(),
-        t.out,
-        dir.display()
-    )
+    Ok(())
 }
 
 /// The settings that make a render's pixels what they are (a resume or merge needs them equal).
@@ -472,6 +498,11 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     // as such), so a checkpoint found now is one an interrupted render left.
     if let Some(d) = &opts.checkpoint {
         check_no_checkpoint_elsewhere(d, opts)?;
+    }
+    // Another interrupted render's frames of the same names (under another pattern); a chunk
+    // writes a partial file, no frames.
+    if opts.chunk.is_none() {
+        check_no_interrupted_render(&opts.out, &plan.frames, opts.checkpoint.as_deref())?;
     }
     let (ckpt, resumed) = if opts.checkpoint.is_some() || opts.chunk.is_some() {
         let key = run_key(scene, opts, &plan)?;
