@@ -1349,3 +1349,24 @@ fn a_resume_keeps_a_checkpoint_folder_you_made() {
         }
     }
 }
+
+/// A run killed by SIGKILL before its first checkpoint (no handler runs) leaves its default
+/// checkpoint folder empty; the next run to complete took it for one the user made and kept it
+/// for good. An empty folder of the default name is now a run's, removed at the end; an empty
+/// folder named by `--checkpoint` is still the user's, kept.
+#[test]
+fn an_empty_default_checkpoint_folder_left_by_a_kill_goes_when_the_render_completes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // What the killed run left (made here by hand: a kill's timing is not the point).
+    std::fs::create_dir(d.join("f.checkpoint")).unwrap();
+    std::fs::create_dir(d.join("mine")).unwrap();
+    let out = format!("{}/f_####.exr", d.display());
+    let args = ["render", "cornell", "--frames", "0-1", "--res", "8x6", "--spp", "1"];
+    run(&[&args[..], &["--out", &out]].concat());
+    assert!(!d.join("f.checkpoint").exists(), "the empty default folder was kept");
+    let mine = d.join("mine");
+    let out = format!("{}/g_####.exr", d.display());
+    run(&[&args[..], &["--out", &out, "--checkpoint", mine.to_str().unwrap()]].concat());
+    assert!(mine.is_dir(), "the folder named by --checkpoint was removed");
+}

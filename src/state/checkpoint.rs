@@ -277,8 +277,14 @@ impl Checkpointer {
             }
             if !state.exists() {
                 // A temporary of the first checkpoint, which a process killed while writing it
-                // left: no later run removed it, and the folder outlived the render.
-                left_by_a_run = remove_stale_tmp(d, |n| n == "state") > 0;
+                // left: no later run removed it, and the folder outlived the render. Or the
+                // default folder, empty: a run killed (SIGKILL, no handler) before its first
+                // checkpoint left it (a folder of that name made by hand and left empty is
+                // nothing to keep).
+                let default = super::key::default_checkpoint_dir(&template.out, template.chunk);
+                let empty = std::fs::read_dir(d).is_ok_and(|mut e| e.next().is_none());
+                left_by_a_run = remove_stale_tmp(d, |n| n == "state") > 0
+                    || (empty && d.as_path() == default.as_path());
             } else {
                 left_by_a_run = super::is_state_file(&state);
             }
