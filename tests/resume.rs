@@ -1362,11 +1362,23 @@ fn an_empty_default_checkpoint_folder_left_by_a_kill_goes_when_the_render_comple
     std::fs::create_dir(d.join("f.checkpoint")).unwrap();
     std::fs::create_dir(d.join("mine")).unwrap();
     let out = format!("{}/f_####.exr", d.display());
-    let args = ["render", "cornell", "--frames", "0-1", "--res", "8x6", "--spp", "1"];
+    let args = [
+        "render", "cornell", "--frames", "0-1", "--res", "8x6", "--spp", "1",
+    ];
     run(&[&args[..], &["--out", &out]].concat());
-    assert!(!d.join("f.checkpoint").exists(), "the empty default folder was kept");
+    assert!(
+        !d.join("f.checkpoint").exists(),
+        "the empty default folder was kept"
+    );
     let mine = d.join("mine");
     let out = format!("{}/g_####.exr", d.display());
-    run(&[&args[..], &["--out", &out, "--checkpoint", mine.to_str().unwrap()]].concat());
-    assert!(mine.is_dir(), "the folder named by --checkpoint was removed");
+    run(&[
+        &args[..],
+        &["--out", &out, "--checkpoint", mine.to_str().unwrap()],
+    ]
+    .concat());
+    assert!(
+        mine.is_dir(),
+        "the folder named by --checkpoint was removed"
+    );
 }
