@@ -309,6 +309,39 @@ fn a_merge_into_rgb_frames_says_it_drops_the_aov_channels() {
     );
 }
 
+/// Chunks told to write other frames (`v_####.exr` and `w_####.exr`) are of other renders: a
+/// merge of them is refused, naming both (it wrote the first chunk's frames, exit 0). Chunks of
+/// one name rendered in other folders (as on other machines) merge.
+#[test]
+fn chunks_of_other_outputs_are_not_merged() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let chunk = |out: &str, k: u32| {
+        let out = d.join(out).display().to_string();
+        let args = [
+            "render", "cornell", "--res", "8x6", "--spp", "1", "--frames", "0-3",
+        ];
+        reframe_ok(&[&args[..], &["--out", &out, "--chunk", &format!("{k}/2")]].concat());
+    };
+    chunk("a/v_####.exr", 1);
+    chunk("b/w_####.exr", 2);
+    chunk("c/v_####.exr", 2);
+    let p = |s: &str| d.join(s).display().to_string();
+    let a1 = p("a/v.chunk-1-of-2.partial");
+    let o = reframe(&["merge", &a1, &p("b/w.chunk-2-of-2.partial")])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains("are not chunks of the same render (--out"),
+        "{err}"
+    );
+    assert!(!d.join("a/v_0000.exr").exists());
+    reframe_ok(&["merge", &a1, &p("c/v.chunk-2-of-2.partial")]);
+    assert!(d.join("a/v_0003.exr").exists());
+}
+
 /// A merge has no scene to ask (without `--scene`, as every merge of undenoised chunks runs),
 /// so the chunks record the scene's files: an `--out` that names one of them (the environment
 /// image, a texture) is refused and the file left as it was, as `render` refuses it. The merge

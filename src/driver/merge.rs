@@ -99,6 +99,19 @@ pub fn merge(
                 label(f)
             );
         }
+        // Chunks told to write other frames (another name or format) are of another render,
+        // as a chunk's own partial file says (a merge took the first one's --out, unsaid; the
+        // folder may differ, as where chunks ran on other machines).
+        let name = |out: &str| Path::new(out).file_name().map(|n| n.to_owned());
+        if name(&t.out) != name(&t0.out) {
+            bail!(
+                "{} and {} are not chunks of the same render (--out {} vs {})",
+                label(&files[0]),
+                label(f),
+                t0.out,
+                t.out
+            );
+        }
         if *n.get_or_insert(c.n) != c.n {
             bail!(
                 "{} is chunk {c} but {} is of {} chunks",
