@@ -74,7 +74,25 @@ fn main() {
         .and_then(|m| <Cli as clap::FromArgMatches>::from_arg_matches(&m));
     let cli = match parsed {
         Ok(cli) => cli,
-        Err(e) if !e.use_stderr() => e.exit(), // --help, --version
+        // --help, --version: on standard output, whose failure (a full disk) is said as any
+        // command's is (clap's own exit said nothing, with status 0).
+        Err(e) if !e.use_stderr() => {
+            let written = e
+                .print()
+                .and_then(|_| std::io::Write::flush(&mut std::io::stdout()));
+            // A closed pipe (`reframe --help | head -1`) is no failure, as for other output.
+            if let Err(w) = written.or_else(|w| match w.kind() {
+                std::io::ErrorKind::BrokenPipe => Ok(()),
+                _ => Err(w),
+            }) {
+                errln!(
+                    "error: writing standard output: {}",
+                    printable(&w.to_string())
+                );
+                exit_with(1);
+            }
+            exit_with(0);
+        }
         Err(e) => {
             // Keep usage errors to one line too; `--help` has the rest. The line is clap's first
             // paragraph, joined: a list of missing arguments follows its heading, indented.

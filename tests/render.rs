@@ -835,6 +835,24 @@ fn a_full_standard_output_is_an_error() {
             .is_some_and(|l| l.starts_with("error: writing standard output: No space left")),
         "{err}"
     );
+    // `--help` and `--version` too (they exited 0, having written nothing).
+    for args in [&["--help"][..], &["--version"], &["render", "--help"]] {
+        let full = std::fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .unwrap();
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
+            .args(args)
+            .stdout(full)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.starts_with("error: writing standard output: No space left"),
+            "{args:?}: {err}"
+        );
+    }
 }
 
 /// A scene that spans far more than its details, so that it is not moved to the origin (a room
