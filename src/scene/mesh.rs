@@ -273,12 +273,13 @@ const REPEATED_FACE: Kind = Kind {
 /// The earlier faces on the same points that a face is compared with (`repeated_faces`).
 const MAX_COMPARED: usize = 8;
 
-/// For each face of `obj`, the earlier face it repeats, where it does: the same corner points
+/// The faces of `obj` that repeat an earlier one, each with that face (indices, in order;
+/// `None` where the memory to find them is not left): the same corner points
 /// (positions to the bit), in the same cyclic order or the reverse, where neither face emits
 /// (`emits(face)`; a lamp made two-sided by a reversed copy of its faces emits from both). Two
 /// such faces are one surface twice, and which a ray hits is a matter of rounding. Faces are
 /// grouped by a hash of their corners that does not depend on their order, then compared.
-fn repeated_faces(obj: &Obj, emits: &dyn Fn(&Face) -> bool) -> Vec<Option<usize>> {
+fn repeated_faces(obj: &Obj, emits: &dyn Fn(&Face) -> bool) -> Option<Vec<(u32, u32)>> {
     let corners = |f: &Face| obj.corners[f.corners.clone()].iter();
     let point = |c: &Corner| obj.positions[c.v as usize].to_array().map(f32::to_bits);
     let mix = |p: [u32; 3]| {
@@ -288,18 +289,20 @@ fn repeated_faces(obj: &Obj, emits: &dyn Fn(&Face) -> bool) -> Vec<Option<usize>
         }
         h ^ (h >> 29)
     };
-    let mut keys: Vec<(u64, u32)> = obj
-        .faces
-        .iter()
-        .enumerate()
-        .filter(|(_, f)| f.corners.len() >= 3)
-        .map(|(i, f)| {
-            let h = corners(f).fold(0u64, |h, c| h.wrapping_add(mix(point(c))));
-            (h ^ f.corners.len() as u64, i as u32)
-        })
-        .collect();
+    // Taken fallibly, as the mesh's lists are (`util::mem::grow`): 16 bytes a face.
+    let mut keys: Vec<(u64, u32)> = Vec::new();
+    keys.try_reserve_exact(obj.faces.len()).ok()?;
+    keys.extend(
+        obj.faces
+            .iter()
+            .enumerate()
+            .filter(|(_, f)| f.corners.len() >= 3)
+            .map(|(i, f)| {
+                let h = corners(f).fold(0u64, |h, c| h.wrapping_add(mix(point(c))));
+                (h ^ f.corners.len() as u64, i as u32)
+            }),
+    );
     keys.sort_unstable();
-    let mut repeats = vec![None; obj.faces.len()];
     let same = |a: &Face, b: &Face| {
         let (p, q): (Vec<_>, Vec<_>) = (
             corners(a).map(point).collect(),
@@ -311,27 +314,46 @@ fn repeated_faces(obj: &Obj, emits: &dyn Fn(&Face) -> bool) -> Vec<Option<usize>
                 (0..n).all(|k| q[k] == p[(r + k) % n]) || (0..n).all(|k| q[k] == p[(r + n - k) % n])
             })
     };
+    // (face, the earlier face it repeats), few in any model.
+    let mut repeats = Vec::new();
     for run in keys.chunk_by(|a, b| a.0 == b.0).filter(|r| r.len() > 1) {
         // Within a run, in the order of the file: each face against the earlier ones kept.
-        let mut faces: Vec<usize> = run.iter().map(|&(_, i)| i as usize).collect();
+        let mut faces: Vec<u32> = Vec::new();
+        faces.try_reserve_exact(run.len()).ok()?;
+        faces.extend(run.iter().map(|&(_, i)| i));
         faces.sort_unstable();
-        for (k, &j) in faces.iter().enumerate() {
-            let fj = &obj.faces[j];
+        let mut kept: Vec<u32> = Vec::new();
+        for &j in &faces {
+            let fj = &obj.faces[j as usize];
             if emits(fj) {
                 continue;
             }
             // Against the first few kept: the faces on one set of points in other orders are
             // few in any model, but a file of thousands of orders of ten points would take a
             // time in the square of their count.
-            repeats[j] = faces[..k]
+            let earlier = kept
                 .iter()
-                .copied()
-                .filter(|&i| repeats[i].is_none() && !emits(&obj.faces[i]))
                 .take(MAX_COMPARED)
-                .find(|&i| same(&obj.faces[i], fj));
+                .copied()
+                .find(|&i| same(&obj.faces[i as usize], fj));
+            match earlier {
+                Some(i) => {
+                    if !crate::util::mem::grow(&mut repeats) {
+                        return None;
+                    }
+                    repeats.push((j, i));
+                }
+                None => {
+                    if !crate::util::mem::grow(&mut kept) {
+                        return None;
+                    }
+                    kept.push(j);
+                }
+            }
         }
     }
-    repeats
+    repeats.sort_unstable();
+    Some(repeats)
 }
 
 /// The mesh of `obj`: `usemtl_material[k]` is the material of the faces after the k-th
@@ -381,8 +403,19 @@ pub fn build(
         f.usemtl
             .map_or(default_material, |k| usemtl_material[k as usize])
     };
-    let repeats = repeated_faces(obj, &|f| emissive(material_of(f)));
-    for (f, repeat) in obj.faces.iter().zip(repeats) {
+    let repeats = repeated_faces(obj, &|f| emissive(material_of(f))).ok_or_else(|| {
+        anyhow::anyhow!(
+            "{label}: finding the faces that repeat others among its {} faces needs more memory \
+             than is left{}",
+            obj.faces.len(),
+            crate::util::mem::address_space_note()
+        )
+    })?;
+    let mut repeats = repeats.into_iter().peekable();
+    for (k, f) in obj.faces.iter().enumerate() {
+        let repeat = repeats
+            .next_if(|&(j, _)| j as usize == k)
+            .map(|(_, i)| i as usize);
         if let Some(earlier) = repeat {
             repairs.note(label, f.line, REPEATED_FACE, || {
                 format!(
