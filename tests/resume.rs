@@ -759,29 +759,17 @@ fn a_merge_never_writes_over_an_interrupted_renders_frames() {
     // Nor under another pattern naming the same files (`f_0###.exr`; only the same pattern was
     // refused), a merge or a render alike; a pattern of other names is free.
     let other = format!("{}/f_0###.exr", o.display());
-    let m = reframe()
-        .args(["merge", partial.to_str().unwrap(), "--out", &other])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&m.stderr);
-    assert!(!m.status.success(), "{err}");
-    assert!(
-        err.contains("holds the checkpoint of an interrupted render")
-            && err.contains("which writes frames of the same names"),
-        "{err}"
-    );
-    let r = reframe()
-        .args([
+    let same_names = "holds the checkpoint of an interrupted render to --out";
+    for args in [
+        vec!["merge", partial.to_str().unwrap(), "--out", &other],
+        vec![
             "render", "cornell", "--frames", "2-3", "--res", "8x6", "--out", &other,
-        ])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&r.stderr);
-    assert!(!r.status.success(), "{err}");
-    assert!(
-        err.contains("holds the checkpoint of an interrupted render"),
-        "{err}"
-    );
+        ],
+    ] {
+        let o = reframe().args(&args).output().unwrap();
+        common::assert_refused(&o, same_names);
+        common::assert_refused(&o, "which writes frames of the same names");
+    }
     assert!(std::fs::read(o.join("f_0000.exr")).unwrap() == first);
     let free = format!("{}/g_####.exr", o.display());
     run(&[
