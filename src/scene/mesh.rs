@@ -282,12 +282,11 @@ const MAX_COMPARED: usize = 8;
 fn repeated_faces(obj: &Obj, emits: &dyn Fn(&Face) -> bool) -> Option<Vec<(u32, u32)>> {
     let corners = |f: &Face| obj.corners[f.corners.clone()].iter();
     let point = |c: &Corner| obj.positions[c.v as usize].to_array().map(f32::to_bits);
-    let mix = |p: [u32; 3]| {
-        let mut h = 0xcbf2_9ce4_8422_2325u64;
-        for w in p {
-            h = (h ^ w as u64).wrapping_mul(0x0000_0100_0000_01b3);
-        }
-        h ^ (h >> 29)
+    // A corner's hash (its point's), its high bits folded down: the face's is their sum.
+    let mix = |c: &Corner| {
+        let mut f = crate::util::hash::Fnv::default();
+        f.f32s(obj.positions[c.v as usize].to_array());
+        f.0 ^ (f.0 >> 29)
     };
     // Taken fallibly, as the mesh's lists are (`util::mem::grow`): 16 bytes a face.
     let mut keys: Vec<(u64, u32)> = Vec::new();
@@ -298,7 +297,7 @@ fn repeated_faces(obj: &Obj, emits: &dyn Fn(&Face) -> bool) -> Option<Vec<(u32, 
             .enumerate()
             .filter(|(_, f)| f.corners.len() >= 3)
             .map(|(i, f)| {
-                let h = corners(f).fold(0u64, |h, c| h.wrapping_add(mix(point(c))));
+                let h = corners(f).fold(0u64, |h, c| h.wrapping_add(mix(c)));
                 (h ^ f.corners.len() as u64, i as u32)
             }),
     );
@@ -317,38 +316,25 @@ fn repeated_faces(obj: &Obj, emits: &dyn Fn(&Face) -> bool) -> Option<Vec<(u32, 
     // (face, the earlier face it repeats), few in any model.
     let mut repeats = Vec::new();
     for run in keys.chunk_by(|a, b| a.0 == b.0).filter(|r| r.len() > 1) {
-        // Within a run, in the order of the file: each face against the earlier ones kept.
-        let mut faces: Vec<u32> = Vec::new();
-        faces.try_reserve_exact(run.len()).ok()?;
-        faces.extend(run.iter().map(|&(_, i)| i));
-        faces.sort_unstable();
-        let mut kept: Vec<u32> = Vec::new();
-        for &j in &faces {
+        // Within a run (sorted by face after the hash: in the order of the file), each face
+        // against the first few earlier ones kept: the faces on one set of points in other
+        // orders are few in any model, but a file of thousands of orders of ten points would
+        // take a time in the square of their count.
+        let mut kept: Vec<u32> = Vec::with_capacity(MAX_COMPARED);
+        for &(_, j) in run {
             let fj = &obj.faces[j as usize];
             if emits(fj) {
                 continue;
             }
-            // Against the first few kept: the faces on one set of points in other orders are
-            // few in any model, but a file of thousands of orders of ten points would take a
-            // time in the square of their count.
-            let earlier = kept
-                .iter()
-                .take(MAX_COMPARED)
-                .copied()
-                .find(|&i| same(&obj.faces[i as usize], fj));
-            match earlier {
-                Some(i) => {
+            match kept.iter().find(|&&i| same(&obj.faces[i as usize], fj)) {
+                Some(&i) => {
                     if !crate::util::mem::grow(&mut repeats) {
                         return None;
                     }
                     repeats.push((j, i));
                 }
-                None => {
-                    if !crate::util::mem::grow(&mut kept) {
-                        return None;
-                    }
-                    kept.push(j);
-                }
+                None if kept.len() < MAX_COMPARED => kept.push(j),
+                None => {}
             }
         }
     }
