@@ -80,18 +80,10 @@ fn main() {
             let written = e
                 .print()
                 .and_then(|_| std::io::Write::flush(&mut std::io::stdout()));
-            // A closed pipe (`reframe --help | head -1`) is no failure, as for other output.
-            if let Err(w) = written.or_else(|w| match w.kind() {
-                std::io::ErrorKind::BrokenPipe => Ok(()),
-                _ => Err(w),
-            }) {
-                errln!(
-                    "error: writing standard output: {}",
-                    printable(&w.to_string())
-                );
-                exit_with(1);
+            if let Err(w) = written {
+                reframe::util::stdout_failed(w);
             }
-            exit_with(0);
+            exit_done();
         }
         Err(e) => {
             // Keep usage errors to one line too; `--help` has the rest. The line is clap's first
@@ -136,11 +128,17 @@ fn main() {
         reframe::util::fs::remove_empty_made_folders();
         exit_with(1);
     }
+    exit_done();
+}
+
+/// Exit once the work is done: 0, or 1 where standard output could not be written (what was
+/// printed is lost; a closed pipe is no failure: `util::stdout_failed`).
+fn exit_done() -> ! {
     if let Some(e) = reframe::util::stdout_error() {
         errln!("error: writing standard output: {}", printable(&e));
         exit_with(1);
     }
-    exit_with(0);
+    exit_with(0)
 }
 
 /// A scene by name or path; `strict` refuses what loading would repair.

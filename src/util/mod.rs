@@ -29,10 +29,16 @@ pub fn write_stdout(bytes: &[u8]) {
     use std::io::Write;
     let mut out = std::io::stdout().lock();
     if let Err(e) = out.write_all(bytes).and_then(|()| out.flush()) {
-        if e.kind() != std::io::ErrorKind::BrokenPipe {
-            let mut first = STDOUT_ERROR.lock().unwrap_or_else(|p| p.into_inner());
-            first.get_or_insert(e.to_string());
-        }
+        stdout_failed(e);
+    }
+}
+
+/// A failure to write standard output (by `write_stdout`, or by a library that writes there
+/// itself: clap's `--help`), kept for `stdout_error` unless it is a closed pipe.
+pub fn stdout_failed(e: std::io::Error) {
+    if e.kind() != std::io::ErrorKind::BrokenPipe {
+        let mut first = STDOUT_ERROR.lock().unwrap_or_else(|p| p.into_inner());
+        first.get_or_insert(e.to_string());
     }
 }
 
