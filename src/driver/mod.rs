@@ -308,12 +308,12 @@ pub(super) fn check_no_interrupted_render(
         let Ok(t) = crate::state::StateFile::open(&state).map(|sf| sf.trailer) else {
             continue;
         };
-        let Ok(theirs) = crate::image::OutputPattern::parse(&t.out) else {
-            continue;
-        };
         if t.kind != crate::state::Kind::Checkpoint || t.chunk.is_some() {
             continue;
         }
+        let Ok(theirs) = crate::image::OutputPattern::parse(&t.out) else {
+            continue;
+        };
         let ours = names
             .get_or_insert_with(|| frames.clone().filter_map(|f| name(ours.path(f))).collect());
         let (first, last) = (t.key.first_frame, t.key.last_frame);
