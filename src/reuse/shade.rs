@@ -13,7 +13,7 @@
 //! sums with a hashed rounding dither: integer addition is associative, so the frames are
 //! bitwise identical for any thread count and any window.
 use super::visibility::{landings, EyeView, HitLanes, Landing, NativeHit};
-use super::weights::{EyeTerms, Weighing, SIDE_UNKNOWN};
+use super::weights::{EyeTerms, LambertWeighing, Weighing, SIDE_UNKNOWN};
 use super::{Params, Weights};
 use crate::camera::Camera;
 use crate::embree::{Hit, Packet16, Ray};
@@ -150,6 +150,8 @@ struct Scratch {
     splats: Vec<[f32; 4]>,
     /// Each hit's rounding dither, before the target frame is hashed in.
     dithers: Vec<Dither>,
+    /// The side of a Lambertian hit's surface each eye of the group sees (`LambertWeighing`).
+    eye_sides: Vec<u8>,
 }
 
 /// The native samples of tile `(x0, y0, x1, y1)` of frame `group[m]`, splatted into `films`
@@ -202,6 +204,7 @@ fn shade_eye(
         natives,
         splats,
         dithers,
+        eye_sides,
     } = scratch;
     hits.clear();
     escapes.clear();
@@ -313,7 +316,28 @@ fn shade_eye(
     let nh = hits.len();
     splats.resize(nh * n_f, [0.0; 4]);
     dithers.clear();
+    eye_sides.resize(n_f, SIDE_UNKNOWN);
     for (hi, (pixel, index, fh)) in hits.iter().enumerate() {
+        dithers.push(Dither::of(p.seed, native_frame, *pixel, *index));
+        let (row, seen) = (&land[hi * n_f..][..n_f], &views[hi * n_f..][..n_f]);
+        // A hit on a Lambertian surface (most of them): the weights straight from the views.
+        let eye = |k: usize| row[k].map(|i| (seen[k].wo, seen[k].j_over_a, n_at(k, i) as f32));
+        if let Some(weighing) = LambertWeighing::new(weights, fh, spp, n_f, eye, eye_sides) {
+            let d = weighing.denominators().emit;
+            for k in 0..n_f {
+                if row[k].is_some() {
+                    let j_over_a = seen[k].j_over_a;
+                    let v = weighing.value(eye_sides[k], j_over_a);
+                    let w = if cv && d > 0.0 {
+                        j_over_a / d
+                    } else {
+                        f32::NAN
+                    };
+                    splats[k * nh + hi] = [v.x, v.y, v.z, w];
+                }
+            }
+            continue;
+        }
         // Each field written in place: a whole `EyeTerms` built aside and copied in is read
         // back wider than it was written, which stalls the store buffer (a third of this
         // loop's time in `perf`).
@@ -334,7 +358,6 @@ fn shade_eye(
                 }
             }
         }
-        dithers.push(Dither::of(p.seed, native_frame, *pixel, *index));
         let weighing = Weighing::new(weights, fh, eyes, spp);
         // The sample's weight in eye k, `(J_k / A_pix,k) / sum_k' D_k'` (the control
         // variate's; NaN where there is none, which would quantise to nothing).

@@ -73,11 +73,17 @@ pub struct Denominators {
 /// `D_k(x)` of one eye (0 where it cannot see x): the exact density `n_k J_k / A_pix,k`, or
 /// approximation (10), under which every visible eye's density is `n_r`.
 pub fn density(weights: Weights, e: &EyeTerms, spp: u32) -> f32 {
-    if e.j_over_a <= 0.0 {
+    density_of(weights, e.j_over_a, e.n, spp)
+}
+
+/// `density` of an eye whose `J_k / A_pix,k` is `j_over_a` and whose count is `n`.
+#[inline]
+fn density_of(weights: Weights, j_over_a: f32, n: f32, spp: u32) -> f32 {
+    if j_over_a <= 0.0 {
         return 0.0;
     }
     match weights {
-        Weights::Exact => e.n * e.j_over_a,
+        Weights::Exact => n * j_over_a,
         Weights::Paper => spp as f32, // approximation (10)
         Weights::None | Weights::OwnEye => 0.0,
     }
@@ -352,6 +358,94 @@ impl<'a> Weighing<'a> {
     }
 }
 
+/// The weights of a native hit on a Lambertian surface that does not emit (most hits of most
+/// scenes), for `Paper` and `Exact`, built straight from how each eye of the group sees it,
+/// without `EyeTerms`: `Weighing` with the same operations in the same order, so the same
+/// bits, for the cost of the per-eye facts alone (the side of the surface each eye sees, and
+/// its density). What the kernel splats per eye is then one product, `value`.
+pub struct LambertWeighing {
+    q: Denominators,
+    /// The balance-heuristic sum per side (`Lambert::sum`).
+    sums: [Vec3; 2],
+    exact: bool,
+    /// `n_r n_v` (`Weighing::paper_scale`).
+    paper_scale: f32,
+}
+
+impl LambertWeighing {
+    /// `None` unless `weights` is `Paper` or `Exact` and `fh` is on a Lambertian surface that
+    /// does not emit. `eye(k)`: how eye `k` of the `n_f` sees x, `(wo, J_k / A_pix,k, n_k)`, or
+    /// `None` where it cannot (occluded or off its film). Writes the side of the surface each eye
+    /// that sees x is on (`Lambert::side_code`) into `sides[k]`, `SIDE_UNKNOWN` for the others;
+    /// `value` takes it.
+    #[inline]
+    pub fn new(
+        weights: Weights,
+        fh: &FirstHit,
+        spp: u32,
+        n_f: usize,
+        eye: impl Fn(usize) -> Option<(Vec3, f32, f32)>,
+        sides: &mut [u8],
+    ) -> Option<LambertWeighing> {
+        let exact = match weights {
+            Weights::Exact => true,
+            Weights::Paper => false,
+            Weights::None | Weights::OwnEye => return None,
+        };
+        let lambert = Lambert::of(&fh.m, fh)?;
+        // `denominators`' Lambertian loop, and `Weighing::new`'s count of the eyes that see x.
+        let mut q = Denominators::default();
+        let mut visible = 0usize;
+        for (k, side) in sides.iter_mut().enumerate().take(n_f) {
+            *side = SIDE_UNKNOWN;
+            let Some((wo, j_over_a, n)) = eye(k) else {
+                continue;
+            };
+            visible += usize::from(j_over_a > 0.0);
+            // (`balance` finds the side of an eye of density zero as `denominators` does.)
+            *side = lambert.side_code(wo);
+            let d = density_of(weights, j_over_a, n, spp);
+            if d == 0.0 {
+                continue;
+            }
+            let (p_w, p_l) = lambert.pdfs_of(*side);
+            q.emit += d;
+            if fh.w.is_some() {
+                q.ind += d * p_w;
+                q.dir_w += d * (p_w + fh.pdf_light_w);
+            }
+            if let Some(l) = &fh.light {
+                q.dir_l += d * (p_l + l.pdf);
+            }
+        }
+        Some(LambertWeighing {
+            sums: [lambert.sum(fh, &q, 0), lambert.sum(fh, &q, 1)],
+            q,
+            exact,
+            paper_scale: (spp as usize * visible) as f32,
+        })
+    }
+
+    pub fn denominators(&self) -> &Denominators {
+        &self.q
+    }
+
+    /// `Weighing::value` for an eye that sees x, on side `side` (`Lambert::side_code`) with
+    /// `J_k / A_pix,k` = `j_over_a`.
+    #[inline]
+    pub fn value(&self, side: u8, j_over_a: f32) -> Vec3 {
+        let scale = if self.exact {
+            j_over_a
+        } else {
+            self.paper_scale
+        };
+        match side {
+            0 | 1 => self.sums[side as usize] * scale,
+            _ => Vec3::ZERO * scale,
+        }
+    }
+}
+
 /// Each visible eye's balance weight for the indirect part, `D_k p_k(w) / sum_k' D_k' p_k'(w)`,
 /// as the estimator computes it (zero for the eyes that cannot see x). They sum to one wherever
 /// some eye can have drawn `w`: what the weights test checks.
@@ -379,5 +473,129 @@ fn eye_pdf(m: &Material, fh: &FirstHit, e: &EyeTerms, w: Vec3) -> f32 {
         m.pdf(ns, e.wo, w)
     } else {
         0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::integrator::FirstLight;
+    use crate::sampling::mix64;
+    use crate::scene::SurfacePoint;
+
+    fn unit(h: u64) -> f32 {
+        (h >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    fn direction(h: u64) -> Vec3 {
+        let v = Vec3::new(unit(mix64(h)), unit(mix64(h + 1)), unit(mix64(h + 2)));
+        (v - 0.5).normalize()
+    }
+
+    #[test]
+    fn the_lambertian_weights_are_the_general_ones_to_the_bit() {
+        // Lambertian hits with shading normals off the geometric ones, `w` and the light sample
+        // on either side or missing, and eyes on both sides, some unseeing, some of zero
+        // density (grazing, or no native sample in their pixel): `LambertWeighing` gives
+        // `Weighing`'s denominators and values bit for bit, with both weights.
+        let mut compared = 0;
+        for i in 0..3000u64 {
+            let h = |j: u64| mix64(i * 64 + j);
+            let ng = direction(h(0));
+            let ns = (ng + 0.3 * direction(h(1))).normalize();
+            let sp = SurfacePoint {
+                ng,
+                ns,
+                ..Default::default()
+            };
+            let fh = FirstHit {
+                sp,
+                m: Material {
+                    kd: Vec3::new(0.2, 0.5, 0.7) * unit(h(2)),
+                    ..Default::default()
+                },
+                w: (h(3) % 5 != 0).then(|| direction(h(4))),
+                le_w: Vec3::splat(unit(h(5)) * 3.0) * (h(6) % 3 == 0) as u8 as f32,
+                pdf_light_w: unit(h(7)),
+                li_w: Vec3::new(unit(h(8)), 0.4, 0.1),
+                light: (h(9) % 4 != 0).then(|| FirstLight {
+                    wi: direction(h(10)),
+                    le: Vec3::splat(5.0) * (h(11) % 5 != 0) as u8 as f32,
+                    pdf: unit(h(12)) * 2.0,
+                }),
+                ..Default::default()
+            };
+            let n_f = 1 + (h(13) % 9) as usize;
+            let spp = 1 + (h(14) % 3) as u32;
+            // Per eye: None (cannot see x) or (wo, J/A, n).
+            let seen: Vec<Option<(Vec3, f32, f32)>> = (0..n_f as u64)
+                .map(|k| {
+                    let g = |j: u64| mix64(h(20 + k) ^ j);
+                    (g(0) % 4 != 0).then(|| {
+                        let j_over_a = if g(1) % 6 == 0 {
+                            0.0
+                        } else {
+                            unit(g(2)) * 40.0
+                        };
+                        let n = if g(3) % 7 == 0 {
+                            0.0
+                        } else {
+                            (g(4) % 4) as f32
+                        };
+                        (direction(g(5)), j_over_a, n)
+                    })
+                })
+                .collect();
+            for weights in [Weights::Exact, Weights::Paper] {
+                // The terms as the kernel builds them for `Weighing`.
+                let mut eyes: Vec<EyeTerms> = seen
+                    .iter()
+                    .map(|s| match *s {
+                        Some((wo, j, n)) => EyeTerms::new(wo, j, n),
+                        None => EyeTerms::new(Vec3::ONE.normalize(), 0.0, 0.0),
+                    })
+                    .collect();
+                let general = Weighing::new(weights, &fh, &mut eyes, spp);
+                let mut sides = vec![0u8; n_f];
+                let lambert = LambertWeighing::new(weights, &fh, spp, n_f, |k| seen[k], &mut sides)
+                    .expect("a Lambertian hit");
+                let bits = |q: &Denominators| [q.ind, q.dir_w, q.dir_l, q.emit].map(f32::to_bits);
+                assert_eq!(bits(general.denominators()), bits(lambert.denominators()));
+                for (k, s) in seen.iter().enumerate() {
+                    if let Some((_, j, _)) = s {
+                        let a = general.value(Vec3::ZERO, &eyes[k]).to_array();
+                        let b = lambert.value(sides[k], *j).to_array();
+                        assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits), "hit {i} eye {k}");
+                        compared += 1;
+                    }
+                }
+            }
+        }
+        assert!(compared > 10_000, "{compared} values compared");
+        // Hits the general weights must take: glossy, emitting, and the count-averaged methods.
+        let glossy = FirstHit {
+            m: Material {
+                ks: Vec3::splat(0.1),
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let emitting = FirstHit {
+            m: Material {
+                ke: Vec3::ONE,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let mut sides = [0u8; 1];
+        let none = |_| Some((Vec3::Z, 1.0, 1.0));
+        for (fh, weights) in [
+            (&glossy, Weights::Exact),
+            (&emitting, Weights::Paper),
+            (&FirstHit::default(), Weights::OwnEye),
+            (&FirstHit::default(), Weights::None),
+        ] {
+            assert!(LambertWeighing::new(weights, fh, 1, 1, none, &mut sides).is_none());
+        }
     }
 }
