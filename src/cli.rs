@@ -155,7 +155,8 @@ pub struct RenderArgs {
     /// Samples per pixel (for reuse methods: native samples per pixel per group pass).
     #[arg(long, default_value_t = 8)]
     pub spp: u32,
-    /// Frames per reuse group, n_f = 2n+1 (reuse methods only).
+    /// Frames per reuse group, n_f: odd, each frame reused in the n_f frames around it (reuse
+    /// methods only; at 1 they reuse nothing).
     #[arg(long, default_value_t = 1)]
     pub window: u32,
     /// How primary rays are traced (the independent tracer's and the reuse methods' native

@@ -234,8 +234,13 @@ fn install_signal_handler() -> Result<Arc<AtomicBool>> {
         }
         exit_removing_temporaries(130, || {
             let note = reframe::util::fs::stop_note().map_or(String::new(), |n| format!(" ({n})"));
-            if again {
+            if again && reframe::util::fs::checkpoint_in_place() {
                 errln!("\nstopping now; a checkpoint already written is kept{note}");
+            } else if again {
+                errln!(
+                    "\nstopping now, before the first checkpoint (a --resume starts from the \
+                     beginning){note}"
+                );
             } else {
                 errln!("\ninterrupted: stopped at once; nothing is left half-written{note}");
             }

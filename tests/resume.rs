@@ -775,6 +775,18 @@ fn a_merge_never_writes_over_an_interrupted_renders_frames() {
     run(&[
         "render", "cornell", "--frames", "2-3", "--res", "8x6", "--out", &free,
     ]);
+    // Another extension of the same stem shares the default checkpoint folder: refused with
+    // the checkpoint's `--out` named and a way out that works (`--resume` would be refused
+    // too: the checkpoint is of another `--out`), which is a folder of its own.
+    let png = format!("{}/f_####.png", o.display());
+    let own = dir.path().join("own");
+    let png_render = [
+        "render", "cornell", "--frames", "2-3", "--res", "8x6", "--out", &png,
+    ];
+    let r = reframe().args(png_render).output().unwrap();
+    common::assert_refused(&r, &format!("to --out {out}: resume that render"));
+    common::assert_refused(&r, "--checkpoint DIR");
+    run(&with(&png_render, &["--checkpoint", own.to_str().unwrap()]));
     // The render resumes; then the merge may write (over finished frames, as asked).
     run(&with(
         &render.iter().map(String::as_str).collect::<Vec<_>>(),

@@ -298,7 +298,11 @@ fn a_stop_before_the_first_checkpoint_leaves_no_checkpoint_folder() {
     assert!(signal(&child, "INT"));
     let (code, err) = wait(child, Duration::from_secs(10));
     assert_eq!(code, Some(130), "{err}");
-    assert!(err.contains("stopping now"), "{err}");
+    // Said as it is: no checkpoint to keep (it said "a checkpoint already written is kept").
+    assert!(
+        err.contains("stopping now, before the first checkpoint"),
+        "{err}"
+    );
     assert!(!dir.join("out/f.checkpoint").exists(), "{err}");
     assert_eq!(leftovers(dir), Vec::<String>::new());
 }

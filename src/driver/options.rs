@@ -16,7 +16,7 @@ use std::sync::Arc;
 pub struct RenderOptions {
     pub method: Method,
     pub spp: u32,
-    /// Frames per reuse group (n_f = 2n+1); 1 for the independent tracer.
+    /// Frames per reuse group, n_f (odd: the frames around each); 1 for the independent tracer.
     pub window: u32,
     /// Visibility tests of reuse in 16-wide packets (else single rays).
     pub packets: bool,
@@ -244,7 +244,8 @@ impl RenderOptions {
         let n = range.end() - range.start() + 1;
         if self.window.is_multiple_of(2) {
             bail!(
-                "--window {}: a group is n_f = 2n+1 frames, so the window must be odd",
+                "--window {}: a group is a frame and as many on each side (n_f odd: 3, 5, 7, ...), \
+                 so the window must be odd",
                 self.window
             );
         }
@@ -523,6 +524,13 @@ impl RenderOptions {
         }
         if !self.packets && !self.method.reuses() {
             w.push("--visibility: the independent tracer tests no reuse; ignored".into());
+        }
+        if self.method.reuses() && self.window == 1 {
+            w.push(format!(
+                "--method {}: --window 1 (the default) makes groups of one frame, which reuse \
+                 nothing: this renders as the independent tracer would (give --window 3 or more)",
+                self.method.name()
+            ));
         }
         if self.adaptive.is_some() && self.window == 1 {
             w.push(

@@ -304,7 +304,10 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     }
     check_threads(opts.threads)?;
     if let Some(&n) = opts.windows.iter().find(|&&n| n % 2 == 0) {
-        bail!("--windows {n}: a group is n_f = 2n+1 frames, so windows must be odd");
+        bail!(
+            "--windows {n}: a group is a frame and as many on each side (n_f odd: 3, 5, 7, ...), \
+             so windows must be odd"
+        );
     }
     // One given twice would run its renders twice and put two points at one place.
     if let Some(c) = super::first_repeat(&opts.methods) {

@@ -299,6 +299,22 @@ impl Checkpointer {
             }
             if state.exists() {
                 if !resume {
+                    // Named by its `--out` where that is not this render's: a render of
+                    // another `--out` of the same stem (`f_####.png` beside `f_####.exr`)
+                    // shares the default folder, and `--resume` would refuse it too.
+                    let other = StateFile::open(&state)
+                        .ok()
+                        .map(|sf| sf.trailer.out)
+                        .filter(|o| *o != template.out);
+                    if let Some(o) = other {
+                        bail!(
+                            "{} holds the checkpoint of an interrupted render to --out {o}: \
+                             resume that render (the same command with --resume), give this \
+                             one a folder of its own with --checkpoint DIR, or delete the \
+                             folder to start over",
+                            d.display()
+                        );
+                    }
                     bail!(
                         "{} holds the checkpoint of an interrupted render: add --resume to \
                          continue it, or delete the folder to start over",
@@ -306,6 +322,7 @@ impl Checkpointer {
                     );
                 }
                 let mut sf = StateFile::open(&state)?;
+                crate::util::fs::set_checkpoint_in_place();
                 let t = sf.trailer.clone();
                 if t.kind != Kind::Checkpoint {
                     bail!("{}: not a checkpoint", state.display());
@@ -520,6 +537,7 @@ impl Checkpointer {
             t.log_crcs = crcs.clone();
         }
         write_state(&dir.join("state"), &mut t, active)?;
+        crate::util::fs::set_checkpoint_in_place();
         self.log_counted = true;
         self.spent += t0.elapsed();
         self.written += 1;

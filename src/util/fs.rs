@@ -110,6 +110,21 @@ pub fn stop_note() -> Option<String> {
     STOP_NOTE.try_lock().ok().and_then(|n| n.clone())
 }
 
+/// Whether a checkpoint of this render is on disk (written by this process, or the one it
+/// resumed from), for what a stop at once says.
+static CHECKPOINT_IN_PLACE: AtomicBool = AtomicBool::new(false);
+
+/// A checkpoint of this render is on disk (`checkpoint_in_place`).
+pub fn set_checkpoint_in_place() {
+    CHECKPOINT_IN_PLACE.store(true, Ordering::SeqCst);
+}
+
+/// Whether a checkpoint of this render is on disk: a stop at once keeps it, and says whether
+/// there is one (it said "a checkpoint already written is kept" before the first).
+pub fn checkpoint_in_place() -> bool {
+    CHECKPOINT_IN_PLACE.load(Ordering::SeqCst)
+}
+
 static STOPPING: AtomicBool = AtomicBool::new(false);
 
 /// Whether a stop by signal has begun: an error another thread meets now (a temporary file
