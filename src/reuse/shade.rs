@@ -48,13 +48,36 @@ impl Target<'_> {
     /// the group starting at frame `g0` into this frame (0 where the film has one fold).
     #[inline]
     fn fold(&self, g0: u32, s: u32) -> usize {
+        self.folding(g0).of(s)
+    }
+
+    /// `fold` for every sample of the group starting at `g0`, its rule found once.
+    #[inline]
+    fn folding(&self, g0: u32) -> Folding {
         if self.film.layout.norm.folds() < 2 {
-            0
+            Folding { base: 0, mask: 0 }
         } else if self.split {
-            (s % 2) as usize
+            Folding { base: 0, mask: 1 }
         } else {
-            (g0 % 2) as usize
+            Folding {
+                base: (g0 % 2) as usize,
+                mask: 0,
+            }
         }
+    }
+}
+
+/// A frame's rule for the fold of a sample's splats (`Target::folding`): `base + (s & mask)`.
+#[derive(Clone, Copy)]
+struct Folding {
+    base: usize,
+    mask: u32,
+}
+
+impl Folding {
+    #[inline]
+    fn of(self, s: u32) -> usize {
+        self.base + (s & self.mask) as usize
     }
 }
 
@@ -376,6 +399,7 @@ fn shade_eye(
     }
     for (k, (t, film)) in group.iter().zip(films.iter_mut()).enumerate() {
         let frame = t.film.frame();
+        let folding = t.folding(g0);
         let splats = &splats[k * nh..(k + 1) * nh];
         for (hi, ((_, index, fh), &[x, y, z, w])) in hits.iter().zip(splats).enumerate() {
             let Some(i) = land[hi * n_f + k] else {
@@ -394,7 +418,7 @@ fn shade_eye(
                 film.add_counts(1, 1, 0);
             }
             let dither = dithers[hi].to(frame);
-            let fold = t.fold(g0, index - first_index);
+            let fold = folding.of(index - first_index);
             if !film.reuse(i as usize, fold, Vec3::new(x, y, z), w, dither, k != m) {
                 bad += 1;
             }

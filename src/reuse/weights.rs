@@ -397,8 +397,11 @@ impl LambertWeighing {
         };
         let lambert = Lambert::of(&fh.m, fh)?;
         // `denominators`' Lambertian loop, and `Weighing::new`'s count of the eyes that see x.
+        // Without a branch per eye on `w` and the light sample: a sum that has no term is
+        // set to zero after (what it stays at where it is skipped).
         let mut q = Denominators::default();
         let mut visible = 0usize;
+        let pdf_light_l = fh.light.map_or(0.0, |l| l.pdf);
         for (k, side) in sides.iter_mut().enumerate().take(n_f) {
             *side = SIDE_UNKNOWN;
             let Some((wo, j_over_a, n)) = eye(k) else {
@@ -413,13 +416,15 @@ impl LambertWeighing {
             }
             let (p_w, p_l) = lambert.pdfs_of(*side);
             q.emit += d;
-            if fh.w.is_some() {
-                q.ind += d * p_w;
-                q.dir_w += d * (p_w + fh.pdf_light_w);
-            }
-            if let Some(l) = &fh.light {
-                q.dir_l += d * (p_l + l.pdf);
-            }
+            q.ind += d * p_w;
+            q.dir_w += d * (p_w + fh.pdf_light_w);
+            q.dir_l += d * (p_l + pdf_light_l);
+        }
+        if fh.w.is_none() {
+            (q.ind, q.dir_w) = (0.0, 0.0);
+        }
+        if fh.light.is_none() {
+            q.dir_l = 0.0;
         }
         Some(LambertWeighing {
             sums: [lambert.sum(fh, &q, 0), lambert.sum(fh, &q, 1)],
