@@ -20,7 +20,7 @@ use reframe::eval::{compare, reference};
 use reframe::scene::{LoadOptions, Scene};
 use reframe::state::key::{chunk_partials, default_checkpoint_dir, partial_path, Chunk};
 use reframe::util::fs::{check_file_target, exit_removing_temporaries, exit_with, write_json};
-use reframe::util::text::printable;
+use reframe::util::text::{message, printable};
 use reframe::{errln, outln};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -104,7 +104,7 @@ fn main() {
                 ),
                 l => l,
             };
-            errln!("{} (see --help)", printable(&line));
+            errln!("{} (see --help)", message(&line));
             std::process::exit(2);
         }
     };
@@ -124,7 +124,7 @@ fn main() {
             exit_with(130);
         }
         // One line: the chain of contexts, outermost first.
-        errln!("error: {}", printable(&format!("{e:#}")));
+        errln!("error: {}", message(&format!("{e:#}")));
         reframe::util::fs::remove_empty_made_folders();
         exit_with(1);
     }
@@ -149,7 +149,7 @@ fn load(name: &str, device: &Device, strict: bool) -> Result<Scene> {
 /// The scene's load warnings, once a command has succeeded (a failure stays one line).
 fn print_warnings(scene: &Scene) {
     for w in &scene.warnings {
-        errln!("warning: {}", printable(w));
+        errln!("warning: {}", message(w));
     }
 }
 
@@ -308,7 +308,7 @@ fn run(cli: Cli) -> Result<()> {
             if let Ok(out) = reframe::image::OutputPattern::parse(&opts.out) {
                 let size = opts.resolution.unwrap_or((scene.width, scene.height));
                 for w in opts.flag_warnings(&out, size) {
-                    errln!("warning: {}", printable(&w));
+                    errln!("warning: {}", message(&w));
                 }
             }
             errln!("{}", cli::render_summary(&stats));
@@ -387,7 +387,7 @@ fn run(cli: Cli) -> Result<()> {
                 errln!("warning: {} pixels are NaN or infinite", r.nonfinite_pixels);
             }
             for w in &r.warnings {
-                errln!("warning: {}", printable(w));
+                errln!("warning: {}", message(w));
             }
             say_half_clamped();
             let frames: Vec<String> = r.frames.iter().map(|p| p.display().to_string()).collect();
@@ -488,7 +488,7 @@ fn run(cli: Cli) -> Result<()> {
                 let size = opts.res.unwrap_or((scene.width, scene.height));
                 let what = format!("--methods {}", c.name());
                 if let Some(w) = driver::options::small_denoise_warning(&what, size) {
-                    errln!("warning: {}", printable(&w));
+                    errln!("warning: {}", message(&w));
                 }
             }
             outln!("{}", compare::summary(&report));

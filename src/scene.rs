@@ -1671,12 +1671,21 @@ fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
             );
         }
         // toml's own message spans several lines (a snippet of the file); keep it to one.
-        let msg = e.message().trim().replace('\n', " ");
+        let mut msg = e.message().trim().replace('\n', " ");
         let Some(span) = e.span() else {
             return anyhow!("{label}: {msg}");
         };
         let line = line_at(text.as_bytes(), span.start);
         let quoted = quote(text.lines().nth(line - 1).unwrap_or(""));
+        // toml gives no words for a file that ends where a value should be (`frames =` as
+        // its last line): the error ended in a colon.
+        if msg.is_empty() {
+            msg = if quoted.ends_with('=') {
+                "the value after '=' is missing".into()
+            } else {
+                "not TOML here (the file may be cut short)".into()
+            };
+        }
         // A key missing from the top level is reported against the whole top-level table.
         if span.start == 0 && !quoted.starts_with('[') && msg.starts_with("missing field") {
             anyhow!("{label}: {msg} at the top level")

@@ -194,7 +194,7 @@ pub fn merge(
             errln!(
                 "warning: --scene {}: the chunks were rendered without --denoise, so the merge \
                  does not use the scene",
-                crate::util::text::printable(&d.scene.name)
+                crate::util::text::message(&d.scene.name)
             );
             None
         }

@@ -304,7 +304,7 @@ pub fn reference(
             // A cache is a copy of what can be made again: made again, said once.
             (Err(e), Ok(())) => errln!(
                 "warning: {}",
-                crate::util::text::printable(&format!(
+                crate::util::text::message(&format!(
                     "the cached reference in {} is damaged ({e:#}); rendering it again",
                     dir.display()
                 ))

@@ -414,7 +414,7 @@ impl Checkpointer {
                             Err(e) => errln!(
                                 "note: {}: chunk {c} is rendered again (its partial file is \
                                  replaced when it is done)",
-                                crate::util::text::printable(&format!("{e:#}"))
+                                crate::util::text::message(&format!("{e:#}"))
                             ),
                         },
                     }

@@ -23,6 +23,36 @@ pub fn printable(s: &str) -> String {
     out
 }
 
+/// Runs of text without a space longer than this are cut in a message (`message`).
+const LONGEST_RUN: usize = 300;
+
+/// `printable(s)` for an error or warning line, with every run of text without a space that
+/// is longer than `LONGEST_RUN` characters cut to its first 160 and last 100 characters
+/// around `...(N characters)...`: a key, value or name quoted from input can be megabytes long
+/// (a line of one TOML key of 10^6 characters made a one-megabyte error line), where a path
+/// keeps its start and its file name.
+pub fn message(s: &str) -> String {
+    let p = printable(s);
+    if p.len() <= LONGEST_RUN {
+        return p;
+    }
+    let mut out = String::with_capacity(p.len().min(4096));
+    for (k, run) in p.split(' ').enumerate() {
+        if k > 0 {
+            out.push(' ');
+        }
+        let n = run.chars().count();
+        if n <= LONGEST_RUN {
+            out.push_str(run);
+            continue;
+        }
+        let head: String = run.chars().take(160).collect();
+        let tail: String = run.chars().skip(n - 100).collect();
+        out.push_str(&format!("{head}...({} characters)...{tail}", n - 260));
+    }
+    out
+}
+
 /// A file name as names are matched in another case: composed (Unicode NFC: an `Ö` written
 /// as one character and as `O` and its accent, as macOS stores names and archives made there
 /// keep them, are one name) and in lower case (any letter's, not only ASCII's: `Ölfass.png` is
@@ -34,7 +64,38 @@ pub fn folded(name: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::printable;
+    use super::{message, printable};
+
+    #[test]
+    fn a_message_cuts_runs_past_300_characters_and_nothing_else() {
+        let key = "k".repeat(1_000_000);
+        let m = message(&format!(
+            "s.toml: line 1 ('kkk ...'): unknown field `{key}`, expected"
+        ));
+        assert!(m.len() < 1000, "{} bytes", m.len());
+        assert!(
+            m.starts_with("s.toml: line 1 ('kkk ...'): unknown field `kkk"),
+            "{m}"
+        );
+        // The run is the key with its quotes and comma.
+        assert!(m.contains("kkk...(999743 characters)...kkk"), "{m}");
+        assert!(m.ends_with("kkk`, expected"), "{m}");
+        // A path of 300 characters is kept whole; one past it keeps its start and its name.
+        let path = format!("/{}/frame.exr", "d".repeat(289));
+        assert_eq!(path.len(), 300);
+        assert_eq!(
+            message(&format!("writing {path} (full)")),
+            format!("writing {path} (full)")
+        );
+        let long = format!("/{}/frame.exr", "d".repeat(400));
+        let m = message(&format!("writing {long} (full)"));
+        assert!(
+            m.ends_with("ddd/frame.exr (full)") && m.starts_with("writing /ddd"),
+            "{m}"
+        );
+        // Control characters are escaped as `printable` does.
+        assert_eq!(message("a\u{1b}[2Jb"), printable("a\u{1b}[2Jb"));
+    }
 
     #[test]
     fn control_characters_are_escaped() {
