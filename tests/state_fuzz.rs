@@ -226,6 +226,31 @@ fn damaged_checkpoints_are_never_resumed() {
     for o in outcomes {
         o.unwrap();
     }
+    // A frame in flight given another frame's camera (a camera's matrices, so plausible), its
+    // record's checksum recomputed: its file would have carried that camera. Refused as not
+    // the scene's.
+    {
+        let mut b = good.clone();
+        let n = b.len();
+        let json = u64::from_le_bytes(b[n - 16..n - 8].try_into().unwrap()) as usize;
+        let trailer = n - 16 - 4 - json;
+        let starts: Vec<usize> = (0..trailer - 4)
+            .filter(|&p| &b[p..p + 4] == b"RFAC")
+            .collect();
+        assert!(starts.len() >= 2, "frames in flight: {}", starts.len());
+        let (s0, e0) = (starts[0], starts[1]);
+        let other = b[starts[1] + 64..starts[1] + 64 + 128].to_vec();
+        b[s0 + 64..s0 + 64 + 128].copy_from_slice(&other);
+        let crc = crc32fast::hash(&b[s0..e0 - 4]);
+        b[e0 - 4..e0].copy_from_slice(&crc.to_le_bytes());
+        // (In place: a resume checks the frames it finished against its --out.)
+        std::fs::write(&state, &b).unwrap();
+        let mut a = args.clone();
+        a.push("--resume".into());
+        let o = run_reframe(&a, Duration::from_secs(30));
+        let why = refusal(&o).unwrap();
+        assert!(why.contains("camera is not the scene's"), "{why}");
+    }
     // Undamaged, it resumes.
     std::fs::write(&state, &good).unwrap();
     let mut a = args.clone();
@@ -269,8 +294,10 @@ fn partials_with_forged_record_headers_are_never_merged() {
         .map(|k| d.join("r").join(format!("f.chunk-{k}-of-2.partial")))
         .collect();
     // (byte offset in the record, new bytes): the unit, the frame number, the count of groups
-    // of odd first frames (the control variate's second fold), the seconds, a camera matrix.
-    let forgeries: [(usize, Vec<u8>); 7] = [
+    // of odd first frames (the control variate's second fold), the seconds, a camera matrix
+    // (NaN; an element of world-to-NDC 3e38, which was written into the frame's metadata),
+    // the reuse counters (more lost than tried: a loss of 10^16 percent in `--stats`).
+    let forgeries: [(usize, Vec<u8>); 9] = [
         (24, 100f32.to_le_bytes().to_vec()),
         (24, f32::NAN.to_le_bytes().to_vec()),
         (4, 13u32.to_le_bytes().to_vec()),
@@ -278,6 +305,8 @@ fn partials_with_forged_record_headers_are_never_merged() {
         (56, f64::NAN.to_le_bytes().to_vec()),
         (56, (-5f64).to_le_bytes().to_vec()),
         (64, f32::NAN.to_le_bytes().to_vec()),
+        (64 + 4 * 26, 3e38f32.to_le_bytes().to_vec()),
+        (48, u64::MAX.to_le_bytes().to_vec()),
     ];
     for (i, (at, bytes)) in forgeries.iter().enumerate() {
         let case = d.join(format!("forged{i}"));

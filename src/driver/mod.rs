@@ -545,6 +545,20 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     let (counters, next, active, digests) = match resumed {
         Some(r) => {
             check_resumed_outputs(&r.trailer, opts, &plan, (&out, &meta), scene)?;
+            // A frame in flight carries its camera into its file's metadata as the checkpoint
+            // has it: it must be the scene's, to the bit (the same scene and build, which the
+            // key checks), where a matrix forged with the record's checksum was written out.
+            for a in &r.active {
+                let (w, h) = (a.view.width, a.view.height);
+                if a.view != crate::film::View::of(a.frame(), &scene.camera(a.frame(), w, h)) {
+                    bail!(
+                        "--resume: the checkpoint in {} is damaged (frame {}'s camera is not the \
+                         scene's); delete the folder to start over",
+                        ckpt.dir().map_or("?".into(), |d| d.display().to_string()),
+                        a.frame()
+                    );
+                }
+            }
             let t = r.trailer;
             (t.progress, t.next_unit, r.active, t.frame_digests)
         }

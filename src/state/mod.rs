@@ -247,6 +247,9 @@ impl Header {
         if !mats.iter().all(|m| m.is_finite()) {
             return Err(bad("a camera matrix that is not finite"));
         }
+        if !camera_matrices_agree(&mats) {
+            return Err(bad("camera matrices that no camera has"));
+        }
         Ok(Header {
             view: View {
                 frame,
@@ -265,6 +268,61 @@ impl Header {
             seconds,
         })
     }
+}
+
+/// Whether a record's world-to-camera and world-to-NDC matrices (column-major, as
+/// `Camera::world_to_camera` and `Camera::world_to_ndc` write them, one after the other) are a
+/// camera's: the first a rotation (orthonormal rows) and a translation, the second the first's
+/// rows under `Camera::world_to_ndc`'s projection, `x_ndc = k_x x_c + z_c / 2`,
+/// `y_ndc = k_y y_c + z_c / 2` with `k_x > 0 > k_y`, and `z_c` twice. They go into the frame's
+/// metadata as they are, and `merge` has no scene to compare them with: a matrix element forged
+/// with its record's checksum was written out.
+fn camera_matrices_agree(mats: &[f32; 32]) -> bool {
+    // Row `r` of a column-major 4x4 matrix, in f64.
+    let row = |m: &[f32], r: usize| -> [f64; 4] { std::array::from_fn(|c| m[4 * c + r] as f64) };
+    let (c, n) = (&mats[..16], &mats[16..]);
+    let rows: [[f64; 4]; 4] = std::array::from_fn(|r| row(c, r));
+    if rows[3] != [0.0, 0.0, 0.0, 1.0] {
+        return false;
+    }
+    let dot3 = |a: &[f64; 4], b: &[f64; 4]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    for i in 0..3 {
+        for j in 0..3 {
+            let want = if i == j { 1.0 } else { 0.0 };
+            if (dot3(&rows[i], &rows[j]) - want).abs() > 1e-4 {
+                return false;
+            }
+        }
+    }
+    // Within the rounding of f32 sums of products of the size `scale` (10^-5 of it: a few
+    // hundred units in the last place).
+    let close = |a: f64, b: f64, scale: f64| (a - b).abs() <= 1e-5 * (1.0 + scale);
+    let z = rows[2];
+    let size = z.iter().fold(0f64, |m, v| m.max(v.abs()));
+    for r in [2, 3] {
+        let nr = row(n, r);
+        if !(0..4).all(|k| close(nr[k], z[k], size)) {
+            return false;
+        }
+    }
+    // Rows 0 and 1 less `z_c / 2`, over the camera's rows: one factor for all four columns.
+    for (r, sign) in [(0, 1.0), (1, -1.0)] {
+        let nr = row(n, r);
+        let d: [f64; 4] = std::array::from_fn(|k| nr[k] - 0.5 * z[k]);
+        let k = dot3(&d, &rows[r]);
+        // Each element against the size of the terms it was summed from.
+        let agrees = |i: usize| {
+            let scale = nr[i]
+                .abs()
+                .max(0.5 * z[i].abs())
+                .max((k * rows[r][i]).abs());
+            close(d[i], k * rows[r][i], scale)
+        };
+        if k * sign <= 0.0 || !(0..4).all(agrees) {
+            return false;
+        }
+    }
+    true
 }
 
 fn bad(what: &str) -> std::io::Error {
@@ -495,6 +553,12 @@ fn read_record_body(r: &mut impl Read, norm: Norm, max_len: u64) -> std::io::Res
     if HEADER_BYTES + CRC_BYTES + per_pixel * p as u64 > max_len {
         return Err(bad("longer than the file holds for it"));
     }
+    // The reuse counters a resume or merge carries into `--stats` (a record forged with its
+    // checksum reported a loss of 10^16 percent): as the trailer's (`check_trailer`).
+    let [landed, tried, lost] = h.counts;
+    if lost > tried || landed.max(tried) >= 1 << 56 {
+        return Err(bad("impossible reuse counters"));
+    }
     match h.kind {
         0 => {
             let folds = if h.folds { 2 } else { 1 };
@@ -539,6 +603,13 @@ fn read_record_body(r: &mut impl Read, norm: Norm, max_len: u64) -> std::io::Res
                 .into_iter()
                 .map(f32::from_bits)
                 .collect();
+            // The independent tracer's pixels, means of finite samples of at least zero
+            // (texels below zero are read as zero): a forged -1000 or NaN was merged as given.
+            if rgb.iter().any(|v| !(*v >= 0.0 && v.is_finite())) {
+                return Err(bad(
+                    "a pixel below zero or not finite, which no render writes",
+                ));
+            }
             let px: Vec<glam::Vec3> = rgb
                 .chunks_exact(3)
                 .map(|c| glam::Vec3::new(c[0], c[1], c[2]))
@@ -814,14 +885,72 @@ const TAIL_BYTES: u64 = 4 + 8 + 8;
 mod tests {
     use super::*;
     use crate::film::fixed::FIXED;
+    use glam::Vec3;
 
     fn view(frame: u32) -> View {
-        View {
-            frame,
-            width: 3,
-            height: 2,
-            world_to_camera: [0.5; 16],
-            world_to_ndc: [-2.0; 16],
+        View::of(frame, &camera(Vec3::new(0.3, 1.2, 4.0), 40.0, 3, 2))
+    }
+
+    fn camera(eye: Vec3, fov: f32, width: u32, height: u32) -> crate::camera::Camera {
+        let pose = crate::camera::Pose {
+            eye,
+            view: Vec3::new(-0.1, -0.05, -1.0),
+            up: Vec3::Y,
+            fov,
+        };
+        crate::camera::Camera::from_pose(&pose, width, height)
+    }
+
+    #[test]
+    fn every_cameras_matrices_agree_and_forged_ones_do_not() {
+        use crate::sampling::mix64;
+        let unit = |h: u64| (h >> 40) as f32 / (1u64 << 24) as f32;
+        for i in 0..20_000u64 {
+            let h = |j: u64| unit(mix64(i * 16 + j));
+            // Eyes near and very far from the origin, every direction, wide and narrow fovs,
+            // films wide, tall and of one pixel.
+            let far = 10f32.powf(h(0) * 12.0 - 4.0);
+            let pose = crate::camera::Pose {
+                eye: (Vec3::new(h(1), h(2), h(3)) - 0.5) * far,
+                view: Vec3::new(h(4), h(5), h(6)) - 0.5,
+                up: Vec3::new(h(7), h(8), h(9)) - 0.5,
+                fov: 0.001 + h(10) * 179.99,
+            };
+            let (w, ht) = (1 + (h(11) * 4000.0) as u32, 1 + (h(12) * 4000.0) as u32);
+            let cam = crate::camera::Camera::from_pose(&pose, w, ht);
+            if !cam.forward.is_finite() || !cam.right.is_finite() {
+                continue; // a pose the scene loader refuses
+            }
+            let v = View::of(0, &cam);
+            let mut m = [0f32; 32];
+            m[..16].copy_from_slice(&v.world_to_camera);
+            m[16..].copy_from_slice(&v.world_to_ndc);
+            assert!(camera_matrices_agree(&m), "{pose:?} {w}x{ht}");
+            // Any one element set to 3e38; one of the rotation or projection changed by 1%, or
+            // its sign flipped where it is not zero: no camera's. (Any translation is some
+            // camera's: the projection's copy of it, scaled by `k_x`, which a wide film or a
+            // fov near 180 degrees makes tiny, is all it is checked against.)
+            let k = (mix64(i) % 32) as usize;
+            let translation = matches!(k, 12..=14 | 28..=31);
+            for new in [m[k] * 1.01 + 0.01, 3e38, -m[k]] {
+                if translation && new != 3e38 {
+                    continue;
+                }
+                if new == m[k] || m[k] == 0.0 && new == 0.0 {
+                    continue;
+                }
+                let mut f = m;
+                f[k] = new;
+                // (A change within 10^-3 of the matrices' largest entries may pass: the
+                // projection scales a translation by `k_x`, which a wide film makes small, and
+                // the check allows for the rounding of the rest.)
+                let size = m.iter().fold(1f32, |a, v| a.max(v.abs()));
+                let tiny = (new - m[k]).abs() < 1e-3 * size;
+                assert!(
+                    tiny || !camera_matrices_agree(&f),
+                    "{pose:?}: [{k}] = {new}"
+                );
+            }
         }
     }
 
@@ -923,7 +1052,17 @@ mod tests {
         };
         assert!(forge(&[]).is_ok());
         type Edits = Vec<(usize, Vec<u8>)>;
-        let cases: [(&str, Edits); 4] = [
+        let cases: [(&str, Edits); 6] = [
+            // The header's reuse counters (landed, tried, lost at bytes 32, 40, 48): more lost
+            // than tried (a loss of 10^16 percent in `--stats`), and one past 2^56.
+            (
+                "impossible reuse counters",
+                vec![(48, u64::MAX.to_le_bytes().to_vec())],
+            ),
+            (
+                "impossible reuse counters",
+                vec![(32, (1u64 << 60).to_le_bytes().to_vec())],
+            ),
             // Cell 0 below zero, with no carry.
             (
                 "negative sum",
@@ -951,6 +1090,24 @@ mod tests {
             };
             let err = err.to_string();
             assert!(err.contains(want), "{want}: {err}");
+        }
+        // A finished frame's pixel below zero or not finite (merged as given before).
+        let bytes = bytes_of(&Record::Pixels(pixels(2)));
+        let at = HEADER_BYTES as usize + 4;
+        for v in [-1000.0f32, f32::NAN, f32::INFINITY, -1e-30] {
+            let mut b = bytes.clone();
+            b[at..at + 4].copy_from_slice(&v.to_le_bytes());
+            let n = b.len() - 4;
+            let crc = crc32fast::hash(&b[..n]);
+            b[n..].copy_from_slice(&crc.to_le_bytes());
+            let err = read_record(&mut b.as_slice(), Norm::Count, b.len() as u64)
+                .err()
+                .unwrap_or_else(|| panic!("a pixel of {v} accepted"))
+                .to_string();
+            assert!(
+                err.contains("a pixel below zero or not finite"),
+                "{v}: {err}"
+            );
         }
     }
 
