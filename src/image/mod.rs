@@ -835,6 +835,11 @@ fn attributes(meta: &Metadata, kind: FileKind) -> Result<Vec<ffi::Attribute>> {
 pub fn read_image(path: &Path) -> Result<Image> {
     let read = || -> Result<Image> {
         let (mut reader, info) = open_checked(path, u64::MAX)?;
+        // A header that claims more pixels than memory holds (a damaged EXR's display window
+        // of 10^6 x 10^6) is refused in one line: its allocation aborted the process.
+        let channels = info.channels.len();
+        let need = 4 * info.width as u64 * info.height as u64 * channels as u64;
+        check_room(&info, channels, need)?;
         let data = read_all(&mut reader, &info)?;
         Ok(Image {
             width: info.width,
@@ -1100,7 +1105,22 @@ fn read_channels(
     info: &ffi::ImageInfo,
     range: std::ops::Range<usize>,
 ) -> Result<Vec<f32>> {
-    let mut data = vec![0.0f32; info.width as usize * info.height as usize * range.len()];
+    // Taken fallibly, so that an image past what the process can map is an error, not an
+    // abort, for every reader (`check_room` goes by the memory available, which a limit on
+    // the address space does not lower).
+    let n = (info.width as u64 * info.height as u64).saturating_mul(range.len() as u64);
+    let mut data: Vec<f32> = Vec::new();
+    if usize::try_from(n).map_or(true, |n| data.try_reserve_exact(n).is_err()) {
+        bail!(
+            "reading its {}x{} pixels of {} channels needs {}, more memory than this process \
+             can take",
+            info.width,
+            info.height,
+            range.len(),
+            crate::util::mem::size(4 * n)
+        );
+    }
+    data.resize(n as usize, 0.0);
     reader
         .pin_mut()
         .read_f32(range.start as u32, range.end as u32, &mut data)
@@ -2092,6 +2112,29 @@ mod tests {
         assert!(
             img.data.iter().zip(&back.data).skip(2).any(|(a, b)| a != b),
             "was not stored as half"
+        );
+    }
+
+    #[test]
+    fn a_display_window_past_memory_is_refused_not_an_abort() {
+        // An EXR whose header alone is damaged: its display window 10^6 x 10^6 pixels (its
+        // data window and pixels whole). The reader's allocation of 24 TB aborted the process
+        // (a cached reference, a resumed render's finished frame): now one error.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("f.exr");
+        let img = test_image(9, 11, &["R", "G", "B"]);
+        write_image(&path, &img, &Metadata::default(), &WriteOptions::default()).unwrap();
+        let mut b = std::fs::read(&path).unwrap();
+        let key = b"displayWindow\0box2i\0";
+        let at = b.windows(key.len()).position(|w| w == key).unwrap() + key.len() + 4;
+        for (k, v) in [0i32, 0, 999_999, 999_999].into_iter().enumerate() {
+            b[at + 4 * k..at + 4 * k + 4].copy_from_slice(&v.to_le_bytes());
+        }
+        std::fs::write(&path, &b).unwrap();
+        let e = format!("{:#}", read_image(&path).unwrap_err());
+        assert!(
+            e.contains("1000000x1000000 pixels of 3 channels needs"),
+            "{e}"
         );
     }
 
