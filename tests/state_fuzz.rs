@@ -227,8 +227,8 @@ fn damaged_checkpoints_are_never_resumed() {
         o.unwrap();
     }
     // A frame in flight given another frame's camera (a camera's matrices, so plausible), its
-    // record's checksum recomputed: its file would have carried that camera. Refused as not
-    // the scene's.
+    // record's checksum recomputed and listed in the trailer (whose checksum is recomputed
+    // too): its file would have carried that camera. Refused as not the scene's.
     {
         let mut b = good.clone();
         let n = b.len();
@@ -243,6 +243,20 @@ fn damaged_checkpoints_are_never_resumed() {
         b[s0 + 64..s0 + 64 + 128].copy_from_slice(&other);
         let crc = crc32fast::hash(&b[s0..e0 - 4]);
         b[e0 - 4..e0].copy_from_slice(&crc.to_le_bytes());
+        let mut t: serde_json::Value = serde_json::from_slice(&b[trailer..n - 20]).unwrap();
+        let k = t["records"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .position(|r| r[1] == s0 as u64)
+            .unwrap();
+        t["record_crcs"][k] = crc.into();
+        let json = serde_json::to_vec(&t).unwrap();
+        b.truncate(trailer);
+        b.extend_from_slice(&json);
+        b.extend_from_slice(&crc32fast::hash(&json).to_le_bytes());
+        b.extend_from_slice(&(json.len() as u64).to_le_bytes());
+        b.extend_from_slice(b"RFSTATE1");
         // (In place: a resume checks the frames it finished against its --out.)
         std::fs::write(&state, &b).unwrap();
         let mut a = args.clone();
@@ -379,5 +393,41 @@ fn partials_with_forged_record_headers_are_never_merged() {
     let o = run_reframe(&args, Duration::from_secs(20));
     let why = refusal(&o).unwrap();
     assert!(why.contains("another build of reframe"), "{why}");
+    assert!(frames_in(&case.join("o")).is_empty(), "frames written");
+    // Chunk 1's records of another seed (the same frames, sizes and layout, each whole, its
+    // checksum right) under chunk 1's own trailer: merged as this run's (a fifth of the
+    // pixels other, exit 0). The trailer lists its records' checksums.
+    let other = d.join("seed1").join("f_####.exr").display().to_string();
+    reframe_ok(&strings(&[
+        "render", "vase", "--frames", "10-15", "--res", "24x18", "--spp", "1", "--method",
+        "mis-cv", "--window", "3", "--out", &other, "--chunk", "1/2", "--seed", "1",
+    ]));
+    let ours = std::fs::read(&partials[0]).unwrap();
+    let theirs = std::fs::read(d.join("seed1").join("f.chunk-1-of-2.partial")).unwrap();
+    let trailer_at = |b: &[u8]| {
+        let n = b.len();
+        n - 20 - u64::from_le_bytes(b[n - 16..n - 8].try_into().unwrap()) as usize
+    };
+    let (a, b) = (trailer_at(&ours), trailer_at(&theirs));
+    assert_eq!(a, b, "records of the same sizes");
+    let mut spliced = theirs[..b].to_vec();
+    spliced.extend_from_slice(&ours[a..]);
+    let case = d.join("spliced");
+    std::fs::create_dir_all(&case).unwrap();
+    let to = case.join("f.chunk-1-of-2.partial");
+    std::fs::write(&to, &spliced).unwrap();
+    let out = case.join("o").join("f_####.exr").display().to_string();
+    let o = run_reframe(
+        &strings(&[
+            "merge",
+            "--out",
+            &out,
+            &to.display().to_string(),
+            &partials[1].display().to_string(),
+        ]),
+        Duration::from_secs(20),
+    );
+    let why = refusal(&o).unwrap();
+    assert!(why.contains("not the one the trailer lists"), "{why}");
     assert!(frames_in(&case.join("o")).is_empty(), "frames written");
 }

@@ -569,12 +569,13 @@ impl Checkpointer {
     /// Returns the partial file of a chunk.
     pub fn finish(&mut self, next_unit: u32, progress: &Counters) -> Result<Option<PathBuf>> {
         let mut out = None;
-        if let (Some((f, lp, _, recs, _)), Some(partial)) = (self.log.take(), &self.partial) {
+        if let (Some((f, lp, _, recs, crcs)), Some(partial)) = (self.log.take(), &self.partial) {
             let mut t = self.template.clone();
             t.kind = Kind::Partial;
             t.next_unit = next_unit;
             t.progress = progress.clone();
             t.records = recs;
+            t.record_crcs = crcs;
             let mut w = BufWriter::new(f);
             write_trailer(&mut w, &t).with_context(|| format!("writing {}", lp.display()))?;
             let f = w.into_inner().map_err(|e| e.into_error())?;

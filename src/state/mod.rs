@@ -34,8 +34,9 @@ use std::path::{Path, PathBuf};
 const MAGIC: &[u8; 8] = b"RFSTATE1";
 const RECORD_MAGIC: u32 = 0x4341_4652; // "RFAC"
 /// Version 2: the trailer's counters keep reuse figures per frame only (version 1 also kept run
-/// totals). Version 1 files are refused with a line that says so.
-const VERSION: u32 = 2;
+/// totals). Version 3: the trailer lists its records' CRC-32s (`Trailer::record_crcs`). Older
+/// files are refused with a line that says so.
+const VERSION: u32 = 3;
 
 /// Whether `p` is a complete state file (a checkpoint or a chunk's partial, of any run): it
 /// ends in the magic. Outputs that are not state files must not replace one (`--stats` naming
@@ -88,6 +89,10 @@ pub struct Trailer {
     /// Where this file's own records start (a checkpoint: the frames in flight; a partial: every
     /// frame the chunk touched).
     pub records: Vec<(u32, u64)>,
+    /// Each of those records' CRC-32 (its last four bytes), in `records`' order: ties the
+    /// records to this trailer (another run's records of the same frames and sizes, each whole,
+    /// spliced under a trailer, were merged).
+    pub record_crcs: Vec<u32>,
     pub progress: Counters,
     /// The output pattern and EXR precision the frames are (to be) written with.
     pub out: String,
@@ -133,6 +138,7 @@ impl Trailer {
             log_crcs: vec![],
             frame_digests: vec![],
             records: vec![],
+            record_crcs: vec![],
             progress: Counters::default(),
             out,
             exr_float,
@@ -436,18 +442,20 @@ impl<R: Read> Read for CrcReader<'_, R> {
 fn checksummed<W: Write>(
     w: &mut W,
     body: impl FnOnce(&mut CrcWriter<W>) -> std::io::Result<()>,
-) -> std::io::Result<()> {
+) -> std::io::Result<u32> {
     let mut cw = CrcWriter {
         inner: w,
         crc: crc32fast::Hasher::new(),
     };
     body(&mut cw)?;
     let crc = cw.crc.finalize();
-    w.write_all(&crc.to_le_bytes())
+    w.write_all(&crc.to_le_bytes())?;
+    Ok(crc)
 }
 
-/// Write an accumulator as a record, streamed from its cells (no copy of the frame).
-pub fn write_accum(a: &FrameAccum, w: &mut impl Write) -> std::io::Result<()> {
+/// Write an accumulator as a record, streamed from its cells (no copy of the frame); returns
+/// its CRC-32.
+pub fn write_accum(a: &FrameAccum, w: &mut impl Write) -> std::io::Result<u32> {
     checksummed(w, |w| write_accum_body(a, w))
 }
 
@@ -478,8 +486,8 @@ fn write_accum_body(a: &FrameAccum, w: &mut impl Write) -> std::io::Result<()> {
     Ok(())
 }
 
-/// Write a finished frame (RGB only) as a record.
-pub fn write_pixels(d: &Developed, w: &mut impl Write) -> std::io::Result<()> {
+/// Write a finished frame (RGB only) as a record; returns its CRC-32.
+pub fn write_pixels(d: &Developed, w: &mut impl Write) -> std::io::Result<u32> {
     checksummed(w, |w| write_pixels_body(d, w))
 }
 
@@ -521,6 +529,15 @@ pub fn pixels_bytes(d: &Developed) -> u64 {
 /// normalised as `norm` says (the method's, which the record does not carry). Its CRC-32 must
 /// match, and nothing is allocated that the record's length does not hold.
 pub fn read_record(r: &mut impl Read, norm: Norm, max_len: u64) -> std::io::Result<Record> {
+    read_record_and_crc(r, norm, max_len).map(|(record, _)| record)
+}
+
+/// `read_record`, with the record's CRC-32.
+fn read_record_and_crc(
+    r: &mut impl Read,
+    norm: Norm,
+    max_len: u64,
+) -> std::io::Result<(Record, u32)> {
     let mut cr = CrcReader {
         inner: r,
         crc: crc32fast::Hasher::new(),
@@ -533,7 +550,7 @@ pub fn read_record(r: &mut impl Read, norm: Norm, max_len: u64) -> std::io::Resu
     if u32::from_le_bytes(b4) != crc {
         return Err(bad("checksum mismatch (the record is damaged)"));
     }
-    Ok(record)
+    Ok((record, crc))
 }
 
 fn read_record_body(r: &mut impl Read, norm: Norm, max_len: u64) -> std::io::Result<Record> {
@@ -712,7 +729,15 @@ impl StateFile {
             crc: crc32fast::Hasher::new(),
             read: 0,
         };
-        let r = read_record(&mut counted, norm, end - start).map_err(|e| damaged(e.to_string()))?;
+        let (r, crc) = read_record_and_crc(&mut counted, norm, end - start)
+            .map_err(|e| damaged(e.to_string()))?;
+        // (`check_trailer` has made sure there is one per record.)
+        let listed = self.trailer.records.iter().position(|r| r.1 == offset);
+        if listed.map(|k| self.trailer.record_crcs[k]) != Some(crc) {
+            return Err(damaged(
+                "its checksum is not the one the trailer lists: a record of another run".into(),
+            ));
+        }
         if counted.read != end - start {
             return Err(damaged(format!(
                 "{} bytes where the trailer has {}",
@@ -802,6 +827,13 @@ fn check_trailer(t: &Trailer, trailer_start: u64) -> Result<Vec<(u32, u64, u64)>
     if seen.windows(2).any(|w| w[0] == w[1]) {
         return Err("reuse figures of a frame given twice".into());
     }
+    if t.record_crcs.len() != t.records.len() {
+        return Err(format!(
+            "{} record checksums for {} records",
+            t.record_crcs.len(),
+            t.records.len()
+        ));
+    }
     let mut spans: Vec<(u32, u64)> = t.records.clone();
     spans.sort_by_key(|s| s.1);
     let mut frames: Vec<u32> = spans.iter().map(|s| s.0).collect();
@@ -852,9 +884,10 @@ pub fn write_state<'a>(
         let mut w = BufWriter::new(f);
         let mut offset = 0u64;
         trailer.records.clear();
+        trailer.record_crcs.clear();
         for a in records {
             trailer.records.push((a.frame(), offset));
-            write_accum(a, &mut w)?;
+            trailer.record_crcs.push(write_accum(a, &mut w)?);
             offset += accum_bytes(a);
         }
         write_trailer(&mut w, trailer)?;
@@ -990,10 +1023,15 @@ mod tests {
 
     fn bytes_of(r: &Record) -> Vec<u8> {
         let mut b = Vec::new();
-        match r {
+        let crc = match r {
             Record::Sums(a) => write_accum(a, &mut b).unwrap(),
             Record::Pixels(d) => write_pixels(d, &mut b).unwrap(),
-        }
+        };
+        assert_eq!(
+            crc.to_le_bytes(),
+            b[b.len() - 4..],
+            "the CRC-32 returned is the one written"
+        );
         b
     }
 
