@@ -372,8 +372,9 @@ impl Resolver {
     }
 }
 
-/// Refuse a folder a command creates (`flag`, `--checkpoint`) at the path of one of its
-/// `outputs` (a checkpoint named like a later frame made that frame's write fail at its turn).
+/// Refuse a folder a command creates (`flag`: `--checkpoint` where it was given, else what it
+/// is) at the path of one of its `outputs` (a checkpoint named like a later frame made that
+/// frame's write fail at its turn).
 pub fn check_folder_apart(flag: &str, dir: &Path, outputs: &[(&str, PathBuf)]) -> Result<()> {
     // Where a path is or will be: resolved where its folder exists, else as written, absolute.
     let place = |p: &Path| resolved(p).or_else(|| std::path::absolute(p).ok());
@@ -397,7 +398,7 @@ pub fn check_folder_apart(flag: &str, dir: &Path, outputs: &[(&str, PathBuf)]) -
         matches!(*f, "--stats" | "--json") && place(&parent_dir(o)).as_ref() == Some(&d)
     }) {
         bail!(
-            "{other} {}: that is inside the {flag} folder {}, which holds the render's \
+            "{other} {}: that is inside {flag} {}, which holds the render's \
              checkpoint and is removed when the render completes if reframe made it; put the \
              report elsewhere; nothing was written",
             out.display(),

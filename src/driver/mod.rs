@@ -451,19 +451,28 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
         .chain(plan.frames.clone().map(|f| ("--out", out.path(f))))
         .collect();
     outputs.extend(opts.stats.iter().map(|p| ("--stats", p.clone())));
-    outputs.extend(
-        opts.checkpoint
-            .iter()
-            .map(|d| ("--checkpoint", d.join("state"))),
-    );
+    // Named as the flag where it was given, else as what it is (a render without
+    // `--checkpoint` was told "--checkpoint o/f.checkpoint/state is a symbolic link").
+    let given = opts.checkpoint.as_ref() != Some(&default_checkpoint_dir(&opts.out, opts.chunk));
+    let (ck, ck_lock) = if given {
+        ("--checkpoint", "the lock of --checkpoint")
+    } else {
+        ("the checkpoint", "the lock of the checkpoint folder")
+    };
+    outputs.extend(opts.checkpoint.iter().map(|d| (ck, d.join("state"))));
     outputs.push(("the lock of --out", lock.clone()));
     outputs.extend(
         opts.checkpoint
             .iter()
-            .map(|d| ("the lock of --checkpoint", guard::folder_lock_path(d))),
+            .map(|d| (ck_lock, guard::folder_lock_path(d))),
     );
     if let Some(d) = &opts.checkpoint {
-        guard::check_folder_apart("--checkpoint", d, &outputs)?;
+        let flag = if given {
+            "--checkpoint"
+        } else {
+            "the checkpoint folder"
+        };
+        guard::check_folder_apart(flag, d, &outputs)?;
     }
     guard::check_outputs(outputs, &scene.inputs)?;
     let frames = opts.chunk.is_none().then(|| guard::Frames {

@@ -62,6 +62,16 @@ const NEGATIVE_TEXELS: Kind = Kind {
     many: "textures with values below 0 (read as 0)",
 };
 
+/// A colour texture black in every texel: rendered as it says (a surface that reflects no
+/// diffuse light), but said: a PNG whose header its writer got wrong (its colour type) is
+/// decoded to zeros without an error, and so is a map meant for another slot.
+const KD_MAP_BLACK: Kind = Kind {
+    one: "colour texture (map_Kd) black in every texel: the surface reflects no diffuse light \
+          (a damaged file, or a map meant for another slot?)",
+    many: "colour textures (map_Kd) black in every texel: their surfaces reflect no diffuse \
+           light (damaged files, or maps meant for other slots?)",
+};
+
 /// A mask that is zero everywhere: the surface is cut away entirely.
 const MASK_CUTS_ALL: Kind = Kind {
     one: "mask that is zero everywhere: the surface is cut away entirely (an alpha its writer \
@@ -376,6 +386,11 @@ impl Maps {
                     t.layers(map.tex),
                 )?;
                 note_meaning(repairs, (mtl_label, spec.line), &what, t.meaning(map.tex))?;
+                if slot == Slot::Kd && t.is_zero(map.tex) {
+                    repairs.note(mtl_label, spec.line, KD_MAP_BLACK, || {
+                        format!("{what} in '{}'", m.name)
+                    })?;
+                }
                 let negatives = t.negative_texels(map.tex);
                 if negatives > 0 {
                     repairs.note(mtl_label, spec.line, NEGATIVE_TEXELS, || {
