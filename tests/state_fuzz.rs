@@ -91,6 +91,28 @@ fn cases(n: usize) -> Vec<Damage> {
         .collect()
 }
 
+/// Where a state file's trailer starts (its JSON, the JSON's CRC-32, its length and the magic
+/// end the file).
+fn trailer_start(b: &[u8]) -> usize {
+    let n = b.len();
+    n - 20 - u64::from_le_bytes(b[n - 16..n - 8].try_into().unwrap()) as usize
+}
+
+/// `reframe merge` of the partial files `first` and `second` into `case/o/f_####.exr`.
+fn merge_two(case: &Path, first: &Path, second: &Path) -> common::Outcome {
+    let out = case.join("o").join("f_####.exr").display().to_string();
+    run_reframe(
+        &strings(&[
+            "merge",
+            "--out",
+            &out,
+            &first.display().to_string(),
+            &second.display().to_string(),
+        ]),
+        Duration::from_secs(20),
+    )
+}
+
 fn strings(v: &[&str]) -> Vec<String> {
     v.iter().map(|s| s.to_string()).collect()
 }
@@ -231,9 +253,7 @@ fn damaged_checkpoints_are_never_resumed() {
     // too): its file would have carried that camera. Refused as not the scene's.
     {
         let mut b = good.clone();
-        let n = b.len();
-        let json = u64::from_le_bytes(b[n - 16..n - 8].try_into().unwrap()) as usize;
-        let trailer = n - 16 - 4 - json;
+        let (n, trailer) = (b.len(), trailer_start(&b));
         let starts: Vec<usize> = (0..trailer - 4)
             .filter(|&p| &b[p..p + 4] == b"RFAC")
             .collect();
@@ -328,9 +348,7 @@ fn partials_with_forged_record_headers_are_never_merged() {
         let mut b = std::fs::read(&partials[0]).unwrap();
         // The trailer's start (its JSON, CRC, length and magic end the file), and the records
         // before it, each beginning with "RFAC" and ending in the CRC-32 of its bytes.
-        let n = b.len();
-        let json = u64::from_le_bytes(b[n - 16..n - 8].try_into().unwrap()) as usize;
-        let trailer = n - 16 - 4 - json;
+        let trailer = trailer_start(&b);
         let starts: Vec<usize> = (0..trailer - 4)
             .filter(|&p| &b[p..p + 4] == b"RFAC")
             .collect();
@@ -345,17 +363,7 @@ fn partials_with_forged_record_headers_are_never_merged() {
         b[end - 4..end].copy_from_slice(&crc.to_le_bytes());
         let forged = case.join("f.chunk-1-of-2.partial");
         std::fs::write(&forged, &b).unwrap();
-        let out = case.join("o").join("f_####.exr").display().to_string();
-        let o = run_reframe(
-            &strings(&[
-                "merge",
-                "--out",
-                &out,
-                &forged.display().to_string(),
-                &partials[1].display().to_string(),
-            ]),
-            Duration::from_secs(20),
-        );
+        let o = merge_two(&case, &forged, &partials[1]);
         let why = refusal(&o).unwrap_or_else(|e| panic!("forgery {i}: {e}"));
         // Named, or (a count only the merged frame can be checked by) said to be damaged.
         assert!(
@@ -374,9 +382,7 @@ fn partials_with_forged_record_headers_are_never_merged() {
     let mut forged = Vec::new();
     for p in &partials {
         let mut b = std::fs::read(p).unwrap();
-        let n = b.len();
-        let json = u64::from_le_bytes(b[n - 16..n - 8].try_into().unwrap()) as usize;
-        let (start, end) = (n - 20 - json, n - 20);
+        let (start, end) = (trailer_start(&b), b.len() - 20);
         let text = String::from_utf8(b[start..end].to_vec()).unwrap();
         let at = text.find("\"build_hash\":\"").unwrap() + "\"build_hash\":\"".len();
         let len = text[at..].find('"').unwrap();
@@ -404,11 +410,7 @@ fn partials_with_forged_record_headers_are_never_merged() {
     ]));
     let ours = std::fs::read(&partials[0]).unwrap();
     let theirs = std::fs::read(d.join("seed1").join("f.chunk-1-of-2.partial")).unwrap();
-    let trailer_at = |b: &[u8]| {
-        let n = b.len();
-        n - 20 - u64::from_le_bytes(b[n - 16..n - 8].try_into().unwrap()) as usize
-    };
-    let (a, b) = (trailer_at(&ours), trailer_at(&theirs));
+    let (a, b) = (trailer_start(&ours), trailer_start(&theirs));
     assert_eq!(a, b, "records of the same sizes");
     let mut spliced = theirs[..b].to_vec();
     spliced.extend_from_slice(&ours[a..]);
@@ -416,17 +418,7 @@ fn partials_with_forged_record_headers_are_never_merged() {
     std::fs::create_dir_all(&case).unwrap();
     let to = case.join("f.chunk-1-of-2.partial");
     std::fs::write(&to, &spliced).unwrap();
-    let out = case.join("o").join("f_####.exr").display().to_string();
-    let o = run_reframe(
-        &strings(&[
-            "merge",
-            "--out",
-            &out,
-            &to.display().to_string(),
-            &partials[1].display().to_string(),
-        ]),
-        Duration::from_secs(20),
-    );
+    let o = merge_two(&case, &to, &partials[1]);
     let why = refusal(&o).unwrap();
     assert!(why.contains("not the one the trailer lists"), "{why}");
     assert!(frames_in(&case.join("o")).is_empty(), "frames written");
