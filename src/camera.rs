@@ -82,6 +82,28 @@ impl Pose {
     /// (a view of 3e-7 units was refused under a fixed 1e-6, and an up of 1e-19 passed here
     /// but made the camera's axes NaN).
     pub fn fault(&self) -> Option<String> {
+        // A vector whose every component is below the smallest normal float: the render's
+        // threads flush such numbers to zero (as Embree asks), so its axes came out NaN and
+        // every frame black, though it has a direction here.
+        let subnormal = |v: Vec3| v != Vec3::ZERO && v.abs().max_element() < f32::MIN_POSITIVE;
+        if subnormal(self.view) {
+            return Some(format!(
+                "look_at is {:e} from position, closer than the render's arithmetic resolves \
+                 (below {:e})",
+                self.view.abs().max_element(),
+                f32::MIN_POSITIVE
+            ));
+        }
+        if subnormal(self.up) {
+            return Some(format!(
+                "up [{:e}, {:e}, {:e}] is shorter than the render's arithmetic resolves (every \
+                 component below {:e}): give it at a usual size, e.g. [0, 1, 0]",
+                self.up.x,
+                self.up.y,
+                self.up.z,
+                f32::MIN_POSITIVE
+            ));
+        }
         match (unit(self.view), unit(self.up)) {
             (None, _) => Some("look_at coincides with position".to_string()),
             (_, None) => Some("up has zero length".to_string()),
@@ -470,12 +492,7 @@ mod tests {
         };
         let view = Vec3::new(0.0, -1.0e-7, -3.0e-7);
         let unit_up = Camera::from_pose(&pose(view, Vec3::Y), 80, 60);
-        for up in [
-            Vec3::Y * 1.0e-19,
-            Vec3::Y * 1.0e-30,
-            Vec3::Y * 1.0e-44,
-            Vec3::Y * 1.0e30,
-        ] {
+        for up in [Vec3::Y * 1.0e-19, Vec3::Y * 1.0e-30, Vec3::Y * 1.0e30] {
             assert_eq!(pose(view, up).fault(), None, "{up}");
             let c = Camera::from_pose(&pose(view, up), 80, 60);
             for (a, b) in [
@@ -488,7 +505,16 @@ mod tests {
         }
         let far = Camera::from_pose(&pose(view * 1.0e7, Vec3::Y), 80, 60);
         assert!((far.forward - unit_up.forward).length() < 1e-6);
-        // Only length zero is refused.
+        // Refused: length zero, and a vector of subnormal components (1e-44), which the
+        // render's threads flush to zero (its axes came out NaN there, every frame black).
+        assert!(pose(view, Vec3::Y * 1.0e-44)
+            .fault()
+            .unwrap()
+            .contains("shorter than the render's arithmetic resolves"));
+        assert!(pose(view * 1.0e-33, Vec3::Y)
+            .fault()
+            .unwrap()
+            .contains("closer than the render's arithmetic resolves"));
         assert!(pose(Vec3::ZERO, Vec3::Y)
             .fault()
             .unwrap()

@@ -2875,7 +2875,7 @@ fn load_obj_files(
                 Maps::open(
                     mtl_label,
                     mtl_dir,
-                    (m, material.ke),
+                    (m, &material),
                     textures,
                     &mut texture_files,
                     repairs,

@@ -62,9 +62,10 @@ const NEGATIVE_TEXELS: Kind = Kind {
     many: "textures with values below 0 (read as 0)",
 };
 
-/// A colour texture black in every texel: rendered as it says (a surface that reflects no
-/// diffuse light), but said: a PNG whose header its writer got wrong (its colour type) is
-/// decoded to zeros without an error, and so is a map meant for another slot.
+/// A colour texture black in every texel on a material that has no other light (no `Ks`, no
+/// emission): rendered as it says (a black surface), but said: a PNG whose header its writer
+/// got wrong (its colour type) is decoded to zeros without an error, and so is a map meant for
+/// another slot.
 const KD_MAP_BLACK: Kind = Kind {
     one: "colour texture (map_Kd) black in every texel: the surface reflects no diffuse light \
           (a damaged file, or a map meant for another slot?)",
@@ -244,11 +245,12 @@ impl Maps {
     pub fn open(
         mtl_label: &str,
         dir: Option<&Path>,
-        (m, ke_colour): (&MtlMaterial, Vec3),
+        (m, material): (&MtlMaterial, &Material),
         textures: &mut Option<Textures>,
         opened: &mut Vec<PathBuf>,
         repairs: &mut Repairs,
     ) -> Result<Maps> {
+        let ke_colour = material.ke;
         let mut open = |spec: &Option<MapSpec>, mask: bool| -> Result<Option<Map>> {
             let Some(spec) = spec else {
                 return Ok(None);
@@ -386,7 +388,10 @@ impl Maps {
                     t.layers(map.tex),
                 )?;
                 note_meaning(repairs, (mtl_label, spec.line), &what, t.meaning(map.tex))?;
-                if slot == Slot::Kd && t.is_zero(map.tex) {
+                // (Not where the material reflects by its specular lobe or emits: a PBR
+                // export's metal has a black diffuse map on purpose.)
+                let other_light = material.ks.max_element() > 0.0 || material.is_emissive();
+                if slot == Slot::Kd && t.is_zero(map.tex) && !other_light {
                     repairs.note(mtl_label, spec.line, KD_MAP_BLACK, || {
                         format!("{what} in '{}'", m.name)
                     })?;

@@ -316,12 +316,17 @@ fn camera_matrices_agree(mats: &[f32; 32]) -> bool {
         let nr = row(n, r);
         let d: [f64; 4] = std::array::from_fn(|k| nr[k] - 0.5 * z[k]);
         let k = dot3(&d, &rows[r]);
-        // Each element against the size of the terms it was summed from.
+        // Each element against the size of the terms it was summed from, and of the camera's
+        // own element: `k`, found from the rounded rotation columns, is off by about 10^-8
+        // whatever its size, which the translation multiplies (a fov of 170 degrees on a film
+        // 4000 wide, `k` 2e-3, with the eye 4e4 along the camera's right: a real camera's
+        // chunk was refused).
         let agrees = |i: usize| {
             let scale = nr[i]
                 .abs()
                 .max(0.5 * z[i].abs())
-                .max((k * rows[r][i]).abs());
+                .max((k * rows[r][i]).abs())
+                .max(rows[r][i].abs());
             close(d[i], k * rows[r][i], scale)
         };
         if k * sign <= 0.0 || !(0..4).all(agrees) {
@@ -938,6 +943,32 @@ mod tests {
     fn every_cameras_matrices_agree_and_forged_ones_do_not() {
         use crate::sampling::mix64;
         let unit = |h: u64| (h >> 40) as f32 / (1u64 << 24) as f32;
+        let agrees = |cam: &crate::camera::Camera| {
+            let v = View::of(0, cam);
+            let mut m = [0f32; 32];
+            m[..16].copy_from_slice(&v.world_to_camera);
+            m[16..].copy_from_slice(&v.world_to_ndc);
+            camera_matrices_agree(&m)
+        };
+        // Wide fovs and films (a small `k_x`) with the eye far off along the camera's right,
+        // where the projection's translation is least certain (a fov of 170 degrees, 4000 x 100
+        // pixels, the eye 4e4 along the right: refused before).
+        for i in 0..4000u64 {
+            let h = |j: u64| unit(mix64(i * 16 + j + (1 << 40)));
+            let view = Vec3::new(h(0) - 0.5, (h(1) - 0.5) * 0.4, h(2) - 0.5);
+            let right = view.cross(Vec3::Y).normalize();
+            let far = 10f32.powf(2.0 + h(3) * 6.0);
+            let pose = crate::camera::Pose {
+                eye: right * far + Vec3::new(h(4), h(5), h(6)) * far * 0.05,
+                view,
+                up: Vec3::Y,
+                fov: [150.0, 170.0, 178.0, 179.9][i as usize % 4],
+            };
+            let films = [(4000, 100), (1920, 1080), (8192, 1024), (640, 480)];
+            let (w, ht) = films[i as usize / 4 % 4];
+            let cam = crate::camera::Camera::from_pose(&pose, w, ht);
+            assert!(agrees(&cam), "{pose:?} {w}x{ht}");
+        }
         for i in 0..20_000u64 {
             let h = |j: u64| unit(mix64(i * 16 + j));
             // Eyes near and very far from the origin, every direction, wide and narrow fovs,

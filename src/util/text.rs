@@ -23,8 +23,9 @@ pub fn printable(s: &str) -> String {
     out
 }
 
-/// Runs of text without a space longer than this are cut in a message (`message`).
-const LONGEST_RUN: usize = 300;
+/// Runs of text without a space longer than this are cut in a message (`message`): past any
+/// path but the rarest (a user may copy one from a message), far below a megabyte.
+const LONGEST_RUN: usize = 1024;
 
 /// `printable(s)` for an error or warning line, with every run of text without a space that
 /// is longer than `LONGEST_RUN` characters cut to its first 160 and last 100 characters
@@ -67,7 +68,7 @@ mod tests {
     use super::{message, printable};
 
     #[test]
-    fn a_message_cuts_runs_past_300_characters_and_nothing_else() {
+    fn a_message_cuts_runs_past_1024_characters_and_nothing_else() {
         let key = "k".repeat(1_000_000);
         let m = message(&format!(
             "s.toml: line 1 ('kkk ...'): unknown field `{key}`, expected"
@@ -80,14 +81,14 @@ mod tests {
         // The run is the key with its quotes and comma.
         assert!(m.contains("kkk...(999743 characters)...kkk"), "{m}");
         assert!(m.ends_with("kkk`, expected"), "{m}");
-        // A path of 300 characters is kept whole; one past it keeps its start and its name.
-        let path = format!("/{}/frame.exr", "d".repeat(289));
-        assert_eq!(path.len(), 300);
+        // A path of 1024 characters is kept whole; one past it keeps its start and its name.
+        let path = format!("/{}/frame.exr", "d".repeat(1013));
+        assert_eq!(path.len(), 1024);
         assert_eq!(
             message(&format!("writing {path} (full)")),
             format!("writing {path} (full)")
         );
-        let long = format!("/{}/frame.exr", "d".repeat(400));
+        let long = format!("/{}/frame.exr", "d".repeat(1100));
         let m = message(&format!("writing {long} (full)"));
         assert!(
             m.ends_with("ddd/frame.exr (full)") && m.starts_with("writing /ddd"),
