@@ -322,7 +322,7 @@ impl Checkpointer {
                     );
                 }
                 let mut sf = StateFile::open(&state)?;
-                crate::util::fs::set_checkpoint_in_place();
+                crate::util::fs::set_checkpoint_in_place(true);
                 let t = sf.trailer.clone();
                 if t.kind != Kind::Checkpoint {
                     bail!("{}: not a checkpoint", state.display());
@@ -537,7 +537,7 @@ impl Checkpointer {
             t.log_crcs = crcs.clone();
         }
         write_state(&dir.join("state"), &mut t, active)?;
-        crate::util::fs::set_checkpoint_in_place();
+        crate::util::fs::set_checkpoint_in_place(true);
         self.log_counted = true;
         self.spent += t0.elapsed();
         self.written += 1;
@@ -595,6 +595,7 @@ impl Checkpointer {
             out = Some(partial.clone());
         }
         if let Some(d) = &self.dir {
+            crate::util::fs::set_checkpoint_in_place(false);
             let _ = std::fs::remove_file(d.join("state"));
             if self.own_dir {
                 let _ = std::fs::remove_dir(d);

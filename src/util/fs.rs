@@ -114,9 +114,10 @@ pub fn stop_note() -> Option<String> {
 /// resumed from), for what a stop at once says.
 static CHECKPOINT_IN_PLACE: AtomicBool = AtomicBool::new(false);
 
-/// A checkpoint of this render is on disk (`checkpoint_in_place`).
-pub fn set_checkpoint_in_place() {
-    CHECKPOINT_IN_PLACE.store(true, Ordering::SeqCst);
+/// Whether a checkpoint of this render is on disk (`checkpoint_in_place`): set as one is
+/// written or resumed from, cleared as a finished render removes it.
+pub fn set_checkpoint_in_place(there: bool) {
+    CHECKPOINT_IN_PLACE.store(there, Ordering::SeqCst);
 }
 
 /// Whether a checkpoint of this render is on disk: a stop at once keeps it, and says whether
