@@ -368,7 +368,6 @@ fn shade_eye(
             let v = &views[hi * n_f + k];
             e.wo = v.wo;
             e.f = None;
-            e.side = SIDE_UNKNOWN;
             match land[hi * n_f + k] {
                 Some(i) => {
                     e.j_over_a = v.j_over_a;

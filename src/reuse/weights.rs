@@ -35,14 +35,10 @@ pub struct EyeTerms {
     /// surface), evaluated once per hit by `denominators` beside the pdfs, for the eyes that
     /// see x; `None` until then.
     pub f: Option<(Vec3, Vec3)>,
-    /// On a Lambertian hit, the eye's side of the surface as `Lambert::side` gives it (`0` or
-    /// `1` where the shading normal on that side faces the eye, `2` where it does not), found
-    /// once by `denominators` for the eyes that see x and read again by the value;
-    /// `SIDE_UNKNOWN` until then.
-    pub side: u8,
 }
 
-/// `EyeTerms::side` not yet found.
+/// The side of a Lambertian hit's surface an eye sees, where it is not known (the eye cannot
+/// see x): `LambertWeighing`'s sides are `Lambert::side_code`'s 0, 1 or 2 otherwise.
 pub const SIDE_UNKNOWN: u8 = u8::MAX;
 
 impl EyeTerms {
@@ -52,7 +48,6 @@ impl EyeTerms {
             j_over_a,
             n,
             f: None,
-            side: SIDE_UNKNOWN,
         }
     }
 }
@@ -99,25 +94,6 @@ pub fn denominators(
 ) -> Denominators {
     let m = &fh.m;
     let mut q = Denominators::default();
-    if let Some(lambert) = Lambert::of(m, fh) {
-        for e in eyes.iter_mut() {
-            let d = density(weights, e, spp);
-            if d == 0.0 {
-                continue;
-            }
-            e.side = lambert.side_code(e.wo);
-            let (p_w, p_l) = lambert.pdfs_of(e.side);
-            q.emit += d;
-            if fh.w.is_some() {
-                q.ind += d * p_w;
-                q.dir_w += d * (p_w + fh.pdf_light_w);
-            }
-            if let Some(l) = &fh.light {
-                q.dir_l += d * (p_l + l.pdf);
-            }
-        }
-        return q;
-    }
     for e in eyes.iter_mut() {
         let d = density(weights, e, spp);
         if d == 0.0 {
@@ -269,8 +245,6 @@ pub struct Weighing<'a> {
     q: Denominators,
     /// `n_r n_v`: the paper's count average (see the module note).
     paper_scale: f32,
-    /// A Lambertian hit's per-eye facts and its balance sum per side.
-    lambert: Option<(Lambert, [Vec3; 2])>,
 }
 
 impl<'a> Weighing<'a> {
@@ -285,18 +259,11 @@ impl<'a> Weighing<'a> {
             Weights::None | Weights::OwnEye => Denominators::default(),
         };
         let visible = eyes.iter().filter(|e| e.j_over_a > 0.0).count();
-        let lambert = match weights {
-            Weights::Paper | Weights::Exact => {
-                Lambert::of(&fh.m, fh).map(|l| (l, [l.sum(fh, &q, 0), l.sum(fh, &q, 1)]))
-            }
-            Weights::None | Weights::OwnEye => None,
-        };
         Weighing {
             weights,
             fh,
             q,
             paper_scale: (spp as usize * visible) as f32,
-            lambert,
         }
     }
 
@@ -320,16 +287,6 @@ impl<'a> Weighing<'a> {
     /// (terms `e`): self-emission, the light sample, the emitter reached along `w` and the rest
     /// of the walk, each over its denominator.
     fn balance(&self, eye: Vec3, e: &EyeTerms, scale: f32) -> Vec3 {
-        if let Some((lambert, sums)) = &self.lambert {
-            let side = match e.side {
-                SIDE_UNKNOWN => lambert.side_code(e.wo),
-                s => s,
-            };
-            return match side {
-                0 | 1 => sums[side as usize] * scale,
-                _ => Vec3::ZERO * scale,
-            };
-        }
         let (fh, q) = (self.fh, &self.q);
         let wo = e.wo;
         let sp = &fh.sp;
@@ -363,8 +320,8 @@ impl<'a> Weighing<'a> {
 
 /// The weights of a native hit on a Lambertian surface that does not emit (most hits of most
 /// scenes), for `Paper` and `Exact`, built straight from how each eye of the group sees it,
-/// without `EyeTerms`: `Weighing` with the same operations in the same order, so the same
-/// bits, for the cost of the per-eye facts alone (the side of the surface each eye sees, and
+/// without `EyeTerms`: what `Weighing`'s general path (each eye's BSDF and pdfs) gives, to the
+/// bit (the unit test compares them), for the cost of the per-eye facts alone (the side of the surface each eye sees, and
 /// its density). What the kernel splats per eye is then one product, `value`.
 pub struct LambertWeighing {
     q: Denominators,
@@ -408,7 +365,7 @@ impl LambertWeighing {
                 continue;
             };
             visible += usize::from(j_over_a > 0.0);
-            // (`balance` finds the side of an eye of density zero as `denominators` does.)
+            // (The side of an eye of density zero too: its value is zero times its sum.)
             *side = lambert.side_code(wo);
             let d = density_of(weights, j_over_a, n, spp);
             if d == 0.0 {
@@ -505,7 +462,8 @@ mod tests {
         // Lambertian hits with shading normals off the geometric ones, `w` and the light sample
         // on either side or missing, and eyes on both sides, some unseeing, some of zero
         // density (grazing, or no native sample in their pixel): `LambertWeighing` gives
-        // `Weighing`'s denominators and values bit for bit, with both weights.
+        // `Weighing`'s denominators and values bit for bit (its general path: each eye's BSDF
+        // and pdfs from `Material::eval_and_pdf`), with both weights.
         let mut compared = 0;
         for i in 0..3000u64 {
             let h = |j: u64| mix64(i * 64 + j);
