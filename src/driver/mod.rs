@@ -454,10 +454,14 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     // Named as the flag where it was given, else as what it is (a render without
     // `--checkpoint` was told "--checkpoint o/f.checkpoint/state is a symbolic link").
     let given = opts.checkpoint.as_ref() != Some(&default_checkpoint_dir(&opts.out, opts.chunk));
-    let (ck, ck_lock) = if given {
-        ("--checkpoint", "the lock of --checkpoint")
+    let (ck, ck_lock, ck_folder) = if given {
+        ("--checkpoint", "the lock of --checkpoint", "--checkpoint")
     } else {
-        ("the checkpoint", "the lock of the checkpoint folder")
+        (
+            "the checkpoint",
+            "the lock of the checkpoint folder",
+            "the checkpoint folder",
+        )
     };
     outputs.extend(opts.checkpoint.iter().map(|d| (ck, d.join("state"))));
     outputs.push(("the lock of --out", lock.clone()));
@@ -467,12 +471,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
             .map(|d| (ck_lock, guard::folder_lock_path(d))),
     );
     if let Some(d) = &opts.checkpoint {
-        let flag = if given {
-            "--checkpoint"
-        } else {
-            "the checkpoint folder"
-        };
-        guard::check_folder_apart(flag, d, &outputs)?;
+        guard::check_folder_apart(ck_folder, d, &outputs)?;
     }
     guard::check_outputs(outputs, &scene.inputs)?;
     let frames = opts.chunk.is_none().then(|| guard::Frames {
