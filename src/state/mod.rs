@@ -578,7 +578,7 @@ fn read_record_body(r: &mut impl Read, norm: Norm, max_len: u64) -> std::io::Res
     // The reuse counters a resume or merge carries into `--stats` (a record forged with its
     // checksum reported a loss of 10^16 percent): as the trailer's (`check_trailer`).
     let [landed, tried, lost] = h.counts;
-    if lost > tried || landed.max(tried) >= 1 << 56 {
+    if !possible_reuse_counts(landed, tried, lost) {
         return Err(bad("impossible reuse counters"));
     }
     match h.kind {
@@ -765,6 +765,12 @@ impl StateFile {
     }
 }
 
+/// Reuse counters a render can have written: no more reuses lost than tried, and none past
+/// 2^56 (a century of reuses at a billion a second).
+fn possible_reuse_counts(landed: u64, tried: u64, lost: u64) -> bool {
+    lost <= tried && landed.max(tried) < 1 << 56
+}
+
 /// The trailer's own consistency; the records' spans, in file order.
 fn check_trailer(t: &Trailer, trailer_start: u64) -> Result<Vec<(u32, u64, u64)>, String> {
     let k = &t.key;
@@ -821,8 +827,7 @@ fn check_trailer(t: &Trailer, trailer_start: u64) -> Result<Vec<(u32, u64, u64)>
         let sane = f.mean_effective_spp.is_finite()
             && f.mean_effective_spp >= 0.0
             && (0.0..=1.0).contains(&f.lost_reuse_fraction)
-            && f.lost <= f.tried
-            && f.landed.max(f.tried) < 1 << 56;
+            && possible_reuse_counts(f.landed, f.tried, f.lost);
         if !sane {
             return Err(format!("impossible reuse figures of frame {}", f.frame));
         }
