@@ -305,8 +305,12 @@ fn run(cli: Cli) -> Result<()> {
             };
             let stats = driver::render(&scene, &opts)?;
             print_warnings(&scene);
+            let size = opts.resolution.unwrap_or((scene.width, scene.height));
+            let frames = opts.frames.clone().unwrap_or(0..=scene.frames - 1);
+            if let Some(w) = scene.unseen_frames(frames, size) {
+                errln!("warning: {}", message(&w));
+            }
             if let Ok(out) = reframe::image::OutputPattern::parse(&opts.out) {
-                let size = opts.resolution.unwrap_or((scene.width, scene.height));
                 for w in opts.flag_warnings(&out, size) {
                     errln!("warning: {}", message(&w));
                 }

@@ -88,6 +88,7 @@ mod objects;
 mod precision;
 mod repairs;
 mod text;
+mod view;
 pub use crate::util::input::{read_input, read_input_or_missing, InputError, MAX_INPUT_BYTES};
 use mesh::Mesh;
 pub use mtl::{MAX_KE, MAX_NS};
