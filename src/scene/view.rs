@@ -88,7 +88,7 @@ impl Scene {
         }
         let (wlo, whi) = (lo.as_dvec3() + self.origin, hi.as_dvec3() + self.origin);
         let which = if missed.len() == total {
-            format!("every frame rendered ({})", ranges(&missed, 4))
+            format!("every frame of the render ({})", ranges(&missed, 4))
         } else {
             format!(
                 "frame(s) {} ({} of {total})",
