@@ -2,9 +2,9 @@
 //! black frame, or one of the environment alone, without an error anywhere. Cameras written in
 //! another package's conventions (one whose cameras look down +Z, not -Z), in other units, or
 //! pointed backwards do that, and the render takes its full time to show it.
-use super::{world_bounds, Scene};
+use super::{box_corners, world_bounds, Scene};
 use crate::camera::Camera;
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 use std::ops::RangeInclusive;
 
 /// Whether the view of `cam` surely misses the box `lo`-`hi`: every corner of the box lies
@@ -24,12 +24,7 @@ fn misses(cam: &Camera, lo: Vec3, hi: Vec3) -> bool {
     // Per side: how far each corner is outside it (positive: outside), against a tolerance of
     // the terms' rounding, so that a box touching a side counts as seen.
     let mut outside = [true; 5];
-    for k in 0..8 {
-        let c = DVec3::new(
-            if k & 1 == 0 { lo.x } else { hi.x },
-            if k & 2 == 0 { lo.y } else { hi.y },
-            if k & 4 == 0 { lo.z } else { hi.z },
-        );
+    for c in box_corners(lo, hi) {
         let d = c - eye;
         let (z, x, y) = (d.dot(f), d.dot(r), d.dot(u));
         let tol = 1e-6 * d.length();
