@@ -305,8 +305,8 @@ fn run(cli: Cli) -> Result<()> {
             };
             let stats = driver::render(&scene, &opts)?;
             print_warnings(&scene);
-            let size = opts.resolution.unwrap_or((scene.width, scene.height));
-            let frames = opts.frames.clone().unwrap_or(0..=scene.frames - 1);
+            // The frames and the resolution the render took (checked as it started).
+            let (frames, size) = opts.check(&scene)?;
             if let Some(w) = scene.unseen_frames(frames, size) {
                 errln!("warning: {}", message(&w));
             }
