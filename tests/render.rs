@@ -467,20 +467,28 @@ fn reuse_cli_stats_aov_and_determinism() {
     assert_eq!(json["per_frame"].as_array().unwrap().len(), 5);
 }
 
-/// The reuse kernel's blocks are as large as the thread count allows
-/// (`reuse::shade::block_side`): at 192x192 one thread takes 64-pixel blocks and two take
-/// 32-pixel ones, with other windows and another order of splats; the frames are the same to
+/// The reuse kernel sums a block's splats into each frame in floating point, in the block's
+/// order (`film::local`), so its blocks follow the resolution alone
+/// (`reuse::shade::block_side`: at 192x192, 32-pixel blocks, 36 of them, which one thread and
+/// two share out differently, each window flushed at another time): the frames are the same to
 /// the bit (`mis-cv`, whose weights and two folds go through every part of a splat).
 #[test]
-fn reuse_blocks_of_any_side_give_the_same_frames() {
+fn reuse_frames_are_the_same_for_any_thread_count() {
     use reframe::reuse::shade::block_side;
-    assert_eq!((block_side(192, 192, 1), block_side(192, 192, 2)), (64, 32));
+    assert_eq!(block_side(192, 192), 32);
     let dir = tempfile::tempdir().unwrap();
     let args = [
         "vase", "--method", "mis-cv", "--window", "5", "--frames", "20-25", "--res", "192x192",
         "--spp", "1",
     ];
-    render_with_1_and_2_threads(dir.path(), &args, 20..=25);
+    let d = dir.path();
+    render_with_1_and_2_threads(d, &args, 20..=25);
+    // Three threads: the 36 blocks do not share out evenly.
+    let out = d.join("t3/f_####.exr").display().to_string();
+    let three = ["--exr-float", "--threads", "3", "--out", &out];
+    reframe_ok(&[&["render"][..], &args, &three].concat());
+    let names = (20..=25).map(|f| format!("f_{f:04}.exr"));
+    assert_identical(&d.join("t1"), &d.join("t3"), names);
 }
 
 /// `--strict` on the command line: a model that loading repairs (here a polyline beside the

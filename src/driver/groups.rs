@@ -106,7 +106,7 @@ pub fn run_groups(
     let nonfinite = AtomicU64::new(0);
     let tile_list = tiles(w, h);
     // The reuse kernel's unit of parallel work (`shade_block`); the adaptive pilot's is a tile.
-    let blocks = tiles_in((0, 0, w, h), block_side(w, h, rayon::current_num_threads()));
+    let blocks = tiles_in((0, 0, w, h), block_side(w, h));
     let mut written = 0;
     let _graceful = Graceful::begin(run);
     for g0 in run.next..=last_group {

@@ -5,15 +5,20 @@
 //! direct splat is three or four atomic read-modify-writes on cells that are often not in cache
 //! (`perf` put them at 18% of a `mis-cv` render at n_f = 17). The samples a worker reuses into
 //! one frame land close together, around the worker's block (the frames of a group see the scene
-//! from nearby eyes), and a window pixel receives several of them: summed here with plain
-//! integer adds, the frame sees one atomic add per touched cell instead of one per splat.
+//! from nearby eyes), and a window pixel receives several of them: summed here, the frame sees one
+//! atomic add per touched cell instead of one per splat.
 //!
-//! Bitwise: every splat is quantised exactly as `FrameAccum::splat` quantises it (the same
-//! dither, the same rounding), and integer addition is associative, so the frame's totals (and
-//! with them every developed pixel) are the same to the bit as with direct splats, for any
-//! window and any order. A splat outside the window goes to the frame directly; a window cell
-//! that would leave the i32 range hands its sum to the frame first.
-use super::fixed::FixedSums;
+//! The window sums in `f32`, with plain float adds, and rounds each cell to the frame's fixed
+//! point once, stochastically, when it is flushed (the frame's rounding, `FrameAccum::splat`,
+//! with a dither that names the frame, the pixel and the window, `LocalFilm::new`'s `key`): a
+//! splat costs one float add per channel instead of a dither hash and a stochastic rounding per
+//! channel, and the flush's rounding keeps the expectation exact, as the frame's own does. The
+//! float sums round each add to 24 bits (a relative error of 2^-24 of the cell's sum per add,
+//! far below the noise of any sample count), but they depend on the order of the adds: frames
+//! stay bitwise identical for any thread count because the order is fixed by the block alone
+//! (`reuse::shade::block_side` takes the resolution, not the thread count; a block's splats are
+//! made in one order, and its window grows the same way). A splat outside the window, or one
+//! whose sum would leave the f32 range, goes to the frame directly, rounded on its own.
 use super::tiles::Tile;
 use super::FrameAccum;
 use crate::sampling::mix64;
@@ -43,11 +48,14 @@ pub struct LocalFilm<'a> {
     /// a group's splats go to); a splat into another goes to the frame directly.
     fold0: usize,
     folds: usize,
-    /// Cells per window pixel: the RGB cells of each fold held, then one weight cell per fold
-    /// held (the control variate's), in the frame's order.
+    /// Cells per window pixel: the RGB sums of each fold held, then one weight sum per fold
+    /// held (the control variate's), in the frame's order; in the splats' units (the frame
+    /// divides by its layout's unit when it rounds them).
     rgb: usize,
     cells_px: usize,
-    cells: Vec<i32>,
+    cells: Vec<f32>,
+    /// What the flush's rounding dither is hashed from, with the pixel (`new`).
+    key: u64,
     /// Per window pixel: samples landed (where the layout keeps them), reuses tried and lost
     /// (where it keeps those).
     counts_px: usize,
@@ -60,11 +68,14 @@ impl<'a> LocalFilm<'a> {
     /// An empty window of `film` around `tile` (a block of tiles, grown by `MARGIN`, clipped
     /// to the frame), holding every fold of the frame's sums, or only `fold` (`Some`): a group
     /// whose splats into the frame all go to one of the control variate's folds needs no room
-    /// for the other, and a window half the size stays in cache.
+    /// for the other, and a window half the size stays in cache. `key` names the window among
+    /// all those of the render (its group and block): the flush rounds pixel `i`'s sums with a
+    /// dither hashed from `key`, the frame and `i`, so that no two windows round alike.
     pub fn new(
         film: &'a FrameAccum,
         (tx0, ty0, tx1, ty1): Tile,
         fold: Option<usize>,
+        key: u64,
     ) -> LocalFilm<'a> {
         let (fw, fh) = (film.view.width, film.view.height);
         let x0 = tx0.saturating_sub(MARGIN);
@@ -95,7 +106,8 @@ impl<'a> LocalFilm<'a> {
             folds,
             rgb,
             cells_px,
-            cells: vec![0; px * cells_px],
+            cells: vec![0.0; px * cells_px],
+            key: mix64(key ^ film.frame() as u64),
             counts_px,
             counts: vec![0; px * counts_px],
             totals: [0; 3],
@@ -134,7 +146,7 @@ impl<'a> LocalFilm<'a> {
         if (w * h) as usize > MAX_PIXELS {
             return None;
         }
-        let mut cells = vec![0; (w * h) as usize * self.cells_px];
+        let mut cells = vec![0.0; (w * h) as usize * self.cells_px];
         let mut counts = vec![0; (w * h) as usize * self.counts_px];
         for row in 0..self.h {
             let from = (row * self.w) as usize;
@@ -150,19 +162,6 @@ impl<'a> LocalFilm<'a> {
         Some(())
     }
 
-    /// Add the quantised `q` to window cell `cell`, whose cell in `sums` is `global`.
-    #[inline]
-    fn add(cells: &mut [i32], cell: usize, sums: &FixedSums, global: usize, q: i64) {
-        let c = &mut cells[cell];
-        match i32::try_from(q).ok().and_then(|q| c.checked_add(q)) {
-            Some(s) => *c = s,
-            None => {
-                sums.add(global, *c as i64 + q);
-                *c = 0;
-            }
-        }
-    }
-
     /// Where a splat into pixel `i` of fold `fold` goes in the window: its window pixel and the
     /// fold's place among those the window holds; `None` where the window does not hold the
     /// fold, or cannot grow to the pixel (the splat goes to the frame directly).
@@ -176,33 +175,27 @@ impl<'a> LocalFilm<'a> {
     }
 
     /// As `FrameAccum::splat`: add `v` to pixel `i` of fold `fold`; false (nothing added) if
-    /// `v` is not finite.
+    /// `v` is not finite. `key`: where the splat is rounded on its own (outside the window),
+    /// its dither is `mix64(key)`.
     #[inline]
-    pub fn splat(&mut self, i: usize, fold: usize, v: Vec3, dither: u64) -> bool {
+    pub fn splat(&mut self, i: usize, fold: usize, v: Vec3, key: u64) -> bool {
         match self.place(i, fold) {
-            Some((l, f)) => self.splat_at(l, i, (fold, f), v, dither),
-            None => self.film.splat(i, fold, v, dither),
+            Some((l, f)) => self.splat_at(l, i, (fold, f), v, key),
+            None => self.film.splat(i, fold, v, mix64(key)),
         }
     }
 
-    /// One reuse into pixel `i`, which is found in the window once: `splat(i, fold, v,
-    /// dither)`, `splat_weight(i, fold, w, mix64(dither))` unless `w` is NaN (no weight), and
-    /// with `count`, `land(i, 1)` and `try_reuse(i, false)`. Returns what `splat` returns.
+    /// One reuse into pixel `i`, which is found in the window once: `splat(i, fold, v, key)`,
+    /// `splat_weight(i, fold, w, mix64(key))` unless `w` is NaN (no weight), and with `count`,
+    /// `land(i, 1)` and `try_reuse(i, false)`. Returns what `splat` returns.
     #[inline]
-    pub fn reuse(
-        &mut self,
-        i: usize,
-        fold: usize,
-        v: Vec3,
-        w: f32,
-        dither: u64,
-        count: bool,
-    ) -> bool {
+    pub fn reuse(&mut self, i: usize, fold: usize, v: Vec3, w: f32, key: u64, count: bool) -> bool {
         let Some((l, f)) = self.place(i, fold) else {
             if count {
                 self.film.land(i, 1);
                 self.film.try_reuse(i, false);
             }
+            let dither = mix64(key);
             if !w.is_nan() {
                 self.film.splat_weight(i, fold, w, mix64(dither));
             }
@@ -213,20 +206,20 @@ impl<'a> LocalFilm<'a> {
             self.try_reuse_at(l, false);
         }
         if !w.is_nan() {
-            self.weight_at(l, i, (fold, f), w, mix64(dither));
+            self.weight_at(l, i, (fold, f), w, mix64(key));
         }
-        self.splat_at(l, i, (fold, f), v, dither)
+        self.splat_at(l, i, (fold, f), v, key)
     }
 
-    /// As `FrameAccum::splat_weight`.
+    /// As `FrameAccum::splat_weight`; `key` as in `splat`.
     #[inline]
-    pub fn splat_weight(&mut self, i: usize, fold: usize, w: f32, dither: u64) {
+    pub fn splat_weight(&mut self, i: usize, fold: usize, w: f32, key: u64) {
         if self.film.weights.is_none() {
             return;
         }
         match self.place(i, fold) {
-            Some((l, f)) => self.weight_at(l, i, (fold, f), w, dither),
-            None => self.film.splat_weight(i, fold, w, dither),
+            Some((l, f)) => self.weight_at(l, i, (fold, f), w, key),
+            None => self.film.splat_weight(i, fold, w, mix64(key)),
         }
     }
 
@@ -263,28 +256,33 @@ impl<'a> LocalFilm<'a> {
         i: usize,
         (fold, f): (usize, usize),
         v: Vec3,
-        dither: u64,
+        key: u64,
     ) -> bool {
-        let Some(q) = self.film.quantize_rgb(v, dither) else {
-            return false;
-        };
-        let base = self.film.rgb_cell(i, fold);
         let cell = l * self.cells_px + 3 * f;
         let cells = &mut self.cells[cell..cell + 3];
-        for (c, q) in q.into_iter().enumerate() {
-            Self::add(cells, c, &self.film.sum, base + c, q);
+        let s = [cells[0] + v.x, cells[1] + v.y, cells[2] + v.z];
+        // Finite where every channel is: an infinity or a NaN in any makes the total one.
+        if (s[0] + s[1] + s[2]).is_finite() {
+            cells.copy_from_slice(&s);
+            return true;
         }
-        true
+        // `v` is not finite (the frame refuses it), or the sums would leave the f32 range (or
+        // their total would): `v` to the frame, rounded on its own.
+        self.film.splat(i, fold, v, mix64(key))
     }
 
     /// `splat_weight` into window pixel `l`, which is frame pixel `i`, of fold `fold`, the
     /// window's `f`th (nothing where the film keeps no weights).
     #[inline]
-    fn weight_at(&mut self, l: usize, i: usize, (fold, f): (usize, usize), w: f32, dither: u64) {
-        if let Some(ws) = &self.film.weights {
-            let q = FrameAccum::quantize_weight(w, dither);
-            let cell = l * self.cells_px + self.rgb + f;
-            Self::add(&mut self.cells, cell, ws, 2 * i + fold, q);
+    fn weight_at(&mut self, l: usize, i: usize, (fold, f): (usize, usize), w: f32, key: u64) {
+        if self.film.weights.is_some() {
+            let cell = &mut self.cells[l * self.cells_px + self.rgb + f];
+            let s = *cell + w;
+            if s.is_finite() {
+                *cell = s;
+            } else {
+                self.film.splat_weight(i, fold, w, mix64(key));
+            }
         }
     }
 
@@ -328,17 +326,30 @@ impl<'a> LocalFilm<'a> {
             let counts = &self.counts[l * self.counts_px..(l + 1) * self.counts_px];
             let (dx, dy) = (l % self.w as usize, l / self.w as usize);
             let i = (self.y0 as usize + dy) * fw + self.x0 as usize + dx;
+            // Each sum rounded to the frame's fixed point as a splat is, with a dither of this
+            // window, pixel and fold (and its hash for the weight); a zero sum rounds to zero
+            // whatever the dither.
+            let dither = |f: usize| mix64(self.key ^ i as u64 ^ ((f as u64) << 48));
             // The folds held are consecutive in the frame's cells too.
             let fold_base = film.rgb_cell(i, self.fold0);
-            for (c, &q) in cells[..self.rgb].iter().enumerate() {
-                if q != 0 {
-                    film.sum.add(fold_base + c, q as i64);
+            for (f, rgb) in cells[..self.rgb].chunks_exact(3).enumerate() {
+                let v = Vec3::from_slice(rgb);
+                if v == Vec3::ZERO {
+                    continue;
+                }
+                // The window's sums are finite (`splat_at`).
+                let q = film.quantize_rgb(v, dither(f)).unwrap_or_default();
+                for (c, q) in q.into_iter().enumerate() {
+                    if q != 0 {
+                        film.sum.add(fold_base + 3 * f + c, q);
+                    }
                 }
             }
             if let Some(ws) = &film.weights {
-                for (f, &q) in cells[self.rgb..].iter().enumerate() {
-                    if q != 0 {
-                        ws.add(2 * i + self.fold0 + f, q as i64);
+                for (f, &w) in cells[self.rgb..].iter().enumerate() {
+                    if w != 0.0 {
+                        let q = FrameAccum::quantize_weight(w, mix64(dither(f)));
+                        ws.add(2 * i + self.fold0 + f, q);
                     }
                 }
             }
@@ -359,7 +370,7 @@ impl<'a> LocalFilm<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::film::{develop, Layout, Norm, View};
+    use crate::film::{Layout, Norm, View};
     use crate::sampling::mix64;
 
     fn film(norm: Norm, aov: bool) -> FrameAccum {
@@ -379,12 +390,38 @@ mod tests {
         FrameAccum::new(view, layout)
     }
 
+    /// Per cell of a frame's sums: the exact total of what was splatted into it (in steps),
+    /// the splats, and the sum of their sizes (in steps).
+    #[derive(Clone, Copy, Default)]
+    struct Exact {
+        total: f64,
+        n: f64,
+        size: f64,
+    }
+
+    impl Exact {
+        fn add(&mut self, v: f32) {
+            let v = v as f64 * crate::film::fixed::FIXED;
+            self.total += v;
+            self.n += 1.0;
+            self.size += v.abs();
+        }
+
+        /// How far two roundings of the same splats may lie apart: a step per splat rounded
+        /// on its own (at most all of them) and one per window flush, and the float sums'
+        /// rounding, 2^-24 of the sum's size per add (twice over).
+        fn tolerance(&self) -> f64 {
+            2.0 * self.n + 2.0 + 2.0 * self.n * self.size / (1u64 << 24) as f64
+        }
+    }
+
     #[test]
-    fn a_window_sums_to_the_bit_what_direct_splats_sum() {
+    fn a_window_sums_what_direct_splats_sum() {
         // Splats inside the window of a tile, outside it (it grows) and beyond the largest
-        // window (a frame of 75000 pixels), some so large that a window cell overflows i32 or a
-        // single splat passes 2^31 steps: the developed frames and the raw totals agree with
-        // splats made directly into the frame.
+        // window (a frame of 75000 pixels), some as large as 1e9: the totals of every cell agree
+        // with splats made directly into the frame within their roundings (a splat lost, added
+        // twice or to another pixel, fold or channel is thousands of steps off), the counts
+        // exactly, and so do non-finite splats, which neither adds.
         // A window of the control variate's frame holds both folds, or one (the other's splats
         // go to the frame directly).
         for (norm, aov, held) in [
@@ -395,8 +432,11 @@ mod tests {
             (Norm::ControlVariate, false, Some(1)),
         ] {
             let (direct, windowed) = (film(norm, aov), film(norm, aov));
-            let mut local = LocalFilm::new(&windowed, (16, 8, 32, 24), held);
+            let mut local = LocalFilm::new(&windowed, (16, 8, 32, 24), held, 7);
             let folds = norm.folds();
+            let mut exact = vec![Exact::default(); direct.sum.len()];
+            let mut exact_w =
+                vec![Exact::default(); direct.weights.as_ref().map_or(0, |w| w.len())];
             for k in 0..200_000u64 {
                 let h = mix64(k);
                 // First inside the window it starts with (the tile and its margin), then around
@@ -410,7 +450,6 @@ mod tests {
                 };
                 let i = (y * 300 + x) as usize;
                 let fold = (h >> 20) as usize % folds;
-                // 1500: one splat fits an i32 cell, two do not.
                 let scale = match k % 100 {
                     1..=9 => 1500.0,
                     10 => 1e9,
@@ -422,12 +461,19 @@ mod tests {
                     0.25,
                 ) * scale;
                 let d = mix64(h);
+                let cell = 3 * (folds * i + fold);
+                for c in 0..3 {
+                    exact[cell + c].add(v[c]);
+                }
                 if k % 4 == 1 {
                     // One reuse at once, with and without its count and weight.
                     let (count, w) = (k % 8 == 1, if k % 12 == 1 { f32::NAN } else { v.y });
                     let ok = direct.splat(i, fold, v, d);
                     if !w.is_nan() {
                         direct.splat_weight(i, fold, w, mix64(d));
+                        if !exact_w.is_empty() {
+                            exact_w[2 * i + fold].add(w);
+                        }
                     }
                     if count {
                         direct.land(i, 1);
@@ -439,6 +485,9 @@ mod tests {
                 assert_eq!(direct.splat(i, fold, v, d), local.splat(i, fold, v, d));
                 direct.splat_weight(i, fold, v.x, d);
                 local.splat_weight(i, fold, v.x, d);
+                if !exact_w.is_empty() {
+                    exact_w[2 * i + fold].add(v.x);
+                }
                 direct.land(i, 2);
                 local.land(i, 2);
                 direct.try_reuse(i, k % 3 == 0);
@@ -447,24 +496,62 @@ mod tests {
             let nan = Vec3::new(f32::NAN, 0.0, 0.0);
             assert!(!local.splat(20 * 300 + 20, 0, nan, 1));
             direct.splat_weight(20 * 300 + 21, 0, 0.5, mix64(1));
+            if !exact_w.is_empty() {
+                exact_w[2 * (20 * 300 + 21)].add(0.5);
+            }
             assert!(!local.reuse(20 * 300 + 21, 0, nan, 0.5, 1, false));
             assert!(local.w * local.h > 32 * 32, "the window never grew");
             assert!((local.w * local.h) as usize <= MAX_PIXELS);
             direct.add_counts(5, 6, 7);
             local.add_counts(5, 6, 7);
             local.flush();
-            assert_eq!(direct.sum.totals(), windowed.sum.totals());
-            assert_eq!(
-                direct.weights.as_ref().map(FixedSums::totals),
-                windowed.weights.as_ref().map(FixedSums::totals)
-            );
+            let agree = |a: Vec<i64>, b: Vec<i64>, exact: &[Exact]| {
+                assert_eq!(a.len(), b.len());
+                for (c, ((a, b), e)) in a.into_iter().zip(b).zip(exact).enumerate() {
+                    let off = (a - b).abs() as f64;
+                    assert!(off <= e.tolerance(), "cell {c}: {a} against {b}");
+                    assert!((b as f64 - e.total).abs() <= e.tolerance(), "cell {c}");
+                }
+            };
+            agree(direct.sum.totals(), windowed.sum.totals(), &exact);
+            assert_eq!(direct.weights.is_some(), windowed.weights.is_some());
+            if let (Some(a), Some(b)) = (&direct.weights, &windowed.weights) {
+                agree(a.totals(), b.totals(), &exact_w);
+            }
             assert_eq!(direct.counts(), windowed.counts());
-            let (a, b) = (develop(&direct, None), develop(&windowed, None));
-            assert!(a
-                .data
-                .iter()
-                .zip(&b.data)
-                .all(|(x, y)| x.to_bits() == y.to_bits()));
+            assert_eq!(
+                direct.landed_counts().map(|c| c.collect::<Vec<_>>()),
+                windowed.landed_counts().map(|c| c.collect::<Vec<_>>())
+            );
+        }
+    }
+
+    /// The flush rounds a window's sums stochastically, with a dither of its own key: many
+    /// windows that each hold a tenth of a step (and a third of one in a weight) in one pixel
+    /// add up to what they hold, not to nothing (every window rounding down) nor to a step
+    /// each (all rounding alike).
+    #[test]
+    fn a_flush_rounds_sums_below_one_step_without_bias() {
+        let frame = film(Norm::ControlVariate, false);
+        let step = 1.0 / crate::film::fixed::FIXED as f32;
+        let windows = 20_000u64;
+        for key in 0..windows {
+            let mut local = LocalFilm::new(&frame, (0, 0, 16, 16), None, key);
+            local.splat(5, 1, Vec3::new(0.1, 0.5, 0.9) * step, 0);
+            local.splat_weight(5, 1, step / 3.0, 0);
+            local.flush();
+        }
+        let rgb = &frame.sum.totals()[3 * (2 * 5 + 1)..][..3];
+        let w = frame.weights.as_ref().unwrap().totals()[2 * 5 + 1];
+        for (got, p) in rgb.iter().chain([&w]).zip([0.1, 0.5, 0.9, 1.0 / 3.0]) {
+            // Binomial: `windows` roundings up with probability p; 5 standard deviations.
+            let n = windows as f64;
+            let sd = (n * p * (1.0 - p)).sqrt();
+            assert!(
+                (*got as f64 - n * p).abs() < 5.0 * sd,
+                "{got} steps, expected {}",
+                n * p
+            );
         }
     }
 }

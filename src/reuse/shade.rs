@@ -81,21 +81,24 @@ impl Folding {
     }
 }
 
-/// The side of the reuse kernel's blocks (`shade_block`) for a `w` x `h` frame and `threads`
-/// workers: the largest of 64, 32 and 16 pixels that leaves every worker 8 blocks or more.
+/// The side of the reuse kernel's blocks (`shade_block`) for a `w` x `h` frame: the largest of
+/// 64, 32 and 16 pixels that makes 16 blocks or more.
 ///
 /// Why large: a window gathers what the group's eyes reuse into its frame around the block,
 /// which the group's other eyes see shifted (on `vase` at n_f = 17, a 16-pixel tile's window
 /// grows to about 66 x 66 pixels), so with small blocks a window pixel receives about one splat
 /// and adding the window into the frame costs as many atomic adds as direct splats would. A
 /// 64-pixel block's windows receive several splats per pixel. Why not larger: a group ends when
-/// its last block does, so workers with few blocks each wait longer for the slowest. Eight per
+/// its last block does, so workers with few blocks each wait longer for the slowest; eight per
 /// worker rather than 16 (64-pixel blocks on a 320x240 frame at 2 threads, not 32) rendered
-/// `mis-cv` at n_f = 17 3.3% faster (6 interleaved runs of 34 frames, 20.53 s against 19.86 s
-/// on average; frames bitwise the same).
-pub fn block_side(w: u32, h: u32, threads: usize) -> u32 {
+/// `mis-cv` at n_f = 17 3.3% faster (6 interleaved runs of 34 frames, 20.53 s against 19.86 s).
+/// Why not from the thread count: a window sums its splats in floating point, in the block's
+/// order (`film::local`), so the blocks must not depend on the threads for the frames to be
+/// the same to the bit for any number of them; 16 blocks keep 8 per worker at 2 threads, and a
+/// production frame (1920x1080: 510 blocks of 64) has many per worker at any thread count.
+pub fn block_side(w: u32, h: u32) -> u32 {
     for side in [4 * TILE, 2 * TILE] {
-        if (w.div_ceil(side) * h.div_ceil(side)) as usize >= 8 * threads {
+        if w.div_ceil(side) * h.div_ceil(side) >= 16 {
             return side;
         }
     }
@@ -115,9 +118,11 @@ pub fn shade_block(
     counts: Option<&[Vec<u16>]>,
     tally: &mut Tally,
 ) -> u64 {
+    // The windows' flush rounding, named by the group and the block (the window adds the frame).
+    let key = mix64(mix64(p.seed ^ g0 as u64) ^ ((block.0 as u64) << 32 | block.1 as u64));
     let mut films: Vec<LocalFilm> = group
         .iter()
-        .map(|t| LocalFilm::new(t.film, block, t.only_fold(g0)))
+        .map(|t| LocalFilm::new(t.film, block, t.only_fold(g0), key))
         .collect();
     let mut scratch = Scratch {
         pixel_areas: group.iter().map(|t| t.cam.pixel_area()).collect(),
@@ -416,9 +421,9 @@ fn shade_eye(
             if k != m {
                 film.add_counts(1, 1, 0);
             }
-            let dither = dithers[hi].to(frame);
+            let key = dithers[hi].key(frame);
             let fold = folding.of(index - first_index);
-            if !film.reuse(i as usize, fold, Vec3::new(x, y, z), w, dither, k != m) {
+            if !film.reuse(i as usize, fold, Vec3::new(x, y, z), w, key, k != m) {
                 bad += 1;
             }
         }
@@ -442,8 +447,8 @@ fn shade_eye(
         // in its own pixel: it adds the environment's radiance there.
         let le = integrator.scene.env_radiance(dir);
         if le != Vec3::ZERO {
-            let d = Dither::of(p.seed, native_frame, pixel, index).to(native_frame);
-            if !films[m].splat(pixel as usize, 0, le, d) {
+            let key = Dither::of(p.seed, native_frame, pixel, index).key(native_frame);
+            if !films[m].splat(pixel as usize, 0, le, key) {
                 bad += 1;
             }
         }
@@ -544,8 +549,9 @@ impl Natives {
     }
 }
 
-/// The rounding dither of a native sample's splats: a hash of the sample and the target frame,
-/// `mix64(mix64(seed ^ (frame << 32 | pixel)) ^ (index << 32 | target))`, of which the part that
+/// What the rounding dither of a native sample's splat is hashed from, where the splat is
+/// rounded on its own (outside a window, `LocalFilm::splat`): the dither is `mix64(key)`, with
+/// the key `mix64(seed ^ (frame << 32 | pixel)) ^ (index << 32 | target)`, whose part that
 /// names the sample is hashed once per sample.
 #[derive(Clone, Copy)]
 struct Dither(u64);
@@ -555,10 +561,10 @@ impl Dither {
         Dither(mix64(seed ^ ((native_frame as u64) << 32 | pixel as u64)) ^ ((index as u64) << 32))
     }
 
-    /// The dither of the splat into frame `target`.
+    /// The key of the splat into frame `target`.
     #[inline]
-    fn to(self, target: u32) -> u64 {
-        mix64(self.0 ^ target as u64)
+    fn key(self, target: u32) -> u64 {
+        self.0 ^ target as u64
     }
 }
 
@@ -610,16 +616,16 @@ fn splat_escape(
         return 0;
     }
     let le = integrator.scene.env_radiance(dir);
-    let sample_dither = Dither::of(p.seed, group[m].film.frame(), pixel, index);
+    let sample = Dither::of(p.seed, group[m].film.frame(), pixel, index);
     let mut bad = 0;
     for ((f, s), t) in films.iter_mut().zip(&seen).zip(group) {
         if let Some((i, j)) = *s {
-            let d = sample_dither.to(f.film().frame());
+            let key = sample.key(f.film().frame());
             let fold = t.fold(g0, index - first_index);
-            if le != Vec3::ZERO && !f.splat(i as usize, fold, le * (j / total), d) {
+            if le != Vec3::ZERO && !f.splat(i as usize, fold, le * (j / total), key) {
                 bad += 1;
             }
-            f.splat_weight(i as usize, fold, j / total, mix64(d));
+            f.splat_weight(i as usize, fold, j / total, mix64(key));
         }
     }
     bad
