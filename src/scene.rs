@@ -901,13 +901,35 @@ impl Scene {
         };
         let geometry = TriangleScene::build(device, own, &proto_meshes, &placements, cutouts)
             .with_context(|| format!("{obj_label}: building the Embree scene"))?;
+        // A light's area is summed and sampled in f32: past its range (an emitter 1e19 wide, or
+        // placed at a scale that takes it there) its density is zero, and it lit nothing.
+        let huge = (0..mesh.triangles.len())
+            .filter(|&t| {
+                !mesh.tri_area[t].is_finite()
+                    && mesh.materials[mesh.tri_material[t] as usize].is_emissive()
+            })
+            .count();
+        if huge > 0 {
+            bail!(
+                "{obj_label}: {huge} emitting triangle(s) (its own or its [[object]]s') have an \
+                 area past the range of single-precision numbers (3.4e38), which no light can \
+                 be sampled on: model the scene in larger units (or place the object at a \
+                 smaller scale)"
+            );
+        }
         let lights = Lights::new(&mesh, textures.as_deref());
         let env_emits = environment.as_ref().is_some_and(Environment::emits);
         if lights.tris.is_empty() && !env_emits {
             // A light lost with its material is the likely cause: say so on the same line.
-            let lost = repairs
-                .first_of(&[MTL_MISSING, NO_MTLLIB, UNKNOWN_MATERIAL, NO_USEMTL])
-                .map(|w| format!(" (materials fell back to the default: {w})"))
+            let degenerate = repairs.first_of(&[mesh::DEGENERATE_LIGHT]);
+            let lost = degenerate
+                .as_ref()
+                .map(|w| format!(" ({w})"))
+                .or_else(|| {
+                    repairs
+                        .first_of(&[MTL_MISSING, NO_MTLLIB, UNKNOWN_MATERIAL, NO_USEMTL])
+                        .map(|w| format!(" (materials fell back to the default: {w})"))
+                })
                 .or_else(|| {
                     // A misspelt `usemtl` (its faces kept the material before it), or `Ke`.
                     repairs
@@ -928,6 +950,9 @@ impl Scene {
             };
             let none = if lights.black_maps > 0 {
                 "the emission maps (map_Ke) of its emitting materials are black in every texel"
+            } else if degenerate.is_some() {
+                "every triangle of its emitting materials has zero area, or an area below single \
+                 precision's range"
             } else {
                 "no material has a positive Ke"
             };

@@ -20,6 +20,14 @@ pub const DEGENERATE: Kind = Kind {
     one: "degenerate (zero-area) triangle skipped",
     many: "degenerate (zero-area) triangles skipped",
 };
+/// `DEGENERATE` for a triangle whose material emits: its own kind, so that a scene left without
+/// a light says why.
+pub const DEGENERATE_LIGHT: Kind = Kind {
+    one: "emitting triangle of zero area (or of an area below single precision's range, 1.2e-38) \
+          skipped: it emits nothing",
+    many: "emitting triangles of zero area (or of areas below single precision's range, 1.2e-38) \
+           skipped: they emit nothing",
+};
 const FANNED: Kind = Kind {
     one: "polygon that winds over itself (or that ear clipping could not triangulate) split as \
           a fan",
@@ -237,23 +245,27 @@ pub fn triangulate(p: &[Vec3]) -> Option<Vec<[usize; 3]>> {
 /// The mesh of `obj`: `usemtl_material[k]` is the material of the faces after the k-th
 /// `usemtl`, `default_material` that of faces before any. `bytes` is the OBJ text, for quoting.
 /// A triangle's unit normal (counter-clockwise), the length of its edges' cross product (twice
-/// its area), and whether it is degenerate (zero area against its longest edge). Corners may be
-/// up to the 1e18 the scene allows (and further once placed), where the f32 cross product's
-/// length overflows (from edges of about 4e9 on: a floor 1e10 wide would be "zero area"): such
-/// a triangle is measured in f64, whose normal and area fit f32. The OBJ reader and placed
-/// objects (`objects::transformed`) measure triangles with it.
+/// its area), and whether it is degenerate (zero area against its longest edge, or an area
+/// below the range of f32's normal numbers). Corners may be up to the 1e18 the scene allows (and
+/// further once placed), where the f32 cross product's length overflows (from edges of about
+/// 4e9 on: a floor 1e10 wide would be "zero area"), and as small as the scene likes, where the
+/// squares in its length underflow (a lamp of area 1e-23, in a scene modelled in units of
+/// 1e11, was "zero area"): such a triangle is measured in f64, and its normal fits f32; its
+/// area may be past f32's range (what `Scene::load` refuses for a light). The OBJ reader and
+/// placed objects (`objects::transformed`) measure triangles with it.
 pub fn measure(a: Vec3, b: Vec3, c: Vec3) -> (Vec3, f32, bool) {
     let cr = (b - a).cross(c - a);
     let len = cr.length();
     let scale = (b - a).length_squared().max((c - a).length_squared());
-    if len.is_finite() && scale.is_finite() {
+    // Above 1e-18 the squares in `length` are normal f32 numbers, and exact to f32's precision.
+    if len.is_finite() && scale.is_finite() && len > 1e-18 {
         (cr / len, len, len <= 1e-7 * scale)
     } else {
         let [a, b, c] = [a, b, c].map(|p| p.as_dvec3());
         let cr = (b - a).cross(c - a);
         let len = cr.length();
         let scale = (b - a).length_squared().max((c - a).length_squared());
-        let ok = len.is_finite() && len > 1e-7 * scale;
+        let ok = len.is_finite() && len > 1e-7 * scale && len as f32 >= f32::MIN_POSITIVE;
         ((cr / len).as_vec3(), len as f32, !ok)
     }
 }
@@ -466,7 +478,12 @@ pub fn build(
                 if first_skipped == 0 {
                     first_skipped = f.line;
                 }
-                repairs.note(label, f.line, DEGENERATE, || quote_line(bytes, f.line))?;
+                let kind = if emissive(mat) {
+                    DEGENERATE_LIGHT
+                } else {
+                    DEGENERATE
+                };
+                repairs.note(label, f.line, kind, || quote_line(bytes, f.line))?;
                 continue;
             }
             let fits = grow(&mut mesh.triangles)

@@ -448,6 +448,12 @@ pub fn parse_for(
         }
         let c = if xyz {
             let rgb = xyz_to_rec709(c);
+            // Values near the top of the float range (each finite) pass it in RGB.
+            if !rgb.is_finite() {
+                return Err(err(format!(
+                    "{key} xyz: the colour is past the range of numbers in linear Rec.709 RGB"
+                )));
+            }
             // A colour outside the Rec.709 gamut has a negative channel, which no BSDF or
             // light can have: clamped to 0, and said.
             if rgb.min_element() < 0.0 {
