@@ -946,6 +946,33 @@ fn open_reader(path: &Path) -> Result<cxx::UniquePtr<ffi::ImageReader>> {
     ffi::open_reader(path_bytes(path)).map_err(|e| anyhow!("{}", e.what()))
 }
 
+/// The largest value (maxval) a Netpbm file's header declares (P2, P3, P5, P6: its fourth
+/// field; P7, PAM: its `MAXVAL` line), where it has one that reads as a number; `None` for the
+/// bitmaps (P1, P4), which have none, and for a header that cannot be read (left to OpenImageIO).
+fn pnm_maxval(path: &Path) -> Option<u64> {
+    use std::io::Read;
+    let mut head = Vec::with_capacity(4096);
+    crate::util::fs::open_regular(path)
+        .ok()?
+        .take(4096)
+        .read_to_end(&mut head)
+        .ok()?;
+    let text = String::from_utf8_lossy(&head);
+    // Fields are separated by white space; `#` starts a comment to the end of its line.
+    let mut fields = text
+        .lines()
+        .map(|l| l.split('#').next().unwrap_or(""))
+        .flat_map(str::split_whitespace);
+    match fields.next()? {
+        "P2" | "P3" | "P5" | "P6" => fields.nth(2)?.parse().ok(),
+        "P7" => {
+            let mut fields = fields.skip_while(|f| *f != "MAXVAL");
+            fields.nth(1)?.parse().ok()
+        }
+        _ => None,
+    }
+}
+
 /// `path` opened for reading, with its description; more than `max_pixels` pixels are refused
 /// before any is read.
 fn open_checked(
@@ -981,6 +1008,15 @@ fn open_checked(
              to OpenEXR or Radiance HDR first",
             ffi::oiio_version()
         );
+    }
+    if info.format_name == "pnm" {
+        if let Some(v) = pnm_maxval(path).filter(|v| !(1..=65535).contains(v)) {
+            bail!(
+                "a Netpbm image whose largest value (maxval) is {v}: the format allows 1 to \
+                 65535, the scale its codes are read on (with a maxval of 0, black codes \
+                 were read as white)"
+            );
+        }
     }
     if info.stored_outside {
         bail!(
@@ -1175,6 +1211,35 @@ pub fn colour_channels(names: &[String]) -> Result<Colour> {
         })
     });
     if rgb.iter().any(Option::is_some) {
+        // Some of R, G and B named, the others not, beside channels of no layer whose names say
+        // nothing (`red, grn, blu`: read as red alone, green and blue zero, without a word):
+        // those are likely the missing colours under other names, which reframe cannot tell.
+        let unknown: Vec<&str> = names
+            .iter()
+            .filter(|n| {
+                layer_of(n).is_none() && role(n).is_none() && !matches!(n.as_str(), "Z" | "Y")
+            })
+            .map(String::as_str)
+            .collect();
+        if rgb.iter().any(Option::is_none) && !unknown.is_empty() {
+            let said = |want: bool| {
+                ["red", "green", "blue"]
+                    .iter()
+                    .zip(&rgb)
+                    .filter(|(_, c)| c.is_some() == want)
+                    .map(|(n, _)| *n)
+                    .collect::<Vec<_>>()
+                    .join(" and ")
+            };
+            bail!(
+                "its channels ({}) name {} but not {}, beside channels whose colour cannot be \
+                 told ({}): name its colour channels R, G and B",
+                names.join(", "),
+                said(true),
+                said(false),
+                unknown.join(", ")
+            );
+        }
         return Ok(Colour::Rgb(rgb));
     }
     // A multi-layer EXR (Blender's MultiLayer output, a compositor's AOVs): the channels of
@@ -1864,6 +1929,21 @@ mod tests {
         for alpha in ["A", "a", "alpha"] {
             assert!(colour_channels(&names(&[alpha])).is_err(), "{alpha}");
         }
+        // Red named, green and blue under names that say nothing: read as red alone. Refused;
+        // R and G alone (and beside depth or alpha) stay red and green.
+        let e = colour_channels(&names(&["red", "grn", "blu"]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("name red but not green and blue") && e.contains("(grn, blu)"),
+            "{e}"
+        );
+        assert!(colour_channels(&names(&["R", "G", "chan2"])).is_err());
+        assert_eq!(ok(&["R", "G"]), Colour::Rgb([Some(0), Some(1), None]));
+        assert_eq!(
+            ok(&["R", "G", "A", "Z"]),
+            Colour::Rgb([Some(0), Some(1), None])
+        );
     }
 
     #[test]
