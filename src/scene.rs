@@ -974,9 +974,7 @@ impl Scene {
         for (object, n) in turned_in.into_iter().filter(|&(_, n)| n > 0) {
             warnings.push(format!(
                 "{object}: {n} emitting triangle(s) wound against their vertex normals \
-                 emit to the side the normals point to, as pbrt-v4 and Mitsuba 3 take them (a \
-                 light made two-sided by a reversed copy of its faces that shares their normals \
-                 emits to that side twice: give the copy its own normals)"
+                 emit to the side the normals point to, as pbrt-v4 and Mitsuba 3 take them"
             ));
         }
         if lights.black_maps > 0 && !lights.tris.is_empty() {
@@ -3256,13 +3254,15 @@ mod tests {
     /// SketchUp's two-sided export writes each face again, reversed, with its back material:
     /// the later face of each such pair is left out with a warning (the two fought over every
     /// point, a speckle of both materials), whichever corner it starts from and however its
-    /// vertices are numbered; a face repeated in the same order too. Emitting faces are kept
-    /// (a reversed copy makes a lamp two-sided), and so are faces that share only some corners.
+    /// vertices are numbered; a face repeated in the same order too. A lamp's reversed copy
+    /// too, with a warning of its own (it rendered as a speckle of light and dark, and the reuse
+    /// methods were biased on it); a lamp's face on a wall's corners is kept, and so are faces
+    /// that share only some corners.
     #[test]
     fn a_face_on_the_corners_of_an_earlier_one_is_left_out() {
         let obj = b"mtllib m.mtl\nv -1 -1 0\nv 1 -1 0\nv -1 1 0\nv 1 1 0\nv 1 1 0\n\
                     usemtl Front\nf 1 2 4 3\nusemtl Back\nf 2 1 3 5\nf 4 3 1 2\nf 1 2 4\n\
-                    usemtl Lamp\nf 1 2 3\nf 3 2 1\n";
+                    usemtl Lamp\nf 1 2 3\nf 3 2 1\nusemtl Front\nf 2 3 1\n";
         let dir = tempfile::tempdir().unwrap();
         std::fs::write(
             dir.path().join("m.mtl"),
@@ -3274,10 +3274,19 @@ mod tests {
         let mesh = load_obj("a.obj", obj, &files, &mut r).unwrap();
         let names = |m: &u32| mesh.material_names[*m as usize].as_str();
         let kept: Vec<&str> = mesh.tri_material.iter().map(names).collect();
-        // The quad (two triangles), the triangle on three of its corners, both lamp faces.
-        assert_eq!(kept, ["Front", "Front", "Back", "Lamp", "Lamp"]);
+        // The quad (two triangles), the triangle on three of its corners, the lamp's first face,
+        // and a wall's face on the lamp's corners.
+        assert_eq!(kept, ["Front", "Front", "Back", "Lamp", "Front"]);
         let w = r.into_warnings();
-        assert_eq!(w.len(), 1, "{w:?}");
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(
+            w[1].starts_with(
+                "a.obj: line 15: 'f 3 2 1' (the face of line 14): emitting face on the same \
+                 corners as an earlier emitting one (a lamp made two-sided by a reversed copy of its faces, or written \
+                 twice) left out"
+            ),
+            "{w:?}"
+        );
         assert!(
             w[0].starts_with(
                 "a.obj: 2 faces on the same corners as earlier ones (a two-sided export, as \

@@ -282,15 +282,33 @@ const REPEATED_FACE: Kind = Kind {
            materials show from both sides",
 };
 
+/// An emitting face on the same points as an earlier emitting one, left out (`repeated_faces`).
+const REPEATED_LAMP: Kind = Kind {
+    one: "emitting face on the same corners as an earlier emitting one (a lamp made two-sided \
+          by a reversed copy of its faces, or written twice) left out: the two would fight \
+          over every point, a speckle of light and dark, which the reuse methods also read \
+          otherwise than the independent tracer; reframe's lights emit to one side, here the \
+          earlier face's (for light on both sides, give the copy its own corners a little apart)",
+    many: "emitting faces on the same corners as earlier emitting ones (a lamp made two-sided \
+           by a reversed copy of its faces, or written twice) left out: the two would fight \
+           over every point, a speckle of light and dark, which the reuse methods also read \
+           otherwise than the independent tracer; reframe's lights emit to one side, here the \
+           earlier faces' (for light on both sides, give the copies their own corners a little \
+           apart)",
+};
+
 /// The earlier faces on the same points that a face is compared with (`repeated_faces`).
 const MAX_COMPARED: usize = 8;
 
 /// The faces of `obj` that repeat an earlier one, each with that face (indices, in order;
 /// `None` where the memory to find them is not left): the same corner points
-/// (positions to the bit), in the same cyclic order or the reverse, where neither face emits
-/// (`emits(face)`; a lamp made two-sided by a reversed copy of its faces emits from both). Two
-/// such faces are one surface twice, and which a ray hits is a matter of rounding. Faces are
-/// grouped by a hash of their corners that does not depend on their order, then compared.
+/// (positions to the bit), in the same cyclic order or the reverse, where both faces emit or
+/// neither does (`emits(face)`; a lamp's face and a wall's on the same corners are both kept).
+/// Two such faces are one surface twice, and which a ray hits is a matter of rounding (a lamp
+/// made two-sided by a reversed copy of its faces rendered as a speckle, seen from either side,
+/// and the reuse methods, whose visibility rays settle the tie otherwise than primary rays,
+/// were biased against the independent tracer on it). Faces are grouped by a hash of their
+/// corners that does not depend on their order, then compared.
 fn repeated_faces(obj: &Obj, emits: &dyn Fn(&Face) -> bool) -> Option<Vec<(u32, u32)>> {
     let corners = |f: &Face| obj.corners[f.corners.clone()].iter();
     let point = |c: &Corner| obj.positions[c.v as usize].to_array().map(f32::to_bits);
@@ -332,12 +350,11 @@ fn repeated_faces(obj: &Obj, emits: &dyn Fn(&Face) -> bool) -> Option<Vec<(u32, 
         // against the first few earlier ones kept: the faces on one set of points in other
         // orders are few in any model, but a file of thousands of orders of ten points would
         // take a time in the square of their count.
-        let mut kept: Vec<u32> = Vec::with_capacity(MAX_COMPARED);
+        // (Emitting faces against emitting ones, the others against the others.)
+        let mut kept: [Vec<u32>; 2] = Default::default();
         for &(_, j) in run {
             let fj = &obj.faces[j as usize];
-            if emits(fj) {
-                continue;
-            }
+            let kept = &mut kept[usize::from(emits(fj))];
             match kept.iter().find(|&&i| same(&obj.faces[i as usize], fj)) {
                 Some(&i) => {
                     if !crate::util::mem::grow(&mut repeats) {
@@ -356,7 +373,7 @@ fn repeated_faces(obj: &Obj, emits: &dyn Fn(&Face) -> bool) -> Option<Vec<(u32, 
 
 /// The mesh of `obj`: `usemtl_material[k]` is the material of the faces after the k-th
 /// `usemtl`, `default_material` that of faces before any; `emissive(m)`: whether material `m`
-/// emits. A face on the same corners as an earlier one, neither emitting, is left out
+/// emits. A face on the same corners as an earlier one, both emitting or neither, is left out
 /// (`repeated_faces`). `bytes` is the OBJ text, for quoting.
 pub fn build(
     label: &str,
@@ -415,7 +432,12 @@ pub fn build(
             .next_if(|&(j, _)| j as usize == k)
             .map(|(_, i)| i as usize);
         if let Some(earlier) = repeat {
-            repairs.note(label, f.line, REPEATED_FACE, || {
+            let kind = if emissive(material_of(f)) {
+                REPEATED_LAMP
+            } else {
+                REPEATED_FACE
+            };
+            repairs.note(label, f.line, kind, || {
                 format!(
                     "{} (the face of line {})",
                     quote_line(bytes, f.line),
