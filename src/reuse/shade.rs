@@ -118,7 +118,8 @@ pub fn shade_block(
     counts: Option<&[Vec<u16>]>,
     tally: &mut Tally,
 ) -> u64 {
-    // The windows' flush rounding, named by the group and the block (the window adds the frame).
+    // The windows' flush rounding, named by the group and the block (each window mixes in its
+    // frame, `LocalFilm::new`).
     let key = mix64(mix64(p.seed ^ g0 as u64) ^ ((block.0 as u64) << 32 | block.1 as u64));
     let mut films: Vec<LocalFilm> = group
         .iter()
