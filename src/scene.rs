@@ -1695,7 +1695,7 @@ fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
             );
         }
         // toml's own message spans several lines (a snippet of the file); keep it to one.
-        let mut msg = e.message().trim().replace('\n', " ");
+        let mut msg = short_floats(&e.message().trim().replace('\n', " "));
         let Some(span) = e.span() else {
             return anyhow!("{label}: {msg}");
         };
@@ -1719,6 +1719,27 @@ fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
             anyhow!("{label}: line {line} ('{quoted}'): {msg}")
         }
     })
+}
+
+/// `msg` with every float that serde quotes (`` floating point `x` ``) in exponent form where its
+/// decimal form is long: `frame = 1e-320` was refused with a number of 330 digits.
+fn short_floats(msg: &str) -> String {
+    const QUOTE: &str = "floating point `";
+    let mut out = String::with_capacity(msg.len());
+    let mut rest = msg;
+    while let Some(at) = rest.find(QUOTE) {
+        let (head, tail) = rest.split_at(at + QUOTE.len());
+        out.push_str(head);
+        let end = tail.find('`').unwrap_or(tail.len());
+        let (number, after) = tail.split_at(end);
+        match number.parse::<f64>() {
+            Ok(v) if number.len() > 24 => out.push_str(&format!("{v:e}")),
+            _ => out.push_str(number),
+        }
+        rest = after;
+    }
+    out.push_str(rest);
+    out
 }
 
 /// Check the resolution, the frames and the cameras of every frame: the keyframes, interpolated
