@@ -249,8 +249,8 @@ pub fn triangulate(p: &[Vec3]) -> Option<Vec<[usize; 3]>> {
 /// below the range of f32's normal numbers). Corners may be up to the 1e18 the scene allows (and
 /// further once placed), where the f32 cross product's length overflows (from edges of about
 /// 4e9 on: a floor 1e10 wide would be "zero area"), and as small as the scene likes, where the
-/// squares in its length underflow (a lamp of area 1e-23, in a scene modelled in units of
-/// 1e11, was "zero area"): such a triangle is measured in f64, and its normal fits f32; its
+/// squares in its length underflow (a lamp of area 4e-22, in a scene modelled in units of
+/// 1e-11, was "zero area"): such a triangle is measured in f64, and its normal fits f32; its
 /// area may be past f32's range (what `Scene::load` refuses for a light). The OBJ reader and
 /// placed objects (`objects::transformed`) measure triangles with it.
 pub fn measure(a: Vec3, b: Vec3, c: Vec3) -> (Vec3, f32, bool) {
