@@ -363,12 +363,10 @@ impl<'a> LocalFilm<'a> {
                     }
                 }
             }
-            if let Some(ws) = &film.weights {
-                for (f, &w) in cells[self.rgb..].iter().enumerate() {
-                    if w != 0.0 {
-                        let q = FrameAccum::quantize_weight(w, mix64(dither(f)));
-                        ws.add(2 * i + self.fold0 + f, q);
-                    }
+            // (Weight cells exist only where the frame keeps weights.)
+            for (f, &w) in cells[self.rgb..].iter().enumerate() {
+                if w != 0.0 {
+                    film.splat_weight(i, self.fold0 + f, w, mix64(dither(f)));
                 }
             }
             let mut counts = counts.iter().copied();
