@@ -448,6 +448,14 @@ ImageInfo ImageReader::info() const {
     };
     info.stored_outside = w && (apart(spec_.x, spec_.width, spec_.full_x, spec_.full_width) ||
                                 apart(spec_.y, spec_.height, spec_.full_y, spec_.full_height));
+    // The stored pixels inside the image: the two windows' overlap, column by row.
+    auto overlap = [](int64_t a, int64_t a_size, int64_t b, int64_t b_size) {
+        return std::max<int64_t>(0, std::min(a + a_size, b + b_size) - std::max(a, b));
+    };
+    info.stored_inside =
+        w ? uint64_t(overlap(spec_.x, spec_.width, spec_.full_x, spec_.full_width) *
+                     overlap(spec_.y, spec_.height, spec_.full_y, spec_.full_height))
+          : uint64_t(info.width) * uint64_t(info.height);
     info.format_name = rust::String::lossy(in_->format_name());
     info.codes = spec_.format == OIIO::TypeDesc::UINT8 || spec_.format == OIIO::TypeDesc::UINT16;
     info.images = uint32_t(subimages_);

@@ -1919,13 +1919,16 @@ const ENV_RADIANCE_CLAMPED: Kind = Kind {
     many: "environment radiances times intensity above 1e9 clamped to 1e9",
 };
 
-/// An environment image that is not twice as wide as it is high: read as a lat-long map all
-/// the same, but a mirror ball, an angular map or a cube cross (square or 4:3 images) lights
-/// the scene wrongly that way.
+/// An environment pixel below zero (a photograph's debayering, a change of colour space, lossy
+/// compression), read as zero.
 const ENV_NEGATIVE: Kind = Kind {
     one: "environment pixel with a value below 0 read as 0",
     many: "environment pixels with values below 0 read as 0",
 };
+
+/// An environment image that is not twice as wide as it is high: read as a lat-long map all
+/// the same, but a mirror ball, an angular map or a cube cross (square or 4:3 images) lights
+/// the scene wrongly that way.
 const ENV_NOT_LATLONG: Kind = Kind {
     one: "not twice as wide as high: read as a lat-long (equirectangular) map all the same (a \
           mirror-ball, angular or cube-cross image lights the scene wrongly)",

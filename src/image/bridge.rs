@@ -64,6 +64,9 @@ pub(crate) mod ffi {
         /// An OpenEXR file whose data window lies wholly outside its display window: not one
         /// stored pixel is in its image.
         stored_outside: bool,
+        /// How many of the image's pixels the file stores (all of them, unless its data window
+        /// covers only part of its display window).
+        stored_inside: u64,
         channels: Vec<String>,
         format_name: String,
         /// Whether the file stores its values as 8- or 16-bit unsigned codes (the forms sRGB

@@ -1464,6 +1464,10 @@ pub struct Meaning {
     /// The log encoding it names (`log_encoding`: its `oiio:ColorSpace`, or a DPX's
     /// `dpx:Transfer`), whose values are read as they are, not decoded.
     pub encoding: Option<String>,
+    /// Where the file stores under 1% of its image (an OpenEXR data window far smaller than its
+    /// display window, which reads as black outside it): the pixels it stores inside the image,
+    /// and the image's width and height.
+    pub sparse: Option<(u64, u32, u32)>,
 }
 
 /// EXIF's names of the orientations (`Meaning::orientation`).
@@ -1480,8 +1484,8 @@ pub fn orientation_in_words(o: i32) -> &'static str {
     }
 }
 
-/// `Meaning` from a reader's attributes.
-fn meaning(attrs: &[ffi::Attribute]) -> Meaning {
+/// `Meaning` from a reader's attributes and what it says of the image.
+fn meaning(attrs: &[ffi::Attribute], info: &ffi::ImageInfo) -> Meaning {
     let find = |name: &str| attrs.iter().find(|a| a.name.eq_ignore_ascii_case(name));
     // An int, or (a JPEG's EXIF) a uint16 the bridge gives as text; 0 is no orientation.
     let orientation = find("Orientation")
@@ -1511,10 +1515,19 @@ fn meaning(attrs: &[ffi::Attribute]) -> Meaning {
                 .filter(|t| matches!(t.as_str(), "Logarithmic" | "Printing density"))
                 .map(|t| format!("dpx:Transfer {t}"))
         });
+    // A 341-byte EXR of one stored pixel in a 16384 x 8192 display window read as a sky of that
+    // size, black but for one texel, without a word.
+    let pixels = info.width as u64 * info.height as u64;
+    let sparse = (info.stored_inside < pixels.div_ceil(100)).then_some((
+        info.stored_inside,
+        info.width,
+        info.height,
+    ));
     Meaning {
         orientation,
         chromaticities,
         encoding,
+        sparse,
     }
 }
 
@@ -1547,7 +1560,7 @@ pub fn read_colour(
             .find(|a| a.name.eq_ignore_ascii_case("oiio:ColorSpace"))
             .map(|a| a.text.as_str());
         let srgb = srgb_encoded(space, info.codes, &info.format_name);
-        let meaning = meaning(&attrs);
+        let meaning = meaning(&attrs, &info);
         let cube_faces = attrs.iter().any(|a| {
             a.name.eq_ignore_ascii_case("textureformat")
                 && a.text.to_ascii_lowercase().starts_with("cubeface")
@@ -1739,7 +1752,7 @@ pub fn read_mask(
     let read = || -> Result<(Image, MaskLayout)> {
         let (mut reader, info, pixels) = open_input_image(path, max_pixels)?;
         let parts = parts_of(&reader, &info);
-        let meaning = meaning(&reader.attributes());
+        let meaning = meaning(&reader.attributes(), &info);
         let pick = mask_pick(&info.channels, imfchan)?;
         // Only the channels the mask may be in are read (`read_channels`): `at` and
         // `instead_at` are the picked channel's and the one that stands in for an opaque

@@ -9,9 +9,10 @@
 //! wavefront batch), and its splats are made frame by frame, so that consecutive splats fall on
 //! neighbouring pixels of one window.
 //!
-//! Streaming and determinism: contributions are quantised as they are made into fixed-point
-//! sums with a hashed rounding dither: integer addition is associative, so the frames are
-//! bitwise identical for any thread count and any window.
+//! Streaming and determinism: a window sums its splats in `f32`, in the block's order, and rounds
+//! each pixel's sums once into the frame's fixed point with a hashed dither when it is flushed;
+//! the frame's sums are integers, whose addition is associative. The blocks depend on the
+//! resolution alone (`block_side`), so the frames are bitwise identical for any thread count.
 use super::visibility::{landings, EyeView, HitLanes, Landing, NativeHit};
 use super::weights::{EyeTerms, LambertWeighing, Weighing, SIDE_UNKNOWN};
 use super::{Params, Weights};
@@ -339,7 +340,7 @@ fn shade_eye(
     // all the eyes of a hit at once), then the splats eye by eye: one frame's window at a time,
     // in the tile's pixel order, so that consecutive splats fall on neighbouring pixels of one
     // window, which stays in cache, where hit by hit they went to every window of the group in
-    // turn. The sums are integers, so the order does not change a bit.
+    // turn. A window's splats come in the same order for any thread count (`block_side`).
     // (`splats` is written where a hit lands and read only there, so what an earlier tile left
     // in it needs no clearing.)
     let nh = hits.len();

@@ -131,8 +131,16 @@ const LOG_ENCODED: Kind = Kind {
     many: "images in a log encoding read as their values, not decoded (convert them to linear or sRGB, e.g. with oiiotool --colorconvert)",
 };
 
+/// An OpenEXR file whose data window holds under 1% of its display window: read as its
+/// display window, black wherever nothing is stored.
+const SPARSE: Kind = Kind {
+    one: "image that stores under 1% of its pixels (an OpenEXR data window far smaller than its display window): the rest reads as black",
+    many: "images that store under 1% of their pixels (OpenEXR data windows far smaller than their display windows): the rest reads as black",
+};
+
 /// Note what the image file `what` (at `file`'s `line`) says of its pixels that reframe does
-/// not apply (`image::Meaning`): an orientation, other primaries, a log encoding.
+/// not apply (`image::Meaning`): an orientation, other primaries, a log encoding; and where it
+/// stores almost none of its pixels.
 pub fn note_meaning(
     repairs: &mut Repairs,
     (file, line): (&str, usize),
@@ -155,6 +163,11 @@ pub fn note_meaning(
     if let Some(e) = &meaning.encoding {
         repairs.note(file, line, LOG_ENCODED, || {
             format!("{what}: the file says its encoding is {}", quote(e))
+        })?;
+    }
+    if let Some((stored, w, h)) = meaning.sparse {
+        repairs.note(file, line, SPARSE, || {
+            format!("{what}: the file stores {stored} of its {w}x{h} pixels")
         })?;
     }
     Ok(())
