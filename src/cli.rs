@@ -63,7 +63,7 @@ pub struct ReferenceArgs {
     #[arg(long, default_value_t = 256)]
     pub reference_spp: u32,
     /// Longest path, in bounces, of the reference (and, for compare, of every run).
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = crate::driver::options::DEFAULT_MAX_DEPTH)]
     pub max_depth: u32,
     /// Folder of cached references.
     #[arg(long, default_value = "out/reference-cache")]
@@ -202,8 +202,8 @@ pub struct RenderArgs {
     /// Worker threads (0: one per core).
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
-    /// Maximum path length in bounces.
-    #[arg(long, default_value_t = 16)]
+    /// Longest path, in bounces (a bound paths do not reach: roulette ends them first).
+    #[arg(long, default_value_t = crate::driver::options::DEFAULT_MAX_DEPTH)]
     pub max_depth: u32,
     /// Write render statistics as JSON.
     #[arg(long)]
@@ -313,7 +313,7 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
     /// Longest path, in bounces.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = crate::driver::options::DEFAULT_MAX_DEPTH)]
     pub max_depth: u32,
     /// Timed runs of each kind (the independent render, the bare replay, each speed-up run's
     /// reuse and independent renders, alternating), whose medians are reported.

@@ -42,6 +42,48 @@ fn furnace_is_one() {
     }
 }
 
+/// The CLI's default path length leaves a bright closed room as bright as it is: inside the
+/// shipped furnace sphere made of albedo 0.9 and emission 0.1 the radiance is 0.1 / (1 - 0.9) = 1
+/// everywhere, of which paths cut at 16 bounces (the default before) carry 1 - 0.9^17 = 0.83.
+/// Rendered by `reframe render` with no `--max-depth` and `--exr-float`, the mean must be 1
+/// within 1% (its noise at 16 spp on 48 x 48 pixels is about 0.3%).
+#[test]
+fn a_bright_closed_room_is_not_darkened_by_the_default_depth() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scenes = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    std::fs::copy(scenes.join("furnace.obj"), d.join("furnace.obj")).unwrap();
+    std::fs::copy(scenes.join("furnace.toml"), d.join("furnace.toml")).unwrap();
+    std::fs::write(
+        d.join("furnace.mtl"),
+        "newmtl furnace\nKd 0.9 0.9 0.9\nKe 0.1 0.1 0.1\n",
+    )
+    .unwrap();
+    let out = d.join("f_####.exr");
+    reframe_ok(&[
+        "render",
+        d.join("furnace.toml").to_str().unwrap(),
+        "--frames",
+        "0",
+        "--res",
+        "48x48",
+        "--spp",
+        "16",
+        "--exr-float",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let img = reframe::image::read_image(&d.join("f_0000.exr")).unwrap();
+    let n = (img.width * img.height) as f64;
+    let mean = img
+        .data
+        .chunks(img.channels.len())
+        .map(|p| p[0] as f64)
+        .sum::<f64>()
+        / n;
+    assert!((mean - 1.0).abs() < 0.01, "mean radiance {mean}, not 1");
+}
+
 /// A floor, a box resting on it, a box hovering 1% of its size above it (a thin contact
 /// shadow) and a light, lit by a grey sky too: scaled by `scale` and moved by `shift` (after
 /// scaling), rendered at 48x36 with 64 samples and one seed. `Shift::Placed` moves it with an

@@ -92,7 +92,7 @@ impl Default for BenchOptions {
             speedup_method: Method::MisExact,
             windows: vec![3, 7, 17, 33],
             seed: 1,
-            max_depth: 16,
+            max_depth: crate::driver::options::DEFAULT_MAX_DEPTH,
             repeats: 3,
         }
     }

@@ -160,7 +160,7 @@ impl Default for CompareOptions {
             reuse_budgets: vec![1, 2],
             windows: vec![3, 7, 17, 33],
             reference_spp: 256,
-            max_depth: 16,
+            max_depth: crate::driver::options::DEFAULT_MAX_DEPTH,
             cache: PathBuf::from("out/reference-cache"),
             out: PathBuf::from("out/compare"),
             threads: 0,
