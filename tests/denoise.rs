@@ -99,6 +99,69 @@ fn denoising_the_furnace_brings_it_nearer_one_and_keeps_its_mean() {
     }
 }
 
+/// A frame is denoised alike at any level of light: the furnace lit at 1e-10 (every pixel below
+/// the luminance OIDN's auto-exposure counts, where the denoised frame came out zero) and at
+/// 1e7 keeps its mean, and its denoised frame is the one at radiance 1 scaled, to 0.1%.
+#[test]
+fn a_frame_is_denoised_alike_at_any_level_of_light() {
+    let device = Device::new().unwrap();
+    let d = tempfile::tempdir().unwrap();
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    let mut denoised = Vec::new();
+    for (i, level) in [1.0f64, 1e-10, 1e7].into_iter().enumerate() {
+        let dir = d.path().join(format!("l{i}"));
+        std::fs::create_dir(&dir).unwrap();
+        for f in ["furnace.obj", "furnace.toml"] {
+            std::fs::copy(scenes.join(f), dir.join(f)).unwrap();
+        }
+        // Kd 0.5 and Ke 0.5 * level: radiance `level` everywhere.
+        let ke = 0.5 * level;
+        std::fs::write(
+            dir.join("furnace.mtl"),
+            format!("newmtl furnace\nKd 0.5 0.5 0.5\nKe {ke:e} {ke:e} {ke:e}\n"),
+        )
+        .unwrap();
+        let scene = Scene::load(dir.join("furnace.toml").to_str().unwrap(), &device).unwrap();
+        let img = render_to(
+            &scene,
+            &dir,
+            "f",
+            RenderOptions {
+                spp: 2,
+                frames: Some(1..=1),
+                denoise: Some(Layers::RawAndGuides),
+                ..RenderOptions::default()
+            },
+        );
+        let mean = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64;
+        let (den, raw) = (rgb(&img, ""), rgb(&img, "raw."));
+        eprintln!(
+            "radiance {level:e}: means raw {:e}, denoised {:e}",
+            mean(&raw),
+            mean(&den)
+        );
+        assert!(
+            (mean(&den) / mean(&raw) - 1.0).abs() < 0.01,
+            "radiance {level:e}: denoised mean {:e} against raw {:e}",
+            mean(&den),
+            mean(&raw)
+        );
+        denoised.push((level, den));
+    }
+    let (_, one) = &denoised[0];
+    for (level, den) in &denoised[1..] {
+        let off = den
+            .iter()
+            .zip(one)
+            .map(|(&a, &b)| (a as f64 / level - b as f64).abs())
+            .fold(0.0, f64::max);
+        assert!(
+            off < 1e-3,
+            "radiance {level:e}: off the frame at 1 by {off}"
+        );
+    }
+}
+
 #[test]
 fn a_denoised_render_differs_from_a_plain_one_only_in_its_rgb() {
     let device = Device::new().unwrap();

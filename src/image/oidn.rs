@@ -331,19 +331,26 @@ impl Denoiser {
             self.filters = Some(f);
         }
         let f = self.filters.as_mut().expect("filters made above");
-        f.color.copy_from_slice(input.color);
+        let scale = level_scale(input.color);
+        if scale == 1.0 {
+            f.color.copy_from_slice(input.color);
+        } else {
+            for (c, &v) in f.color.iter_mut().zip(input.color) {
+                *c = v * scale;
+            }
+        }
         f.albedo.copy_from_slice(input.albedo);
         f.normal.copy_from_slice(input.normal);
         // SAFETY: a committed filter of this device whose images are `f`'s buffers, alive and
         // not moved since they were set (they are never resized).
         unsafe { (self.api.execute_filter)(f.beauty) };
         self.check("denoising the frame")?;
-        Ok(self
-            .filters
-            .as_ref()
-            .expect("filters made above")
-            .output
-            .clone())
+        let output = &self.filters.as_ref().expect("filters made above").output;
+        Ok(if scale == 1.0 {
+            output.clone()
+        } else {
+            output.iter().map(|&v| v / scale).collect()
+        })
     }
 
     /// The filter of a `w` x `h` frame over buffers of its own.
@@ -425,6 +432,21 @@ impl Denoiser {
             unsafe { (self.api.release_filter)(f.beauty) };
         }
     }
+}
+
+/// The power of two that a frame's colour `color` is multiplied by before it is denoised (and
+/// the result divided by after), so that its mean is near 1; 1 where the mean is within
+/// `2^-10..2^16` already, or zero. OIDN's auto-exposure (HDR mode) scales a frame by its
+/// log-average luminance over the pixels brighter than 1e-8 and filters in half precision: a
+/// frame whose pixels are all dimmer than that (a scene lit at 1e-6) came out zero everywhere,
+/// without an error. A power of two scales exactly, both ways, short of the float range's ends.
+fn level_scale(color: &[f32]) -> f32 {
+    let mean = color.iter().map(|&v| v.max(0.0) as f64).sum::<f64>() / color.len().max(1) as f64;
+    if mean <= 0.0 || (2f64.powi(-10)..=2f64.powi(16)).contains(&mean) {
+        return 1.0;
+    }
+    // Within f32's normal range both ways (a mean of 1e-38 is scaled by 2^126 at most).
+    2f32.powi((-mean.log2().round() as i32).clamp(-126, 126))
 }
 
 /// The filters of one frame size and the buffers they read and write.
