@@ -1367,8 +1367,15 @@ fn role(c: &str) -> Option<char> {
 ///   TGA, BMP, 8- and 16-bit TIFF and PNG: the encoding of such colour files unless they say
 ///   otherwise, as other renderers read them) and linear where it stores floats (EXR, HDR,
 ///   float TIFF), 32-bit or signed integers (data, not colour codes; they were decoded as sRGB
-///   and read up to 20 times too dark) or is an EXR.
+///   and read up to 20 times too dark) or is an EXR;
+/// - a Radiance picture (`hdr`) is linear whatever it names: its pixels are radiance by the
+///   format's definition, and a `GAMMA=` line in its header (no variable of the format), which
+///   OIIO names `Gamma2.2`, put a sky of 4 through the sRGB curve to 25.3 (pbrt-v4 and Mitsuba 3
+///   read such files as linear).
 pub fn srgb_encoded(space: Option<&str>, codes: bool, format: &str) -> bool {
+    if format.eq_ignore_ascii_case("hdr") {
+        return false;
+    }
     let s = space.unwrap_or("").trim().to_ascii_lowercase();
     if log_encoding(&s) {
         return false;
@@ -2404,6 +2411,15 @@ mod tests {
         }
         assert!(!srgb_encoded(None, false, "tiff"));
         assert!(!srgb_encoded(None, false, "hdr"));
+        for space in [
+            "Gamma2.2",
+            "GammaCorrected2.2",
+            "Gamma0.45",
+            "Gamma0",
+            "sRGB",
+        ] {
+            assert!(!srgb_encoded(Some(space), false, "hdr"), "{space}");
+        }
         assert!(!srgb_encoded(None, true, "openexr"));
         // A sRGB float file (rare, but named) is decoded as it says.
         assert!(srgb_encoded(Some("sRGB"), false, "tiff"));
@@ -2442,6 +2458,32 @@ mod tests {
             "{e}"
         );
         assert!(read_linear_rgb(&path, 70, 0).is_ok());
+    }
+
+    #[test]
+    fn a_radiance_picture_is_linear_whatever_gamma_its_header_names() {
+        // 4 x 2 pixels of radiance 4 (RGBE 128 128 128 131: 0.5 * 2^3), flat (too narrow for
+        // run-length rows), with and without a `GAMMA=` line.
+        let d = tempfile::tempdir().unwrap();
+        for (i, extra) in ["", "GAMMA=2.2\n", "GAMMA=0.4545\n", "GAMMA=0\n"]
+            .iter()
+            .enumerate()
+        {
+            let p = d.path().join(format!("s{i}.hdr"));
+            let mut bytes =
+                format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n{extra}\n-Y 2 +X 4\n").into_bytes();
+            for _ in 0..8 {
+                bytes.extend([128u8, 128, 128, 131]);
+            }
+            std::fs::write(&p, bytes).unwrap();
+            let (img, layout) = read_colour(&p, 1 << 20, 0).unwrap();
+            assert!(!layout.srgb, "{extra:?}");
+            assert!(
+                img.data.iter().all(|&v| v == 4.0),
+                "{extra:?}: {:?}",
+                img.data
+            );
+        }
     }
 
     #[test]
