@@ -218,6 +218,12 @@ fn a_refusal_names_what_the_holder_writes() {
         o.status.code() == Some(1) && err.contains(&format!("is writing {held} ")),
         "{err}"
     );
+    // And why another pattern's lock is this one's, and what to do about it.
+    assert!(
+        err.contains("lock have this one's names ('f':")
+            && err.contains("give this command an --out of another name"),
+        "{err}"
+    );
 }
 
 /// Two renders whose frame files share a name are refused whatever their patterns

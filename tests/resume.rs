@@ -700,6 +700,11 @@ fn a_chunk_never_replaces_another_renders_partial() {
             err.contains("partial file of another render, of --out") && err.contains("f_####.exr"),
             "{err}"
         );
+        assert!(
+            err.contains("have this one's names ('f':")
+                && err.contains("give this render an --out of another name"),
+            "{err}"
+        );
         assert!(std::fs::read(&partial).unwrap() == before);
     }
     // Of the same settings but another --out, it is still another sequence's.

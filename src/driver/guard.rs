@@ -61,16 +61,29 @@ impl OutputLock {
                 let _ = (&mut f).take(4096).read_to_string(&mut held);
                 let (pid, its) = held.split_once('\n').unwrap_or((&held, ""));
                 let (pid, its) = (pid.trim(), its.trim());
+                // The holder's pattern is its second line (a frames line may follow).
+                let its_out = its.lines().next().unwrap_or("");
+                let other = !its_out.is_empty() && its_out != what;
                 bail!(
-                    "another reframe{} is writing {} (its lock is {}): wait for it to finish, or \
-                     stop it",
+                    "another reframe{} is writing {} (its lock is {}{}): wait for it to finish, \
+                     or stop it{}",
                     if pid.is_empty() {
                         String::new()
                     } else {
                         format!(" (pid {pid})")
                     },
                     if its.is_empty() { what } else { its },
-                    path.display()
+                    path.display(),
+                    if other {
+                        format!(", {}", crate::state::key::shared_names(its_out, what))
+                    } else {
+                        String::new()
+                    },
+                    if other {
+                        ", or give this command an --out of another name"
+                    } else {
+                        ""
+                    }
                 );
             }
             // A holder that finished removes the file after this process opened it: then this

@@ -650,10 +650,11 @@ fn check_partial_is_ours(partial: &Path, template: &Trailer) -> Result<()> {
         return Ok(());
     }
     bail!(
-        "{} is the partial file of another render, of --out {}: remove it to render this \
-         chunk, or give this render another --out",
+        "{} is the partial file of another render, of --out {}, {}: remove it to render this \
+         chunk, or give this render an --out of another name",
         partial.display(),
-        theirs.out
+        theirs.out,
+        crate::state::key::shared_names(&theirs.out, &template.out)
     )
 }
 

@@ -225,6 +225,21 @@ pub fn output_stem(pattern: &str) -> (PathBuf, String) {
     )
 }
 
+/// Why output patterns `theirs` and `ours` share a checkpoint, partial files and a lock, in
+/// words for a refusal: they are named by `output_stem`, which the two patterns share.
+pub fn shared_names(theirs: &str, ours: &str) -> String {
+    let (_, stem) = output_stem(ours);
+    let (_, other) = output_stem(theirs);
+    if stem == other {
+        format!(
+            "whose checkpoint, partial files and lock have this one's names ('{stem}': a --out's \
+             name less its frame number, the separators around it and its extension)"
+        )
+    } else {
+        format!("whose state names are '{other}', this one's '{stem}'")
+    }
+}
+
 /// The default checkpoint folder of a render writing `pattern` (see the module note).
 pub fn default_checkpoint_dir(pattern: &str, chunk: Option<Chunk>) -> PathBuf {
     let (dir, stem) = output_stem(pattern);
