@@ -273,6 +273,23 @@ impl OutputPattern {
         let target = self.path(0);
         ffi::check_output_format(path_bytes(&target))
             .map_err(|e| anyhow!("cannot write {}: {}", self.original, e.what()))?;
+        // Netpbm's grey and bitmap names: OpenImageIO writes a colour frame into them as a
+        // colour file (P6), which a reader that goes by the name takes for something else.
+        let ext = target
+            .extension()
+            .map_or(String::new(), |e| e.to_string_lossy().to_ascii_lowercase());
+        if matches!(ext.as_str(), "pgm" | "pbm") {
+            bail!(
+                "cannot write {}: a .{ext} file holds {} only, and frames are in colour (write \
+                 .ppm, or .png)",
+                self.original,
+                if ext == "pgm" {
+                    "grey"
+                } else {
+                    "black and white"
+                }
+            );
+        }
         // A frame is written as `.NAME.tmp-PID-N.EXT` first (`write_image`), which must fit
         // the 255 bytes a file name may have on Linux's file systems, or the first frame fails
         // after its rendering (with an empty checkpoint folder left behind).
