@@ -49,14 +49,11 @@ fn render_to(scene: &Scene, dir: &Path, name: &str, opts: RenderOptions) -> Imag
     read_image(&dir.join(format!("{name}_{f:04}.exr"))).unwrap()
 }
 
-#[test]
-fn denoising_the_furnace_brings_it_nearer_one_and_keeps_its_mean() {
-    let device = Device::new().unwrap();
-    let scene = Scene::load("furnace", &device).unwrap();
-    let d = tempfile::tempdir().unwrap();
-    let img = render_to(
-        &scene,
-        d.path(),
+/// Frame 1 of `scene` at 2 spp, denoised, with its raw radiance and guides as layers.
+fn denoised_frame_1(scene: &Scene, dir: &Path) -> Image {
+    render_to(
+        scene,
+        dir,
         "f",
         RenderOptions {
             spp: 2,
@@ -64,7 +61,15 @@ fn denoising_the_furnace_brings_it_nearer_one_and_keeps_its_mean() {
             denoise: Some(Layers::RawAndGuides),
             ..RenderOptions::default()
         },
-    );
+    )
+}
+
+#[test]
+fn denoising_the_furnace_brings_it_nearer_one_and_keeps_its_mean() {
+    let device = Device::new().unwrap();
+    let scene = Scene::load("furnace", &device).unwrap();
+    let d = tempfile::tempdir().unwrap();
+    let img = denoised_frame_1(&scene, d.path());
     let (den, raw) = (rgb(&img, ""), rgb(&img, "raw."));
     let rms = |v: &[f32]| {
         (v.iter().map(|x| (x - 1.0).powi(2) as f64).sum::<f64>() / v.len() as f64).sqrt()
@@ -122,17 +127,7 @@ fn a_frame_is_denoised_alike_at_any_level_of_light() {
         )
         .unwrap();
         let scene = Scene::load(dir.join("furnace.toml").to_str().unwrap(), &device).unwrap();
-        let img = render_to(
-            &scene,
-            &dir,
-            "f",
-            RenderOptions {
-                spp: 2,
-                frames: Some(1..=1),
-                denoise: Some(Layers::RawAndGuides),
-                ..RenderOptions::default()
-            },
-        );
+        let img = denoised_frame_1(&scene, &dir);
         let mean = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64;
         let (den, raw) = (rgb(&img, ""), rgb(&img, "raw."));
         eprintln!(
