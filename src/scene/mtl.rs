@@ -69,6 +69,10 @@ const DEFINED_AGAIN: Kind = Kind {
     one: "a material defined twice in one MTL, differently: the first definition is used",
     many: "materials defined twice in one MTL, differently: the first definitions are used",
 };
+const STATED_AGAIN: Kind = Kind {
+    one: "a colour (Kd, Ks or Ke) given twice in one material, differently: the last is used",
+    many: "colours (Kd, Ks or Ke) given twice in one material, differently: the last ones are used",
+};
 const TRANSPARENCY: Kind = Kind {
     one: "transparency (Tr) not rendered: the surface is opaque (map_d cut-outs are rendered)",
     many: "materials with transparency (Tr) rendered opaque (map_d cut-outs are rendered)",
@@ -477,6 +481,20 @@ pub fn parse_for(
             "Ks" => &mut m.ks,
             _ => &mut m.ke,
         };
+        // A colour given again in one material, otherwise: the last is used, as tinyobjloader
+        // and Blender's importer use it, and said (a `Kd` written twice by a hand edit darkened
+        // a floor to a third without a word).
+        if let Some((was, line)) = *slot {
+            if was != c {
+                let name = &m.name;
+                notes.note(label, n, STATED_AGAIN, || {
+                    format!(
+                        "'{}' in '{name}', after '{key}' at line {line}",
+                        quote(text)
+                    )
+                })?;
+            }
+        }
         *slot = Some((c, n));
     }
     drop_repeats(label, &mut out, repairs, used)?;
