@@ -328,20 +328,32 @@ pub struct BenchArgs {
     pub strict: bool,
 }
 
+/// `t` as a u32 of a flag's value `s`; an error that says `expected` where it is no number, and
+/// that the `what` is too large where it is digits past u32 (it said only `expected`).
+fn whole_number(s: &str, t: &str, what: &str, expected: &str) -> Result<u32, String> {
+    let t = t.trim();
+    t.parse().map_err(|_| {
+        let digits = t.strip_prefix('+').unwrap_or(t);
+        if !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()) {
+            format!("'{s}': {what} {t} is past the largest, {}", u32::MAX)
+        } else {
+            format!("'{s}': {expected}")
+        }
+    })
+}
+
 pub fn parse_frames(s: &str) -> Result<(u32, u32), String> {
-    let err = || format!("'{s}': expected A-B or A (0-based frame numbers)");
+    let expected = "expected A-B or A (0-based frame numbers)";
+    let frame = |t: &str| whole_number(s, t, "frame", expected);
     if s.trim_start().starts_with('-') {
         return Err(format!(
             "'{s}': frames are numbered from 0, never below (the first frame is 0)"
         ));
     }
     let (a, b) = match s.split_once('-') {
-        Some((a, b)) => (
-            a.trim().parse().map_err(|_| err())?,
-            b.trim().parse().map_err(|_| err())?,
-        ),
+        Some((a, b)) => (frame(a)?, frame(b)?),
         None => {
-            let a = s.trim().parse().map_err(|_| err())?;
+            let a = frame(s)?;
             (a, a)
         }
     };
@@ -352,11 +364,13 @@ pub fn parse_frames(s: &str) -> Result<(u32, u32), String> {
 }
 
 pub fn parse_res(s: &str) -> Result<(u32, u32), String> {
-    let err = || format!("'{s}': expected WxH, e.g. 320x240");
-    let (w, h) = s.split_once(['x', 'X']).ok_or_else(err)?;
-    let (w, h): (u32, u32) = (
-        w.trim().parse().map_err(|_| err())?,
-        h.trim().parse().map_err(|_| err())?,
+    let expected = "expected WxH, e.g. 320x240";
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("'{s}': {expected}"))?;
+    let (w, h) = (
+        whole_number(s, w, "width", expected)?,
+        whole_number(s, h, "height", expected)?,
     );
     match reframe::driver::options::resolution_problem((w, h)) {
         Some(why) => Err(format!("'{s}': {why}")),
