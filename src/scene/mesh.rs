@@ -183,8 +183,116 @@ fn is_convex(flat: &[f64]) -> bool {
     (turned.abs() - std::f64::consts::TAU).abs() < 1e-6
 }
 
+/// The most corners of a face that ear clipping splits; a larger face that is not convex is split
+/// by a constrained Delaunay triangulation (`constrained_delaunay`). Ear clipping finds few ears
+/// on a thin spiral strip and scans the whole outline for each: earcut's time grew about as
+/// n^2.6 (a simple spiral face of 65,000 corners took 47 s to load, four of them passed a
+/// minute), where the triangulation takes about n log n.
+const EARCUT_MOST: usize = 1024;
+
+/// What `constrained_delaunay` made of a polygon.
+enum Cdt {
+    /// Its triangles, as corner indices, three by three.
+    Triangles(Vec<usize>),
+    /// Edges that meet other than at their ends (overlapping on one line, or crossing where
+    /// `winds_over_itself` gave up), or coordinates the triangulation does not take: left to
+    /// ear clipping, as every polygon was.
+    Unsuited,
+}
+
+/// The triangles of the simple 2D polygon `flat` (x, y pairs): the constrained Delaunay
+/// triangulation of its corners with its edges as constraints covers their convex hull, and
+/// its triangles inside the polygon are those reached from the outside across an odd number of
+/// the polygon's edges. Corners on one point are one vertex (a hole bridged to the outline
+/// walks two corners twice), and an edge walked there and back (the bridge) is crossed twice.
+fn constrained_delaunay(flat: &[f64]) -> Cdt {
+    use spade::{ConstrainedDelaunayTriangulation, Point2, Triangulation};
+    let n = flat.len() / 2;
+    // Each corner's vertex, and each vertex's first corner (the triangulation keeps the first
+    // of the points given twice, in order).
+    let mut first = std::collections::HashMap::with_capacity(n);
+    let mut corners = Vec::with_capacity(n);
+    let vertex: Vec<usize> = flat
+        .chunks_exact(2)
+        .enumerate()
+        .map(|(i, q)| {
+            *first
+                .entry([q[0].to_bits(), q[1].to_bits()])
+                .or_insert_with(|| {
+                    corners.push(i);
+                    corners.len() - 1
+                })
+        })
+        .collect();
+    let points: Vec<Point2<f64>> = corners
+        .iter()
+        .map(|&i| Point2::new(flat[2 * i], flat[2 * i + 1]))
+        .collect();
+    // The polygon's edges between vertices, and how often each is walked either way.
+    let mut walked: std::collections::HashMap<[usize; 2], u32> = Default::default();
+    let mut edges = Vec::with_capacity(n);
+    for i in 0..n {
+        let (a, b) = (vertex[i], vertex[(i + 1) % n]);
+        if a == b {
+            continue;
+        }
+        let key = [a.min(b), a.max(b)];
+        let count = walked.entry(key).or_insert(0);
+        if *count == 0 {
+            edges.push(key);
+        }
+        *count += 1;
+    }
+    let mut crossed = false;
+    let Ok(cdt) =
+        ConstrainedDelaunayTriangulation::<Point2<f64>>::try_bulk_load_cdt(points, edges, |_| {
+            crossed = true
+        })
+    else {
+        return Cdt::Unsuited;
+    };
+    if crossed || cdt.num_vertices() != corners.len() {
+        return Cdt::Unsuited;
+    }
+    // The faces on either side of each edge, and whether crossing it goes in or out: one of
+    // the polygon's edges walked an odd number of times.
+    let faces = cdt.num_all_faces();
+    let mut next: Vec<Vec<(usize, bool)>> = vec![Vec::new(); faces];
+    for e in cdt.undirected_edges() {
+        let d = e.as_directed();
+        let (a, b) = (d.face().fix().index(), d.rev().face().fix().index());
+        let [u, v] = e.vertices().map(|v| v.fix().index());
+        let wall = e.is_constraint_edge()
+            && walked
+                .get(&[u.min(v), u.max(v)])
+                .is_some_and(|c| c % 2 == 1);
+        next[a].push((b, wall));
+        next[b].push((a, wall));
+    }
+    let mut inside: Vec<Option<bool>> = vec![None; faces];
+    let outer = cdt.outer_face().fix().index();
+    inside[outer] = Some(false);
+    let mut todo = vec![outer];
+    while let Some(f) = todo.pop() {
+        let here = inside[f].expect("set before it was queued");
+        for &(g, wall) in &next[f] {
+            if inside[g].is_none() {
+                inside[g] = Some(here != wall);
+                todo.push(g);
+            }
+        }
+    }
+    Cdt::Triangles(
+        cdt.inner_faces()
+            .filter(|f| inside[f.fix().index()] == Some(true))
+            .flat_map(|f| f.vertices().map(|v| corners[v.fix().index()]))
+            .collect(),
+    )
+}
+
 /// The triangles of a polygon, as indices into `p` (its corners in order): a fan from the
-/// first corner where the polygon is convex, ear clipping where not.
+/// first corner where the polygon is convex, ear clipping where not (a constrained Delaunay
+/// triangulation past `EARCUT_MOST` corners).
 pub fn triangulate(p: &[Vec3]) -> Option<Vec<[usize; 3]>> {
     if p.len() == 3 {
         return Some(vec![[0, 1, 2]]);
@@ -223,7 +331,10 @@ pub fn triangulate(p: &[Vec3]) -> Option<Vec<[usize; 3]>> {
     if winds_over_itself(&flat) {
         return None;
     }
-    let idx = earcutr::earcut(&flat, &[], 2).ok()?;
+    let idx = match (p.len() > EARCUT_MOST).then(|| constrained_delaunay(&flat)) {
+        Some(Cdt::Triangles(t)) => t,
+        Some(Cdt::Unsuited) | None => earcutr::earcut(&flat, &[], 2).ok()?,
+    };
     if idx.is_empty() {
         return None;
     }
@@ -658,6 +769,80 @@ mod tests {
         let l = [(0., 0.), (2., 0.), (2., 1.), (1., 1.), (1., 2.), (0., 2.)]
             .map(|(x, y)| Vec3::new(x, y, 0.0));
         assert!((area(&l, &triangulate(&l).unwrap()) - 3.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_large_simple_spiral_is_split_whole_and_at_once() {
+        // A thin strip wound as a spiral, out along one edge and back along the other: simple,
+        // and nearly without ears, where ear clipping took 47 s at 65,000 corners. 20,000
+        // corners: n - 2 triangles, the polygon's area, each wound like the polygon.
+        let m = 10_000;
+        let arm = |dr: f32| -> Vec<Vec3> {
+            (0..m)
+                .map(|i| {
+                    let a = i as f32 * 0.05;
+                    let r = 0.01 + a * 0.002 + dr;
+                    Vec3::new(r * a.cos(), 0.0, r * a.sin())
+                })
+                .collect()
+        };
+        let p: Vec<Vec3> = arm(0.0)
+            .into_iter()
+            .chain(arm(8e-4).into_iter().rev())
+            .collect();
+        let start = std::time::Instant::now();
+        let t = triangulate(&p).unwrap();
+        assert!(start.elapsed().as_secs_f32() < 30.0, "a hang guard");
+        assert_eq!(t.len(), p.len() - 2);
+        let d: Vec<glam::DVec3> = p.iter().map(|v| v.as_dvec3()).collect();
+        let shoelace: f64 = (0..d.len())
+            .map(|k| {
+                let (a, b) = (d[k], d[(k + 1) % d.len()]);
+                0.5 * (a.z * b.x - b.z * a.x)
+            })
+            .sum();
+        // Wound so that the normal is +y (or -y): every triangle alike, their areas adding up.
+        let signed: Vec<f64> = t
+            .iter()
+            .map(|t| 0.5 * (d[t[1]] - d[t[0]]).cross(d[t[2]] - d[t[0]]).y)
+            .collect();
+        assert!(signed.iter().all(|&a| a * shoelace >= 0.0));
+        let total: f64 = signed.iter().sum();
+        assert!(
+            (total - shoelace).abs() < 1e-6 * shoelace.abs(),
+            "{total} against {shoelace}"
+        );
+        // A 1500-gon with a 600-gon hole bridged to it at their first corners (two corners on
+        // one point each, the bridge walked there and back): the ring's area, the hole left.
+        let circle = |n: usize, r: f64, turn: f64| -> Vec<Vec3> {
+            (0..n)
+                .map(|k| {
+                    let a = turn * k as f64 * std::f64::consts::TAU / n as f64;
+                    Vec3::new((r * a.cos()) as f32, 0.0, (r * a.sin()) as f32)
+                })
+                .collect()
+        };
+        let (outer, hole) = (circle(1500, 20.0, 1.0), circle(600, 10.0, -1.0));
+        let bridged: Vec<Vec3> = outer
+            .iter()
+            .chain(&outer[..1])
+            .chain(&hole)
+            .chain(&hole[..1])
+            .copied()
+            .collect();
+        let t = triangulate(&bridged).unwrap();
+        // (Split by the triangulation, not left to ear clipping.)
+        let flat: Vec<f64> = bridged
+            .iter()
+            .flat_map(|q| [q.z as f64, q.x as f64])
+            .collect();
+        assert!(matches!(constrained_delaunay(&flat), Cdt::Triangles(_)));
+        let ring = area(
+            &outer,
+            &(1..1499).map(|i| [0, i, i + 1]).collect::<Vec<_>>(),
+        ) - area(&hole, &(1..599).map(|i| [0, i, i + 1]).collect::<Vec<_>>());
+        let got = area(&bridged, &t);
+        assert!((got - ring).abs() < 1e-4 * ring, "{got} against {ring}");
     }
 
     #[test]

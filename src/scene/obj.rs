@@ -22,8 +22,10 @@ use super::text::{
 use anyhow::{anyhow, Result};
 use glam::{DVec3, Vec2, Vec3};
 
-/// Most corners of one face: ear clipping takes about 1 s for 50,000 corners and grows faster
-/// than linearly (9 s at 200,000), so a single hostile face could stall loading for minutes.
+/// Most corners of one face: no modelling package writes more, and a face's split
+/// (`mesh::triangulate`) and checks grow faster than linearly with its corners (ear clipping
+/// took 9 s for a circle of 200,000 corners; large faces are now split by a constrained
+/// Delaunay triangulation, about n log n).
 pub const MAX_CORNERS: usize = 65_536;
 
 pub const BAD_NORMAL: Kind = Kind {
