@@ -2840,6 +2840,16 @@ fn load_obj_files(
                             format!("'mtllib {}': found '{}'", quote(&shown), path.display())
                         })?;
                     }
+                    // An OBJ that names itself (an exporter's or a hand's slip) was read as
+                    // its own MTL: every line an unknown statement, and its materials missing.
+                    let canonical = |p: &Path| p.canonicalize().ok();
+                    if canonical(&path).is_some() && canonical(&path) == canonical(Path::new(label))
+                    {
+                        bail!(
+                            "{at}: that is this OBJ itself; mtllib names the MTL file that holds \
+                             its materials (newmtl, Kd, ...)"
+                        );
+                    }
                     // The same file named twice is read once.
                     if !read.insert(path.clone()) {
                         continue;
