@@ -155,8 +155,18 @@ fn outputs_and_locks_never_replace_or_write_through_what_is_not_theirs() {
     std::fs::create_dir(d.join("o")).unwrap();
     let lock = d.join("o/.f.lock");
     std::os::unix::fs::symlink(&victim, &lock).unwrap();
-    refused(&render(&["--out", out]), "is a symbolic link");
+    refused(
+        &render(&["--out", out]),
+        "is a symbolic link, not a lock file: remove it",
+    );
     std::fs::remove_file(&lock).unwrap();
+    // A folder in the lock's place: said to be in the way (not explained as a frame's rename).
+    std::fs::create_dir(&lock).unwrap();
+    refused(
+        &render(&["--out", out]),
+        "is a directory, not a lock file: remove it",
+    );
+    std::fs::remove_dir(&lock).unwrap();
     std::fs::hard_link(&victim, &lock).unwrap();
     refused(&render(&["--out", out]), "(a hard link)");
     std::fs::remove_file(&lock).unwrap();

@@ -437,6 +437,23 @@ pub fn check_outputs<'a>(
     let mut seen: HashMap<PathBuf, (&str, PathBuf)> = HashMap::new();
     let mut resolver = Resolver::default();
     for (flag, out) in outputs {
+        // A lock is a file of reframe's own, opened, not renamed into place: what is in its
+        // way is to go (the frames' explanation of a rename misled there).
+        if flag.starts_with("the lock") {
+            let kind = std::fs::symlink_metadata(&out).ok().map(|m| m.file_type());
+            if let Some(t) = kind.filter(|t| !t.is_file()) {
+                let what = if t.is_symlink() {
+                    "a symbolic link"
+                } else {
+                    crate::util::input::kind(t)
+                };
+                bail!(
+                    "{flag} {} is {what}, not a lock file: remove it (reframe makes its lock \
+                     files, and removes them when the command ends); nothing was written",
+                    out.display()
+                );
+            }
+        }
         crate::util::fs::check_replaceable(&out)
             .map_err(|e| anyhow!("{flag} {e}; nothing was written"))?;
         // A report (--stats, bench's --json) is never written over a run's state, nor over a
