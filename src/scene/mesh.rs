@@ -771,6 +771,36 @@ mod tests {
         assert!((area(&l, &triangulate(&l).unwrap()) - 3.0).abs() < 1e-6);
     }
 
+    /// An `n`-gon of radius 20 with an `m`-gon hole of radius 10, wound the other way, bridged
+    /// to it at their first corners (two corners on one point each, the bridge walked there and
+    /// back), in the plane y = 0; and the ring's area.
+    fn bridged_ring(n: usize, m: usize) -> (Vec<Vec3>, f32) {
+        let circle = |n: usize, r: f32, turn: f32| -> Vec<Vec3> {
+            (0..n)
+                .map(|k| {
+                    let a = turn * k as f32 * std::f32::consts::TAU / n as f32;
+                    Vec3::new(r * a.cos(), 0.0, r * a.sin())
+                })
+                .collect()
+        };
+        let (outer, hole) = (circle(n, 20.0, 1.0), circle(m, 10.0, -1.0));
+        let fan = |p: &[Vec3]| {
+            area(
+                p,
+                &(1..p.len() - 1).map(|i| [0, i, i + 1]).collect::<Vec<_>>(),
+            )
+        };
+        let ring = fan(&outer) - fan(&hole);
+        let bridged = outer
+            .iter()
+            .chain(&outer[..1])
+            .chain(&hole)
+            .chain(&hole[..1])
+            .copied()
+            .collect();
+        (bridged, ring)
+    }
+
     #[test]
     fn a_large_simple_spiral_is_split_whole_and_at_once() {
         // A thin strip wound as a spiral, out along one edge and back along the other: simple,
@@ -814,22 +844,7 @@ mod tests {
         );
         // A 1500-gon with a 600-gon hole bridged to it at their first corners (two corners on
         // one point each, the bridge walked there and back): the ring's area, the hole left.
-        let circle = |n: usize, r: f64, turn: f64| -> Vec<Vec3> {
-            (0..n)
-                .map(|k| {
-                    let a = turn * k as f64 * std::f64::consts::TAU / n as f64;
-                    Vec3::new((r * a.cos()) as f32, 0.0, (r * a.sin()) as f32)
-                })
-                .collect()
-        };
-        let (outer, hole) = (circle(1500, 20.0, 1.0), circle(600, 10.0, -1.0));
-        let bridged: Vec<Vec3> = outer
-            .iter()
-            .chain(&outer[..1])
-            .chain(&hole)
-            .chain(&hole[..1])
-            .copied()
-            .collect();
+        let (bridged, ring) = bridged_ring(1500, 600);
         let t = triangulate(&bridged).unwrap();
         // (Split by the triangulation, not left to ear clipping.)
         let flat: Vec<f64> = bridged
@@ -837,10 +852,6 @@ mod tests {
             .flat_map(|q| [q.z as f64, q.x as f64])
             .collect();
         assert!(matches!(constrained_delaunay(&flat), Cdt::Triangles(_)));
-        let ring = area(
-            &outer,
-            &(1..1499).map(|i| [0, i, i + 1]).collect::<Vec<_>>(),
-        ) - area(&hole, &(1..599).map(|i| [0, i, i + 1]).collect::<Vec<_>>());
         let got = area(&bridged, &t);
         assert!((got - ring).abs() < 1e-4 * ring, "{got} against {ring}");
     }
@@ -881,24 +892,8 @@ mod tests {
         };
         assert!((area(&comb, &t) - shoelace(&comb)).abs() < 1e-3 * shoelace(&comb));
         // A 40-gon with a 20-gon hole, bridged at their first corners.
-        let circle = |n: usize, r: f32, turn: f32| -> Vec<Vec3> {
-            (0..n)
-                .map(|k| {
-                    let a = turn * k as f32 * std::f32::consts::TAU / n as f32;
-                    Vec3::new(r * a.cos(), 0.0, r * a.sin())
-                })
-                .collect()
-        };
-        let (outer, hole) = (circle(40, 20.0, 1.0), circle(20, 10.0, -1.0));
-        let bridged: Vec<Vec3> = outer
-            .iter()
-            .chain(&outer[..1])
-            .chain(&hole)
-            .chain(&hole[..1])
-            .copied()
-            .collect();
+        let (bridged, want) = bridged_ring(40, 20);
         let t = triangulate(&bridged).unwrap();
-        let want = shoelace(&outer) - shoelace(&hole);
         assert!(
             (area(&bridged, &t) - want).abs() < 1e-4 * want,
             "{} {want}",
