@@ -990,6 +990,25 @@ fn pnm_maxval(path: &Path) -> Option<u64> {
     }
 }
 
+/// The scale a PFM file's header gives (its third field, after the width and height: its
+/// magnitude scales the values, as pbrt-v4 reads it, and its sign gives the byte order), as
+/// written; `None` where the header cannot be read.
+fn pfm_scale(path: &Path) -> Option<String> {
+    use std::io::Read;
+    let mut head = Vec::with_capacity(256);
+    crate::util::fs::open_regular(path)
+        .ok()?
+        .take(256)
+        .read_to_end(&mut head)
+        .ok()?;
+    let text = String::from_utf8_lossy(&head);
+    let mut fields = text.split_whitespace();
+    match fields.next()? {
+        "PF" | "Pf" => fields.nth(2).map(str::to_string),
+        _ => None,
+    }
+}
+
 /// `path` opened for reading, with its description; more than `max_pixels` pixels are refused
 /// before any is read.
 fn open_checked(
@@ -1033,6 +1052,21 @@ fn open_checked(
                  65535, the scale its codes are read on (with a maxval of 0, black codes \
                  were read as white)"
             );
+        }
+    }
+    if matches!(info.format_name.as_str(), "pnm" | "pfm") {
+        if let Some(scale) = pfm_scale(path) {
+            let ok = scale
+                .parse::<f64>()
+                .is_ok_and(|v| v.is_finite() && v != 0.0);
+            if !ok {
+                bail!(
+                    "a PFM file whose scale (its header's third number) is '{}': it must be a \
+                     finite number other than 0, its sign the byte order (a scale of 0 read \
+                     every pixel as black, one of nan as a NaN texel)",
+                    crate::util::text::printable(&scale)
+                );
+            }
         }
     }
     if info.stored_outside {
