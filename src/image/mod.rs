@@ -967,13 +967,7 @@ fn open_reader(path: &Path) -> Result<cxx::UniquePtr<ffi::ImageReader>> {
 /// field; P7, PAM: its `MAXVAL` line), where it has one that reads as a number; `None` for the
 /// bitmaps (P1, P4), which have none, and for a header that cannot be read (left to OpenImageIO).
 fn pnm_maxval(path: &Path) -> Option<u64> {
-    use std::io::Read;
-    let mut head = Vec::with_capacity(4096);
-    crate::util::fs::open_regular(path)
-        .ok()?
-        .take(4096)
-        .read_to_end(&mut head)
-        .ok()?;
+    let head = file_head(path, 4096)?;
     let text = String::from_utf8_lossy(&head);
     // Fields are separated by white space; `#` starts a comment to the end of its line.
     let mut fields = text
@@ -990,17 +984,24 @@ fn pnm_maxval(path: &Path) -> Option<u64> {
     }
 }
 
+/// The first `n` bytes of the regular file `path` (fewer where it is shorter), for a header
+/// that OpenImageIO does not report.
+fn file_head(path: &Path, n: u64) -> Option<Vec<u8>> {
+    use std::io::Read;
+    let mut head = Vec::with_capacity(n as usize);
+    crate::util::fs::open_regular(path)
+        .ok()?
+        .take(n)
+        .read_to_end(&mut head)
+        .ok()?;
+    Some(head)
+}
+
 /// The scale a PFM file's header gives (its third field, after the width and height: its
 /// magnitude scales the values, as pbrt-v4 reads it, and its sign gives the byte order), as
 /// written; `None` where the header cannot be read.
 fn pfm_scale(path: &Path) -> Option<String> {
-    use std::io::Read;
-    let mut head = Vec::with_capacity(256);
-    crate::util::fs::open_regular(path)
-        .ok()?
-        .take(256)
-        .read_to_end(&mut head)
-        .ok()?;
+    let head = file_head(path, 256)?;
     let text = String::from_utf8_lossy(&head);
     let mut fields = text.split_whitespace();
     match fields.next()? {
