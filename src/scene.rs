@@ -59,7 +59,7 @@ use crate::camera::{Camera, CameraPath, Cameras, Interpolation, Keyframe, Pose};
 use crate::embree::{Cutout, Cutouts, Device, Hit, MeshRef, Placement, Ray, TriangleScene};
 use crate::image::Textures;
 use crate::sampling::uniform_triangle;
-use crate::util::text::folded;
+use crate::util::text::{folded, plain_types};
 use anyhow::{anyhow, bail, Context, Result};
 use cutout::MeshCutout;
 use environment::Environment;
@@ -1696,9 +1696,25 @@ fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
         }
         // toml's own message spans several lines (a snippet of the file); keep it to one.
         let mut msg = short_floats(&e.message().trim().replace('\n', " "));
+        msg = plain_types(&msg, "a table");
         let Some(span) = e.span() else {
             return anyhow!("{label}: {msg}");
         };
+        // serde reads a TOML date or time as a map (its private form of one), and calls
+        // tables maps and arrays sequences: TOML's words.
+        let value = text.get(span.clone()).unwrap_or("").trim();
+        if value.parse::<toml::value::Datetime>().is_ok() {
+            msg = msg.replacen(
+                "invalid type: map",
+                &format!("invalid type: a date or time ({value})"),
+                1,
+            );
+        }
+        msg = msg
+            .replacen("invalid type: map", "invalid type: a table", 1)
+            .replacen("invalid type: sequence", "invalid type: an array", 1)
+            .replace("expected a map", "expected a table")
+            .replace("expected a sequence", "expected an array");
         let line = line_at(text.as_bytes(), span.start);
         let quoted = quote(text.lines().nth(line - 1).unwrap_or(""));
         // toml gives no words for a file that ends where a value should be (`frames =` as

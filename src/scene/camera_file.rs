@@ -18,6 +18,7 @@
 use super::repairs::{Kind, Repairs};
 use super::text::{fov_fault, line_at, past_max_coord, quote, Lines, MAX_COORD};
 use crate::camera::Pose;
+use crate::util::text::plain_types;
 use anyhow::{anyhow, bail, Result};
 use glam::DVec3;
 use serde::Deserialize;
@@ -397,13 +398,19 @@ struct JsonEntry<'a> {
     up: Option<Vec<Num<'a>>>,
 }
 
-/// serde_json's message without its " at line L column C" (the caller names the line).
+/// serde_json's message without its " at line L column C" (the caller names the line), in
+/// JSON's words (`plain_types`: no Rust type names).
 fn json_message(e: &serde_json::Error) -> String {
     let m = e.to_string();
-    match m.rfind(" at line ") {
-        Some(i) => m[..i].to_string(),
-        None => m,
-    }
+    let m = match m.rfind(" at line ") {
+        Some(i) => &m[..i],
+        None => &m,
+    };
+    plain_types(m, "an object")
+        .replacen("invalid type: map", "invalid type: an object", 1)
+        .replacen("invalid type: sequence", "invalid type: an array", 1)
+        .replace("expected a map", "expected an object")
+        .replace("expected a sequence", "expected an array")
 }
 
 /// A matrix's numbers, row-major: as given, or its four rows of four (`[[...], ...]`, as numpy's
@@ -535,6 +542,22 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
         let offset = raw.get().as_ptr() as usize - text.as_ptr() as usize;
         let line = lines.at(offset);
         let at = format!("line {line} (entry {})", i + 1);
+        // serde would read an array as the entry's fields in order (`[0, 45.0, [...]]` taken
+        // for frame, fov and matrix): an entry is an object.
+        if !raw.get().starts_with('{') {
+            let what = match raw.get().as_bytes()[0] {
+                b'[' => "an array",
+                b'"' => "a string",
+                b'n' => "null",
+                b't' | b'f' => "a boolean",
+                _ => "a number",
+            };
+            bail!(
+                "{label}: {at}: the entry is {what}: each entry is an object, {{\"frame\": 0, \
+                 \"fov\": 50.0, \"matrix\": [16 numbers]}} or with \"position\", \"look_at\" \
+                 and \"up\" in place of \"matrix\""
+            );
+        }
         let e: JsonEntry = serde_json::from_str(raw.get()).map_err(|e| {
             anyhow!(
                 "{label}: line {} (entry {}): {}",

@@ -54,6 +54,54 @@ pub fn message(s: &str) -> String {
     out
 }
 
+/// A serde message (from TOML or JSON input) in the words of the file's format, not Rust's:
+/// serde names the Rust type a value was read into (`invalid type: string "a", expected f64`,
+/// `expected struct JsonEntry with 6 elements`), which says nothing to someone who wrote the
+/// file. Numbers are "a number" or "a whole number", a struct is `record` (`"a table"` in TOML,
+/// `"an object"` in JSON).
+pub fn plain_types(msg: &str, record: &str) -> String {
+    const WHOLE: [&str; 10] = [
+        "u8", "u16", "u32", "u64", "usize", "i8", "i16", "i32", "i64", "isize",
+    ];
+    let mut out = String::with_capacity(msg.len());
+    let mut rest = msg;
+    while let Some(at) = rest.find("expected ") {
+        let (head, tail) = rest.split_at(at + "expected ".len());
+        out.push_str(head);
+        let word_end = tail
+            .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+            .unwrap_or(tail.len());
+        let word = &tail[..word_end];
+        rest = &tail[word_end..];
+        if word == "f32" || word == "f64" {
+            out.push_str("a number");
+        } else if WHOLE.contains(&word) {
+            out.push_str("a whole number");
+        } else if word == "struct" || word == "tuple" {
+            // `struct Name` or `tuple struct Name`, and ` with N elements` (a record read from
+            // an array: its fields in order).
+            let after = rest.trim_start_matches(" struct");
+            let name_end = after
+                .trim_start()
+                .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+                .map_or(after.len(), |e| {
+                    e + (after.len() - after.trim_start().len())
+                });
+            rest = &after[name_end..];
+            if let Some(r) = rest.strip_prefix(" with ") {
+                if let Some(e) = r.find(" elements") {
+                    rest = &r[e + " elements".len()..];
+                }
+            }
+            out.push_str(record);
+        } else {
+            out.push_str(word);
+        }
+    }
+    out.push_str(rest);
+    out
+}
+
 /// A file name as names are matched in another case: composed (Unicode NFC: an `Ö` written
 /// as one character and as `O` and its accent, as macOS stores names and archives made there
 /// keep them, are one name) and in lower case (any letter's, not only ASCII's: `Ölfass.png` is
@@ -65,7 +113,7 @@ pub fn folded(name: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{message, printable};
+    use super::{message, plain_types, printable};
 
     #[test]
     fn a_message_cuts_runs_past_1024_characters_and_nothing_else() {
@@ -96,6 +144,44 @@ mod tests {
         );
         // Control characters are escaped as `printable` does.
         assert_eq!(message("a\u{1b}[2Jb"), printable("a\u{1b}[2Jb"));
+    }
+
+    #[test]
+    fn serde_messages_name_no_rust_types() {
+        #[derive(serde::Deserialize, Debug)]
+        #[allow(dead_code)]
+        struct Entry {
+            frame: u32,
+            fov: f64,
+        }
+        let said = |r: Result<Entry, serde_json::Error>| {
+            plain_types(&r.unwrap_err().to_string(), "an object")
+        };
+        let m = said(serde_json::from_str(r#"{"frame": 0, "fov": "wide"}"#));
+        assert!(
+            m.starts_with(r#"invalid type: string "wide", expected a number"#),
+            "{m}"
+        );
+        let m = said(serde_json::from_str(r#"{"frame": -1, "fov": 1}"#));
+        assert!(m.contains("expected a whole number"), "{m}");
+        let m = said(serde_json::from_str("[1]"));
+        assert!(
+            m.starts_with("invalid length 1, expected an object at"),
+            "{m}"
+        );
+        let m = said(serde_json::from_str("7"));
+        assert!(
+            m.starts_with("invalid type: integer `7`, expected an object at"),
+            "{m}"
+        );
+        for m in [m, said(serde_json::from_str("[1]"))] {
+            for rust in ["Entry", "struct", "u32", "f64", "elements"] {
+                assert!(!m.contains(rust), "{m}");
+            }
+        }
+        // Other words after "expected" are kept.
+        assert_eq!(plain_types("expected a string", "x"), "expected a string");
+        assert_eq!(plain_types("expected f32s", "x"), "expected f32s");
     }
 
     #[test]
