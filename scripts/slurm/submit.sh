@@ -68,7 +68,10 @@ if [ -n "$only" ]; then
   array=$only
 fi
 mkdir -p "$logs"
-env=(--export="ALL,REFRAME=$reframe,REFRAME_CHUNKS=$n")
+# The binary's path and the chunk count reach the jobs through this environment, which
+# --export=ALL hands them whole: in the --export list itself a path with a comma was cut there.
+export REFRAME=$reframe REFRAME_CHUNKS=$n
+env=(--export=ALL)
 chunks=$(sbatch --parsable "${extra[@]}" "${env[@]}" --array="$array" \
   --output="$logs/chunk-%A_%a.log" "$here/chunk.sbatch" "$@")
 chunks=${chunks%%;*}
