@@ -2245,11 +2245,20 @@ fn load_objects(
     // The placements of each distinct OBJ, in order of first appearance (`first`: its group).
     let lines = Lines::new(text.as_bytes());
     let mut groups: Vec<(PathBuf, String, Vec<glam::DMat4>)> = Vec::new();
-    let mut first: HashMap<PathBuf, usize> = HashMap::new();
+    // An OBJ is one by its file (device and inode) where it can be read, so that one file
+    // under two names (`crate.obj` and `./crate.obj`, a link) is read once and instanced.
+    let mut first: HashMap<(u64, u64, PathBuf), usize> = HashMap::new();
+    let file = |path: &Path| {
+        use std::os::unix::fs::MetadataExt;
+        match std::fs::metadata(path) {
+            Ok(m) => (m.dev(), m.ino(), PathBuf::new()),
+            Err(_) => (0, 0, path.to_path_buf()),
+        }
+    };
     for o in list {
         let m = o.transform(label, &lines)?;
         let path = dir.join(o.obj.get_ref());
-        match first.get(&path) {
+        match first.get(&file(&path)) {
             Some(&g) => groups[g].2.push(m),
             None => {
                 let at = format!(
@@ -2257,7 +2266,7 @@ fn load_objects(
                     lines.at(o.obj.span().start),
                     quote_name(o.obj.get_ref())
                 );
-                first.insert(path.clone(), groups.len());
+                first.insert(file(&path), groups.len());
                 groups.push((path, at, vec![m]));
             }
         }

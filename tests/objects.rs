@@ -123,6 +123,44 @@ fn write(d: &Path, files: &[(&str, &str)]) -> String {
 }
 
 #[test]
+fn one_obj_under_several_names_is_read_once_and_instanced() {
+    // The cube as `cube.obj`, `./cube.obj`, `sub/../cube.obj`, a symbolic link and a hard
+    // link: one file, so one prototype with five instances (each name was an OBJ of its own,
+    // read again and copied into the scene's mesh).
+    let d = tempfile::tempdir().unwrap();
+    std::fs::create_dir(d.path().join("sub")).unwrap();
+    let mut objects = String::new();
+    for name in [
+        "cube.obj",
+        "./cube.obj",
+        "sub/../cube.obj",
+        "link.obj",
+        "hard.obj",
+    ] {
+        write!(objects, "[[object]]\nobj = \"{name}\"\n").unwrap();
+    }
+    let s = write(
+        d.path(),
+        &[
+            ("cube.obj", &obj(&[None], false)),
+            ("s.mtl", MTL),
+            ("s.toml", &toml(&objects)),
+        ],
+    );
+    std::os::unix::fs::symlink("cube.obj", d.path().join("link.obj")).unwrap();
+    std::fs::hard_link(d.path().join("cube.obj"), d.path().join("hard.obj")).unwrap();
+    let scene = Scene::load(&s, &Device::new().unwrap()).unwrap();
+    assert_eq!((scene.prototypes.len(), scene.instances.len()), (1, 5));
+    assert!(scene.triangles.is_empty());
+    // A copy of the file is another OBJ: the two are placed once each, in the scene's mesh.
+    std::fs::copy(d.path().join("cube.obj"), d.path().join("copy.obj")).unwrap();
+    let two = "[[object]]\nobj = \"cube.obj\"\n[[object]]\nobj = \"copy.obj\"\n";
+    let s = write(d.path(), &[("s.toml", &toml(two))]);
+    let scene = Scene::load(&s, &Device::new().unwrap()).unwrap();
+    assert_eq!((scene.prototypes.len(), scene.triangles.len()), (0, 24));
+}
+
+#[test]
 fn instances_render_like_the_same_geometry_flattened() {
     let place = placements();
     // Instanced: the cube placed three times (one of them mirrored), the floor once.

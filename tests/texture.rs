@@ -241,6 +241,32 @@ fn thirty_two_bit_and_signed_integer_tiffs_are_linear() {
 }
 
 #[test]
+fn one_file_under_several_names_is_one_texture() {
+    // A PNG as itself, `./`, `sub/../`, a symbolic link and a hard link: one texture, decoded
+    // once (each name was decoded and cached again: 200 hard links to one 2048 x 2048 PNG took
+    // over a minute to load). A copy of the file is another texture; the file as a mask is
+    // another texture of it.
+    let d = tempfile::tempdir().unwrap();
+    let path = d.path().join("t.png");
+    write_texture(&path, 4, |x, _| Vec3::splat(x as f32 / 3.0), false);
+    std::fs::create_dir(d.path().join("sub")).unwrap();
+    std::os::unix::fs::symlink("t.png", d.path().join("link.png")).unwrap();
+    std::fs::hard_link(&path, d.path().join("hard.png")).unwrap();
+    std::fs::copy(&path, d.path().join("copy.png")).unwrap();
+    let mut t = Textures::new().unwrap();
+    let id = t.open(&path).unwrap();
+    for name in ["./t.png", "sub/../t.png", "link.png", "hard.png"] {
+        assert_eq!(t.open(&d.path().join(name)).unwrap(), id, "{name}");
+    }
+    assert_eq!(t.len(), 1);
+    assert_ne!(t.open(&d.path().join("copy.png")).unwrap(), id);
+    let mask = t.open_mask(&d.path().join("hard.png"), None).unwrap();
+    assert_ne!(mask, id);
+    assert_eq!(t.open_mask(&path, None).unwrap(), mask);
+    assert_eq!(t.len(), 3);
+}
+
+#[test]
 fn textures_are_filtered_in_linear_values() {
     // A black and a white column of texels, as an 8-bit sRGB PNG and as a float EXR. Half way
     // between the two texel centres a lookup is their linear mean, 0.5, in both, as renderers

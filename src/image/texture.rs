@@ -104,12 +104,25 @@ fn check_texels(path: &Path, data: &[f32]) -> Result<u64> {
     Ok(data.iter().filter(|v| **v < 0.0).count() as u64)
 }
 
+/// The file a texture key names, as `Textures::by_file` keys it: its device and inode (after
+/// symbolic links) and the key's mask channel; `None` where it cannot be read.
+fn file_key(key: &(PathBuf, Option<Option<char>>)) -> Option<(u64, u64, Option<Option<char>>)> {
+    use std::os::unix::fs::MetadataExt;
+    let m = std::fs::metadata(&key.0).ok()?;
+    Some((m.dev(), m.ino(), key.1))
+}
+
 /// The textures of a scene and the texture system they are looked up through.
 pub struct Textures {
     set: cxx::UniquePtr<ffi::TextureSet>,
     info: Vec<Info>,
     /// The textures open, by path and, for a mask (`open_mask`), its `-imfchan`.
     by_path: HashMap<(PathBuf, Option<Option<char>>), TextureId>,
+    /// The same by the file itself (its device and inode): one file under other names (hard
+    /// links, symbolic links, `./a.png` and `sub/../a.png`) is decoded and cached once. Two
+    /// hundred hard links to one 2048 x 2048 PNG, each the map of a material, took over a
+    /// minute to load, every name decoded again.
+    by_file: HashMap<(u64, u64, Option<Option<char>>), TextureId>,
     /// Lookups the texture system failed (a file changed or vanished during the render); they
     /// return black.
     failures: AtomicU64,
@@ -124,6 +137,7 @@ impl Textures {
             set,
             info: Vec::new(),
             by_path: HashMap::new(),
+            by_file: HashMap::new(),
             failures: AtomicU64::new(0),
             cache_use: 0,
         })
@@ -143,7 +157,7 @@ impl Textures {
     /// texel that is negative or not finite.
     pub fn open(&mut self, path: &Path) -> Result<TextureId> {
         let key = (path.to_path_buf(), None);
-        if let Some(&id) = self.by_path.get(&key) {
+        if let Some(id) = self.known(&key) {
             return Ok(id);
         }
         // Decoded whole once, for the checks; the cache reads it again on demand.
@@ -193,7 +207,7 @@ impl Textures {
     /// not a colour). `value` looks it up. Refused as `open` refuses.
     pub fn open_mask(&mut self, path: &Path, imfchan: Option<char>) -> Result<TextureId> {
         let key = (path.to_path_buf(), Some(imfchan));
-        if let Some(&id) = self.by_path.get(&key) {
+        if let Some(id) = self.known(&key) {
             return Ok(id);
         }
         let (
@@ -234,6 +248,17 @@ impl Textures {
         Ok(id)
     }
 
+    /// The texture already open as `key`, under its path or another name of its file (which
+    /// is then remembered under this path too).
+    fn known(&mut self, key: &(PathBuf, Option<Option<char>>)) -> Option<TextureId> {
+        if let Some(&id) = self.by_path.get(key) {
+            return Some(id);
+        }
+        let id = *self.by_file.get(&file_key(key)?)?;
+        self.by_path.insert(key.clone(), id);
+        Some(id)
+    }
+
     /// Record texture `id` of the texture set, opened as `key` and read as `img` (what its
     /// identity hashes), fetched as `(channels, pick, srgb)`, with its file's images and layers
     /// of colour (`Info`); `colour_mask`: a mask that reads a colour image's first channel,
@@ -272,6 +297,9 @@ impl Textures {
             meaning,
         });
         let id = TextureId(id);
+        if let Some(file) = file_key(&key) {
+            self.by_file.insert(file, id);
+        }
         self.by_path.insert(key, id);
         id
     }
