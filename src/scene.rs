@@ -3355,6 +3355,47 @@ mod tests {
         );
     }
 
+    /// A lamp written as one face that goes round its outline twice or three times (`f 5 6 7
+    /// 8 5 6 7 8`) was split as a fan into its triangles two or three times over, each
+    /// emitting: the room was two or three times as bright. Its area is that of one round,
+    /// with a warning; a pentagram (round twice about its centre, but no triangle repeated)
+    /// is left to the fan as before.
+    #[test]
+    fn a_face_round_its_outline_twice_is_one_round() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("m.mtl"), "newmtl Lamp\nKe 1 1 1\n").unwrap();
+        let files = MtlSource::Dir(dir.path().to_path_buf());
+        let head = "mtllib m.mtl\nv 0 0 0\nv 2 0 0\nv 2 1 0\nv 0 1 0\nusemtl Lamp\n";
+        let area = |faces: &str| {
+            let mut r = Repairs::new(false);
+            let obj = format!("{head}{faces}");
+            let mesh = load_obj("a.obj", obj.as_bytes(), &files, &mut r).unwrap();
+            (mesh.tri_area.iter().sum::<f32>(), r.into_warnings())
+        };
+        let (once, w) = area("f 1 2 3 4\n");
+        assert_eq!((once, w.len()), (2.0, 0));
+        for faces in [
+            "f 1 2 3 4 1 2 3 4\n",
+            "f 1 2 3 4 1 2 3 4 1 2 3 4\n",
+            "f 2 3 4 1 2 3 4 1\n",
+        ] {
+            let (a, w) = area(faces);
+            assert_eq!(a, once, "{faces}");
+            assert!(
+                w.iter()
+                    .any(|w| w.contains("polygon that goes round its outline more than once")),
+                "{w:?}"
+            );
+        }
+        // Five points round a circle, joined every second one: a pentagram's fan.
+        let star = "mtllib m.mtl\nv 0 1 0\nv 0.951 0.309 0\nv 0.588 -0.809 0\n\
+                    v -0.588 -0.809 0\nv -0.951 0.309 0\nusemtl Lamp\nf 1 3 5 2 4\n";
+        let mut r = Repairs::new(false);
+        let mesh = load_obj("a.obj", star.as_bytes(), &files, &mut r).unwrap();
+        assert_eq!(mesh.triangles.len(), 3);
+        assert!(!r.into_warnings().iter().any(|w| w.contains("goes round")));
+    }
+
     #[test]
     fn a_zero_normal_flattens_only_its_triangles() {
         let obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nvn 0 0 0\n\

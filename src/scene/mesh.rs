@@ -35,6 +35,15 @@ const FANNED: Kind = Kind {
            split as fans",
 };
 
+/// A polygon's triangles on the same three points as another of its triangles, left out
+/// (`without_repeats`).
+const REPEATED_TRIANGLES: Kind = Kind {
+    one: "polygon that goes round its outline more than once (its triangles repeat) read once: \
+          on a lamp each round added the lamp's light again",
+    many: "polygons that go round their outlines more than once (their triangles repeat) read \
+           once: on a lamp each round added the lamp's light again",
+};
+
 /// Triangle soup with per-triangle materials, as loaded from OBJ/MTL and checked.
 pub struct Mesh {
     pub positions: Vec<Vec3>,
@@ -288,6 +297,19 @@ fn constrained_delaunay(flat: &[f64]) -> Cdt {
             .flat_map(|f| f.vertices().map(|v| corners[v.fix().index()]))
             .collect(),
     )
+}
+
+/// `tris` (indices into the polygon's corners `p`) without those on the same three points as
+/// an earlier one, in either winding: a face that goes round its outline twice, `f 5 6 7 8 5 6
+/// 7 8`, is split (as a fan) into each triangle twice, which on a lamp emitted twice.
+pub fn without_repeats(p: &[Vec3], tris: Vec<[usize; 3]>) -> Vec<[usize; 3]> {
+    let key = |t: &[usize; 3]| {
+        let mut k = t.map(|i| p[i].to_array().map(f32::to_bits));
+        k.sort_unstable();
+        k
+    };
+    let mut seen = std::collections::HashSet::with_capacity(tris.len());
+    tris.into_iter().filter(|t| seen.insert(key(t))).collect()
 }
 
 /// The triangles of a polygon, as indices into `p` (its corners in order): a fan from the
@@ -594,13 +616,22 @@ pub fn build(
         }
         pts.clear();
         pts.extend(ids.iter().map(|&i| mesh.positions[i as usize]));
-        let tris = match triangulate(&pts) {
+        let mut tris = match triangulate(&pts) {
             Some(t) => t,
             None => {
                 repairs.note(label, f.line, FANNED, || quote_line(bytes, f.line))?;
                 (1..pts.len() - 1).map(|k| [0, k, k + 1]).collect()
             }
         };
+        if pts.len() > 4 {
+            let n = tris.len();
+            tris = without_repeats(&pts, tris);
+            if tris.len() < n {
+                repairs.note(label, f.line, REPEATED_TRIANGLES, || {
+                    quote_line(bytes, f.line)
+                })?;
+            }
+        }
         let mat = material_of(f);
         for t in tris {
             let tri = t.map(|k| ids[k]);
