@@ -917,7 +917,7 @@ impl Scene {
                  smaller scale)"
             );
         }
-        let lights = Lights::new(&mesh, textures.as_deref());
+        let lights = Lights::new(&obj_label, &mesh, textures.as_deref())?;
         let env_emits = environment.as_ref().is_some_and(Environment::emits);
         if lights.tris.is_empty() && !env_emits {
             // A light lost with its material is the likely cause: say so on the same line.
@@ -1366,11 +1366,11 @@ impl Scene {
 
 impl Lights {
     /// The emitting triangles of `mesh` (none, if no material emits), those with an emission
-    /// map subdivided by it (`textures`).
-    fn new(mesh: &Mesh, textures: Option<&Textures>) -> Lights {
-        let mut tris = Vec::new();
-        // Per light: its parts' powers (one for a whole triangle) and its grid side (0: whole).
-        let mut parts: Vec<(Vec<f64>, u32)> = Vec::new();
+    /// map subdivided by it (`textures`). Its tables, a few hundred bytes a light triangle,
+    /// are taken fallibly: where they do not fit in the memory left, an error (an allocation
+    /// that fails aborts the process: 500 placements of a 20000-triangle lamp under a `ulimit
+    /// -v` of 4 GB did, with a backtrace).
+    fn new(label: &str, mesh: &Mesh, textures: Option<&Textures>) -> Result<Lights> {
         let sides = grid_sides(mesh, textures);
         // An emission map black in every texel makes its triangles emit nothing: not lights.
         let black: Vec<bool> = (0..mesh.materials.len())
@@ -1385,21 +1385,55 @@ impl Lights {
                 }
             })
             .collect();
-        let mut black_maps = 0;
+        // The lights, and their parts: a part for a whole triangle, `2 n^2` slots for one cut
+        // into an `n`-grid by its emission map (`LightGrid`).
+        let grid = |t: usize| match (sides.get(&(t as u32)), textures) {
+            (Some(&n), Some(_)) => Some(n),
+            _ => None,
+        };
+        let (mut lights_n, mut slots_n, mut black_maps) = (0usize, 0usize, 0);
         for (t, &m) in mesh.tri_material.iter().enumerate() {
-            let ke = mesh.materials[m as usize].ke;
-            if ke.max_element() <= 0.0 {
+            if mesh.materials[m as usize].ke.max_element() <= 0.0 {
                 continue;
             }
             if black[m as usize] {
                 black_maps += 1;
                 continue;
             }
+            lights_n += 1;
+            slots_n += grid(t).map_or(1, |n| 2 * (n * n) as usize);
+        }
+        let no_room = || {
+            let bytes = lights_n * (4 + 4 + 4) + slots_n * (8 + 4 + size_of::<LightTriangle>());
+            anyhow!(
+                "{label}: the light tables of its {lights_n} emitting triangles need about {}                  more, and that memory is not left{}",
+                crate::util::mem::size(bytes as u64 + 4 * mesh.triangles.len() as u64),
+                crate::util::mem::address_space_note()
+            )
+        };
+        let mut tris: Vec<u32> = Vec::new();
+        // Per light its grid side (0: whole), and the powers of its parts, one after another.
+        let mut grid_of: Vec<u32> = Vec::new();
+        let mut powers: Vec<f64> = Vec::new();
+        let mut pdf_area: Vec<f32> = Vec::new();
+        let room = tris.try_reserve_exact(lights_n).is_ok()
+            && grid_of.try_reserve_exact(lights_n).is_ok()
+            && powers.try_reserve_exact(slots_n).is_ok()
+            && pdf_area.try_reserve_exact(mesh.triangles.len()).is_ok();
+        if !room {
+            return Err(no_room());
+        }
+        pdf_area.resize(mesh.triangles.len(), 0.0);
+        for (t, &m) in mesh.tri_material.iter().enumerate() {
+            let ke = mesh.materials[m as usize].ke;
+            if ke.max_element() <= 0.0 || black[m as usize] {
+                continue;
+            }
             tris.push(t as u32);
             // In f64: an area up to (2e18)^2 times `MAX_KE` is past f32.
             let area = mesh.tri_area[t] as f64;
-            match (sides.get(&(t as u32)), textures) {
-                (Some(&n), Some(tex)) => {
+            match (grid(t), textures) {
+                (Some(n), Some(tex)) => {
                     let [i0, i1, i2] = mesh.triangles[t].map(|v| v as usize);
                     let uv = [mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]];
                     // The radiance as shading sees it (capped at `MAX_KE`) over each part, in
@@ -1425,29 +1459,33 @@ impl Lights {
                         1e-3 * luminance(ke).max(ke.max_element() * 1e-3) as f64
                     };
                     let part_area = area / parts_n;
-                    let powers = radiance
-                        .iter()
-                        .map(|l| l.map_or(0.0, |l| part_area * l.max(floor)))
-                        .collect();
-                    parts.push((powers, n));
+                    powers.extend(
+                        radiance
+                            .iter()
+                            .map(|l| l.map_or(0.0, |l| part_area * l.max(floor))),
+                    );
+                    grid_of.push(n);
                 }
                 _ => {
                     // Luminance can be zero for a saturated colour; the max keeps it samplable.
                     let l = luminance(ke).max(ke.max_element() * 1e-3) as f64;
-                    parts.push((vec![area * l], 0));
+                    powers.push(area * l);
+                    grid_of.push(0);
                 }
             }
         }
         if tris.is_empty() {
-            return Lights {
+            return Ok(Lights {
                 tris,
                 cdf: Vec::new(),
-                pdf_area: vec![0.0; mesh.triangles.len()],
+                pdf_area,
                 table: Vec::new(),
                 grids: Vec::new(),
                 black_maps,
-            };
+            });
         }
+        // The powers of light `i` are `powers[spans[i]..spans[i + 1]]`.
+        let span = |n: u32| if n == 0 { 1 } else { 2 * (n * n) as usize };
         // Lights (a material's emitting triangles) picked by power alone starve a small bright
         // lamp beside a large dim one, whose power may be 10^4 times its own though the lamp
         // lights its surroundings more: a share `LIGHT_UNIFORM` of the picks goes to the
@@ -1455,37 +1493,48 @@ impl Lights {
         // (docs/light-sampling.md, "Which light").
         // Only lights of some power count (a material whose triangles all have area 0 after
         // placement has none, and would divide 0 by 0).
-        let (light_of, lights) = light_groups(mesh, &tris);
+        let (light_of, lights) = light_groups(mesh, &tris).ok_or_else(no_room)?;
         let mut group_power = vec![0.0f64; lights];
-        for (&g, (p, _)) in light_of.iter().zip(&parts) {
-            group_power[g] += p.iter().sum::<f64>();
+        let mut at = 0;
+        for (&g, &n) in light_of.iter().zip(&grid_of) {
+            group_power[g as usize] += powers[at..at + span(n)].iter().sum::<f64>();
+            at += span(n);
         }
         let lit = group_power.iter().filter(|&&p| p > 0.0).count();
         if lit > 1 {
-            let total: f64 = parts.iter().flat_map(|(p, _)| p.iter()).sum();
+            let total: f64 = powers.iter().sum();
             let even = LIGHT_UNIFORM / lit as f64;
-            for (&g, (p, _)) in light_of.iter().zip(parts.iter_mut()) {
+            let mut at = 0;
+            for (&g, &n) in light_of.iter().zip(&grid_of) {
+                let g = g as usize;
                 let share = if group_power[g] > 0.0 {
                     even / group_power[g]
                 } else {
                     0.0
                 };
-                for w in p.iter_mut() {
+                for w in powers[at..at + span(n)].iter_mut() {
                     *w = (1.0 - LIGHT_UNIFORM) * (*w / total) + share * *w;
                 }
+                at += span(n);
             }
         }
-        let total: f64 = parts.iter().flat_map(|(p, _)| p.iter()).sum();
+        drop(light_of);
+        let total: f64 = powers.iter().sum();
         let mut acc = 0.0f64;
-        let mut cdf = Vec::new();
-        let mut table = Vec::new();
+        let (mut cdf, mut table) = (Vec::new(), Vec::new());
+        let entries = powers.iter().filter(|&&p| p > 0.0).count();
+        if cdf.try_reserve_exact(entries).is_err() || table.try_reserve_exact(entries).is_err() {
+            return Err(no_room());
+        }
         let mut grids = Vec::new();
-        let mut pdf_area = vec![0.0f32; mesh.triangles.len()];
         // Per grid: its index, its parts' area, and (slot, table entry) of each part.
         type GridParts = (usize, f64, Vec<(usize, usize)>);
         let mut parts_of: Vec<GridParts> = Vec::new();
-        for (&tri, (powers, n)) in tris.iter().zip(&parts) {
+        let mut at = 0;
+        for (&tri, &n) in tris.iter().zip(&grid_of) {
             let t = tri as usize;
+            let light_powers = &powers[at..at + span(n)];
+            at += span(n);
             let corners = mesh.triangles[t].map(|v| mesh.positions[v as usize]);
             let mut push = |p: f64, area: f64, part_of: Option<[Vec2; 3]>, cdf: &mut Vec<f32>| {
                 let lo = cdf.last().copied().unwrap_or(0.0);
@@ -1509,22 +1558,22 @@ impl Lights {
                 });
                 density
             };
-            if *n == 0 {
-                pdf_area[t] = push(powers[0], mesh.tri_area[t] as f64, None, &mut cdf);
+            if n == 0 {
+                pdf_area[t] = push(light_powers[0], mesh.tri_area[t] as f64, None, &mut cdf);
                 continue;
             }
             let part_area = mesh.tri_area[t] as f64 / (n * n) as f64;
             let mut slots = Vec::new();
-            for (k, &p) in powers.iter().enumerate() {
+            for (k, &p) in light_powers.iter().enumerate() {
                 if p > 0.0 {
                     slots.push((k, cdf.len()));
-                    push(p, part_area, Some(LightGrid::corners_of(*n, k)), &mut cdf);
+                    push(p, part_area, Some(LightGrid::corners_of(n, k)), &mut cdf);
                 }
             }
             grids.push(LightGrid {
-                n: *n,
+                n,
                 corners,
-                pdf_area: vec![0.0; powers.len()],
+                pdf_area: vec![0.0; light_powers.len()],
             });
             parts_of.push((grids.len() - 1, part_area, slots));
             pdf_area[t] = -(grids.len() as f32);
@@ -1543,14 +1592,14 @@ impl Lights {
                 grids[g].pdf_area[k] = d;
             }
         }
-        Lights {
+        Ok(Lights {
             tris,
             cdf,
             pdf_area,
             table,
             grids,
             black_maps,
-        }
+        })
     }
 }
 
@@ -1559,17 +1608,17 @@ const LIGHT_UNIFORM: f64 = 0.25;
 
 /// The lights of a scene for picking (`Lights::new`): the emitting triangles of one material
 /// are one light (a lamp, a window, a panel), whatever their number. Per emitting triangle (in
-/// `Lights::tris`' order), its light; and the number of lights.
-fn light_groups(mesh: &Mesh, tris: &[u32]) -> (Vec<usize>, usize) {
-    let mut index: HashMap<u32, usize> = HashMap::new();
-    let of = tris
-        .iter()
-        .map(|&t| {
-            let n = index.len();
-            *index.entry(mesh.tri_material[t as usize]).or_insert(n)
-        })
-        .collect();
-    (of, index.len())
+/// `Lights::tris`' order), its light; and the number of lights. `None` where the memory for
+/// it is not left.
+fn light_groups(mesh: &Mesh, tris: &[u32]) -> Option<(Vec<u32>, usize)> {
+    let mut index: HashMap<u32, u32> = HashMap::new();
+    let mut of = Vec::new();
+    of.try_reserve_exact(tris.len()).ok()?;
+    of.extend(tris.iter().map(|&t| {
+        let n = index.len() as u32;
+        *index.entry(mesh.tri_material[t as usize]).or_insert(n)
+    }));
+    Some((of, index.len()))
 }
 
 /// The grid side of each emitting triangle with an emission map, by triangle: about two texels
