@@ -326,8 +326,7 @@ impl Camera {
 }
 
 /// How `[[keyframe]]` tables are interpolated between them (the scene TOML's `interpolation`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "kebab-case")]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Interpolation {
     /// Straight lines between keyframes, at constant speed.
     #[default]
@@ -335,6 +334,30 @@ pub enum Interpolation {
     /// A cubic Hermite spline through the keyframes whose tangents are Catmull-Rom's over the
     /// keyframes' frame numbers; end tangents along the end segments (docs/camera.md).
     CatmullRom,
+}
+
+impl<'de> Deserialize<'de> for Interpolation {
+    /// From its name, `"linear"` or `"catmull-rom"`. (serde's derived form also reads a table,
+    /// and said of a number only "wanted string or table".)
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Name;
+        impl serde::de::Visitor<'_> for Name {
+            type Value = Interpolation;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("\"linear\" or \"catmull-rom\"")
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<Interpolation, E> {
+                match v {
+                    "linear" => Ok(Interpolation::Linear),
+                    "catmull-rom" => Ok(Interpolation::CatmullRom),
+                    _ => Err(E::custom(format_args!(
+                        "unknown interpolation \"{v}\", expected \"linear\" or \"catmull-rom\""
+                    ))),
+                }
+            }
+        }
+        d.deserialize_str(Name)
+    }
 }
 
 /// Keyframes (position, look-at, up, fov) interpolated over the frames.

@@ -39,7 +39,8 @@ use crate::reuse::Params;
 use crate::scene::Scene;
 use crate::state::checkpoint::{Checkpointer, Counters};
 use crate::state::key::{
-    default_checkpoint_dir, output_stem, partial_path, scene_and_build_hashes, Chunk, RunKey,
+    checkpoint_named, default_checkpoint_dir, output_stem, partial_path, scene_and_build_hashes,
+    Chunk, RunKey,
 };
 use crate::state::Trailer;
 use crate::util::fs::{parent_dir, remove_stale_tmp, write_json, CreatedDirs};
@@ -484,13 +485,15 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     // The folders above the checkpoint folder are made as an output's are (its lock lies
     // beside it: `--checkpoint a/b/c` under no `a` failed on opening `a/b/.c.lock`); those
     // made go again when the render ends and they are empty, the checkpoint folder gone.
-    let _checkpoint_parents =
-        match &opts.checkpoint {
-            Some(d) => Some(CreatedDirs::create(&parent_dir(d)).with_context(|| {
-                format!("--checkpoint {}: cannot create its folder", d.display())
-            })?),
-            None => None,
-        };
+    let _checkpoint_parents = match &opts.checkpoint {
+        Some(d) => Some(CreatedDirs::create(&parent_dir(d)).with_context(|| {
+            format!(
+                "{}: cannot create its folder",
+                checkpoint_named(d, &opts.out, opts.chunk)
+            )
+        })?),
+        None => None,
+    };
     let _checkpoint_lock = match &opts.checkpoint {
         Some(d) => Some(
             guard::OutputLock::acquire(
@@ -498,7 +501,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
                 &format!("the checkpoint folder {}", d.display()),
                 None,
             )
-            .with_context(|| format!("--checkpoint {}", d.display()))?,
+            .with_context(|| checkpoint_named(d, &opts.out, opts.chunk))?,
         ),
         None => None,
     };

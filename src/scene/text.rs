@@ -83,20 +83,38 @@ pub fn as_text(bytes: &[u8]) -> Result<&str> {
     Ok(text)
 }
 
-/// Refuse UTF-16 text (Excel's "Unicode text", PowerShell 5's redirections): by its byte
-/// order mark, or without one by its first two characters, ASCII with a zero byte beside each.
+/// Refuse UTF-16 text (Excel's "Unicode text", PowerShell 5's redirections) and UTF-32 text:
+/// by its byte order mark, or without one by its first characters, ASCII with zero bytes beside
+/// each (one for UTF-16, three for UTF-32).
 fn utf16(bytes: &[u8]) -> Result<()> {
+    let said = |wide: &str, how: &str| {
+        anyhow::anyhow!("the file is {wide} text ({how}): save it as UTF-8 or ASCII")
+    };
+    // UTF-32's little-endian mark starts with UTF-16's.
+    if bytes.starts_with(b"\xff\xfe\0\0") || bytes.starts_with(b"\0\0\xfe\xff") {
+        return Err(said("UTF-32", "its byte order mark says so"));
+    }
     if bytes.starts_with(b"\xff\xfe") || bytes.starts_with(b"\xfe\xff") {
-        bail!("the file is UTF-16 text (its byte order mark says so): save it as UTF-8 or ASCII");
+        return Err(said("UTF-16", "its byte order mark says so"));
+    }
+    let ascii = |x: u8| x != 0 && x.is_ascii();
+    if let [a, b, c, d, e, f, g, h, ..] = *bytes {
+        if (ascii(a) && [b, c, d, f, g, h] == [0; 6] && ascii(e))
+            || ([a, b, c, e, f, g] == [0; 6] && ascii(d) && ascii(h))
+        {
+            return Err(said(
+                "UTF-32",
+                "three zero bytes beside each of its first characters",
+            ));
+        }
     }
     if let [a, b, c, d, ..] = *bytes {
-        let ascii = |x: u8| x != 0 && x.is_ascii();
         if (a == 0 && ascii(b) && c == 0 && ascii(d)) || (ascii(a) && b == 0 && ascii(c) && d == 0)
         {
-            bail!(
-                "the file is UTF-16 text (a zero byte beside each of its first characters): save \
-                 it as UTF-8 or ASCII"
-            );
+            return Err(said(
+                "UTF-16",
+                "a zero byte beside each of its first characters",
+            ));
         }
     }
     Ok(())
@@ -565,8 +583,9 @@ mod tests {
         assert!(e.starts_with("line 2: control character 0x00"), "{e}");
     }
 
-    /// A scene TOML or camera file saved as UTF-16 (with a byte order mark, or without one in
-    /// either byte order) is named so, as an OBJ is, not as binary data.
+    /// A scene TOML or camera file saved as UTF-16 or UTF-32 (with a byte order mark, or
+    /// without one in either byte order) is named so, as an OBJ is, not as binary data (a
+    /// UTF-32 file was named UTF-16).
     #[test]
     fn utf16_text_is_named_so() {
         let text = "frame,x\n0,1\n";
@@ -576,6 +595,20 @@ mod tests {
         for bytes in [&bom[..], &le[..], &be[..]] {
             let e = as_text(bytes).unwrap_err().to_string();
             assert!(e.starts_with("the file is UTF-16 text"), "{e}");
+        }
+        // UTF-32, with a mark or without one in either order, is named so too.
+        let le: Vec<u8> = text
+            .chars()
+            .flat_map(|c| (c as u32).to_le_bytes())
+            .collect();
+        let be: Vec<u8> = text
+            .chars()
+            .flat_map(|c| (c as u32).to_be_bytes())
+            .collect();
+        let bom = [&b"\xff\xfe\0\0"[..], &le].concat();
+        for bytes in [&bom[..], &le[..], &be[..]] {
+            let e = as_text(bytes).unwrap_err().to_string();
+            assert!(e.starts_with("the file is UTF-32 text"), "{e}");
         }
         // Text with a zero byte further in is not UTF-16 (a binary file).
         let e = as_text(b"abcd\0").unwrap_err().to_string();

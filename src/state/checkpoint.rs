@@ -10,7 +10,7 @@
 //! Where they live, for `--out DIR/NAME_####.ext`: the checkpoint in `DIR/NAME.checkpoint/state`
 //! (`DIR/NAME.chunk-K-of-N.checkpoint/` for a chunk), a chunk's partial in
 //! `DIR/NAME.chunk-K-of-N.partial` (`key`). A render that finishes removes its checkpoint.
-use super::key::{partial_path, RunKey};
+use super::key::{checkpoint_named, partial_path, RunKey};
 use super::{
     accum_bytes, pixels_bytes, read_record, write_accum, write_pixels, write_state, write_trailer,
     Kind, Record, StateFile, Trailer,
@@ -245,24 +245,20 @@ impl Checkpointer {
             }
         }
         if let Some(d) = &dir {
+            let named = checkpoint_named(d, &template.out, template.chunk);
             // What sits at the folder's path, named as what it is.
             if let Ok(m) = std::fs::symlink_metadata(d) {
                 let t = m.file_type();
                 if t.is_symlink() && !d.exists() {
                     bail!(
-                        "--checkpoint {}: that is a symbolic link to nothing; remove it or name \
-                         another folder",
-                        d.display()
+                        "{named}: that is a symbolic link to nothing; remove it or name \
+                         another folder"
                     );
                 }
                 if !d.is_dir() {
                     let what =
                         crate::util::input::kind(std::fs::metadata(d).map_or(t, |m| m.file_type()));
-                    bail!(
-                        "--checkpoint {}: that is {what}, not a folder (the checkpoint is a \
-                         folder)",
-                        d.display()
-                    );
+                    bail!("{named}: that is {what}, not a folder (the checkpoint is a folder)");
                 }
             }
             let state = d.join("state");
@@ -270,9 +266,8 @@ impl Checkpointer {
             // said as what it is (it said "no checkpoint", then could not create files).
             if let Err(e) = state.try_exists() {
                 bail!(
-                    "--checkpoint {}: cannot look into the folder ({e}); make it readable, or \
-                     name another folder",
-                    d.display()
+                    "{named}: cannot look into the folder ({e}); make it readable, or name \
+                     another folder"
                 );
             }
             if !state.exists() {
@@ -291,10 +286,9 @@ impl Checkpointer {
             // (`left_by_a_run` is whether a 'state' there is a reframe checkpoint.)
             if state.exists() && !resume && !left_by_a_run {
                 bail!(
-                    "--checkpoint {}: the folder holds a file named 'state' that is not a \
-                     complete reframe checkpoint (another program's file, or one cut short); \
-                     name another folder, or remove the file",
-                    d.display()
+                    "{named}: the folder holds a file named 'state' that is not a complete \
+                     reframe checkpoint (another program's file, or one cut short); name \
+                     another folder, or remove the file"
                 );
             }
             if state.exists() {

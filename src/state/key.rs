@@ -249,6 +249,21 @@ pub fn default_checkpoint_dir(pattern: &str, chunk: Option<Chunk>) -> PathBuf {
     }
 }
 
+/// How a message names checkpoint folder `d` of a render writing `pattern` (chunk `chunk`):
+/// `--checkpoint d`, or where `d` is the default folder, which no flag named, as that (a
+/// default folder in the way was blamed on a `--checkpoint` never given).
+pub fn checkpoint_named(d: &Path, pattern: &str, chunk: Option<Chunk>) -> String {
+    if d == default_checkpoint_dir(pattern, chunk) {
+        format!(
+            "the checkpoint folder {} (the default beside the frames; --checkpoint DIR names \
+             another)",
+            d.display()
+        )
+    } else {
+        format!("--checkpoint {}", d.display())
+    }
+}
+
 /// The partial file chunk `c` of a render writing `pattern` produces.
 pub fn partial_path(pattern: &str, c: Chunk) -> PathBuf {
     let (dir, stem) = output_stem(pattern);
