@@ -330,12 +330,15 @@ impl OutputPattern {
             .map_or("".into(), |e| e.to_string_lossy());
         // Formats whose size fields are narrower than a frame can be: libjpeg ends the process
         // on its own past 65500 (no error line, lock files left), and the TGA writer accepted
-        // the probe and failed after the first frame had rendered.
+        // the probe and failed after the first frame had rendered. libheif reads no HEIF or
+        // AVIF image past 32768 a side (its security limit): the probe said the disk may be
+        // full.
         let lower = ext.to_ascii_lowercase();
         let most = match lower.as_str() {
             "jpg" | "jpeg" | "jpe" | "jfif" => Some(65_500),
             "tga" | "tpic" | "gif" => Some(65_535),
             "webp" => Some(16_383),
+            "heic" | "heif" | "avif" | "avifs" | "hif" => Some(32_768),
             _ => None,
         };
         if let Some(m) = most.filter(|&m| width.max(height) > m) {
