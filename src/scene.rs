@@ -718,7 +718,7 @@ impl Scene {
             Source::Files { toml } => Some(toml.parent().unwrap_or(Path::new(".")).to_path_buf()),
             Source::Builtin(_) => None,
         };
-        let camera_path = |name: &str| dir.as_ref().map(|d| d.join(name));
+        let camera_path = |name: &str| dir.as_ref().map(|d| scene_named(d, name));
         // The poses of a camera file, its eyes given from `origin` (`Scene::origin`).
         let read_camera = |name: &Spanned<String>,
                            frames: u32,
@@ -779,7 +779,7 @@ impl Scene {
                 let (obj_label, obj_bytes, files) = match &source {
                     Source::Files { toml } => {
                         let dir = toml.parent().unwrap_or(Path::new(".")).to_path_buf();
-                        let obj = dir.join(obj.get_ref());
+                        let obj = scene_named(&dir, obj.get_ref());
                         refuse_scene_as_obj(&obj, toml, &obj_at)?;
                         let bytes = read_input(&obj, "OBJ", MAX_INPUT_BYTES)
                             .map_err(|e| anyhow!("{obj_at}: {e}"))?;
@@ -2180,7 +2180,7 @@ fn load_environment(
                     at(img.span(), "image")
                 );
             };
-            let path = dir.join(img.get_ref());
+            let path = scene_named(dir, img.get_ref());
             let at = format!("{label}: line {}", line(img.span()));
             // Regular file, size-capped, before OIIO opens it (a FIFO must not block the load).
             crate::util::input::open_input(&path, "environment image", MAX_INPUT_BYTES)
@@ -2306,7 +2306,7 @@ fn load_objects(
     };
     for o in list {
         let m = o.transform(label, &lines)?;
-        let path = dir.join(o.obj.get_ref());
+        let path = scene_named(dir, o.obj.get_ref());
         match first.get(&file(&path)) {
             Some(&g) => groups[g].2.push(m),
             None => {
@@ -2598,6 +2598,53 @@ pub(crate) fn locate_named_file(dir: &Path, name: &str, latin1: bool) -> (PathBu
         return (raw(), true);
     }
     (path, false)
+}
+
+/// The path a scene file in `dir` names as `name`: as written, or where that is not there, the
+/// one path whose parts are the same names in another Unicode composition (a scene written
+/// with a composed `ü` beside a folder unpacked from a macOS archive, whose names are
+/// decomposed, `u` and a combining diaeresis, or the other way round: the same name, which was
+/// "no such file" with a message that showed the two alike).
+fn scene_named(dir: &Path, name: &str) -> PathBuf {
+    use unicode_normalization::UnicodeNormalization;
+    let path = dir.join(name);
+    if name.is_ascii() || path.exists() {
+        return path;
+    }
+    let mut at = dir.to_path_buf();
+    for part in Path::new(name).components() {
+        let std::path::Component::Normal(part) = part else {
+            at.push(part);
+            continue;
+        };
+        let exact = at.join(part);
+        if exact.exists() {
+            at = exact;
+            continue;
+        }
+        let Some(want) = part.to_str().map(|p| p.nfc().collect::<String>()) else {
+            return path;
+        };
+        let listed = if at.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            &at
+        };
+        let Ok(entries) = std::fs::read_dir(listed) else {
+            return path;
+        };
+        let same: Vec<std::ffi::OsString> = entries
+            .flatten()
+            .map(|e| e.file_name())
+            .filter(|n| n.to_str().is_some_and(|n| n.nfc().eq(want.chars())))
+            .take(2)
+            .collect();
+        match same.as_slice() {
+            [one] => at.push(one),
+            _ => return path,
+        }
+    }
+    at
 }
 
 /// A file that an OBJ or MTL in `dir` names as `name` but that is not there as written, found

@@ -161,6 +161,44 @@ fn one_obj_under_several_names_is_read_once_and_instanced() {
 }
 
 #[test]
+fn names_in_another_unicode_composition_find_their_files() {
+    // Folders and files named in decomposed form (`u` and a combining diaeresis, as a macOS
+    // archive stores them), named in the scene file composed (`ü`), and the other way round:
+    // one name, which was "no such file".
+    let d = tempfile::tempdir().unwrap();
+    let (composed, decomposed) = ("gr\u{fc}n", "gru\u{308}n");
+    let cube = obj(&[None], false);
+    for folder in [decomposed, "bl\u{fc}n"] {
+        std::fs::create_dir(d.path().join(folder)).unwrap();
+        std::fs::write(d.path().join(folder).join("cube.obj"), &cube).unwrap();
+        std::fs::write(d.path().join(folder).join("s.mtl"), MTL).unwrap();
+    }
+    let camera = "{\"frames\": [{\"frame\": 0, \"fov\": 50, \"position\": [2.5, 2, 4], \
+                  \"look_at\": [0, 0, 0], \"up\": [0, 1, 0]}]}";
+    std::fs::write(d.path().join("ka\u{308}mera.json"), camera).unwrap();
+    let scene = format!(
+        "camera = \"k\u{e4}mera.json\"\nframes = 1\nresolution = [64, 48]\n\
+         [environment]\nradiance = [0.6, 0.7, 0.9]\n\
+         [[object]]\nobj = \"{composed}/cube.obj\"\n[[object]]\nobj = \"blu\u{308}n/cube.obj\"\n\
+         translate = [2, 0, 0]\n"
+    );
+    let s = write(d.path(), &[("s.toml", &scene)]);
+    let scene = Scene::load(&s, &Device::new().unwrap()).unwrap();
+    assert_eq!(scene.triangles.len(), 24, "both cubes");
+    let s = write(
+        d.path(),
+        &[("s.toml", &toml(&format!("obj = \"{composed}/cube.obj\"")))],
+    );
+    assert_eq!(
+        Scene::load(&s, &Device::new().unwrap())
+            .unwrap()
+            .triangles
+            .len(),
+        12
+    );
+}
+
+#[test]
 fn instances_render_like_the_same_geometry_flattened() {
     let place = placements();
     // Instanced: the cube placed three times (one of them mirrored), the floor once.
