@@ -447,10 +447,25 @@ impl RenderOptions {
     ) -> Result<()> {
         let need = self.memory_estimate((w, h));
         let size = crate::util::mem::size;
+        // Where the scene loaded holds more than the frames would, the scene is what to
+        // lighten (an emitting OBJ placed a hundred times beside a frame of 8x6 pixels was
+        // told to lower --res).
+        let held = crate::util::mem::rss_bytes();
+        let advice = if held > need.saturating_add(textures) {
+            format!(
+                "the scene loaded holds about {}: render a lighter scene, or give the run more \
+                 memory",
+                size(held)
+            )
+        } else if self.method.reuses() {
+            "lower --res or --window or --spp, or use fewer --threads".to_string()
+        } else {
+            "lower --res".to_string()
+        };
         match available {
             Some(a) if need.saturating_add(textures) > a => bail!(
                 "--res {w}x{h} with --method {} --window {}{}: the frames in flight need \
-                 about {}{}, but {} of memory is available; lower --res{}",
+                 about {}{}, but {} of memory is available; {advice}",
                 self.method.name(),
                 self.window,
                 if self.denoise.is_some() {
@@ -468,11 +483,6 @@ impl RenderOptions {
                     String::new()
                 },
                 size(a),
-                if self.method.reuses() {
-                    " or --window or --spp, or use fewer --threads"
-                } else {
-                    ""
-                }
             ),
             _ => Ok(()),
         }
