@@ -404,8 +404,8 @@ fn camera_key_misuse_is_refused_with_one_line() {
         ),
         (
             format!("{head}interpolation = \"cubic\"\n{key}"),
-            "{dir}/s.toml: line 4 ('interpolation = \"cubic\"'): unknown variant `cubic`, expected \
-             `linear` or `catmull-rom`",
+            "{dir}/s.toml: line 4 ('interpolation = \"cubic\"'): unknown interpolation \"cubic\", \
+             expected \"linear\" or \"catmull-rom\"",
         ),
         (
             format!("{head}camera = \"shot.txt\"\n"),
