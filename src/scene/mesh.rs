@@ -8,7 +8,7 @@
 //! triangulated there by `earcutr` (Mapbox's ear clipping), which also copes with repeated
 //! vertices; each triangle is then wound like the polygon, so that its front (the emitting side
 //! of a light) stays where the OBJ put it.
-use super::obj::{Corner, Face, Obj, FREE_FORM, POINTS, POLYLINES, SHORT_FACE};
+use super::obj::{Corner, Face, Obj, FREE_FORM, POINTS, POLYLINES, SHORT_FACE, UNKNOWN};
 use super::repairs::{Kind, Repairs};
 use super::text::quote_line;
 use crate::bsdf::Material;
@@ -670,9 +670,23 @@ pub fn build(
                  first at line {first_skipped})"
             );
         }
-        // What the file held instead (polylines, points, faces of one or two vertices, curves),
-        // which was said as a warning only where something else rendered.
-        let instead = [SHORT_FACE, POLYLINES, POINTS, FREE_FORM];
+        // An empty file, or a web page saved in the model's place (a download that fetched
+        // the page around the file), said as what it is.
+        let text = bytes.strip_prefix(b"\xef\xbb\xbf").unwrap_or(bytes);
+        let first = text.iter().find(|b| !b.is_ascii_whitespace());
+        if first.is_none() {
+            bail!("{label}: the file is empty (no faces)");
+        }
+        if first == Some(&b'<') {
+            bail!(
+                "{label}: an HTML or XML page, not an OBJ (a web page saved in the model's \
+                 place: download the raw file)"
+            );
+        }
+        // What the file held instead (polylines, points, faces of one or two vertices, curves,
+        // statements OBJ does not have), which was said as a warning only where something else
+        // rendered.
+        let instead = [SHORT_FACE, POLYLINES, POINTS, FREE_FORM, UNKNOWN];
         match repairs.first_in(Some(label), &instead) {
             Some(first) => bail!("{label}: no faces (what it has is left out: {first})"),
             None => bail!("{label}: no faces"),

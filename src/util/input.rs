@@ -161,7 +161,29 @@ pub fn open_input_or_missing(path: &Path, what: &str, max_bytes: u64) -> Result<
             "{len} bytes, over the limit of {max_bytes} bytes"
         )));
     }
+    if lfs_pointer(&file, len) {
+        return Err(refuse(
+            "a Git LFS pointer, not the file itself (the repository was cloned without Git \
+             LFS: run `git lfs pull` in it)"
+                .into(),
+        ));
+    }
     Ok(file)
+}
+
+/// Whether `file` (of `len` bytes) is a Git LFS pointer: the few lines a repository holds in
+/// place of a large file (`version https://git-lfs.github.com/spec/v1`, the object's hash and
+/// size) where it was cloned without Git LFS. Read as an OBJ it had no faces; as a texture,
+/// "Not a PNG file"; as an MTL, three unknown statements and grey materials.
+fn lfs_pointer(file: &File, len: u64) -> bool {
+    use std::os::unix::fs::FileExt;
+    const HEAD: &[u8] = b"version https://git-lfs.github.com/spec/";
+    // A pointer is about 130 bytes, never over 1 KB.
+    if !(HEAD.len() as u64..=1024).contains(&len) {
+        return false;
+    }
+    let mut head = [0u8; HEAD.len()];
+    file.read_exact_at(&mut head, 0).is_ok() && head == HEAD
 }
 
 /// Read the regular file at `path` whole; `what` names it in messages ("scene file", "OBJ",
