@@ -410,8 +410,18 @@ std::unique_ptr<ImageReader> open_reader(rust::Slice<const uint8_t> path) {
         throw_global_error("cannot open");
     }
     const OIIO::ImageSpec& spec = in->spec();
-    if (spec.deep || spec.depth > 1 || spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0) {
-        throw std::runtime_error("not a flat 2D image");
+    // Said as what each is: a deep image (samples at several depths per pixel) needs
+    // flattening, a volume (depth above 1) is no picture.
+    if (spec.deep) {
+        throw std::runtime_error("a deep image (several samples at depths per pixel), not a flat "
+                                 "one: flatten it first (oiiotool --flatten, or a compositor)");
+    }
+    if (spec.depth > 1) {
+        throw std::runtime_error("a volume of " + std::to_string(spec.depth) +
+                                 " slices, not a flat 2D image");
+    }
+    if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0) {
+        throw std::runtime_error("not a flat 2D image (no pixels or no channels)");
     }
     const int subimages = count_subimages(p, config, in->format_name());
     return std::make_unique<ImageReader>(std::move(in), subimages);

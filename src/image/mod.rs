@@ -876,6 +876,19 @@ pub fn read_image(path: &Path) -> Result<Image> {
 /// `read_mask`), with what a Radiance file's bytes say of why where OpenImageIO's words mislead
 /// (`radiance_hint`).
 fn read_error(path: &Path, e: anyhow::Error) -> anyhow::Error {
+    // OpenImageIO 2.4 opens no EXR with subsampled channels: OpenEXR's luminance and chroma
+    // (Y at full resolution, RY and BY at half), which OpenEXR's own RGBA reader turns into
+    // RGB. Its words named the sampling of each channel, not what to do.
+    if e.to_string()
+        .contains("Subsampled channels are not supported")
+    {
+        return anyhow!(
+            "cannot read {}: it stores luminance and chroma (Y, RY, BY) with the chroma at \
+             reduced resolution, which this OpenImageIO does not read: save it as RGB first (in \
+             a compositor or an image editor)",
+            path.display()
+        );
+    }
     match radiance_hint(path) {
         Some(hint) => anyhow!("cannot read {}: {e} ({hint})", path.display()),
         None => anyhow!("cannot read {}: {e}", path.display()),

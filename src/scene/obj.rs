@@ -60,11 +60,17 @@ const WEIGHTS: Kind = Kind {
     many:
         "vertex weights w ignored (they weight rational curves and surfaces, not polygon corners)",
 };
-const NONE_DEFINED: Kind = Kind {
-    one: "face with texture coordinate or normal indices where none is defined above: they are \
-          ignored (read as v)",
-    many: "faces with texture coordinate or normal indices where none is defined above: they \
-           are ignored (read as v)",
+const NONE_DEFINED_VN: Kind = Kind {
+    one: "face with normal indices where no normal (vn) is defined above: they are ignored (the \
+          face is shaded flat)",
+    many: "faces with normal indices where no normal (vn) is defined above: they are ignored \
+           (the faces are shaded flat)",
+};
+const NONE_DEFINED_VT: Kind = Kind {
+    one: "face with texture coordinate indices where none (vt) is defined above: they are \
+          ignored",
+    many: "faces with texture coordinate indices where none (vt) is defined above: they are \
+           ignored",
 };
 pub const UNKNOWN: Kind = Kind {
     one: "statement the OBJ format does not have: ignored",
@@ -232,15 +238,21 @@ pub fn parse(label: &str, bytes: &[u8], repairs: &mut Repairs) -> Result<Obj> {
                     )));
                 }
                 let start = out.corners.len();
-                let mut none_defined = false;
+                let mut none_defined = [false; 2];
                 for r in &args {
                     let (c, ignored) = corner(r, &count, &out.normals).map_err(&err)?;
-                    none_defined |= ignored;
+                    none_defined[0] |= ignored[0];
+                    none_defined[1] |= ignored[1];
                     room(&mut out.corners, label, n)?;
                     out.corners.push(c);
                 }
-                if none_defined {
-                    repairs.note(label, n, NONE_DEFINED, || format!("'{}'", quote(text)))?;
+                for (kind, ignored) in [NONE_DEFINED_VT, NONE_DEFINED_VN]
+                    .into_iter()
+                    .zip(none_defined)
+                {
+                    if ignored {
+                        repairs.note(label, n, kind, || format!("'{}'", quote(text)))?;
+                    }
                 }
                 // A polygon that comes back to the vertex it left (or stays on one) has fewer
                 // sides than it has corners.
@@ -534,9 +546,14 @@ fn numbers64<const N: usize>(words: &[&str]) -> Option<[f64; N]> {
 ///
 /// A texture coordinate or normal index where the file has defined none of them above
 /// (OpenSubdiv's and some scanners' `f v/vt/vn` with no `vn` lines) is ignored, as other OBJ
-/// readers ignore it: the second value says so, for a warning. One beyond those defined is
-/// damage, and refused.
-fn corner(r: &str, count: &[usize; 3], normals: &[Option<Vec3>]) -> Result<(Corner, bool), String> {
+/// readers ignore it: the second value says so, for a warning, of the texture coordinate and
+/// of the normal (the warning said both were, where the texture coordinates were used). One
+/// beyond those defined is damage, and refused.
+fn corner(
+    r: &str,
+    count: &[usize; 3],
+    normals: &[Option<Vec3>],
+) -> Result<(Corner, [bool; 2]), String> {
     let shape = || format!("'{r}': expected v, v/vt, v//vn or v/vt/vn (1-based indices)");
     let parts: Vec<&str> = r.split('/').collect();
     if parts.len() > 3 || parts[0].is_empty() {
@@ -547,7 +564,7 @@ fn corner(r: &str, count: &[usize; 3], normals: &[Option<Vec3>]) -> Result<(Corn
         vt: None,
         vn: None,
     };
-    let mut ignored = false;
+    let mut ignored = [false; 2];
     for (k, p) in parts.iter().enumerate() {
         if p.is_empty() {
             continue;
@@ -555,7 +572,7 @@ fn corner(r: &str, count: &[usize; 3], normals: &[Option<Vec3>]) -> Result<(Corn
         let x: i64 = p.parse().map_err(|_| shape())?;
         let (what, n) = (["vertex", "texture coordinate", "normal"][k], count[k]);
         if k > 0 && n == 0 && x != 0 {
-            ignored = true;
+            ignored[k - 1] = true;
             continue;
         }
         let i = match x {
