@@ -450,8 +450,10 @@ impl RenderOptions {
         // Where the scene loaded holds more than the frames would, the scene is what to
         // lighten (an emitting OBJ placed a hundred times beside a frame of 8x6 pixels was
         // told to lower --res).
+        // (Half a gigabyte at least: the libraries alone hold about 0.1 GB, and under a tight
+        // `ulimit -v` a small scene's frames are what to lower.)
         let held = crate::util::mem::rss_bytes();
-        let advice = if held > need.saturating_add(textures) {
+        let advice = if held >= 1 << 29 && held / 4 > need.saturating_add(textures) {
             format!(
                 "the scene loaded holds about {}: render a lighter scene, or give the run more \
                  memory",
