@@ -1406,7 +1406,8 @@ impl Lights {
         let no_room = || {
             let bytes = lights_n * (4 + 4 + 4) + slots_n * (8 + 4 + size_of::<LightTriangle>());
             anyhow!(
-                "{label}: the light tables of its {lights_n} emitting triangles need about {}                  more, and that memory is not left{}",
+                "{label}: the light tables of its {lights_n} emitting triangles need about {} \
+                 more, and that memory is not left{}",
                 crate::util::mem::size(bytes as u64 + 4 * mesh.triangles.len() as u64),
                 crate::util::mem::address_space_note()
             )
