@@ -698,7 +698,7 @@ impl Scene {
         let (label, toml_bytes) = match &source {
             Source::Files { toml } => (
                 toml.display().to_string(),
-                read_input(toml, "scene file", MAX_INPUT_BYTES)?,
+                text::from_wide(read_input(toml, "scene file", MAX_INPUT_BYTES)?),
             ),
             Source::Builtin(i) => (
                 format!("{} (built in)", BUILTIN[*i].0),
@@ -737,6 +737,7 @@ impl Scene {
                 bail!("{at}: a shipped scene has no camera file");
             };
             let bytes = read_input(&path, "camera file", MAX_INPUT_BYTES)
+                .map(text::from_wide)
                 .map_err(|e| anyhow!("{at}: {e}"))?;
             let label = path.display().to_string();
             camera_file::parse_from(&label, &bytes, format, frames, repairs, origin)
@@ -782,6 +783,7 @@ impl Scene {
                         let obj = scene_named(&dir, obj.get_ref());
                         refuse_scene_as_obj(&obj, toml, &obj_at)?;
                         let bytes = read_input(&obj, "OBJ", MAX_INPUT_BYTES)
+                            .map(text::from_wide)
                             .map_err(|e| anyhow!("{obj_at}: {e}"))?;
                         let mtl_dir = obj.parent().unwrap_or(&dir).to_path_buf();
                         (obj.display().to_string(), bytes, MtlSource::Dir(mtl_dir))
@@ -2325,7 +2327,9 @@ fn load_objects(
     let mut inputs = Vec::new();
     for (path, at, _) in &groups {
         refuse_scene_as_obj(path, Path::new(label), at)?;
-        let bytes = read_input(path, "OBJ", MAX_INPUT_BYTES).map_err(|e| anyhow!("{at}: {e}"))?;
+        let bytes = read_input(path, "OBJ", MAX_INPUT_BYTES)
+            .map(text::from_wide)
+            .map_err(|e| anyhow!("{at}: {e}"))?;
         let obj_label = path.display().to_string();
         let mtl_dir = path.parent().unwrap_or(dir).to_path_buf();
         let (mesh, read, anchor) = load_obj_files(
@@ -2976,7 +2980,8 @@ fn load_obj_files(
                     if !read.insert(path.clone()) {
                         continue;
                     }
-                    match read_input_or_missing(&path, "MTL", MAX_INPUT_BYTES) {
+                    match read_input_or_missing(&path, "MTL", MAX_INPUT_BYTES).map(text::from_wide)
+                    {
                         Ok(b) => {
                             let dir = path.parent().map(Path::to_path_buf);
                             v.push((path.display().to_string(), dir, b))

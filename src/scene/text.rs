@@ -69,6 +69,51 @@ fn without_eof_mark(bytes: &[u8]) -> &[u8] {
     bytes.strip_suffix(b"\x1a").unwrap_or(bytes)
 }
 
+/// `bytes` as UTF-8 where they are UTF-16 or UTF-32 text that says so by its byte order mark
+/// (Windows tools' "Unicode" text: Notepad, Excel's "Unicode Text", PowerShell 5's `>`),
+/// decoded whole; otherwise as they are (text without a mark in those encodings is refused by
+/// `as_text`, naming them, and so is one whose units do not decode). Lines stay lines, so
+/// line numbers in messages are the file's.
+pub fn from_wide(bytes: Vec<u8>) -> Vec<u8> {
+    let units = |b: &[u8], n: usize, le: bool| -> Option<Vec<u32>> {
+        b.len().is_multiple_of(n).then(|| {
+            b.chunks_exact(n)
+                .map(|c| {
+                    let mut w = [0u8; 4];
+                    w[..n].copy_from_slice(c);
+                    if !le {
+                        w[..n].reverse();
+                    }
+                    u32::from_le_bytes(w)
+                })
+                .collect()
+        })
+    };
+    let text: Option<String> = if let Some(b) = bytes.strip_prefix(b"\xff\xfe\0\0") {
+        units(b, 4, true).and_then(|u| u.into_iter().map(char::from_u32).collect())
+    } else if let Some(b) = bytes.strip_prefix(b"\0\0\xfe\xff") {
+        units(b, 4, false).and_then(|u| u.into_iter().map(char::from_u32).collect())
+    } else if let Some(b) = bytes.strip_prefix(b"\xff\xfe") {
+        units(b, 2, true).and_then(|u| {
+            char::decode_utf16(u.into_iter().map(|u| u as u16))
+                .collect::<Result<String, _>>()
+                .ok()
+        })
+    } else if let Some(b) = bytes.strip_prefix(b"\xfe\xff") {
+        units(b, 2, false).and_then(|u| {
+            char::decode_utf16(u.into_iter().map(|u| u as u16))
+                .collect::<Result<String, _>>()
+                .ok()
+        })
+    } else {
+        None
+    };
+    match text {
+        Some(t) => t.into_bytes(),
+        None => bytes,
+    }
+}
+
 /// `bytes` as text, or an error naming the line of the first byte that is not text.
 pub fn as_text(bytes: &[u8]) -> Result<&str> {
     let bytes = without_eof_mark(bytes);
@@ -610,6 +655,20 @@ mod tests {
             let e = as_text(bytes).unwrap_err().to_string();
             assert!(e.starts_with("the file is UTF-32 text"), "{e}");
         }
+        // With its mark, it is read (`from_wide`) as the same text; a lone surrogate is no
+        // UTF-16, left as it is (and refused).
+        let le16: Vec<u8> = text.encode_utf16().flat_map(|u| u.to_le_bytes()).collect();
+        let be16: Vec<u8> = text.encode_utf16().flat_map(|u| u.to_be_bytes()).collect();
+        let marked = [
+            bom.clone(),
+            [&b"\xff\xfe"[..], &le16].concat(),
+            [&b"\xfe\xff"[..], &be16].concat(),
+        ];
+        for bytes in marked {
+            assert_eq!(from_wide(bytes), text.as_bytes());
+        }
+        let lone = [&b"\xff\xfe"[..], &[0x00, 0xd8, b'a', 0]].concat();
+        assert_eq!(from_wide(lone.clone()), lone);
         // Text with a zero byte further in is not UTF-16 (a binary file).
         let e = as_text(b"abcd\0").unwrap_err().to_string();
         assert!(e.starts_with("line 1: control character 0x00"), "{e}");
