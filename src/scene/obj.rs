@@ -815,9 +815,18 @@ mod tests {
         let second = &o.corners[o.faces[1].corners.clone()];
         assert_eq!(second[0].vt, Some(0));
         assert_eq!(second[0].vn, None);
-        assert_eq!(w.len(), 1, "{w:?}");
+        // Said of each kind apart: the texture coordinates of the first face only, the
+        // normals of both.
+        assert_eq!(w.len(), 2, "{w:?}");
         assert!(
-            w[0].starts_with("a.obj: 2 faces with texture coordinate or normal indices where none"),
+            w[0].starts_with(
+                "a.obj: line 4: 'f 1/1/1 2/2/2 3/3/3': face with texture coordinate indices \
+                 where none (vt) is defined above"
+            ),
+            "{w:?}"
+        );
+        assert!(
+            w[1].starts_with("a.obj: 2 faces with normal indices where no normal (vn) is defined"),
             "{w:?}"
         );
     }
