@@ -440,13 +440,7 @@ pub fn check_outputs<'a>(
         // A lock is a file of reframe's own, opened, not renamed into place: what is in its
         // way is to go (the frames' explanation of a rename misled there).
         if flag.starts_with("the lock") {
-            let kind = std::fs::symlink_metadata(&out).ok().map(|m| m.file_type());
-            if let Some(t) = kind.filter(|t| !t.is_file()) {
-                let what = if t.is_symlink() {
-                    "a symbolic link"
-                } else {
-                    crate::util::input::kind(t)
-                };
+            if let Some(what) = crate::util::fs::in_the_way(&out) {
                 bail!(
                     "{flag} {} is {what}, not a lock file: remove it (reframe makes its lock \
                      files, and removes them when the command ends); nothing was written",

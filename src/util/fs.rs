@@ -413,21 +413,27 @@ pub fn not_regular(e: &std::io::Error) -> bool {
     e.kind() == std::io::ErrorKind::InvalidInput && e.raw_os_error().is_none()
 }
 
+/// What is at `p` where that is anything but a regular file, in words ("a symbolic link", "a
+/// directory", "a named pipe (FIFO)", ...; a link is not followed); `None` where nothing is
+/// there or a regular file is. An output (`check_replaceable`) or a lock file
+/// (`driver::guard::check_outputs`) cannot go where this says something is.
+pub fn in_the_way(p: &Path) -> Option<&'static str> {
+    let t = std::fs::symlink_metadata(p).ok()?.file_type();
+    if t.is_file() {
+        None
+    } else if t.is_symlink() {
+        Some("a symbolic link")
+    } else {
+        Some(super::input::kind(t))
+    }
+}
+
 /// Fail if `p` exists as anything but a regular file. Outputs are written under a temporary name
 /// and renamed into place, and a rename replaces what is there: a device (`/dev/null`), a FIFO,
 /// a socket or a symbolic link would be replaced by a plain file, not written through.
 pub fn check_replaceable(p: &Path) -> Result<()> {
-    let Ok(m) = std::fs::symlink_metadata(p) else {
+    let Some(what) = in_the_way(p) else {
         return Ok(());
-    };
-    let t = m.file_type();
-    if t.is_file() {
-        return Ok(());
-    }
-    let what = if t.is_symlink() {
-        "a symbolic link"
-    } else {
-        super::input::kind(t)
     };
     anyhow::bail!(
         "{} is {what}: reframe writes a new file and renames it into place, which would replace \
