@@ -1752,21 +1752,16 @@ fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
         let Some(span) = e.span() else {
             return anyhow!("{label}: {msg}");
         };
-        // serde reads a TOML date or time as a map (its private form of one), and calls
-        // tables maps and arrays sequences: TOML's words.
+        // serde reads a TOML date or time as a map (its private form of one), which
+        // `plain_types` called a table: say what it is.
         let value = text.get(span.clone()).unwrap_or("").trim();
         if value.parse::<toml::value::Datetime>().is_ok() {
             msg = msg.replacen(
-                "invalid type: map",
+                "invalid type: a table",
                 &format!("invalid type: a date or time ({value})"),
                 1,
             );
         }
-        msg = msg
-            .replacen("invalid type: map", "invalid type: a table", 1)
-            .replacen("invalid type: sequence", "invalid type: an array", 1)
-            .replace("expected a map", "expected a table")
-            .replace("expected a sequence", "expected an array");
         let line = line_at(text.as_bytes(), span.start);
         let quoted = quote(text.lines().nth(line - 1).unwrap_or(""));
         // toml gives no words for a file that ends where a value should be (`frames =` as
@@ -2300,12 +2295,9 @@ fn load_objects(
     // An OBJ is one by its file (device and inode) where it can be read, so that one file
     // under two names (`crate.obj` and `./crate.obj`, a link) is read once and instanced.
     let mut first: HashMap<(u64, u64, PathBuf), usize> = HashMap::new();
-    let file = |path: &Path| {
-        use std::os::unix::fs::MetadataExt;
-        match std::fs::metadata(path) {
-            Ok(m) => (m.dev(), m.ino(), PathBuf::new()),
-            Err(_) => (0, 0, path.to_path_buf()),
-        }
+    let file = |path: &Path| match crate::util::fs::file_id(path) {
+        Some((dev, ino)) => (dev, ino, PathBuf::new()),
+        None => (0, 0, path.to_path_buf()),
     };
     for o in list {
         let m = o.transform(label, &lines)?;

@@ -107,9 +107,8 @@ fn check_texels(path: &Path, data: &[f32]) -> Result<u64> {
 /// The file a texture key names, as `Textures::by_file` keys it: its device and inode (after
 /// symbolic links) and the key's mask channel; `None` where it cannot be read.
 fn file_key(key: &(PathBuf, Option<Option<char>>)) -> Option<(u64, u64, Option<Option<char>>)> {
-    use std::os::unix::fs::MetadataExt;
-    let m = std::fs::metadata(&key.0).ok()?;
-    Some((m.dev(), m.ino(), key.1))
+    let (dev, ino) = crate::util::fs::file_id(&key.0)?;
+    Some((dev, ino, key.1))
 }
 
 /// The textures of a scene and the texture system they are looked up through.

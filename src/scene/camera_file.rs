@@ -407,10 +407,6 @@ fn json_message(e: &serde_json::Error) -> String {
         None => &m,
     };
     plain_types(m, "an object")
-        .replacen("invalid type: map", "invalid type: an object", 1)
-        .replacen("invalid type: sequence", "invalid type: an array", 1)
-        .replace("expected a map", "expected an object")
-        .replace("expected a sequence", "expected an array")
 }
 
 /// A matrix's numbers, row-major: as given, or its four rows of four (`[[...], ...]`, as numpy's

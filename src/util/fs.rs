@@ -413,6 +413,14 @@ pub fn not_regular(e: &std::io::Error) -> bool {
     e.kind() == std::io::ErrorKind::InvalidInput && e.raw_os_error().is_none()
 }
 
+/// The file at `p` (after symbolic links) as the system tells files apart: its device and
+/// inode, the same under every name it has; `None` where it cannot be read.
+pub fn file_id(p: &Path) -> Option<(u64, u64)> {
+    use std::os::unix::fs::MetadataExt;
+    let m = std::fs::metadata(p).ok()?;
+    Some((m.dev(), m.ino()))
+}
+
 /// What is at `p` where that is anything but a regular file, in words ("a symbolic link", "a
 /// directory", "a named pipe (FIFO)", ...; a link is not followed); `None` where nothing is
 /// there or a regular file is. An output (`check_replaceable`) or a lock file

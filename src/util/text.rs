@@ -57,8 +57,8 @@ pub fn message(s: &str) -> String {
 /// A serde message (from TOML or JSON input) in the words of the file's format, not Rust's:
 /// serde names the Rust type a value was read into (`invalid type: string "a", expected f64`,
 /// `expected struct JsonEntry with 6 elements`), which says nothing to someone who wrote the
-/// file. Numbers are "a number" or "a whole number", a struct is `record` (`"a table"` in TOML,
-/// `"an object"` in JSON).
+/// file. Numbers are "a number" or "a whole number", a struct and a map are `record` (`"a
+/// table"` in TOML, `"an object"` in JSON), a sequence is "an array".
 pub fn plain_types(msg: &str, record: &str) -> String {
     const WHOLE: [&str; 10] = [
         "u8", "u16", "u32", "u64", "usize", "i8", "i16", "i32", "i64", "isize",
@@ -99,7 +99,10 @@ pub fn plain_types(msg: &str, record: &str) -> String {
         }
     }
     out.push_str(rest);
-    out
+    out.replacen("invalid type: map", &format!("invalid type: {record}"), 1)
+        .replacen("invalid type: sequence", "invalid type: an array", 1)
+        .replace("expected a map", &format!("expected {record}"))
+        .replace("expected a sequence", "expected an array")
 }
 
 /// A file name as names are matched in another case: composed (Unicode NFC: an `Ö` written
