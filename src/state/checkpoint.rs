@@ -223,25 +223,16 @@ impl Checkpointer {
         if let Some(c) = template.chunk {
             check_partial_is_ours(&partial_path(&template.out, c), &template)?;
             let lp = log_path(&partial_path(&template.out, c));
-            if let Ok(m) = std::fs::symlink_metadata(&lp) {
+            let hard_link = || {
                 use std::os::unix::fs::MetadataExt;
-                let t = m.file_type();
-                let what = if t.is_symlink() {
-                    Some("a symbolic link")
-                } else if !t.is_file() {
-                    Some(crate::util::input::kind(t))
-                } else if m.nlink() != 1 {
-                    Some("a file with other names (a hard link)")
-                } else {
-                    None
-                };
-                if let Some(what) = what {
-                    bail!(
-                        "the chunk log {} is {what}; remove it (reframe makes its own) and run \
-                         again",
-                        lp.display()
-                    );
-                }
+                let m = std::fs::symlink_metadata(&lp).ok()?;
+                (m.nlink() != 1).then_some("a file with other names (a hard link)")
+            };
+            if let Some(what) = crate::util::fs::in_the_way(&lp).or_else(hard_link) {
+                bail!(
+                    "the chunk log {} is {what}; remove it (reframe makes its own) and run again",
+                    lp.display()
+                );
             }
         }
         if let Some(d) = &dir {
