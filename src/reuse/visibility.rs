@@ -155,6 +155,13 @@ fn chunk<const VIEWS: bool>(
 /// also `views[hi * n_f + k]`, how the eye sees each hit. For the hits' own eye (`native`),
 /// which sees each hit in the pixel it was shot through (the caller's landing), the view terms
 /// alone.
+///
+/// Compiled for AVX-512 and AVX2 besides the portable build and chosen at run time, so that a
+/// chunk's eight lanes are one vector (IEEE arithmetic with nothing fused: the same bits in all).
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl",
+    "x86_64+avx2",
+))]
 #[allow(clippy::too_many_arguments)]
 pub fn landings(
     integrator: &Integrator,
