@@ -407,7 +407,7 @@ pub fn render_summary(stats: &reframe::driver::RenderStats) -> String {
     };
     format!(
         "rendered {what} of '{}' ({}x{}, {} spp, {how}) in {:.1} s, {:.2} Mrays/s, peak memory {} MB",
-        stats.scene,
+        reframe::util::text::printable(&stats.scene),
         stats.width,
         stats.height,
         stats.spp,

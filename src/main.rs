@@ -456,11 +456,11 @@ fn run(cli: Cli) -> Result<()> {
             };
             outln!(
                 "reference of '{}' ({}x{}, {} spp) in {} ({how})",
-                scene.name,
+                printable(&scene.name),
                 res.0,
                 res.1,
                 r.spp,
-                r.dir.display()
+                printable(&r.dir.display().to_string())
             );
             Ok(())
         }

@@ -714,3 +714,120 @@ fn a_merge_of_nothing_names_both_ways_to_name_the_chunks() {
     .unwrap();
     assert!(line.contains("or give --chunks N"), "{line}");
 }
+
+#[test]
+fn a_scene_named_with_control_characters_is_shown_escaped_in_every_command() {
+    // A scene's name is its file's. The summaries of `render`, `reference` and `bench` printed it
+    // raw (an escape sequence cleared the screen, a line break split a summary in two, a
+    // right-to-left override reversed the rest of the line), and in the titles of `compare`'s
+    // charts a control character made the SVG invalid after every run had been rendered:
+    // `compare` failed, left the broken SVG and never wrote `compare.csv` or `compare.json`.
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    for f in ["cornell.obj", "cornell.mtl"] {
+        std::fs::copy(scenes.join(f), d.join(f)).unwrap();
+    }
+    let name = "e\u{1b}[2J\u{1}x\n\u{202e}y";
+    std::fs::copy(scenes.join("cornell.toml"), d.join(format!("{name}.toml"))).unwrap();
+    let scene = format!("{name}.toml");
+    let shown = "e\\u{1b}[2J\\u{1}x \\u{202e}y";
+    let commands: [&[&str]; 4] = [
+        &[
+            "render",
+            &scene,
+            "--res",
+            "8x6",
+            "--spp",
+            "1",
+            "--frames",
+            "0",
+            "--out",
+            "o_####.exr",
+        ],
+        &[
+            "reference",
+            &scene,
+            "--res",
+            "8x6",
+            "--frames",
+            "3-5",
+            "--reference-spp",
+            "8",
+            "--cache",
+            "rc",
+        ],
+        &[
+            "bench",
+            &scene,
+            "--res",
+            "8x6",
+            "--spp",
+            "1",
+            "--windows",
+            "3",
+            "--repeats",
+            "1",
+        ],
+        &[
+            "compare",
+            &scene,
+            "--res",
+            "8x6",
+            "--frames",
+            "3-5",
+            "--reference-spp",
+            "8",
+            "--cache",
+            "rc",
+            "--methods",
+            "independent",
+            "--budgets",
+            "1",
+            "--out",
+            "cmp",
+        ],
+    ];
+    for args in commands {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
+            .args(args)
+            .current_dir(d)
+            .output()
+            .unwrap();
+        let (out, err) = (
+            String::from_utf8(o.stdout).unwrap(),
+            String::from_utf8(o.stderr).unwrap(),
+        );
+        assert!(o.status.success(), "{}: {err}", args[0]);
+        for text in [&out, &err] {
+            assert!(
+                !text.contains(['\u{1b}', '\u{1}', '\u{202e}']),
+                "{}: {text:?}",
+                args[0]
+            );
+        }
+        if args[0] != "compare" {
+            // (The render's summary is on standard error, the others' on standard output.)
+            let line = [&out, &err]
+                .into_iter()
+                .flat_map(|t| t.lines())
+                .find(|l| l.contains(shown))
+                .unwrap_or_else(|| panic!("{}: {out:?}", args[0]));
+            assert!(
+                line.contains("8x6"),
+                "{}: the summary in one line: {line:?}",
+                args[0]
+            );
+        }
+    }
+    for f in [
+        "compare.csv",
+        "compare.json",
+        "error_vs_time.svg",
+        "error_vs_time.png",
+    ] {
+        assert!(d.join("cmp").join(f).is_file(), "{f}");
+    }
+    let svg = std::fs::read_to_string(d.join("cmp/error_vs_time.svg")).unwrap();
+    assert!(svg.contains(shown), "the title as messages show it");
+}

@@ -180,7 +180,12 @@ impl BenchReport {
         let _ = writeln!(
             t,
             "scene {} {}x{} frame {} spp {} threads {}",
-            self.scene, self.width, self.height, self.frame, self.spp, self.threads
+            crate::util::text::printable(&self.scene),
+            self.width,
+            self.height,
+            self.frame,
+            self.spp,
+            self.threads
         );
         let _ = writeln!(t, "costs, ns of one core:");
         let _ = writeln!(t, "  c_e  eye ray                 {:>9.1}", self.c_e);

@@ -49,8 +49,12 @@ fn header(w: f64, h: f64) -> String {
     )
 }
 
+/// Text from input (a scene's name in a title) as SVG text: shown as messages show it
+/// (`printable`: control characters, which XML forbids and which made the chart fail to parse
+/// after a whole `compare` had run, are written as escapes, `\u{1}`), with XML's markup escaped.
 fn escape(s: &str) -> String {
-    s.replace('&', "&amp;")
+    crate::util::text::printable(s)
+        .replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
 }
@@ -330,13 +334,14 @@ pub fn image_strip(title: &str, tiles: &[(String, Vec<u8>, u32, u32)], zoom: u32
 }
 
 /// Write `svg` to `stem.svg` and its rasterisation to `stem.png`, both atomically.
+/// Nothing is written where the drawing does not parse.
 pub fn write_svg_png(svg: &str, stem: &Path) -> Result<()> {
     let svg_path = stem.with_extension("svg");
-    write_atomic(&svg_path, svg.as_bytes())?;
     let mut opt = resvg::usvg::Options::default();
     opt.fontdb_mut().load_system_fonts();
     let tree = resvg::usvg::Tree::from_str(svg, &opt)
         .with_context(|| format!("{}: not a valid SVG", svg_path.display()))?;
+    write_atomic(&svg_path, svg.as_bytes())?;
     let size = tree.size().to_int_size();
     let mut pixmap = resvg::tiny_skia::Pixmap::new(size.width(), size.height())
         .ok_or_else(|| anyhow!("{}: empty drawing", svg_path.display()))?;

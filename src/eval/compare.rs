@@ -790,11 +790,20 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
             })
             .collect(),
     };
+    // A chart that cannot be drawn fails the command, but only after the measurements are
+    // written (`compare.csv`, `compare.json`): they are hours of rendering at production sizes.
+    let mut chart_error: Option<anyhow::Error> = None;
     let mut write_chart = |svg: String, stem: &str| -> Result<()> {
         let p = opts.out.join(stem);
-        write_svg_png(&svg, &p)?;
-        outputs.push(p.with_extension("png").display().to_string());
-        outputs.push(p.with_extension("svg").display().to_string());
+        match write_svg_png(&svg, &p) {
+            Ok(()) => {
+                outputs.push(p.with_extension("png").display().to_string());
+                outputs.push(p.with_extension("svg").display().to_string());
+            }
+            Err(e) => {
+                chart_error.get_or_insert(e);
+            }
+        }
         Ok(())
     };
     write_chart(chart1.svg(), "error_vs_time")?;
@@ -1085,6 +1094,13 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         outputs,
     };
     write_json(&json_path, &report)?;
+    if let Some(e) = chart_error {
+        return Err(e.context(format!(
+            "the measurements are in {} and {}, but a chart could not be drawn",
+            csv_path.display(),
+            json_path.display()
+        )));
+    }
     Ok(report)
 }
 

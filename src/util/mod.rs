@@ -17,7 +17,7 @@ macro_rules! outln {
     ($($arg:tt)*) => {{
         let mut line = format!($($arg)*);
         line.push('\n');
-        $crate::util::write_stdout(line.as_bytes());
+        $crate::util::write_stdout($crate::util::text::screen_safe(&line).as_bytes());
     }};
 }
 
@@ -58,6 +58,6 @@ macro_rules! errln {
     ($($arg:tt)*) => {{
         let mut line = format!($($arg)*);
         line.push('\n');
-        let _ = $crate::sys::write_stderr(line.as_bytes());
+        let _ = $crate::sys::write_stderr($crate::util::text::screen_safe(&line).as_bytes());
     }};
 }

@@ -12,15 +12,39 @@ pub fn printable(s: &str) -> String {
         match c {
             '\n' => out.push(' '),
             '\t' => out.push(c),
-            c if c.is_control()
-                || matches!(c, '\u{202a}'..='\u{202e}' | '\u{2066}'..='\u{2069}') =>
-            {
-                out.push_str(&format!("\\u{{{:x}}}", c as u32))
-            }
+            c if acts_on_screen(c) => out.push_str(&format!("\\u{{{:x}}}", c as u32)),
             c => out.push(c),
         }
     }
     out
+}
+
+/// Whether `c` acts on a terminal instead of being shown: a control character (an escape
+/// sequence's start, a carriage return) or one that reorders text on screen (bidirectional
+/// overrides and isolates).
+fn acts_on_screen(c: char) -> bool {
+    c.is_control() || matches!(c, '\u{202a}'..='\u{202e}' | '\u{2066}'..='\u{2069}')
+}
+
+/// `s` as `printable` writes it but with its line breaks kept: what `outln!` and `errln!` print,
+/// so that no line reframe prints acts on the terminal, whatever a caller put in it (a table
+/// of several lines keeps its lines). Borrowed where nothing needs escaping.
+pub fn screen_safe(s: &str) -> std::borrow::Cow<'_, str> {
+    if !s
+        .chars()
+        .any(|c| c != '\n' && c != '\t' && acts_on_screen(c))
+    {
+        return std::borrow::Cow::Borrowed(s);
+    }
+    let mut out = String::with_capacity(s.len() + 16);
+    for c in s.chars() {
+        match c {
+            '\n' | '\t' => out.push(c),
+            c if acts_on_screen(c) => out.push_str(&format!("\\u{{{:x}}}", c as u32)),
+            c => out.push(c),
+        }
+    }
+    std::borrow::Cow::Owned(out)
 }
 
 /// Runs of text without a space longer than this are cut in a message (`message`): past any
@@ -116,7 +140,7 @@ pub fn folded(name: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{message, plain_types, printable};
+    use super::{message, plain_types, printable, screen_safe};
 
     #[test]
     fn a_message_cuts_runs_past_1024_characters_and_nothing_else() {
@@ -194,5 +218,14 @@ mod tests {
             "a\\u{1b}]0;PWNED\\u{7}\\u{1b}[2J\\u{0}b\\u{d} c\td\\u{9b}e\\u{202e}f"
         );
         assert_eq!(printable("Grüße, 日本 #25"), "Grüße, 日本 #25");
+        // What every printed line goes through keeps its lines and tabs.
+        assert_eq!(
+            screen_safe("a\u{1b}[2J\n\tb\r\u{2067}c\n"),
+            "a\\u{1b}[2J\n\tb\\u{d}\\u{2067}c\n"
+        );
+        assert!(matches!(
+            screen_safe("table\n\tGrüße\n"),
+            std::borrow::Cow::Borrowed(_)
+        ));
     }
 }
