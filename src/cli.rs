@@ -262,10 +262,18 @@ pub fn parse_share(s: &str) -> Result<f32, String> {
 pub fn parse_chunk(s: &str) -> Result<Chunk, String> {
     let err = || format!("'{s}': expected K/N with 1 <= K <= N, e.g. 2/3");
     let (k, n) = s.split_once('/').ok_or_else(err)?;
-    let (k, n): (u32, u32) = (
-        k.trim().parse().map_err(|_| err())?,
-        n.trim().parse().map_err(|_| err())?,
-    );
+    // A count past u32 is a count too large, not a form misread (it said "expected K/N").
+    let number = |t: &str| {
+        t.trim().parse::<u32>().map_err(|e| match e.kind() {
+            std::num::IntErrorKind::PosOverflow => format!(
+                "'{s}': {} is too large (a render has at most {} frames, and a chunk at least one)",
+                t.trim(),
+                reframe::scene::MAX_FRAMES
+            ),
+            _ => err(),
+        })
+    };
+    let (k, n) = (number(k)?, number(n)?);
     if k == 0 || k > n {
         return Err(err());
     }

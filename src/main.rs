@@ -104,6 +104,7 @@ fn main() {
                 ),
                 l => l,
             };
+            let line = reframe::util::text::plain_parse_errors(&line);
             errln!("{} (see --help)", message(&line));
             std::process::exit(2);
         }
@@ -316,6 +317,17 @@ fn run(cli: Cli) -> Result<()> {
                 }
             }
             errln!("{}", cli::render_summary(&stats));
+            // A reuse method that reused next to nothing cost its time for no gain: said, as
+            // `--window 1` is before the render.
+            if stats.method.reuses() && stats.window > 1 && stats.lost_reuse_fraction >= 0.9 {
+                errln!(
+                    "warning: {:.1}% of the reuses were lost (hidden from the other frames' eyes,                      or off their films): --method {} reused almost nothing; the frames of a                      group see little of each other (a film {}x{}, a camera that jumps), and                      --method independent renders them faster",
+                    100.0 * stats.lost_reuse_fraction,
+                    stats.method.name(),
+                    stats.width,
+                    stats.height
+                );
+            }
             say_half_clamped();
             if stats.nonfinite_pixels > 0 {
                 errln!(

@@ -327,7 +327,7 @@ struct FrameNumber(u32);
 
 impl<'de> Deserialize<'de> for FrameNumber {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        whole(d, "a frame number (a whole number from 0 to 4294967295)").map(FrameNumber)
+        whole(d, "a frame number (a whole number, 0 or more)").map(FrameNumber)
     }
 }
 
@@ -340,7 +340,7 @@ struct Whole(u32);
 
 impl<'de> Deserialize<'de> for Whole {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        whole(d, "a whole number from 0 to 4294967295").map(Whole)
+        whole(d, "a positive whole number").map(Whole)
     }
 }
 
@@ -353,15 +353,23 @@ fn whole<'de, D: Deserializer<'de>>(d: D, what: &'static str) -> Result<u32, D::
         fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
             f.write_str(self.0)
         }
+        // Past the range of any count or frame: said so (it read "from 0 to 4294967295",
+        // where frames and frame numbers stop at `MAX_FRAMES` and a film at `MAX_PIXELS`,
+        // which the checks after reading say).
         fn visit_i64<E: de::Error>(self, v: i64) -> Result<u32, E> {
+            if v > u32::MAX as i64 {
+                return Err(E::custom(format!("{v} is too large")));
+            }
             u32::try_from(v).map_err(|_| E::invalid_value(de::Unexpected::Signed(v), &self))
         }
         fn visit_u64<E: de::Error>(self, v: u64) -> Result<u32, E> {
-            u32::try_from(v).map_err(|_| E::invalid_value(de::Unexpected::Unsigned(v), &self))
+            u32::try_from(v).map_err(|_| E::custom(format!("{v} is too large")))
         }
         fn visit_f64<E: de::Error>(self, v: f64) -> Result<u32, E> {
             if v.fract() == 0.0 && (0.0..=u32::MAX as f64).contains(&v) {
                 Ok(v as u32)
+            } else if v.fract() == 0.0 && v > u32::MAX as f64 {
+                Err(E::custom(format!("{v} is too large")))
             } else {
                 Err(E::invalid_value(de::Unexpected::Float(v), &self))
             }
@@ -694,10 +702,24 @@ impl Scene {
                 builtin_names().join(", ")
             );
         };
+        // A file here with a shipped scene's name (`cornell`, no extension) is the one read:
+        // said in every message about it, and in a note, since the name alone reads as the
+        // shipped scene's.
+        let shadowed = matches!(source, Source::Files { .. }) && builtin.is_some();
+        let shadow_note = shadowed.then(|| {
+            format!(
+                "'{name_or_path}' is the file {} here, not the shipped scene {name_or_path}:                  rename the file to use the shipped scene from this folder",
+                p.display()
+            )
+        });
         let mut repairs = Repairs::new(opts.strict);
         let (label, toml_bytes) = match &source {
             Source::Files { toml } => (
-                toml.display().to_string(),
+                if shadowed {
+                    format!("{} (a file here, not the shipped scene)", toml.display())
+                } else {
+                    toml.display().to_string()
+                },
                 text::from_wide(read_input(toml, "scene file", MAX_INPUT_BYTES)?),
             ),
             Source::Builtin(i) => (
@@ -971,6 +993,7 @@ impl Scene {
         };
         let offset_floor = offset_floor(lo, hi);
         let mut warnings = repairs.into_warnings();
+        warnings.extend(shadow_note);
         warnings.extend(object_notes);
         warnings.extend(cache_note);
         for (object, n) in turned_in.into_iter().filter(|&(_, n)| n > 0) {
@@ -1025,10 +1048,18 @@ impl Scene {
             .warnings
             .extend(precision::near_huge_triangles(&scene, &obj_label));
         // Lights so dim that the render's arithmetic loses them: every frame black, no word.
-        let brightest = scene.brightest_emission();
+        let (brightest, emitters) = (scene.brightest_emission(), scene.brightest_emitter());
         if brightest > 0.0 && brightest < MIN_LIGHT {
+            // Named where that light is written: the environment in the scene file, an
+            // emitting material in its OBJ.
+            let whose = match &file.environment {
+                Some(e) if brightest > emitters => {
+                    format!("{label}: line {}: [environment]", e.line(toml_text))
+                }
+                _ => obj_label,
+            };
             bail!(
-                "{obj_label}: the scene's brightest light emits {brightest:e}, below {MIN_LIGHT:e}: \
+                "{whose}: the scene's brightest light emits {brightest:e}, below {MIN_LIGHT:e}: \
                  a path's products of it fall below single precision's smallest normal number \
                  (1.2e-38, under which the ray tracer's threads flush values to zero), and every \
                  frame would be black; scale the lights (Ke, the environment's intensity) up"
@@ -1041,15 +1072,21 @@ impl Scene {
     /// `Ke` times the largest texel of its emission map (at most `MAX_KE`, as a lookup is
     /// capped), and the environment's brightest texel. 0 for a scene that emits nothing.
     pub fn brightest_emission(&self) -> f32 {
+        let env = self
+            .environment
+            .as_ref()
+            .map_or(0.0, Environment::brightest);
+        env.max(self.brightest_emitter())
+    }
+
+    /// `brightest_emission` of the emitting materials alone (0 where none emits).
+    fn brightest_emitter(&self) -> f32 {
         let materials = self
             .lights
             .tris
             .iter()
             .map(|&t| self.tri_material[t as usize] as usize);
-        let mut brightest = self
-            .environment
-            .as_ref()
-            .map_or(0.0, Environment::brightest);
+        let mut brightest = 0.0f32;
         for m in materials {
             let ke = self.materials[m].ke.max_element();
             let map = self.maps.get(m).and_then(|maps| maps.ke.as_ref());

@@ -831,3 +831,106 @@ fn a_scene_named_with_control_characters_is_shown_escaped_in_every_command() {
     let svg = std::fs::read_to_string(d.join("cmp/error_vs_time.svg")).unwrap();
     assert!(svg.contains(shown), "the title as messages show it");
 }
+
+#[test]
+fn a_file_named_as_a_shipped_scene_is_said_to_be_the_file() {
+    // `reframe render cornell` in a folder holding a file `cornell` reads the file: it did so
+    // without a word, and its errors named `cornell` as if it were the shipped scene.
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let base = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/base");
+    for f in ["s.obj", "s.mtl"] {
+        std::fs::copy(base.join(f), d.join(f)).unwrap();
+    }
+    std::fs::copy(base.join("s.toml"), d.join("cornell")).unwrap();
+    let run = || {
+        std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
+            .args([
+                "render",
+                "cornell",
+                "--res",
+                "8x6",
+                "--spp",
+                "1",
+                "--out",
+                "f_####.png",
+            ])
+            .current_dir(d)
+            .output()
+            .unwrap()
+    };
+    let o = run();
+    let err = String::from_utf8(o.stderr).unwrap();
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("warning: 'cornell' is the file cornell here, not the shipped scene cornell"),
+        "{err}"
+    );
+    // Broken, it is named as the file.
+    std::fs::write(d.join("cornell"), "obj = \"missing.obj\"\n").unwrap();
+    let o = run();
+    let err = String::from_utf8(o.stderr).unwrap();
+    assert!(!o.status.success());
+    assert!(
+        err.starts_with("error: cornell (a file here, not the shipped scene): "),
+        "{err}"
+    );
+    // A shipped scene's name with no such file here is the shipped scene, without a note.
+    std::fs::remove_file(d.join("cornell")).unwrap();
+    let o = run();
+    let err = String::from_utf8(o.stderr).unwrap();
+    assert!(o.status.success() && !err.contains("warning"), "{err}");
+}
+
+#[test]
+fn a_reuse_render_that_reuses_nothing_says_so() {
+    // A film one pixel wide: every reuse falls off the other frames' films, so the method
+    // costs its time and reuses nothing; it said nothing (`--window 1` is warned of).
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("f_####.exr");
+    let o = common::reframe(&[
+        "render",
+        "cornell",
+        "--method",
+        "mis-exact",
+        "--window",
+        "3",
+        "--res",
+        "1x20000",
+        "--frames",
+        "0-2",
+        "--spp",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ])
+    .output()
+    .unwrap();
+    let err = String::from_utf8(o.stderr).unwrap();
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("% of the reuses were lost") && err.contains("a film 1x20000"),
+        "{err}"
+    );
+    // An ordinary reuse render is not warned.
+    let o = common::reframe(&[
+        "render",
+        "cornell",
+        "--method",
+        "mis-exact",
+        "--window",
+        "3",
+        "--res",
+        "32x32",
+        "--frames",
+        "0-2",
+        "--spp",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ])
+    .output()
+    .unwrap();
+    let err = String::from_utf8(o.stderr).unwrap();
+    assert!(o.status.success() && !err.contains("warning"), "{err}");
+}

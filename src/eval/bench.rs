@@ -251,9 +251,27 @@ impl BenchReport {
             self.paths_single_seconds,
             self.paths_single_seconds / self.primary_packet_seconds
         );
+        // Runs this short are mostly the fixed costs of a render (threads, films), and the
+        // ratios above read them, not the tracer.
+        let shortest = self
+            .speedup_runs
+            .iter()
+            .flat_map(|r| [r.independent_seconds, r.reuse_seconds])
+            .chain([self.render_seconds, self.bare_seconds])
+            .fold(f64::INFINITY, f64::min);
+        if shortest < SHORT_RUN_SECONDS {
+            let _ = write!(
+                t,
+                "\nnote: a timed run took {shortest:.3} s, under {SHORT_RUN_SECONDS} s: too short \
+                 for these figures to mean much; give a larger --res or --spp"
+            );
+        }
         t
     }
 }
+
+/// A timed run shorter than this is said to be (`BenchReport::table`).
+const SHORT_RUN_SECONDS: f64 = 0.05;
 
 /// The cost model's terms, nanoseconds of one core per item.
 #[derive(Clone, Copy, Debug, Serialize)]

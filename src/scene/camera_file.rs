@@ -516,6 +516,9 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
             .any(|w| here.starts_with(w))
         {
             " (NaN or Infinity: a camera's numbers must be finite, and JSON has no such numbers)"
+        } else if here.starts_with("//") || here.starts_with("/*") {
+            // A comment, as a JSON5 or JavaScript exporter writes one.
+            " (a comment: JSON has none; remove it)"
         } else {
             ""
         };
@@ -1277,6 +1280,14 @@ mod tests {
             (
                 format!("[{}]", entry(0, ID)),
                 "c.json: line 1: the file is an array: a camera file is an object, {\"frames\": [...]}",
+            ),
+            (
+                format!("// exported from the shot\n{}", json(&[entry(0, ID)])),
+                "c.json: line 1: expected value (a comment: JSON has none; remove it)",
+            ),
+            (
+                json(&[entry(0, ID)]).replacen('\n', "\n/* camera */ ", 1),
+                "c.json: line 2: expected value (a comment: JSON has none; remove it)",
             ),
             (json(&[entry(0, ID).replace("fov", "fvo")]), "c.json: line 2 (entry 1): unknown field `fvo`"),
             // A file on one line (Python's `json.dump`) says the column too.

@@ -123,10 +123,62 @@ pub fn plain_types(msg: &str, record: &str) -> String {
         }
     }
     out.push_str(rest);
-    out.replacen("invalid type: map", &format!("invalid type: {record}"), 1)
+    let out = out
+        .replacen("invalid type: map", &format!("invalid type: {record}"), 1)
         .replacen("invalid type: sequence", "invalid type: an array", 1)
         .replace("expected a map", &format!("expected {record}"))
         .replace("expected a sequence", "expected an array")
+        // serde_json's word for a key given twice (TOML's is "key").
+        .replace("duplicate field `", "duplicate key `");
+    bare_values(&out)
+}
+
+/// serde's names of a value's Rust kind dropped where it quotes the value: `invalid type:
+/// boolean `true`` is `invalid type: true`, `invalid value: integer `-8`` is `invalid value:
+/// -8`, `floating point `0.5`` is `0.5` (the value says what it is; a string keeps its quotes).
+fn bare_values(msg: &str) -> String {
+    let mut out = msg.to_string();
+    for lead in ["invalid type: ", "invalid value: "] {
+        let Some(at) = out.find(lead) else {
+            continue;
+        };
+        let after = at + lead.len();
+        for kind in ["boolean `", "integer `", "floating point `"] {
+            if !out[after..].starts_with(kind) {
+                continue;
+            }
+            let value_at = after + kind.len();
+            if let Some(end) = out[value_at..].find('`') {
+                let value = out[value_at..value_at + end].to_string();
+                out.replace_range(after..value_at + end + 1, &value);
+            }
+            break;
+        }
+    }
+    out
+}
+
+/// A command-line error from clap in plain words: a number that did not parse is said by what
+/// was expected, not by Rust's parser (`invalid digit found in string` for `--spp nan`,
+/// `number too large to fit in target type`, `invalid float literal`).
+pub fn plain_parse_errors(line: &str) -> String {
+    const WORDS: [(&str, &str); 6] = [
+        (
+            "cannot parse integer from empty string",
+            "empty: expected a whole number",
+        ),
+        ("invalid digit found in string", "expected a whole number"),
+        ("number too large to fit in target type", "too large"),
+        ("number too small to fit in target type", "too small"),
+        ("invalid float literal", "expected a number (such as 2.5)"),
+        (
+            "cannot parse float from empty string",
+            "empty: expected a number",
+        ),
+    ];
+    WORDS
+        .iter()
+        .fold(line.to_string(), |l, (rust, plain)| l.replace(rust, plain))
 }
 
 /// A file name as names are matched in another case: composed (Unicode NFC: an `Ö` written
@@ -140,7 +192,7 @@ pub fn folded(name: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{message, plain_types, printable, screen_safe};
+    use super::{bare_values, message, plain_types, printable, screen_safe};
 
     #[test]
     fn a_message_cuts_runs_past_1024_characters_and_nothing_else() {
@@ -198,7 +250,7 @@ mod tests {
         );
         let m = said(serde_json::from_str("7"));
         assert!(
-            m.starts_with("invalid type: integer `7`, expected an object at"),
+            m.starts_with("invalid type: 7, expected an object at"),
             "{m}"
         );
         for m in [m, said(serde_json::from_str("[1]"))] {
@@ -206,6 +258,25 @@ mod tests {
                 assert!(!m.contains(rust), "{m}");
             }
         }
+        // serde's kinds of a quoted value are left out, and a key given twice is a key.
+        let m = said(serde_json::from_str(r#"{"frame": true, "fov": 1}"#));
+        assert!(
+            m.starts_with("invalid type: true, expected a whole number"),
+            "{m}"
+        );
+        let m = said(serde_json::from_str(r#"{"frame": 0.5, "fov": 1}"#));
+        assert!(
+            m.starts_with("invalid type: 0.5, expected a whole number"),
+            "{m}"
+        );
+        let m = said(serde_json::from_str(
+            r#"{"frame": 0, "fov": 1, "frame": 2}"#,
+        ));
+        assert!(m.starts_with("duplicate key `frame`"), "{m}");
+        assert_eq!(
+            bare_values(r#"invalid type: string "a", expected a number"#),
+            r#"invalid type: string "a", expected a number"#
+        );
         // Other words after "expected" are kept.
         assert_eq!(plain_types("expected a string", "x"), "expected a string");
         assert_eq!(plain_types("expected f32s", "x"), "expected f32s");
