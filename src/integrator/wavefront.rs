@@ -253,110 +253,129 @@ impl Integrator<'_> {
         t: &mut Tally,
         sides: LightSides,
     ) -> &'w [FirstHit] {
-        assert_eq!(hits.len(), samplers.len(), "one sampler per path");
-        let geometry = &self.scene.geometry;
-        // Every record and walk is written in place below: a record pushed would be built aside
-        // and copied in, and the copy's wide loads of what narrow stores had just written
-        // cannot be forwarded from the store buffer.
-        let n = hits.len();
-        let scene = self.scene;
-        wf.recs.resize(n, FirstHit::default());
-        wf.walks.clear();
-        wf.walks.resize(n, None);
-        wf.shadows.clear();
-        wf.continuations.clear();
-        // A round's paths are all at the same vertex. For each round, the numbers of their
-        // step are drawn together (`StepLanes`), then the surfaces their rays hit are found and
-        // the light samples there taken together (`Scene::sample_lights`), both in SIMD lanes,
-        // and then each path takes its step.
-        wf.lanes.fill(samplers);
-        wf.all.clear();
-        wf.all.extend(0..n as u32);
-        wf.lanes.draw(&wf.all, self.step_dims(1), &mut wf.numbers);
-        let primary = hits.iter().map(|h| Some(*h));
-        let surfaces = (&mut wf.surfaces, &mut wf.hit);
-        surfaces_and_lights(scene, n, primary, &wf.numbers, surfaces, &mut wf.queries);
-        let lights = scene.sample_lights(&wf.queries, &mut wf.light_lanes);
-        // Each record's outgoing direction, towards the eye, which its BSDF sample needs before
-        // the record is filled.
-        for (rec, sp) in wf.recs.iter_mut().zip(&wf.surfaces[..n]) {
-            rec.wo = (eye - sp.p).normalize();
+        first_hits(self, eye, hits, samplers, wf, t, sides)
+    }
+}
+
+/// `Integrator::first_hits`, compiled for AVX-512 and AVX2 besides the portable build and
+/// chosen at run time: what it inlines (each path's step) then uses the CPU's vectors, and IEEE
+/// arithmetic with nothing fused gives the same bits in every version.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl",
+    "x86_64+avx2",
+))]
+fn first_hits<'w>(
+    this: &Integrator,
+    eye: Vec3,
+    hits: &[Hit],
+    samplers: &[Sampler],
+    wf: &'w mut Wavefront,
+    t: &mut Tally,
+    sides: LightSides,
+) -> &'w [FirstHit] {
+    assert_eq!(hits.len(), samplers.len(), "one sampler per path");
+    let geometry = &this.scene.geometry;
+    // Every record and walk is written in place below: a record pushed would be built aside
+    // and copied in, and the copy's wide loads of what narrow stores had just written
+    // cannot be forwarded from the store buffer.
+    let n = hits.len();
+    let scene = this.scene;
+    wf.recs.resize(n, FirstHit::default());
+    wf.walks.clear();
+    wf.walks.resize(n, None);
+    wf.shadows.clear();
+    wf.continuations.clear();
+    // A round's paths are all at the same vertex. For each round, the numbers of their
+    // step are drawn together (`StepLanes`), then the surfaces their rays hit are found and
+    // the light samples there taken together (`Scene::sample_lights`), both in SIMD lanes,
+    // and then each path takes its step.
+    wf.lanes.fill(samplers);
+    wf.all.clear();
+    wf.all.extend(0..n as u32);
+    wf.lanes.draw(&wf.all, this.step_dims(1), &mut wf.numbers);
+    let primary = hits.iter().map(|h| Some(*h));
+    let surfaces = (&mut wf.surfaces, &mut wf.hit);
+    surfaces_and_lights(scene, n, primary, &wf.numbers, surfaces, &mut wf.queries);
+    let lights = scene.sample_lights(&wf.queries, &mut wf.light_lanes);
+    // Each record's outgoing direction, towards the eye, which its BSDF sample needs before
+    // the record is filled.
+    for (rec, sp) in wf.recs.iter_mut().zip(&wf.surfaces[..n]) {
+        rec.wo = (eye - sp.p).normalize();
+    }
+    let wo = |i: usize| wf.recs[i].wo;
+    let room = (&mut wf.materials, &mut wf.bsdf_lanes);
+    sample_bsdfs(scene, n, &wf.surfaces, &wf.hit, wo, &wf.numbers, room);
+    for (i, (sp, light)) in wf.surfaces[..n].iter().zip(lights).enumerate() {
+        let rec = &mut wf.recs[i];
+        this.fill_first_record(rec, sp, wf.materials[i], rec.wo);
+        let bs = wf.bsdf_lanes.get(i);
+        let (shadow, next) = this.first_samples(rec, *light, bs, sides);
+        if let Some(ray) = shadow {
+            wf.shadows.push(i, &ray);
         }
-        let wo = |i: usize| wf.recs[i].wo;
-        let room = (&mut wf.materials, &mut wf.bsdf_lanes);
-        sample_bsdfs(scene, n, &wf.surfaces, &wf.hit, wo, &wf.numbers, room);
-        for (i, (sp, light)) in wf.surfaces[..n].iter().zip(lights).enumerate() {
-            let rec = &mut wf.recs[i];
-            self.fill_first_record(rec, sp, wf.materials[i], rec.wo);
-            let bs = wf.bsdf_lanes.get(i);
-            let (shadow, next) = self.first_samples(rec, *light, bs, sides);
-            if let Some(ray) = shadow {
-                wf.shadows.push(i, &ray);
-            }
-            if let Some(ray) = next {
-                wf.continuations.push(i, &ray);
-            }
+        if let Some(ray) = next {
+            wf.continuations.push(i, &ray);
         }
-        wf.shadows.occlude(geometry, self.paths, t);
+    }
+    wf.shadows.occlude(geometry, this.paths, t);
+    for k in 0..wf.shadows.len() {
+        let i = wf.shadows.paths[k] as usize;
+        this.light_blocked(&mut wf.recs[i], wf.shadows.blocked(k));
+    }
+    wf.continuations.intersect(geometry, this.paths, t);
+    // Each round hands every path the surface its continuation hit and, where the walk goes
+    // on, takes its next step at once (the path's state is touched once per round); the
+    // walk's shadow rays of a round are answered before the hits, as the scalar walk adds
+    // them first.
+    let mut depth = 2;
+    wf.prepare_round(this, depth);
+    let mut lights = wf.light_lanes.samples().iter();
+    for k in 0..wf.continuations.len() {
+        let i = wf.continuations.paths[k] as usize;
+        let sp = wf.hit[k].then(|| &wf.surfaces[k]);
+        let walk = &mut wf.walks[i];
+        *walk = this.first_continue(&mut wf.recs[i], sp);
+        // Every surface has its light sample, in order.
+        let light = sp.and_then(|_| *lights.next().expect("a light sample per surface"));
+        if let (Some(walk), Some(sp)) = (walk, sp) {
+            let (m, bs) = (&wf.materials[k], wf.bsdf_lanes.get(k));
+            let (shadow, next) = this.walk_vertex(walk, sp, m, bs, light);
+            queue(i, shadow, next, &mut wf.shadows, &mut wf.next_continuations);
+        }
+    }
+    while wf.next_continuations.len() > 0 || wf.shadows.len() > 0 {
+        wf.shadows.occlude(geometry, this.paths, t);
         for k in 0..wf.shadows.len() {
             let i = wf.shadows.paths[k] as usize;
-            self.light_blocked(&mut wf.recs[i], wf.shadows.blocked(k));
+            let walk = wf.walks[i].as_mut().expect("a shadow ray's path walks");
+            walk.shadow_resolved(wf.shadows.blocked(k));
         }
-        wf.continuations.intersect(geometry, self.paths, t);
-        // Each round hands every path the surface its continuation hit and, where the walk goes
-        // on, takes its next step at once (the path's state is touched once per round); the
-        // walk's shadow rays of a round are answered before the hits, as the scalar walk adds
-        // them first.
-        let mut depth = 2;
-        wf.prepare_round(self, depth);
+        std::mem::swap(&mut wf.continuations, &mut wf.next_continuations);
+        wf.continuations.intersect(geometry, this.paths, t);
+        // The walks answered here are all at vertex `depth`: the step to the next one.
+        depth += 1;
+        wf.prepare_round(this, depth);
         let mut lights = wf.light_lanes.samples().iter();
         for k in 0..wf.continuations.len() {
             let i = wf.continuations.paths[k] as usize;
             let sp = wf.hit[k].then(|| &wf.surfaces[k]);
-            let walk = &mut wf.walks[i];
-            *walk = self.first_continue(&mut wf.recs[i], sp);
-            // Every surface has its light sample, in order.
+            let walk = wf.walks[i].as_mut().expect("a continuation's path walks");
+            debug_assert_eq!(walk.depth + 1, depth, "a round's walks at one vertex");
             let light = sp.and_then(|_| *lights.next().expect("a light sample per surface"));
-            if let (Some(walk), Some(sp)) = (walk, sp) {
+            let rr = wf.numbers.get(k).rr;
+            if let (true, Some(sp)) = (this.walk_continue(walk, sp, rr), sp) {
                 let (m, bs) = (&wf.materials[k], wf.bsdf_lanes.get(k));
-                let (shadow, next) = self.walk_vertex(walk, sp, m, bs, light);
+                let (shadow, next) = this.walk_vertex(walk, sp, m, bs, light);
                 queue(i, shadow, next, &mut wf.shadows, &mut wf.next_continuations);
             }
         }
-        while wf.next_continuations.len() > 0 || wf.shadows.len() > 0 {
-            wf.shadows.occlude(geometry, self.paths, t);
-            for k in 0..wf.shadows.len() {
-                let i = wf.shadows.paths[k] as usize;
-                let walk = wf.walks[i].as_mut().expect("a shadow ray's path walks");
-                walk.shadow_resolved(wf.shadows.blocked(k));
-            }
-            std::mem::swap(&mut wf.continuations, &mut wf.next_continuations);
-            wf.continuations.intersect(geometry, self.paths, t);
-            // The walks answered here are all at vertex `depth`: the step to the next one.
-            depth += 1;
-            wf.prepare_round(self, depth);
-            let mut lights = wf.light_lanes.samples().iter();
-            for k in 0..wf.continuations.len() {
-                let i = wf.continuations.paths[k] as usize;
-                let sp = wf.hit[k].then(|| &wf.surfaces[k]);
-                let walk = wf.walks[i].as_mut().expect("a continuation's path walks");
-                debug_assert_eq!(walk.depth + 1, depth, "a round's walks at one vertex");
-                let light = sp.and_then(|_| *lights.next().expect("a light sample per surface"));
-                let rr = wf.numbers.get(k).rr;
-                if let (true, Some(sp)) = (self.walk_continue(walk, sp, rr), sp) {
-                    let (m, bs) = (&wf.materials[k], wf.bsdf_lanes.get(k));
-                    let (shadow, next) = self.walk_vertex(walk, sp, m, bs, light);
-                    queue(i, shadow, next, &mut wf.shadows, &mut wf.next_continuations);
-                }
-            }
-        }
-        for (rec, walk) in wf.recs.iter_mut().zip(&wf.walks) {
-            if let Some(walk) = walk {
-                rec.li_w = walk.l;
-            }
-        }
-        &wf.recs
     }
+    for (rec, walk) in wf.recs.iter_mut().zip(&wf.walks) {
+        if let Some(walk) = walk {
+            rec.li_w = walk.l;
+        }
+    }
+    &wf.recs
 }
 
 /// The surfaces that a round's `n` rays hit (`surfaces.0[k]`, where `surfaces.1[k]`: a ray
