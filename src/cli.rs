@@ -125,7 +125,7 @@ pub struct CompareArgs {
     #[arg(long, value_enum, default_value_t = Regime::Steady)]
     pub regime: Regime,
     /// Crop of the equal-time strip, "X,Y,W,H" in pixels (default: a centred square of half
-    /// the height).
+    /// the shorter side).
     #[arg(long, value_parser = parse_crop)]
     pub crop: Option<[u32; 4]>,
     /// Seeds of the bias images of the "+oidn" methods: the crop frame of each one's strip run
@@ -220,7 +220,7 @@ pub struct RenderArgs {
     pub checkpoint_every: f64,
     /// mis-exact and mis-cv: extra native samples where a pixel expects fewer reused samples
     /// than others (borders, disocclusions, cuts), topping each pixel up to F n_f n_r (F in
-    /// (0, 1]; 0.75 if not given).
+    /// (0, 1]; `--adaptive` alone is 0.75; off without the flag).
     #[arg(
         long,
         num_args = 0..=1,

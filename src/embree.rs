@@ -319,10 +319,6 @@ impl Packet16 {
         }
     }
 
-    pub fn is_active(&self, lane: usize) -> bool {
-        self.active[lane] != 0
-    }
-
     /// The hit of `lane` after `intersect16`.
     pub fn hit(&self, lane: usize) -> Option<Hit> {
         let h = &self.raw.rh.hit;

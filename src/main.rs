@@ -76,6 +76,13 @@ fn main() {
         Ok(cli) => cli,
         // --help, --version: on standard output, whose failure (a full disk) is said as any
         // command's is (clap's own exit said nothing, with status 0).
+        // --version names the build too: a resume or a merge refuses another build by its
+        // hash (`state::key::build_hash`, which `merge` quotes).
+        Err(e) if e.kind() == clap::error::ErrorKind::DisplayVersion => {
+            let build = reframe::state::key::build_hash().unwrap_or_else(|_| "unknown".into());
+            outln!("reframe {} (build {build})", env!("CARGO_PKG_VERSION"));
+            exit_done();
+        }
         Err(e) if !e.use_stderr() => {
             let written = e
                 .print()

@@ -2398,7 +2398,7 @@ fn load_objects(
     }
     let origin = render_origin(lo, hi);
     let to_origin = glam::DMat4::from_translation(-origin);
-    let mut own = objects::empty();
+    let mut own = Mesh::default();
     let mut prototypes = Vec::new();
     let mut instances = Vec::new();
     let mut notes = Vec::new();

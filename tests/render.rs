@@ -1115,3 +1115,24 @@ fn a_tiled_only_format_writes_frames() {
     assert!(iff.data.iter().any(|&v| v > 0.0), "black frame");
     assert_eq!(iff.data, png.data);
 }
+
+/// `--version` names the build by the hash that resumes and merges compare (a merge by another
+/// build is refused, quoting both), so that the nodes of a cluster can be checked to run one.
+#[test]
+fn version_names_the_build() {
+    let version = || {
+        let o = common::reframe(&["--version"]).output().unwrap();
+        assert!(o.status.success());
+        String::from_utf8(o.stdout).unwrap()
+    };
+    let v = version();
+    let build = v
+        .strip_prefix(&format!("reframe {} (build ", env!("CARGO_PKG_VERSION")))
+        .and_then(|r| r.strip_suffix(")\n"))
+        .unwrap_or_else(|| panic!("{v:?}"));
+    assert!(
+        build.len() == 16 && build.chars().all(|c| c.is_ascii_hexdigit()),
+        "{v:?}"
+    );
+    assert_eq!(version(), v);
+}

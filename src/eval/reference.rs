@@ -215,10 +215,11 @@ pub fn reference(
     pool: &rayon::ThreadPool,
     progress: bool,
 ) -> Result<Reference> {
-    check_spp("--reference-spp", spp)?;
+    // (The passes first: 0 is refused as not a multiple of them, not as "at least one".)
     if spp < PASSES || !spp.is_multiple_of(PASSES) {
-        bail!("--reference-spp {spp}: must be a multiple of {PASSES} (the reference is {PASSES} passes, for its variance)");
+        bail!("--reference-spp {spp}: must be a multiple of {PASSES}, at least {PASSES} (the reference is {PASSES} passes, for its variance)");
     }
+    check_spp("--reference-spp", spp)?;
     check_max_depth(max_depth)?;
     // The cache is a folder (made if missing); anything else at its path, or on the way to it,
     // is said as such before the reference is rendered.

@@ -398,6 +398,14 @@ struct JsonEntry<'a> {
     up: Option<Vec<Num<'a>>>,
 }
 
+/// A camera file's frame `text` at `at` (a line, an entry) that `frame_number` refused.
+fn not_a_frame(label: &str, at: &str, text: &str) -> anyhow::Error {
+    anyhow!(
+        "{label}: {at}: frame '{}' is not a frame number (a whole number from 0 to 4294967295)",
+        quote(text)
+    )
+}
+
 /// serde_json's message without its " at line L column C" (the caller names the line), in
 /// JSON's words (`plain_types`: no Rust type names).
 fn json_message(e: &serde_json::Error) -> String {
@@ -565,13 +573,7 @@ fn json_entries(label: &str, text: &str) -> Result<Vec<Entry>> {
                 json_message(&e)
             )
         })?;
-        let frame = frame_number(e.frame.0).ok_or_else(|| {
-            anyhow!(
-                "{label}: {at}: frame '{}' is not a frame number (a whole number from 0 to \
-                 4294967295)",
-                quote(e.frame.0)
-            )
-        })?;
+        let frame = frame_number(e.frame.0).ok_or_else(|| not_a_frame(label, &at, e.frame.0))?;
         let form = (|| match (&e.matrix, &e.position, &e.look_at, &e.up) {
             (Some(m), None, None, None) => {
                 let m = matrix_rows(m)?;
@@ -862,13 +864,7 @@ fn csv_entries(label: &str, text: &str, repairs: &mut Repairs) -> Result<Vec<Ent
                 names.len()
             );
         }
-        let frame = frame_number(fields[0]).ok_or_else(|| {
-            anyhow!(
-                "{label}: {at}: frame '{}' is not a frame number (a whole number from 0 to \
-                 4294967295)",
-                quote(fields[0])
-            )
-        })?;
+        let frame = frame_number(fields[0]).ok_or_else(|| not_a_frame(label, &at, fields[0]))?;
         let fail = |why: String| anyhow!("{label}: {at}: frame {frame}: {why}");
         let fov = number("fov", fields[1]).map_err(fail)?;
         let form = if is_matrix {

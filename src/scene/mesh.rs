@@ -44,7 +44,9 @@ const REPEATED_TRIANGLES: Kind = Kind {
            once: on a lamp each round added the lamp's light again",
 };
 
-/// Triangle soup with per-triangle materials, as loaded from OBJ/MTL and checked.
+/// Triangle soup with per-triangle materials, as loaded from OBJ/MTL and checked (`default`:
+/// empty, to build or `append` meshes into).
+#[derive(Default)]
 pub struct Mesh {
     pub positions: Vec<Vec3>,
     /// Unit normal per vertex, zero where the triangles use their face normal; empty when no
@@ -516,18 +518,7 @@ pub fn build(
     emissive: &dyn Fn(u32) -> bool,
     repairs: &mut Repairs,
 ) -> Result<Mesh> {
-    let mut mesh = Mesh {
-        positions: Vec::new(),
-        normals: Vec::new(),
-        uvs: Vec::new(),
-        triangles: Vec::new(),
-        tri_material: Vec::new(),
-        tri_normal: Vec::new(),
-        tri_area: Vec::new(),
-        materials: Vec::new(),
-        maps: Vec::new(),
-        material_names: Vec::new(),
-    };
+    let mut mesh = Mesh::default();
     let any_smooth = obj.corners.iter().any(|c| c.vn.is_some());
     let any_uv = obj.corners.iter().any(|c| c.vt.is_some());
     // One vertex per distinct (position, normal, texture coordinate) of the faces; `u32::MAX`:

@@ -230,22 +230,6 @@ pub fn transformed(mesh: &Mesh, m: &DMat4) -> Mesh {
     }
 }
 
-/// An empty mesh to `append` meshes to.
-pub fn empty() -> Mesh {
-    Mesh {
-        positions: Vec::new(),
-        normals: Vec::new(),
-        uvs: Vec::new(),
-        triangles: Vec::new(),
-        tri_material: Vec::new(),
-        tri_normal: Vec::new(),
-        tri_area: Vec::new(),
-        materials: Vec::new(),
-        maps: Vec::new(),
-        material_names: Vec::new(),
-    }
-}
-
 /// Add `materials` of a mesh (with their maps and names) to `into`'s; the index of the first.
 pub fn add_materials(into: &mut Mesh, from: &Mesh) -> u32 {
     let base = into.materials.len() as u32;
@@ -398,14 +382,16 @@ mod tests {
     fn placed_triangles_of_any_size_keep_their_normal_and_area() {
         // Edges of 2e10, where the f32 cross product overflows, and of 2: the same shape.
         for half in [1e10f32, 1.0] {
-            let mut mesh = empty();
-            mesh.positions = vec![
-                Vec3::new(-half, 5.0, -half),
-                Vec3::new(half, 5.0, -half),
-                Vec3::new(half, 5.0, half),
-            ];
-            mesh.triangles = vec![[0, 2, 1]];
-            mesh.tri_material = vec![0];
+            let mesh = Mesh {
+                positions: vec![
+                    Vec3::new(-half, 5.0, -half),
+                    Vec3::new(half, 5.0, -half),
+                    Vec3::new(half, 5.0, half),
+                ],
+                triangles: vec![[0, 2, 1]],
+                tri_material: vec![0],
+                ..Mesh::default()
+            };
             let placed = transformed(&mesh, &DMat4::IDENTITY);
             assert!((placed.tri_normal[0] - Vec3::Y).length() < 1e-6, "{half}");
             let area = 2.0 * half as f64 * half as f64;

@@ -165,9 +165,12 @@ pub fn plain_parse_errors(line: &str) -> String {
     const WORDS: [(&str, &str); 6] = [
         (
             "cannot parse integer from empty string",
-            "empty: expected a whole number",
+            "empty: expected a whole number, 0 or more",
         ),
-        ("invalid digit found in string", "expected a whole number"),
+        (
+            "invalid digit found in string",
+            "expected a whole number, 0 or more",
+        ),
         ("number too large to fit in target type", "too large"),
         ("number too small to fit in target type", "too small"),
         ("invalid float literal", "expected a number (such as 2.5)"),
