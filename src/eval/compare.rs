@@ -596,155 +596,21 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
 
     // Fits and derived figures.
     const INDEPENDENT: Candidate = Candidate::plain(Method::Independent);
-    const INDEPENDENT_OIDN: Candidate = Candidate::denoised(Method::Independent);
     let key = |r: &Run| (r.method, r.window);
-    let mut lines: Vec<(Candidate, u32)> = runs.iter().map(key).collect();
-    lines.dedup();
-    let fit_of = |c: Candidate, n_f: u32, y: fn(&Run) -> f64, single: f64| {
-        let pts: Vec<(f64, f64)> = runs
-            .iter()
-            .filter(|r| key(r) == (c, n_f))
-            .map(|r| (r.seconds, y(r)))
-            .collect();
-        loglog_fit(&pts, single)
-    };
-    // Time of `base`'s line over the time of `(c, n_f)`'s line at the geometric mean of the
-    // latter's errors.
-    let speedup_over = |base: Candidate, c: Candidate, n_f: u32| -> Option<f64> {
-        let own: Vec<f64> = runs
-            .iter()
-            .filter(|r| key(r) == (c, n_f) && r.relmse > 0.0)
-            .map(|r| r.relmse.ln())
-            .collect();
-        let fi = fit_of(base, 1, |r| r.relmse, -1.0)?;
-        let fm = fit_of(c, n_f, |r| r.relmse, -1.0)?;
-        if own.is_empty() {
-            return None;
-        }
-        let e = (own.iter().sum::<f64>() / own.len() as f64).exp();
-        Some(time_for(fi, e)? / time_for(fm, e)?)
-    };
-    let mut equal_error_speedup: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
-    let mut equal_error_speedup_over_denoised: BTreeMap<String, BTreeMap<String, f64>> =
-        BTreeMap::new();
-    for &(c, n_f) in lines.iter().filter(|l| l.0 != INDEPENDENT) {
-        if let Some(x) = speedup_over(INDEPENDENT, c, n_f) {
-            equal_error_speedup
-                .entry(c.name())
-                .or_default()
-                .insert(n_f.to_string(), x);
-        }
-        if c.denoise && c != INDEPENDENT_OIDN {
-            if let Some(x) = speedup_over(INDEPENDENT_OIDN, c, n_f) {
-                equal_error_speedup_over_denoised
-                    .entry(c.name())
-                    .or_default()
-                    .insert(n_f.to_string(), x);
-            }
-        }
-    }
-    // Same-sample speed-up of mis-exact: independent time per frame and sample, times the
-    // samples per frame the groups would give without losses, over the reuse time.
-    let mut per_sample: Vec<f64> = runs
-        .iter()
-        .filter(|r| r.method == INDEPENDENT)
-        .map(|r| r.seconds / (n_frames * r.spp) as f64)
-        .collect();
-    per_sample.sort_by(f64::total_cmp);
-    let t_sample = per_sample.get(per_sample.len() / 2).copied();
-    let mut predicted = BTreeMap::new();
-    let mut measured = BTreeMap::new();
-    let mut windows: Vec<u32> = runs
-        .iter()
-        .filter(|r| r.method.method.reuses())
-        .map(|r| r.window)
-        .collect();
-    windows.sort_unstable();
-    windows.dedup();
-    for &n_f in &windows {
-        predicted.insert(
-            n_f.to_string(),
-            predicted_speedup(n_f, costs.c_e, costs.c_l, costs.c_v_packet),
-        );
-        let ratios: Vec<f64> = runs
-            .iter()
-            .filter(|r| r.method == Candidate::plain(Method::MisExact) && r.window == n_f)
-            .filter_map(|r| {
-                // Groups of the run, each worth n_f^2 n_r samples per pixel without losses.
-                let groups = (r.rendered_frames[1] + 2 - r.rendered_frames[0] - n_f) as f64;
-                let ideal = groups * (n_f * n_f * r.spp) as f64;
-                t_sample.map(|t| t * ideal / r.run_seconds)
-            })
-            .collect();
-        if !ratios.is_empty() {
-            measured.insert(
-                n_f.to_string(),
-                ratios.iter().sum::<f64>() / ratios.len() as f64,
-            );
-        }
-    }
-    // Equal time: the geometric mean of the independent runs' times (or of all runs').
-    let times: Vec<f64> = {
-        let ind: Vec<f64> = runs
-            .iter()
-            .filter(|r| r.method == INDEPENDENT)
-            .map(|r| r.seconds)
-            .collect();
-        // Without independent runs, the plain runs' times (else all of them).
-        let plain: Vec<f64> = runs
-            .iter()
-            .filter(|r| !r.method.denoise)
-            .map(|r| r.seconds)
-            .collect();
-        match (ind.is_empty(), plain.is_empty()) {
-            (false, _) => ind,
-            (true, false) => plain,
-            (true, true) => runs.iter().map(|r| r.seconds).collect(),
-        }
-    };
-    let equal_time = geomean(&times);
-    // Each method at its largest window.
-    let widest: Vec<(Candidate, u32)> = opts
-        .methods
-        .iter()
-        .filter_map(|&c| {
-            lines
-                .iter()
-                .filter(|l| l.0 == c)
-                .max_by_key(|l| l.1)
-                .copied()
-        })
-        .collect();
-    // The denoised lines' equal time: the geometric mean of `independent+oidn`'s times (or of
-    // all denoised runs'); denoising a frame costs a fixed time, so theirs is longer.
-    let denoised_equal_time = {
-        let pick = |f: &dyn Fn(&Run) -> bool| -> Vec<f64> {
-            runs.iter().filter(|r| f(r)).map(|r| r.seconds).collect()
-        };
-        let mut t = pick(&|r| r.method == INDEPENDENT_OIDN);
-        if t.is_empty() {
-            t = pick(&|r| r.method.denoise);
-        }
-        (!t.is_empty()).then(|| geomean(&t))
-    };
-    // Fitted flicker and relMSE of the widest lines at time `t`.
-    let at_time = |t: f64, keep: &dyn Fn(Candidate) -> bool| {
-        let (mut flicker, mut relmse) = (BTreeMap::new(), BTreeMap::new());
-        for &(c, n_f) in widest.iter().filter(|l| keep(l.0)) {
-            if let Some((a, b)) = fit_of(c, n_f, |r| r.flicker, -0.5) {
-                flicker.insert(c.name(), (a + b * t.ln()).exp());
-            }
-            if let Some((a, b)) = fit_of(c, n_f, |r| r.relmse, -1.0) {
-                relmse.insert(c.name(), (a + b * t.ln()).exp());
-            }
-        }
-        (flicker, relmse)
-    };
-    let (equal_time_flicker, equal_time_relmse) = at_time(equal_time, &|c| !c.denoise);
-    let (denoised_equal_time_flicker, denoised_equal_time_relmse) = match denoised_equal_time {
-        Some(t) => at_time(t, &|_| true),
-        None => Default::default(),
-    };
+    let Figures {
+        lines,
+        widest,
+        equal_error_speedup,
+        equal_error_speedup_over_denoised,
+        predicted,
+        measured,
+        equal_time,
+        denoised_equal_time,
+        equal_time_flicker,
+        equal_time_relmse,
+        denoised_equal_time_flicker,
+        denoised_equal_time_relmse,
+    } = figures(&runs, &opts.methods, &costs, n_frames);
 
     // Files.
     let mut outputs = Vec::new();
@@ -1104,6 +970,196 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     Ok(report)
 }
 
+/// What `compare` derives from its runs (`figures`), before its files are written.
+struct Figures {
+    /// Each (method, window) measured, in the runs' order, and each method at its widest.
+    lines: Vec<(Candidate, u32)>,
+    widest: Vec<(Candidate, u32)>,
+    /// By method and window: the time of the independent tracer's fitted line (plain, or
+    /// denoised) over the method's at the geometric mean of the method's errors.
+    equal_error_speedup: BTreeMap<String, BTreeMap<String, f64>>,
+    equal_error_speedup_over_denoised: BTreeMap<String, BTreeMap<String, f64>>,
+    /// By window: eq. 16's speed-up with the measured costs, and `mis-exact`'s measured one.
+    predicted: BTreeMap<String, f64>,
+    measured: BTreeMap<String, f64>,
+    /// The equal time of the plain lines and of the denoised ones, and the widest lines' fitted
+    /// flicker and relMSE there.
+    equal_time: f64,
+    denoised_equal_time: Option<f64>,
+    equal_time_flicker: BTreeMap<String, f64>,
+    equal_time_relmse: BTreeMap<String, f64>,
+    denoised_equal_time_flicker: BTreeMap<String, f64>,
+    denoised_equal_time_relmse: BTreeMap<String, f64>,
+}
+
+/// The fits of `runs` (of `n_frames` measured frames, for `methods`, with the cost model's
+/// `costs`) and the figures derived from them.
+fn figures(runs: &[Run], methods: &[Candidate], costs: &Costs, n_frames: u32) -> Figures {
+    const INDEPENDENT: Candidate = Candidate::plain(Method::Independent);
+    const INDEPENDENT_OIDN: Candidate = Candidate::denoised(Method::Independent);
+    let key = |r: &Run| (r.method, r.window);
+    let mut lines: Vec<(Candidate, u32)> = runs.iter().map(key).collect();
+    lines.dedup();
+    let fit_of = |c: Candidate, n_f: u32, y: fn(&Run) -> f64, single: f64| {
+        let pts: Vec<(f64, f64)> = runs
+            .iter()
+            .filter(|r| key(r) == (c, n_f))
+            .map(|r| (r.seconds, y(r)))
+            .collect();
+        loglog_fit(&pts, single)
+    };
+    // Time of `base`'s line over the time of `(c, n_f)`'s line at the geometric mean of the
+    // latter's errors.
+    let speedup_over = |base: Candidate, c: Candidate, n_f: u32| -> Option<f64> {
+        let own: Vec<f64> = runs
+            .iter()
+            .filter(|r| key(r) == (c, n_f) && r.relmse > 0.0)
+            .map(|r| r.relmse.ln())
+            .collect();
+        let fi = fit_of(base, 1, |r| r.relmse, -1.0)?;
+        let fm = fit_of(c, n_f, |r| r.relmse, -1.0)?;
+        if own.is_empty() {
+            return None;
+        }
+        let e = (own.iter().sum::<f64>() / own.len() as f64).exp();
+        Some(time_for(fi, e)? / time_for(fm, e)?)
+    };
+    let mut equal_error_speedup: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
+    let mut equal_error_speedup_over_denoised: BTreeMap<String, BTreeMap<String, f64>> =
+        BTreeMap::new();
+    for &(c, n_f) in lines.iter().filter(|l| l.0 != INDEPENDENT) {
+        if let Some(x) = speedup_over(INDEPENDENT, c, n_f) {
+            equal_error_speedup
+                .entry(c.name())
+                .or_default()
+                .insert(n_f.to_string(), x);
+        }
+        if c.denoise && c != INDEPENDENT_OIDN {
+            if let Some(x) = speedup_over(INDEPENDENT_OIDN, c, n_f) {
+                equal_error_speedup_over_denoised
+                    .entry(c.name())
+                    .or_default()
+                    .insert(n_f.to_string(), x);
+            }
+        }
+    }
+    // Same-sample speed-up of mis-exact: independent time per frame and sample, times the
+    // samples per frame the groups would give without losses, over the reuse time.
+    let mut per_sample: Vec<f64> = runs
+        .iter()
+        .filter(|r| r.method == INDEPENDENT)
+        .map(|r| r.seconds / (n_frames * r.spp) as f64)
+        .collect();
+    per_sample.sort_by(f64::total_cmp);
+    let t_sample = per_sample.get(per_sample.len() / 2).copied();
+    let mut predicted = BTreeMap::new();
+    let mut measured = BTreeMap::new();
+    let mut windows: Vec<u32> = runs
+        .iter()
+        .filter(|r| r.method.method.reuses())
+        .map(|r| r.window)
+        .collect();
+    windows.sort_unstable();
+    windows.dedup();
+    for &n_f in &windows {
+        predicted.insert(
+            n_f.to_string(),
+            predicted_speedup(n_f, costs.c_e, costs.c_l, costs.c_v_packet),
+        );
+        let ratios: Vec<f64> = runs
+            .iter()
+            .filter(|r| r.method == Candidate::plain(Method::MisExact) && r.window == n_f)
+            .filter_map(|r| {
+                // Groups of the run, each worth n_f^2 n_r samples per pixel without losses.
+                let groups = (r.rendered_frames[1] + 2 - r.rendered_frames[0] - n_f) as f64;
+                let ideal = groups * (n_f * n_f * r.spp) as f64;
+                t_sample.map(|t| t * ideal / r.run_seconds)
+            })
+            .collect();
+        if !ratios.is_empty() {
+            measured.insert(
+                n_f.to_string(),
+                ratios.iter().sum::<f64>() / ratios.len() as f64,
+            );
+        }
+    }
+    // Equal time: the geometric mean of the independent runs' times (or of all runs').
+    let times: Vec<f64> = {
+        let ind: Vec<f64> = runs
+            .iter()
+            .filter(|r| r.method == INDEPENDENT)
+            .map(|r| r.seconds)
+            .collect();
+        // Without independent runs, the plain runs' times (else all of them).
+        let plain: Vec<f64> = runs
+            .iter()
+            .filter(|r| !r.method.denoise)
+            .map(|r| r.seconds)
+            .collect();
+        match (ind.is_empty(), plain.is_empty()) {
+            (false, _) => ind,
+            (true, false) => plain,
+            (true, true) => runs.iter().map(|r| r.seconds).collect(),
+        }
+    };
+    let equal_time = geomean(&times);
+    // Each method at its largest window.
+    let widest: Vec<(Candidate, u32)> = methods
+        .iter()
+        .filter_map(|&c| {
+            lines
+                .iter()
+                .filter(|l| l.0 == c)
+                .max_by_key(|l| l.1)
+                .copied()
+        })
+        .collect();
+    // The denoised lines' equal time: the geometric mean of `independent+oidn`'s times (or of
+    // all denoised runs'); denoising a frame costs a fixed time, so theirs is longer.
+    let denoised_equal_time = {
+        let pick = |f: &dyn Fn(&Run) -> bool| -> Vec<f64> {
+            runs.iter().filter(|r| f(r)).map(|r| r.seconds).collect()
+        };
+        let mut t = pick(&|r| r.method == INDEPENDENT_OIDN);
+        if t.is_empty() {
+            t = pick(&|r| r.method.denoise);
+        }
+        (!t.is_empty()).then(|| geomean(&t))
+    };
+    // Fitted flicker and relMSE of the widest lines at time `t`.
+    let at_time = |t: f64, keep: &dyn Fn(Candidate) -> bool| {
+        let (mut flicker, mut relmse) = (BTreeMap::new(), BTreeMap::new());
+        for &(c, n_f) in widest.iter().filter(|l| keep(l.0)) {
+            if let Some((a, b)) = fit_of(c, n_f, |r| r.flicker, -0.5) {
+                flicker.insert(c.name(), (a + b * t.ln()).exp());
+            }
+            if let Some((a, b)) = fit_of(c, n_f, |r| r.relmse, -1.0) {
+                relmse.insert(c.name(), (a + b * t.ln()).exp());
+            }
+        }
+        (flicker, relmse)
+    };
+    let (equal_time_flicker, equal_time_relmse) = at_time(equal_time, &|c| !c.denoise);
+    let (denoised_equal_time_flicker, denoised_equal_time_relmse) = match denoised_equal_time {
+        Some(t) => at_time(t, &|_| true),
+        None => Default::default(),
+    };
+    Figures {
+        lines,
+        widest,
+        equal_error_speedup,
+        equal_error_speedup_over_denoised,
+        predicted,
+        measured,
+        equal_time,
+        denoised_equal_time,
+        equal_time_flicker,
+        equal_time_relmse,
+        denoised_equal_time_flicker,
+        denoised_equal_time_relmse,
+    }
+}
+
 /// The table `reframe compare` prints: one line per run, then the speed-ups.
 pub fn summary(r: &CompareReport) -> String {
     let mut s = format!(
@@ -1392,4 +1448,93 @@ fn write_bias_exr(
         ],
     };
     write_image(path, &img, &meta, &WriteOptions { exr_float: true })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(method: Candidate, window: u32, seconds: f64, relmse: f64) -> Run {
+        Run {
+            method,
+            window,
+            spp: 1,
+            seconds,
+            denoise_seconds: 0.0,
+            run_seconds: seconds,
+            rendered_frames: [0, 9],
+            rmse: relmse.sqrt(),
+            relmse,
+            flicker: relmse.sqrt(),
+            mean_effective_spp: 1.0,
+            ends_relmse: None,
+            middle_relmse: None,
+            per_frame: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn figures_read_equal_error_and_equal_time_off_the_fitted_lines() {
+        // The independent tracer's error falls as 1/t; mis-cv's at window 5 is a quarter of it
+        // at every time, and a denoised independent tracer's a half: to reach any error the
+        // independent tracer takes 4 times mis-cv's time, and the denoised one twice it.
+        let (ind, cv) = (
+            Candidate::plain(Method::Independent),
+            Candidate::plain(Method::MisCv),
+        );
+        let (ind_oidn, cv_oidn) = (
+            Candidate::denoised(Method::Independent),
+            Candidate::denoised(Method::MisCv),
+        );
+        let mut runs = Vec::new();
+        for t in [1.0, 2.0, 4.0, 8.0] {
+            runs.push(run(ind, 1, t, 1.0 / t));
+            runs.push(run(cv, 5, 1.5 * t, 0.25 / (1.5 * t)));
+            runs.push(run(ind_oidn, 1, 3.0 * t, 0.5 / (3.0 * t)));
+            runs.push(run(cv_oidn, 5, 3.0 * t, 0.125 / (3.0 * t)));
+        }
+        let costs = Costs {
+            c_e: 100.0,
+            c_l: 900.0,
+            c_v_single: 50.0,
+            c_v_packet: 20.0,
+        };
+        let f = figures(&runs, &[ind, cv, ind_oidn, cv_oidn], &costs, 10);
+        let near = |a: f64, b: f64| (a / b - 1.0).abs() < 1e-9;
+        assert!(
+            near(f.equal_error_speedup["mis-cv"]["5"], 4.0),
+            "{:?}",
+            f.equal_error_speedup
+        );
+        assert!(near(f.equal_error_speedup["independent+oidn"]["1"], 2.0));
+        assert!(near(f.equal_error_speedup["mis-cv+oidn"]["5"], 8.0));
+        // Over the denoised independent tracer: the denoised methods only.
+        assert!(near(
+            f.equal_error_speedup_over_denoised["mis-cv+oidn"]["5"],
+            4.0
+        ));
+        assert!(!f.equal_error_speedup_over_denoised.contains_key("mis-cv"));
+        // Equal time: the geometric mean of the independent runs' times (2^1.5), where the
+        // fitted relMSE of each plain line is read; the denoised lines at theirs (3 x 2^1.5).
+        let t = 2f64.powf(1.5);
+        assert!(near(f.equal_time, t));
+        assert!(near(f.equal_time_relmse["independent"], 1.0 / t));
+        assert!(near(f.equal_time_relmse["mis-cv"], 0.25 / t));
+        assert!(!f.equal_time_relmse.contains_key("mis-cv+oidn"));
+        assert!(near(f.denoised_equal_time.unwrap(), 3.0 * t));
+        assert!(near(
+            f.denoised_equal_time_relmse["mis-cv+oidn"],
+            0.125 / (3.0 * t)
+        ));
+        // Eq. 16 for window 5; no mis-exact run, so no measured same-sample speed-up.
+        assert!(near(
+            f.predicted["5"],
+            predicted_speedup(5, 100.0, 900.0, 20.0)
+        ));
+        assert!(f.measured.is_empty());
+        assert_eq!(
+            f.widest,
+            vec![(ind, 1), (cv, 5), (ind_oidn, 1), (cv_oidn, 5)]
+        );
+    }
 }
