@@ -328,7 +328,10 @@ fn run(cli: Cli) -> Result<()> {
             // `--window 1` is before the render.
             if stats.method.reuses() && stats.window > 1 && stats.lost_reuse_fraction >= 0.9 {
                 errln!(
-                    "warning: {:.1}% of the reuses were lost (hidden from the other frames' eyes,                      or off their films): --method {} reused almost nothing; the frames of a                      group see little of each other (a film {}x{}, a camera that jumps), and                      --method independent renders them faster",
+                    "warning: {:.1}% of the reuses were lost (hidden from the other frames' eyes, \
+                     or off their films): --method {} reused almost nothing; the frames of a \
+                     group see little of each other (a film {}x{}, a camera that jumps), and \
+                     --method independent renders them faster",
                     100.0 * stats.lost_reuse_fraction,
                     stats.method.name(),
                     stats.width,

@@ -507,7 +507,8 @@ impl Scene {
         let shadowed = matches!(source, Source::Files { .. }) && builtin.is_some();
         let shadow_note = shadowed.then(|| {
             format!(
-                "'{name_or_path}' is the file {} here, not the shipped scene {name_or_path}:                  rename the file to use the shipped scene from this folder",
+                "'{name_or_path}' is the file {} here, not the shipped scene {name_or_path}: \
+                 rename the file to use the shipped scene from this folder",
                 p.display()
             )
         });

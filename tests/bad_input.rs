@@ -863,9 +863,13 @@ fn a_file_named_as_a_shipped_scene_is_said_to_be_the_file() {
     let err = String::from_utf8(o.stderr).unwrap();
     assert!(o.status.success(), "{err}");
     assert!(
-        err.contains("warning: 'cornell' is the file cornell here, not the shipped scene cornell"),
+        err.contains(
+            "warning: 'cornell' is the file cornell here, not the shipped scene cornell: rename"
+        ),
         "{err}"
     );
+    // (A line continued in the source had left a run of spaces inside it.)
+    assert!(!err.contains("  "), "{err:?}");
     // Broken, it is named as the file.
     std::fs::write(d.join("cornell"), "obj = \"missing.obj\"\n").unwrap();
     let o = run();
@@ -912,6 +916,7 @@ fn a_reuse_render_that_reuses_nothing_says_so() {
         err.contains("% of the reuses were lost") && err.contains("a film 1x20000"),
         "{err}"
     );
+    assert!(!err.contains("  "), "{err:?}");
     // An ordinary reuse render is not warned.
     let o = common::reframe(&[
         "render",

@@ -427,6 +427,10 @@ fn compare_rejects_bad_settings_before_rendering() {
             "--reuse-budgets: 2 is given twice",
         ),
         (vec!["--windows", "3,5,3"], "--windows: 3 is given twice"),
+        (
+            vec!["--methods", "independent,"],
+            "an empty method name in the list (a comma at its end",
+        ),
         // Every run is checked as its render will check it before the reference is rendered
         // (one past the samples a group may hold was refused after the reference and the runs
         // before it, naming the render's flags).

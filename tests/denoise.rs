@@ -546,3 +546,58 @@ fn merge_never_writes_over_the_scene_it_denoises_with() {
     common::reframe_ok(&["merge", &partial, "--scene", &scene]);
     assert!(d.path().join("o/f_0000.exr").exists());
 }
+
+/// A frame black in every pixel is black denoised (the denoiser made a pixel of 1e-6 of one); a
+/// frame whose light comes from a few very bright points, whose mean the denoiser moves (by a
+/// third in red and blue, tinting a grey scene), is warned of once; an ordinary one is not.
+#[test]
+fn a_black_frame_stays_black_and_a_moved_mean_is_warned() {
+    let d = tempfile::tempdir().unwrap();
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    // `cornell`'s camera turned away from the box, into the empty scene: black.
+    let away = std::fs::read_to_string(scenes.join("cornell.toml"))
+        .unwrap()
+        .replace(
+            "obj = \"cornell.obj\"",
+            &format!("obj = {:?}", scenes.join("cornell.obj")),
+        )
+        .replace("look_at = [0.0, 1.0, 0.0]", "look_at = [0.0, 1.0, 100.0]");
+    std::fs::write(d.path().join("away.toml"), away).unwrap();
+    let run = |scene: &Path, res: &str, spp: &str, name: &str| {
+        let out = d.path().join(format!("{name}_####.exr"));
+        let o = common::reframe(&[
+            "render",
+            scene.to_str().unwrap(),
+            "--res",
+            res,
+            "--spp",
+            spp,
+            "--frames",
+            "0",
+            "--denoise",
+            "--exr-float",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+        let err = String::from_utf8(o.stderr).unwrap();
+        assert!(o.status.success(), "{err}");
+        (
+            read_image(&d.path().join(format!("{name}_0000.exr"))).unwrap(),
+            err,
+        )
+    };
+    let (black, _) = run(&d.path().join("away.toml"), "32x24", "1", "black");
+    assert!(rgb(&black, "").iter().all(|&v| v == 0.0));
+    let bright = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/denoise_scene/many.toml");
+    let (_, err) = run(&bright, "32x24", "8", "bright");
+    assert_eq!(
+        err.matches("warning: denoising moved frame 0's mean by")
+            .count(),
+        1,
+        "{err}"
+    );
+    let (_, err) = run(&scenes.join("cornell.toml"), "64x64", "4", "plain");
+    assert!(!err.contains("denoising moved"), "{err}");
+}

@@ -348,6 +348,7 @@ pub fn merge(
                 seed: key.seed,
                 layers,
                 seconds: 0.0,
+                warned: false,
             };
             pool.install(|| write_frames(&mut dsink))?;
         }

@@ -596,6 +596,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
                     seed: opts.seed,
                     layers,
                     seconds: 0.0,
+                    warned: false,
                 };
                 let done = pool
                     .install(|| frame_loop(&integrator, opts, &plan, &mut run, active, &mut dsink));

@@ -466,10 +466,15 @@ impl RenderOptions {
         };
         match available {
             Some(a) if need.saturating_add(textures) > a => bail!(
-                "--res {w}x{h} with --method {} --window {}{}: the frames in flight need \
-                 about {}{}, but {} of memory is available; {advice}",
+                "--res {w}x{h} with --method {}{}{}: the frames in flight need about {}{}, but \
+                 {} of memory is available; {advice}",
                 self.method.name(),
-                self.window,
+                // (The independent tracer takes no window.)
+                if self.method.reuses() {
+                    format!(" --window {}", self.window)
+                } else {
+                    String::new()
+                },
                 if self.denoise.is_some() {
                     " --denoise"
                 } else {
@@ -548,8 +553,9 @@ impl RenderOptions {
         }
         if self.method.reuses() && self.window == 1 {
             w.push(format!(
-                "--method {}: --window 1 (the default) makes groups of one frame, which reuse \
-                 nothing: this renders as the independent tracer would (give --window 3 or more)",
+                "--method {}: --window 1 (also the default) makes groups of one frame, which \
+                 reuse nothing: this renders as the independent tracer would (give --window 3 or \
+                 more)",
                 self.method.name()
             ));
         }

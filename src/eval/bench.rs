@@ -81,6 +81,9 @@ pub struct BenchOptions {
     pub repeats: usize,
 }
 
+/// The group sizes `bench` measures when `--windows` is not given.
+pub const DEFAULT_WINDOWS: [u32; 4] = [3, 7, 17, 33];
+
 impl Default for BenchOptions {
     fn default() -> Self {
         BenchOptions {
@@ -90,7 +93,7 @@ impl Default for BenchOptions {
             threads: 0,
             speedup_spp: 1,
             speedup_method: Method::MisExact,
-            windows: vec![3, 7, 17, 33],
+            windows: DEFAULT_WINDOWS.to_vec(),
             seed: 1,
             max_depth: crate::driver::options::DEFAULT_MAX_DEPTH,
             repeats: 3,
@@ -427,8 +430,14 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
     }
     if let Some(&n) = opts.windows.iter().find(|&&n| n > scene.frames) {
         bail!(
-            "--windows {n}: a group of {n} frames does not fit the scene's {} frames",
-            scene.frames
+            "--windows {n}: a group of {n} frames does not fit the scene's {} frames{}",
+            scene.frames,
+            // The windows measured when none are given: said where they are those.
+            if opts.windows == DEFAULT_WINDOWS {
+                " (--windows is 3,7,17,33 when not given: give ones that fit)"
+            } else {
+                ""
+            }
         );
     }
     check_max_depth(opts.max_depth)?;

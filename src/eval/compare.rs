@@ -77,6 +77,13 @@ impl std::fmt::Display for Candidate {
 impl std::str::FromStr for Candidate {
     type Err = String;
     fn from_str(s: &str) -> Result<Candidate, String> {
+        if s.trim().is_empty() {
+            return Err(
+                "an empty method name in the list (a comma at its end, or two \
+                        together?)"
+                    .to_string(),
+            );
+        }
         let (base, denoise) = match s.strip_suffix("+oidn") {
             Some(b) => (b, true),
             None => (s, false),
@@ -1359,7 +1366,8 @@ fn render_run(
                 let dn = denoiser
                     .as_mut()
                     .context("a denoised method without a denoiser")?;
-                denoise_seconds += denoise_frame(dn, integrator, spec.seed, Layers::None, &mut d)?;
+                denoise_seconds +=
+                    denoise_frame(dn, integrator, spec.seed, Layers::None, &mut d)?.seconds;
             }
             frames.push(d.pixels());
         }

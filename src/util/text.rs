@@ -179,9 +179,18 @@ pub fn plain_parse_errors(line: &str) -> String {
             "empty: expected a number",
         ),
     ];
-    WORDS
+    let line = WORDS
         .iter()
-        .fold(line.to_string(), |l, (rust, plain)| l.replace(rust, plain))
+        .fold(line.to_string(), |l, (rust, plain)| l.replace(rust, plain));
+    // A ranged parser's `-1 is not in 0..=4294967295`: Rust's range syntax, and not the flag's
+    // range (which its own check says); a negative count is said as the others are.
+    match line.rsplit_once(": ") {
+        Some((head, rest)) if rest.starts_with('-') && rest.contains(" is not in 0..=") => {
+            let tail = rest.find(" (").map_or("", |i| &rest[i..]);
+            format!("{head}: expected a whole number, 0 or more{tail}")
+        }
+        _ => line,
+    }
 }
 
 /// A file name as names are matched in another case: composed (Unicode NFC: an `Ö` written
