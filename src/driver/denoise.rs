@@ -219,7 +219,7 @@ impl<S: Sink> Sink for DenoiseSink<'_, S> {
                 .zip(shift)
                 .map(|(c, s)| format!("{:+.0}% in {c}", 100.0 * s))
                 .collect();
-            crate::errln!(
+            errln!(
                 "warning: denoising moved frame {}'s mean by {} (its light comes from a few very \
                  bright points, such as small emitters seen directly, or the frame is small): it \
                  does not show the frame's radiance there; --denoise-layers keeps the raw \
