@@ -310,7 +310,7 @@ pub struct BenchArgs {
     #[arg(long, value_enum, default_value_t = Method::MisExact)]
     pub method: Method,
     /// Group sizes n_f of the speed-up runs, comma-separated (odd, at most the scene's frames).
-    #[arg(long, value_delimiter = ',', default_values_t = [3, 7, 17, 33])]
+    #[arg(long, value_delimiter = ',', default_values_t = reframe::eval::bench::DEFAULT_WINDOWS)]
     pub windows: Vec<u32>,
     /// Resolution "WxH" (default: the scene's).
     #[arg(long, value_parser = parse_res)]

@@ -789,11 +789,7 @@ fn a_scene_named_with_control_characters_is_shown_escaped_in_every_command() {
         ],
     ];
     for args in commands {
-        let o = std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
-            .args(args)
-            .current_dir(d)
-            .output()
-            .unwrap();
+        let o = common::reframe(args).current_dir(d).output().unwrap();
         let (out, err) = (
             String::from_utf8(o.stdout).unwrap(),
             String::from_utf8(o.stderr).unwrap(),
@@ -844,20 +840,19 @@ fn a_file_named_as_a_shipped_scene_is_said_to_be_the_file() {
     }
     std::fs::copy(base.join("s.toml"), d.join("cornell")).unwrap();
     let run = || {
-        std::process::Command::new(env!("CARGO_BIN_EXE_reframe"))
-            .args([
-                "render",
-                "cornell",
-                "--res",
-                "8x6",
-                "--spp",
-                "1",
-                "--out",
-                "f_####.png",
-            ])
-            .current_dir(d)
-            .output()
-            .unwrap()
+        common::reframe(&[
+            "render",
+            "cornell",
+            "--res",
+            "8x6",
+            "--spp",
+            "1",
+            "--out",
+            "f_####.png",
+        ])
+        .current_dir(d)
+        .output()
+        .unwrap()
     };
     let o = run();
     let err = String::from_utf8(o.stderr).unwrap();

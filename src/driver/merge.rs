@@ -141,8 +141,8 @@ pub fn merge(
     }
     let n = n.unwrap();
     // The chunks' build, which a merge needs as a resume does (README, "The tracer",
-    // "Building for the host CPU"): partials of another build merged without a word, and with `--denoise` this build
-    // traced the guides of frames another one rendered.
+    // "Building for the host CPU"): partials of another build merged without a word, and with
+    // `--denoise` this build traced the guides of frames another one rendered.
     let own = crate::state::key::build_hash()?;
     if own != t0.key.build_hash {
         bail!(

@@ -429,15 +429,19 @@ pub fn run(scene: &Scene, opts: &BenchOptions) -> Result<BenchReport> {
         bail!("--windows {n}: given twice (each window is measured once; the JSON keys its figures by n_f)");
     }
     if let Some(&n) = opts.windows.iter().find(|&&n| n > scene.frames) {
+        // The windows measured when none are given: said where they are those.
+        let default = if opts.windows == DEFAULT_WINDOWS {
+            let list: Vec<String> = DEFAULT_WINDOWS.iter().map(u32::to_string).collect();
+            format!(
+                " (--windows is {} when not given: give ones that fit)",
+                list.join(",")
+            )
+        } else {
+            String::new()
+        };
         bail!(
-            "--windows {n}: a group of {n} frames does not fit the scene's {} frames{}",
-            scene.frames,
-            // The windows measured when none are given: said where they are those.
-            if opts.windows == DEFAULT_WINDOWS {
-                " (--windows is 3,7,17,33 when not given: give ones that fit)"
-            } else {
-                ""
-            }
+            "--windows {n}: a group of {n} frames does not fit the scene's {} frames{default}",
+            scene.frames
         );
     }
     check_max_depth(opts.max_depth)?;

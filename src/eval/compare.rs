@@ -78,11 +78,8 @@ impl std::str::FromStr for Candidate {
     type Err = String;
     fn from_str(s: &str) -> Result<Candidate, String> {
         if s.trim().is_empty() {
-            return Err(
-                "an empty method name in the list (a comma at its end, or two \
-                        together?)"
-                    .to_string(),
-            );
+            let why = "an empty method name in the list (a comma at its end, or two together?)";
+            return Err(why.to_string());
         }
         let (base, denoise) = match s.strip_suffix("+oidn") {
             Some(b) => (b, true),
@@ -602,7 +599,6 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     let (costs, _, _) = measure_costs(&integrator, &pool, &cam, crop_frame, 2, opts.seed, 1);
 
     // Fits and derived figures.
-    const INDEPENDENT: Candidate = Candidate::plain(Method::Independent);
     let key = |r: &Run| (r.method, r.window);
     let Figures {
         lines,
@@ -977,6 +973,11 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
     Ok(report)
 }
 
+/// The independent tracer as `compare` runs it, plain and denoised: the baselines of its
+/// speed-ups.
+const INDEPENDENT: Candidate = Candidate::plain(Method::Independent);
+const INDEPENDENT_OIDN: Candidate = Candidate::denoised(Method::Independent);
+
 /// What `compare` derives from its runs (`figures`), before its files are written.
 struct Figures {
     /// Each (method, window) measured, in the runs' order, and each method at its widest.
@@ -1002,8 +1003,6 @@ struct Figures {
 /// The fits of `runs` (of `n_frames` measured frames, for `methods`, with the cost model's
 /// `costs`) and the figures derived from them.
 fn figures(runs: &[Run], methods: &[Candidate], costs: &Costs, n_frames: u32) -> Figures {
-    const INDEPENDENT: Candidate = Candidate::plain(Method::Independent);
-    const INDEPENDENT_OIDN: Candidate = Candidate::denoised(Method::Independent);
     let key = |r: &Run| (r.method, r.window);
     let mut lines: Vec<(Candidate, u32)> = runs.iter().map(key).collect();
     lines.dedup();

@@ -7,16 +7,8 @@
 /// (a message is one line), and the characters that reorder text on screen (bidirectional
 /// overrides and isolates) escaped too. Tabs stay.
 pub fn printable(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '\n' => out.push(' '),
-            '\t' => out.push(c),
-            c if acts_on_screen(c) => out.push_str(&format!("\\u{{{:x}}}", c as u32)),
-            c => out.push(c),
-        }
-    }
-    out
+    // (`screen_safe`'s escapes hold no line break: those left are the text's own.)
+    screen_safe(s).replace('\n', " ")
 }
 
 /// Whether `c` acts on a terminal instead of being shown: a control character (an escape
