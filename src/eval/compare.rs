@@ -6,7 +6,7 @@ use super::errors::{
     bias_estimate, errors, loglog_fit, time_for, FrameError, FLICKER_FORMULA, RELMSE_FORMULA,
     RMSE_FORMULA,
 };
-use super::reference::{reference, PASSES};
+use super::reference::{reference, Reference, PASSES};
 use crate::driver::denoise::{denoise_frame, Layers};
 use crate::driver::guard::{check_outputs, OutputLock};
 use crate::driver::options::{
@@ -27,7 +27,7 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::ops::RangeInclusive;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// A method as `compare` runs it: a rendering method, optionally followed by Open Image Denoise
@@ -287,58 +287,7 @@ pub fn default_frames(scene: &Scene) -> RangeInclusive<u32> {
 
 /// Run the comparison and write `compare.json`, `compare.csv` and the charts into `opts.out`.
 pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
-    let range = opts.frames.clone().unwrap_or_else(|| default_frames(scene));
-    check_frames(scene, &range)?;
-    let (first, last) = (*range.start(), *range.end());
-    let (w, h) = opts.res.unwrap_or((scene.width, scene.height));
-    check_resolution((w, h))?;
-    if let Some(c) = opts.methods.iter().find(|c| c.denoise) {
-        crate::image::oidn::check_size(&format!("--methods {}", c.name()), (w, h))?;
-    }
-    check_max_depth(opts.max_depth)?;
-    if let Some(c) = opts.methods.iter().find(|c| c.method.reuses()) {
-        check_reuse_film(scene, &range, (w, h), c.method.name())?;
-    }
-    let n_frames = last - first + 1;
-    for &b in &opts.budgets {
-        check_spp("--budgets", b)?;
-    }
-    for &b in &opts.reuse_budgets {
-        check_spp("--reuse-budgets", b)?;
-    }
-    check_threads(opts.threads)?;
-    if let Some(&n) = opts.windows.iter().find(|&&n| n % 2 == 0) {
-        bail!(
-            "--windows {n}: a group is a frame and as many on each side (n_f odd: 3, 5, 7, ...), \
-             so windows must be odd"
-        );
-    }
-    // One given twice would run its renders twice and put two points at one place.
-    if let Some(c) = super::first_repeat(&opts.methods) {
-        bail!("--methods: {} is given twice", c.name());
-    }
-    for (flag, list) in [
-        ("--budgets", &opts.budgets),
-        ("--reuse-budgets", &opts.reuse_budgets),
-        ("--windows", &opts.windows),
-    ] {
-        if let Some(b) = super::first_repeat(list) {
-            bail!("{flag}: {b} is given twice");
-        }
-    }
-    if opts.methods.iter().any(|c| !c.method.reuses()) && opts.budgets.is_empty() {
-        bail!("--budgets: the independent tracer needs at least one budget");
-    }
-    if opts.bias_seeds == 1 {
-        bail!("--bias-seeds 1: a bias estimate needs at least 2 seeds (0: no bias images)");
-    }
-    if opts.bias_seeds > MAX_BIAS_SEEDS {
-        bail!(
-            "--bias-seeds {}: at most {MAX_BIAS_SEEDS} (each seed renders every denoised method's \
-             strip again)",
-            opts.bias_seeds
-        );
-    }
+    let s = Setting::check(scene, opts)?;
     // The denoiser is loaded before anything is rendered: a missing library is one line now.
     let mut denoiser = match opts.methods.iter().find(|c| c.denoise) {
         Some(c) => Some(Denoiser::load(
@@ -347,69 +296,10 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         )?),
         None => None,
     };
-    // The default crop: a centred square of half the shorter side.
-    let side = (w.min(h) / 2).max(1);
-    let crop = opts
-        .crop
-        .unwrap_or([(w - side) / 2, (h - side) / 2, side, side]);
-    if crop[2] == 0 || crop[3] == 0 {
-        bail!(
-            "--crop {},{},{},{}: empty (X,Y,W,H: its width and height must be at least 1)",
-            crop[0],
-            crop[1],
-            crop[2],
-            crop[3]
-        );
-    }
-    let inside = |x: u32, cw: u32, limit: u32| x.checked_add(cw).is_some_and(|e| e <= limit);
-    if !inside(crop[0], crop[2], w) || !inside(crop[1], crop[3], h) {
-        bail!(
-            "--crop {},{},{},{}: not inside the {w}x{h} frame",
-            crop[0],
-            crop[1],
-            crop[2],
-            crop[3]
-        );
-    }
-    // The runs, planned before anything is made or rendered: a plan with nothing to compare
-    // is refused before the reference (minutes of work on the default scene) is rendered.
-    // (method, window, spp, frames rendered) of every run.
-    let mut plan: Vec<(Candidate, u32, u32, RangeInclusive<u32>)> = Vec::new();
-    let mut skipped = Vec::new();
-    for &m in &opts.methods {
-        if !m.method.reuses() {
-            plan.extend(opts.budgets.iter().map(|&s| (m, 1, s, range.clone())));
-            continue;
-        }
-        for &n_f in &opts.windows {
-            let rendered = match opts.regime {
-                Regime::Range if n_f <= n_frames => range.clone(),
-                Regime::Steady if first >= n_f - 1 && last + n_f - 1 < scene.frames => {
-                    first + 1 - n_f..=last + n_f - 1
-                }
-                _ => {
-                    skipped.push(format!(
-                        "{m} n_f {n_f}: {}",
-                        match opts.regime {
-                            Regime::Range => format!("longer than the {n_frames} frames"),
-                            Regime::Steady => format!(
-                                "its steady state needs frames {} to {}, the scene has 0 to {}",
-                                first as i64 + 1 - n_f as i64,
-                                last + n_f - 1,
-                                scene.frames - 1
-                            ),
-                        }
-                    ));
-                    continue;
-                }
-            };
-            plan.extend(
-                opts.reuse_budgets
-                    .iter()
-                    .map(|&s| (m, n_f, s, rendered.clone())),
-            );
-        }
-    }
+    // The runs, planned and checked before anything is made or rendered: a plan with nothing
+    // to compare, or a run its render would refuse, is refused before the reference (minutes
+    // of work on the default scene) is rendered.
+    let (plan, skipped) = s.plan();
     let say_skipped = || {
         for s in &skipped {
             errln!("compare: skipped {s}");
@@ -419,74 +309,30 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         say_skipped();
         bail!("nothing to compare: no method with a budget and a window that fits the frames");
     }
-    // A run of `c` at `window` and `spp`, with `seed`, rendering `rendered`; the rest is
-    // every run's.
-    let run_spec =
-        |c: Candidate, window: u32, spp: u32, seed: u64, rendered: RangeInclusive<u32>| RunSpec {
-            c,
-            window,
-            spp,
-            seed,
-            rendered,
-            res: (w, h),
-            max_depth: opts.max_depth,
-            threads: opts.threads,
-        };
-    // Every run checked as its render will check it (samples per group, memory), before the
-    // reference: a run refused after the reference and the runs before it had rendered.
-    for (c, window, spp, rendered) in &plan {
-        let spec = run_spec(*c, *window, *spp, opts.seed, rendered.clone());
-        spec.options().check(scene).with_context(|| {
-            if c.method.reuses() {
-                format!("--methods {c} at --reuse-budgets {spp} and --windows {window}")
-            } else {
-                format!("--methods {c} at --budgets {spp}")
-            }
-        })?;
+    for p in &plan {
+        s.spec(p, opts.seed)
+            .options()
+            .check(scene)
+            .with_context(|| {
+                if p.c.method.reuses() {
+                    format!(
+                        "--methods {} at --reuse-budgets {} and --windows {}",
+                        p.c, p.spp, p.window
+                    )
+                } else {
+                    format!("--methods {} at --budgets {}", p.c, p.spp)
+                }
+            })?;
     }
-    let created = CreatedDirs::create(&opts.out)
-        .with_context(|| format!("--out {}: cannot create the folder", opts.out.display()))?;
-    check_writable_dir(&opts.out).with_context(|| format!("--out {}", opts.out.display()))?;
-    let lock = opts.out.join(".compare.lock");
-    let written = [
-        "compare.json",
-        "compare.csv",
-        "error_vs_time.png",
-        "error_vs_time.svg",
-        "speedup_vs_nf.png",
-        "speedup_vs_nf.svg",
-        "flicker.png",
-        "flicker.svg",
-        "flicker_denoised.png",
-        "flicker_denoised.svg",
-        "crops.png",
-        "crops.svg",
-        "bias.png",
-        "bias.svg",
-        ".compare.lock",
-    ];
-    let bias_files: Vec<String> = opts
-        .methods
-        .iter()
-        .map(|c| format!("bias_{}.exr", c.name()))
-        .collect();
-    check_outputs(
-        written
-            .iter()
-            .copied()
-            .chain(bias_files.iter().map(String::as_str))
-            .map(|n| ("--out", opts.out.join(n))),
-        &scene.inputs,
-    )?;
-    let _lock = OutputLock::acquire(&lock, &opts.out.display().to_string(), None)?;
+    let (created, _lock) = s.claim_out()?;
     let pool = thread_pool(opts.threads)?;
     let threads = pool.current_num_threads();
     crate::embree::set_flush_denormals();
 
     let reference = reference(
         scene,
-        range.clone(),
-        (w, h),
+        s.range.clone(),
+        (s.w, s.h),
         opts.reference_spp,
         opts.max_depth,
         &opts.cache,
@@ -507,102 +353,66 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         }
     );
     if let Some(d) = denoiser.as_mut() {
-        d.prepare(w as usize, h as usize)?;
+        d.prepare(s.w as usize, s.h as usize)?;
     }
     let integrator = Integrator::new(scene, opts.max_depth);
-    let crop_frame = first + n_frames / 2;
+    let mut runner = Runner {
+        s: &s,
+        integrator: &integrator,
+        pool: &pool,
+        denoiser: &mut denoiser,
+    };
     let mut runs: Vec<Run> = Vec::new();
     let mut crops: Vec<Vec<Vec3>> = Vec::new();
     let pb = progress_bar(opts.progress, plan.len() as u64, "runs");
-    for (method, window, spp, rendered) in plan {
-        let mut out = render_run(
-            &integrator,
-            &pool,
-            &mut denoiser,
-            &run_spec(method, window, spp, opts.seed, rendered.clone()),
-            &range,
-        )?;
-        let mut frames = std::mem::take(&mut out.frames);
-        let eff = if method.method.reuses() {
-            let measured: Vec<f64> = out
-                .counters
-                .per_frame
-                .iter()
-                .filter(|f| range.contains(&f.frame))
-                .map(|f| f.mean_effective_spp)
-                .collect();
-            measured.iter().sum::<f64>() / measured.len() as f64
-        } else {
-            spp as f64
-        };
-        let run_seconds = out.run_seconds;
-        // The steady state charges the measured frames one group's time each (denoising is per
-        // measured frame already).
-        let groups = rendered.end() + 2 - rendered.start() - window;
-        let render_seconds = run_seconds - out.denoise_seconds;
-        let seconds = out.denoise_seconds
-            + if opts.regime == Regime::Steady && method.method.reuses() {
-                render_seconds * n_frames as f64 / groups as f64
-            } else {
-                render_seconds
-            };
-        let (per_frame, rmse, relmse, flicker) = errors(&frames, &reference);
-        let (ends_relmse, middle_relmse) = if opts.regime == Regime::Range && method.method.reuses()
-        {
-            let mean =
-                |v: Vec<f64>| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
-            let at_end = |f: u32| f < first + window - 1 || f + window - 1 > last;
-            let (ends, middle): (Vec<&FrameError>, Vec<&FrameError>) =
-                per_frame.iter().partition(|e| at_end(e.frame));
-            (
-                mean(ends.iter().map(|e| e.relmse).collect()),
-                mean(middle.iter().map(|e| e.relmse).collect()),
-            )
-        } else {
-            (None, None)
-        };
+    for p in plan {
+        let (run, crop) = runner.measure(&p, &reference)?;
         // Flicker is measured between consecutive frames: none for one frame.
-        let shown = if per_frame.len() < 2 {
+        let shown = if run.per_frame.len() < 2 {
             "-".to_string()
         } else {
-            format!("{flicker:.5}")
+            format!("{:.5}", run.flicker)
         };
         pb.suspend(|| {
             errln!(
-                "{:>16} window {window:>2} spp {spp:>3}: {seconds:>7.2} s  rmse {rmse:.5}  relMSE {relmse:.5}  flicker {shown}",
-                method.name()
+                "{:>16} window {:>2} spp {:>3}: {:>7.2} s  rmse {:.5}  relMSE {:.5}  flicker {shown}",
+                run.method.name(),
+                run.window,
+                run.spp,
+                run.seconds,
+                run.rmse,
+                run.relmse
             )
         });
         pb.inc(1);
-        crops.push(frames.swap_remove((crop_frame - first) as usize));
-        runs.push(Run {
-            method,
-            window,
-            spp,
-            seconds,
-            denoise_seconds: out.denoise_seconds,
-            run_seconds,
-            rendered_frames: [*rendered.start(), *rendered.end()],
-            ends_relmse,
-            middle_relmse,
-            rmse,
-            relmse,
-            flicker,
-            mean_effective_spp: eff,
-            per_frame,
-        });
+        crops.push(crop);
+        runs.push(run);
     }
     pb.finish_and_clear();
 
     // Cost model: measured on the middle frame, as `reframe bench` does.
-    let cam = scene.camera(crop_frame, w, h);
-    let (costs, _, _) = measure_costs(&integrator, &pool, &cam, crop_frame, 2, opts.seed, 1);
+    let cam = scene.camera(s.crop_frame(), s.w, s.h);
+    let (costs, _, _) = measure_costs(&integrator, &pool, &cam, s.crop_frame(), 2, opts.seed, 1);
+    let figures = figures(&runs, &opts.methods, &costs, s.n_frames());
 
-    // Fits and derived figures.
-    let key = |r: &Run| (r.method, r.window);
+    // Files. A chart that cannot be drawn fails the command, but only after the measurements
+    // are written (`compare.csv`, `compare.json`): they are hours of rendering at production
+    // sizes.
+    let mut charts = Charts {
+        out: &opts.out,
+        outputs: Vec::new(),
+        error: None,
+    };
+    let strip = s.charts(&runs, &crops, &figures, &reference, threads, &mut charts)?;
+    let bias = runner.bias(&runs, &crops, &strip, &reference, &mut charts)?;
+    let mut outputs = charts.outputs;
+    outputs.extend(bias.iter().map(|b| b.image.clone()));
+    let csv_path = opts.out.join("compare.csv");
+    write_atomic(&csv_path, csv(&runs).as_bytes())?;
+    outputs.push(csv_path.display().to_string());
+    let json_path = opts.out.join("compare.json");
+    outputs.push(json_path.display().to_string());
     let Figures {
-        lines,
-        widest,
         equal_error_speedup,
         equal_error_speedup_over_denoised,
         predicted,
@@ -613,326 +423,15 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         equal_time_relmse,
         denoised_equal_time_flicker,
         denoised_equal_time_relmse,
-    } = figures(&runs, &opts.methods, &costs, n_frames);
-
-    // Files.
-    let mut outputs = Vec::new();
-    let label = |c: Candidate, n_f: u32| {
-        if c.method.reuses() {
-            format!("{c} n_f={n_f}")
-        } else {
-            c.name()
-        }
-    };
-    let max_window = lines.iter().map(|l| l.1).max().unwrap_or(1);
-    let chart1 = LineChart {
-        title: format!(
-            "{}: relMSE against time ({w}x{h}, frames {first}-{last}, {threads} threads)",
-            scene.name
-        ),
-        x_label: "render time, seconds".into(),
-        y_label: "relMSE".into(),
-        log_x: true,
-        log_y: true,
-        // Every method at its widest window, solid; the unbiased methods' narrower windows dashed.
-        series: lines
-            .iter()
-            .filter(|l| !l.0.method.reuses() || l.1 == max_window)
-            .map(|&l| (l, false))
-            .chain(
-                lines
-                    .iter()
-                    .filter(|l| {
-                        matches!(l.0.method, Method::MisExact | Method::MisCv) && l.1 != max_window
-                    })
-                    .map(|&l| (l, true)),
-            )
-            .map(|((c, n_f), dashed)| Series {
-                name: label(c, n_f),
-                colour: c.colour(),
-                dashed,
-                points: runs
-                    .iter()
-                    .filter(|r| key(r) == (c, n_f))
-                    .map(|r| (r.seconds, r.relmse))
-                    .collect(),
-            })
-            .collect(),
-    };
-    // A chart that cannot be drawn fails the command, but only after the measurements are
-    // written (`compare.csv`, `compare.json`): they are hours of rendering at production sizes.
-    let mut chart_error: Option<anyhow::Error> = None;
-    let mut write_chart = |svg: String, stem: &str| -> Result<()> {
-        let p = opts.out.join(stem);
-        match write_svg_png(&svg, &p) {
-            Ok(()) => {
-                outputs.push(p.with_extension("png").display().to_string());
-                outputs.push(p.with_extension("svg").display().to_string());
-            }
-            Err(e) => {
-                chart_error.get_or_insert(e);
-            }
-        }
-        Ok(())
-    };
-    write_chart(chart1.svg(), "error_vs_time")?;
-    let chart2 = LineChart {
-        title: format!("{}: mis-exact speed-up against n_f", scene.name),
-        x_label: "frames per group n_f".into(),
-        y_label: "speed-up over independent".into(),
-        log_x: false,
-        log_y: false,
-        series: vec![
-            Series {
-                name: "eq. 16 predicted".into(),
-                colour: COLOURS[0],
-                dashed: true,
-                points: num_points(&predicted),
-            },
-            Series {
-                name: "measured, same spp".into(),
-                colour: COLOURS[3],
-                dashed: false,
-                points: num_points(&measured),
-            },
-            Series {
-                name: "measured, equal error".into(),
-                colour: COLOURS[5],
-                dashed: false,
-                points: equal_error_speedup
-                    .get(Method::MisExact.name())
-                    .map(num_points)
-                    .unwrap_or_default(),
-            },
-        ],
-    };
-    write_chart(chart2.svg(), "speedup_vs_nf")?;
-    // Each widest line's fitted flicker in `at` as a bar.
-    let flicker_bars = |at: &BTreeMap<String, f64>| -> Vec<(String, f64, &str)> {
-        widest
-            .iter()
-            .filter_map(|&(c, n_f)| at.get(&c.name()).map(|&v| (label(c, n_f), v, c.colour())))
-            .collect()
-    };
-    const FLICKER_AXIS: &str = "flicker (RMS frame-to-frame change of the error)";
-    write_chart(
-        bar_chart(
-            &format!("{}: flicker at equal time ({equal_time:.1} s)", scene.name),
-            FLICKER_AXIS,
-            &flicker_bars(&equal_time_flicker),
-        ),
-        "flicker",
-    )?;
-    if let Some(t) = denoised_equal_time {
-        write_chart(
-            bar_chart(
-                &format!(
-                    "{}: flicker at the denoised equal time ({t:.1} s)",
-                    scene.name
-                ),
-                FLICKER_AXIS,
-                &flicker_bars(&denoised_equal_time_flicker),
-            ),
-            "flicker_denoised",
-        )?;
-    }
-    // The crop strip: each method's run closest in time to a reference time, the cheapest
-    // widest run of mis-exact (else of the first reuse method compared; else equal time).
-    let strip_time = [Candidate::plain(Method::MisExact)]
-        .into_iter()
-        .chain(opts.methods.iter().copied().filter(|c| c.method.reuses()))
-        .map(|c| {
-            runs.iter()
-                .filter(|r| r.method == c && r.window == max_window)
-                .map(|r| r.seconds)
-                .fold(f64::INFINITY, f64::min)
-        })
-        .find(|t| t.is_finite())
-        .unwrap_or(equal_time);
-    let ref_crop = &reference.frames[(crop_frame - first) as usize];
-    let mut tiles = vec![(
-        format!("reference\n{} spp", reference.spp),
-        crop_png(&ref_crop.mean, w, crop)?,
-        crop[2],
-        crop[3],
-    )];
-    // (candidate, index of its strip run) per widest line.
-    let mut strip_runs: Vec<(Candidate, usize)> = Vec::new();
-    for &(c, n_f) in &widest {
-        let best = runs
-            .iter()
-            .enumerate()
-            .filter(|(_, r)| key(r) == (c, n_f))
-            .min_by(|a, b| {
-                let d = |r: &Run| (r.seconds / strip_time).ln().abs();
-                d(a.1).total_cmp(&d(b.1))
-            });
-        if let Some((i, r)) = best {
-            strip_runs.push((c, i));
-            tiles.push((
-                format!("{c}\n{}, {:.2} s", run_label(r), r.seconds),
-                crop_png(&crops[i], w, crop)?,
-                crop[2],
-                crop[3],
-            ));
-        }
-    }
-    let zoom = (240 / crop[2].max(crop[3])).clamp(1, 8);
-    write_chart(
-        image_strip(
-            &format!(
-                "{}: frame {crop_frame}, crop {}x{} at ({}, {}), about {strip_time:.2} s each",
-                scene.name, crop[2], crop[3], crop[0], crop[1]
-            ),
-            &tiles,
-            zoom,
-        ),
-        "crops",
-    )?;
-    // Bias images: the denoised methods' strip runs (and independent's, whose bias is zero: the
-    // scale of what the seeds leave of the noise), rendered again with more seeds.
-    let mut bias = Vec::new();
-    let bias_runs: Vec<(Candidate, usize)> = if opts.bias_seeds >= 2 {
-        let any_denoised = strip_runs.iter().any(|(c, _)| c.denoise);
-        strip_runs
-            .iter()
-            .copied()
-            .filter(|(c, _)| c.denoise || (any_denoised && *c == INDEPENDENT))
-            .collect()
-    } else {
-        Vec::new()
-    };
-    let mut bias_tiles = vec![tiles[0].clone()];
-    let mut bias_images: Vec<(Candidate, String, Vec<Vec3>)> = Vec::new();
-    for (c, i) in bias_runs {
-        let r = &runs[i];
-        // The crop frame in all of its groups, as in the measured run.
-        let span = match opts.regime {
-            Regime::Steady if c.method.reuses() => {
-                crop_frame + 1 - r.window..=crop_frame + r.window - 1
-            }
-            Regime::Range if c.method.reuses() => r.rendered_frames[0]..=r.rendered_frames[1],
-            _ => crop_frame..=crop_frame,
-        };
-        let mut seeds = vec![crops[i].clone()];
-        let start = Instant::now();
-        for k in 1..opts.bias_seeds {
-            let out = render_run(
-                &integrator,
-                &pool,
-                &mut denoiser,
-                &run_spec(
-                    c,
-                    r.window,
-                    r.spp,
-                    opts.seed.wrapping_add(k as u64),
-                    span.clone(),
-                ),
-                &(crop_frame..=crop_frame),
-            )?;
-            seeds.extend(out.frames);
-        }
-        let (b, mean) = bias_estimate(&seeds, ref_crop);
-        let name = format!("bias_{}.exr", c.name());
-        let path = opts.out.join(&name);
-        let diff: Vec<Vec3> = mean
-            .iter()
-            .zip(&ref_crop.mean)
-            .map(|(m, r)| *m - *r)
-            .collect();
-        write_bias_exr(
-            &path,
-            &diff,
-            &scene.camera(crop_frame, w, h),
-            &c,
-            r,
-            opts.seed,
-            opts.bias_seeds,
-        )?;
-        errln!(
-            "{:>16} bias over {} seeds ({:.1} s): bias {:.5} of relMSE {:.5}",
-            c.name(),
-            opts.bias_seeds,
-            start.elapsed().as_secs_f64(),
-            b.bias_relmse,
-            b.relmse
-        );
-        bias_images.push((c, run_label(r), mean));
-        bias.push(Bias {
-            method: c,
-            window: r.window,
-            spp: r.spp,
-            seeds: opts.bias_seeds,
-            frame: crop_frame,
-            bias_relmse: b.bias_relmse,
-            relmse: b.relmse,
-            relmse_of_mean: b.relmse_of_mean,
-            image: path.display().to_string(),
-        });
-    }
-    if !bias_images.is_empty() {
-        // One scale for every tile: the 99th percentile of |mean - reference| in the crops.
-        let diffs: Vec<Vec<f32>> = bias_images
-            .iter()
-            .map(|(_, _, m)| crop_diff(m, &ref_crop.mean, w, crop))
-            .collect();
-        let scale = percentile_abs(diffs.iter().flatten().copied(), 0.99).max(1e-6);
-        for ((c, what, _), d) in bias_images.iter().zip(&diffs) {
-            bias_tiles.push((
-                format!("{c} mean - ref\n{what}, {} seeds", opts.bias_seeds),
-                diverging_png(d, crop[2], crop[3], scale)?,
-                crop[2],
-                crop[3],
-            ));
-        }
-        write_chart(
-            image_strip(
-                &format!(
-                    "{}: frame {crop_frame}, mean over {} seeds minus the reference (luminance; \
-                     red +, blue -, full colour at {scale:.3})",
-                    scene.name, opts.bias_seeds
-                ),
-                &bias_tiles,
-                zoom,
-            ),
-            "bias",
-        )?;
-    }
-    outputs.extend(bias.iter().map(|b| b.image.clone()));
-    let csv_path = opts.out.join("compare.csv");
-    let mut csv = String::from(
-        "method,window,spp,seconds,rmse,relmse,flicker,mean_effective_spp,denoise_seconds\n",
-    );
-    for r in &runs {
-        let _ = writeln!(
-            csv,
-            "{},{},{},{:.6},{:.8},{:.8},{},{:.3},{:.6}",
-            r.method.name(),
-            r.window,
-            r.spp,
-            r.seconds,
-            r.rmse,
-            r.relmse,
-            if r.flicker.is_nan() {
-                String::new()
-            } else {
-                format!("{:.8}", r.flicker)
-            },
-            r.mean_effective_spp,
-            r.denoise_seconds
-        );
-    }
-    write_atomic(&csv_path, csv.as_bytes())?;
-    outputs.push(csv_path.display().to_string());
-    let json_path = opts.out.join("compare.json");
-    outputs.push(json_path.display().to_string());
+        ..
+    } = figures;
     let report = CompareReport {
         regime: opts.regime,
         scene: scene.name.clone(),
-        width: w,
-        height: h,
-        first_frame: first,
-        last_frame: last,
+        width: s.w,
+        height: s.h,
+        first_frame: s.first,
+        last_frame: s.last,
         threads,
         reference: ReferenceSummary {
             spp: reference.spp,
@@ -957,13 +456,13 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         denoised_equal_time_flicker,
         denoised_equal_time_relmse,
         bias,
-        crop,
-        crop_frame,
+        crop: s.crop,
+        crop_frame: s.crop_frame(),
         skipped,
         outputs,
     };
     write_json(&json_path, &report)?;
-    if let Some(e) = chart_error {
+    if let Some(e) = charts.error {
         return Err(e.context(format!(
             "the measurements are in {} and {}, but a chart could not be drawn",
             csv_path.display(),
@@ -971,6 +470,687 @@ pub fn compare(scene: &Scene, opts: &CompareOptions) -> Result<CompareReport> {
         )));
     }
     Ok(report)
+}
+
+/// What `compare` measures, its options checked: the frames, the resolution and the crop.
+struct Setting<'a> {
+    scene: &'a Scene,
+    opts: &'a CompareOptions,
+    /// The measured frames.
+    range: RangeInclusive<u32>,
+    first: u32,
+    last: u32,
+    w: u32,
+    h: u32,
+    /// The crop of the strips (x, y, width, height), inside the frame.
+    crop: [u32; 4],
+}
+
+/// One run of the plan: `c` at `window` and `spp`, rendering the frames `rendered`.
+struct Planned {
+    c: Candidate,
+    window: u32,
+    spp: u32,
+    rendered: RangeInclusive<u32>,
+}
+
+impl<'a> Setting<'a> {
+    /// `opts` checked against `scene`, every refusal that needs no render.
+    fn check(scene: &'a Scene, opts: &'a CompareOptions) -> Result<Setting<'a>> {
+        let range = opts.frames.clone().unwrap_or_else(|| default_frames(scene));
+        check_frames(scene, &range)?;
+        let (first, last) = (*range.start(), *range.end());
+        let (w, h) = opts.res.unwrap_or((scene.width, scene.height));
+        check_resolution((w, h))?;
+        if let Some(c) = opts.methods.iter().find(|c| c.denoise) {
+            crate::image::oidn::check_size(&format!("--methods {}", c.name()), (w, h))?;
+        }
+        check_max_depth(opts.max_depth)?;
+        if let Some(c) = opts.methods.iter().find(|c| c.method.reuses()) {
+            check_reuse_film(scene, &range, (w, h), c.method.name())?;
+        }
+        for &b in &opts.budgets {
+            check_spp("--budgets", b)?;
+        }
+        for &b in &opts.reuse_budgets {
+            check_spp("--reuse-budgets", b)?;
+        }
+        check_threads(opts.threads)?;
+        if let Some(&n) = opts.windows.iter().find(|&&n| n % 2 == 0) {
+            bail!(
+                "--windows {n}: a group is a frame and as many on each side (n_f odd: 3, 5, 7, \
+                 ...), so windows must be odd"
+            );
+        }
+        // One given twice would run its renders twice and put two points at one place.
+        if let Some(c) = super::first_repeat(&opts.methods) {
+            bail!("--methods: {} is given twice", c.name());
+        }
+        for (flag, list) in [
+            ("--budgets", &opts.budgets),
+            ("--reuse-budgets", &opts.reuse_budgets),
+            ("--windows", &opts.windows),
+        ] {
+            if let Some(b) = super::first_repeat(list) {
+                bail!("{flag}: {b} is given twice");
+            }
+        }
+        if opts.methods.iter().any(|c| !c.method.reuses()) && opts.budgets.is_empty() {
+            bail!("--budgets: the independent tracer needs at least one budget");
+        }
+        if opts.bias_seeds == 1 {
+            bail!("--bias-seeds 1: a bias estimate needs at least 2 seeds (0: no bias images)");
+        }
+        if opts.bias_seeds > MAX_BIAS_SEEDS {
+            bail!(
+                "--bias-seeds {}: at most {MAX_BIAS_SEEDS} (each seed renders every denoised \
+                 method's strip again)",
+                opts.bias_seeds
+            );
+        }
+        // The default crop: a centred square of half the shorter side.
+        let side = (w.min(h) / 2).max(1);
+        let crop = opts
+            .crop
+            .unwrap_or([(w - side) / 2, (h - side) / 2, side, side]);
+        let [x, y, cw, ch] = crop;
+        if cw == 0 || ch == 0 {
+            bail!("--crop {x},{y},{cw},{ch}: empty (X,Y,W,H: its width and height must be at least 1)");
+        }
+        let inside = |x: u32, cw: u32, limit: u32| x.checked_add(cw).is_some_and(|e| e <= limit);
+        if !inside(x, cw, w) || !inside(y, ch, h) {
+            bail!("--crop {x},{y},{cw},{ch}: not inside the {w}x{h} frame");
+        }
+        Ok(Setting {
+            scene,
+            opts,
+            range,
+            first,
+            last,
+            w,
+            h,
+            crop,
+        })
+    }
+
+    fn n_frames(&self) -> u32 {
+        self.last - self.first + 1
+    }
+
+    /// The frame of the strips: the middle of the measured ones.
+    fn crop_frame(&self) -> u32 {
+        self.first + self.n_frames() / 2
+    }
+
+    /// Every run, and the runs left out with why (a window longer than the frames, or whose
+    /// steady state needs frames the scene lacks).
+    fn plan(&self) -> (Vec<Planned>, Vec<String>) {
+        let (opts, first, last, n_frames) = (self.opts, self.first, self.last, self.n_frames());
+        let frames = self.scene.frames;
+        let mut plan = Vec::new();
+        let mut skipped = Vec::new();
+        for &c in &opts.methods {
+            let mut add = |window: u32, spp: &[u32], rendered: RangeInclusive<u32>| {
+                plan.extend(spp.iter().map(|&spp| Planned {
+                    c,
+                    window,
+                    spp,
+                    rendered: rendered.clone(),
+                }))
+            };
+            if !c.method.reuses() {
+                add(1, &opts.budgets, self.range.clone());
+                continue;
+            }
+            for &n_f in &opts.windows {
+                match opts.regime {
+                    Regime::Range if n_f <= n_frames => {
+                        add(n_f, &opts.reuse_budgets, self.range.clone())
+                    }
+                    Regime::Steady if first >= n_f - 1 && last + n_f - 1 < frames => {
+                        add(n_f, &opts.reuse_budgets, first + 1 - n_f..=last + n_f - 1)
+                    }
+                    Regime::Range => {
+                        skipped.push(format!("{c} n_f {n_f}: longer than the {n_frames} frames"))
+                    }
+                    Regime::Steady => skipped.push(format!(
+                        "{c} n_f {n_f}: its steady state needs frames {} to {}, the scene has 0 \
+                         to {}",
+                        first as i64 + 1 - n_f as i64,
+                        last + n_f - 1,
+                        frames - 1
+                    )),
+                }
+            }
+        }
+        (plan, skipped)
+    }
+
+    /// The render of planned run `p` with `seed`.
+    fn spec(&self, p: &Planned, seed: u64) -> RunSpec {
+        RunSpec {
+            c: p.c,
+            window: p.window,
+            spp: p.spp,
+            seed,
+            rendered: p.rendered.clone(),
+            res: (self.w, self.h),
+            max_depth: self.opts.max_depth,
+            threads: self.opts.threads,
+        }
+    }
+
+    /// The output folder made (removed again by the guard unless kept), checked writable,
+    /// nothing in it that is an input of the scene, and locked against another `compare`.
+    fn claim_out(&self) -> Result<(CreatedDirs, OutputLock)> {
+        let out = &self.opts.out;
+        let created = CreatedDirs::create(out)
+            .with_context(|| format!("--out {}: cannot create the folder", out.display()))?;
+        check_writable_dir(out).with_context(|| format!("--out {}", out.display()))?;
+        let written = [
+            "compare.json",
+            "compare.csv",
+            "error_vs_time.png",
+            "error_vs_time.svg",
+            "speedup_vs_nf.png",
+            "speedup_vs_nf.svg",
+            "flicker.png",
+            "flicker.svg",
+            "flicker_denoised.png",
+            "flicker_denoised.svg",
+            "crops.png",
+            "crops.svg",
+            "bias.png",
+            "bias.svg",
+            ".compare.lock",
+        ];
+        let bias_files: Vec<String> = self
+            .opts
+            .methods
+            .iter()
+            .map(|c| format!("bias_{}.exr", c.name()))
+            .collect();
+        check_outputs(
+            written
+                .iter()
+                .copied()
+                .chain(bias_files.iter().map(String::as_str))
+                .map(|n| ("--out", out.join(n))),
+            &self.scene.inputs,
+        )?;
+        let lock =
+            OutputLock::acquire(&out.join(".compare.lock"), &out.display().to_string(), None)?;
+        Ok((created, lock))
+    }
+
+    /// The charts of the runs and their `figures` (error against time, speed-up against
+    /// `n_f`, flicker at equal time, the crop strip), through `charts`. Gives back the strip:
+    /// its reference tile, each widest line's run in it, and its zoom (the bias strip's too).
+    fn charts(
+        &self,
+        runs: &[Run],
+        crops: &[Vec<Vec3>],
+        figures: &Figures,
+        reference: &Reference,
+        threads: usize,
+        charts: &mut Charts,
+    ) -> Result<Strip> {
+        let (scene, w, h, first, last) = (self.scene, self.w, self.h, self.first, self.last);
+        let (crop, crop_frame) = (self.crop, self.crop_frame());
+        let Figures {
+            lines,
+            widest,
+            equal_error_speedup,
+            predicted,
+            measured,
+            equal_time,
+            denoised_equal_time,
+            equal_time_flicker,
+            denoised_equal_time_flicker,
+            ..
+        } = figures;
+        let key = |r: &Run| (r.method, r.window);
+        let max_window = lines.iter().map(|l| l.1).max().unwrap_or(1);
+        let chart1 = LineChart {
+            title: format!(
+                "{}: relMSE against time ({w}x{h}, frames {first}-{last}, {threads} threads)",
+                scene.name
+            ),
+            x_label: "render time, seconds".into(),
+            y_label: "relMSE".into(),
+            log_x: true,
+            log_y: true,
+            // Every method at its widest window, solid; the unbiased methods' narrower windows
+            // dashed.
+            series: lines
+                .iter()
+                .filter(|l| !l.0.method.reuses() || l.1 == max_window)
+                .map(|&l| (l, false))
+                .chain(
+                    lines
+                        .iter()
+                        .filter(|l| {
+                            matches!(l.0.method, Method::MisExact | Method::MisCv)
+                                && l.1 != max_window
+                        })
+                        .map(|&l| (l, true)),
+                )
+                .map(|((c, n_f), dashed)| Series {
+                    name: line_label(c, n_f),
+                    colour: c.colour(),
+                    dashed,
+                    points: runs
+                        .iter()
+                        .filter(|r| key(r) == (c, n_f))
+                        .map(|r| (r.seconds, r.relmse))
+                        .collect(),
+                })
+                .collect(),
+        };
+        charts.write(chart1.svg(), "error_vs_time");
+        let chart2 = LineChart {
+            title: format!("{}: mis-exact speed-up against n_f", scene.name),
+            x_label: "frames per group n_f".into(),
+            y_label: "speed-up over independent".into(),
+            log_x: false,
+            log_y: false,
+            series: vec![
+                Series {
+                    name: "eq. 16 predicted".into(),
+                    colour: COLOURS[0],
+                    dashed: true,
+                    points: num_points(predicted),
+                },
+                Series {
+                    name: "measured, same spp".into(),
+                    colour: COLOURS[3],
+                    dashed: false,
+                    points: num_points(measured),
+                },
+                Series {
+                    name: "measured, equal error".into(),
+                    colour: COLOURS[5],
+                    dashed: false,
+                    points: equal_error_speedup
+                        .get(Method::MisExact.name())
+                        .map(num_points)
+                        .unwrap_or_default(),
+                },
+            ],
+        };
+        charts.write(chart2.svg(), "speedup_vs_nf");
+        // Each widest line's fitted flicker in `at` as a bar.
+        let flicker_bars = |at: &BTreeMap<String, f64>| -> Vec<(String, f64, &str)> {
+            widest
+                .iter()
+                .filter_map(|&(c, n_f)| {
+                    at.get(&c.name())
+                        .map(|&v| (line_label(c, n_f), v, c.colour()))
+                })
+                .collect()
+        };
+        const FLICKER_AXIS: &str = "flicker (RMS frame-to-frame change of the error)";
+        charts.write(
+            bar_chart(
+                &format!("{}: flicker at equal time ({equal_time:.1} s)", scene.name),
+                FLICKER_AXIS,
+                &flicker_bars(equal_time_flicker),
+            ),
+            "flicker",
+        );
+        if let Some(t) = denoised_equal_time {
+            charts.write(
+                bar_chart(
+                    &format!(
+                        "{}: flicker at the denoised equal time ({t:.1} s)",
+                        scene.name
+                    ),
+                    FLICKER_AXIS,
+                    &flicker_bars(denoised_equal_time_flicker),
+                ),
+                "flicker_denoised",
+            );
+        }
+        // The crop strip: each method's run closest in time to a reference time, the cheapest
+        // widest run of mis-exact (else of the first reuse method compared; else equal time).
+        let strip_time = [Candidate::plain(Method::MisExact)]
+            .into_iter()
+            .chain(
+                self.opts
+                    .methods
+                    .iter()
+                    .copied()
+                    .filter(|c| c.method.reuses()),
+            )
+            .map(|c| {
+                runs.iter()
+                    .filter(|r| r.method == c && r.window == max_window)
+                    .map(|r| r.seconds)
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .find(|t| t.is_finite())
+            .unwrap_or(*equal_time);
+        let ref_crop = &reference.frames[(crop_frame - first) as usize];
+        let reference_tile = (
+            format!("reference\n{} spp", reference.spp),
+            crop_png(&ref_crop.mean, w, crop)?,
+            crop[2],
+            crop[3],
+        );
+        let mut tiles = vec![reference_tile.clone()];
+        let mut strip_runs: Vec<(Candidate, usize)> = Vec::new();
+        for &(c, n_f) in widest {
+            let best = runs
+                .iter()
+                .enumerate()
+                .filter(|(_, r)| key(r) == (c, n_f))
+                .min_by(|a, b| {
+                    let d = |r: &Run| (r.seconds / strip_time).ln().abs();
+                    d(a.1).total_cmp(&d(b.1))
+                });
+            if let Some((i, r)) = best {
+                strip_runs.push((c, i));
+                tiles.push((
+                    format!("{c}\n{}, {:.2} s", run_label(r), r.seconds),
+                    crop_png(&crops[i], w, crop)?,
+                    crop[2],
+                    crop[3],
+                ));
+            }
+        }
+        let zoom = (240 / crop[2].max(crop[3])).clamp(1, 8);
+        charts.write(
+            image_strip(
+                &format!(
+                    "{}: frame {crop_frame}, crop {}x{} at ({}, {}), about {strip_time:.2} s each",
+                    scene.name, crop[2], crop[3], crop[0], crop[1]
+                ),
+                &tiles,
+                zoom,
+            ),
+            "crops",
+        );
+        Ok(Strip {
+            reference_tile,
+            runs: strip_runs,
+            zoom,
+        })
+    }
+}
+
+/// A line's name in the charts: the method, with its window where it reuses.
+fn line_label(c: Candidate, n_f: u32) -> String {
+    if c.method.reuses() {
+        format!("{c} n_f={n_f}")
+    } else {
+        c.name()
+    }
+}
+
+/// The crop strip as `Setting::charts` drew it.
+struct Strip {
+    /// The reference's tile (the bias strip starts with it too).
+    reference_tile: (String, Vec<u8>, u32, u32),
+    /// (candidate, index of its run) per widest line.
+    runs: Vec<(Candidate, usize)>,
+    zoom: u32,
+}
+
+/// Where `compare`'s charts go: the files written, and the first chart that could not be drawn
+/// (reported after the measurements are written).
+struct Charts<'a> {
+    out: &'a Path,
+    outputs: Vec<String>,
+    error: Option<anyhow::Error>,
+}
+
+impl Charts<'_> {
+    /// `svg` as `<stem>.svg` and `<stem>.png`.
+    fn write(&mut self, svg: String, stem: &str) {
+        let p = self.out.join(stem);
+        match write_svg_png(&svg, &p) {
+            Ok(()) => {
+                self.outputs
+                    .push(p.with_extension("png").display().to_string());
+                self.outputs
+                    .push(p.with_extension("svg").display().to_string());
+            }
+            Err(e) => {
+                self.error.get_or_insert(e);
+            }
+        }
+    }
+}
+
+/// What the runs share: the setting, the tracer, the worker pool and the denoiser.
+struct Runner<'a, 'b> {
+    s: &'b Setting<'a>,
+    integrator: &'b Integrator<'a>,
+    pool: &'b rayon::ThreadPool,
+    denoiser: &'b mut Option<Denoiser>,
+}
+
+impl Runner<'_, '_> {
+    /// Planned run `p` rendered and measured against `reference`, and its crop frame.
+    fn measure(&mut self, p: &Planned, reference: &Reference) -> Result<(Run, Vec<Vec3>)> {
+        let s = self.s;
+        let (opts, range, first, last) = (s.opts, &s.range, s.first, s.last);
+        let (method, window, spp) = (p.c, p.window, p.spp);
+        let reuses = method.method.reuses();
+        let mut out = render_run(
+            self.integrator,
+            self.pool,
+            self.denoiser,
+            &s.spec(p, opts.seed),
+            range,
+        )?;
+        let mut frames = std::mem::take(&mut out.frames);
+        let eff = if reuses {
+            let measured: Vec<f64> = out
+                .counters
+                .per_frame
+                .iter()
+                .filter(|f| range.contains(&f.frame))
+                .map(|f| f.mean_effective_spp)
+                .collect();
+            measured.iter().sum::<f64>() / measured.len() as f64
+        } else {
+            spp as f64
+        };
+        let run_seconds = out.run_seconds;
+        // The steady state charges the measured frames one group's time each (denoising is per
+        // measured frame already).
+        let groups = p.rendered.end() + 2 - p.rendered.start() - window;
+        let render_seconds = run_seconds - out.denoise_seconds;
+        let seconds = out.denoise_seconds
+            + if opts.regime == Regime::Steady && reuses {
+                render_seconds * s.n_frames() as f64 / groups as f64
+            } else {
+                render_seconds
+            };
+        let (per_frame, rmse, relmse, flicker) = errors(&frames, reference);
+        let (ends_relmse, middle_relmse) = if opts.regime == Regime::Range && reuses {
+            let mean =
+                |v: Vec<f64>| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
+            let at_end = |f: u32| f < first + window - 1 || f + window - 1 > last;
+            let (ends, middle): (Vec<&FrameError>, Vec<&FrameError>) =
+                per_frame.iter().partition(|e| at_end(e.frame));
+            (
+                mean(ends.iter().map(|e| e.relmse).collect()),
+                mean(middle.iter().map(|e| e.relmse).collect()),
+            )
+        } else {
+            (None, None)
+        };
+        let crop = frames.swap_remove((s.crop_frame() - first) as usize);
+        let run = Run {
+            method,
+            window,
+            spp,
+            seconds,
+            denoise_seconds: out.denoise_seconds,
+            run_seconds,
+            rendered_frames: [*p.rendered.start(), *p.rendered.end()],
+            ends_relmse,
+            middle_relmse,
+            rmse,
+            relmse,
+            flicker,
+            mean_effective_spp: eff,
+            per_frame,
+        };
+        Ok((run, crop))
+    }
+
+    /// The bias images: the denoised methods' strip runs (and independent's, whose bias is
+    /// zero: the scale of what the seeds leave of the noise), rendered again with more seeds,
+    /// each written as an EXR of its mean less the reference, and their strip.
+    fn bias(
+        &mut self,
+        runs: &[Run],
+        crops: &[Vec<Vec3>],
+        strip: &Strip,
+        reference: &Reference,
+        charts: &mut Charts,
+    ) -> Result<Vec<Bias>> {
+        let s = self.s;
+        let (opts, scene, w, crop, crop_frame) = (s.opts, s.scene, s.w, s.crop, s.crop_frame());
+        if opts.bias_seeds < 2 {
+            return Ok(Vec::new());
+        }
+        let any_denoised = strip.runs.iter().any(|(c, _)| c.denoise);
+        let bias_runs = strip
+            .runs
+            .iter()
+            .copied()
+            .filter(|(c, _)| c.denoise || (any_denoised && *c == INDEPENDENT));
+        let ref_crop = &reference.frames[(crop_frame - s.first) as usize];
+        let mut bias = Vec::new();
+        let mut bias_images: Vec<(Candidate, String, Vec<Vec3>)> = Vec::new();
+        for (c, i) in bias_runs {
+            let r = &runs[i];
+            // The crop frame in all of its groups, as in the measured run.
+            let span = match opts.regime {
+                Regime::Steady if c.method.reuses() => {
+                    crop_frame + 1 - r.window..=crop_frame + r.window - 1
+                }
+                Regime::Range if c.method.reuses() => r.rendered_frames[0]..=r.rendered_frames[1],
+                _ => crop_frame..=crop_frame,
+            };
+            let planned = Planned {
+                c,
+                window: r.window,
+                spp: r.spp,
+                rendered: span,
+            };
+            let mut seeds = vec![crops[i].clone()];
+            let start = Instant::now();
+            for k in 1..opts.bias_seeds {
+                let out = render_run(
+                    self.integrator,
+                    self.pool,
+                    self.denoiser,
+                    &s.spec(&planned, opts.seed.wrapping_add(k as u64)),
+                    &(crop_frame..=crop_frame),
+                )?;
+                seeds.extend(out.frames);
+            }
+            let (b, mean) = bias_estimate(&seeds, ref_crop);
+            let path = opts.out.join(format!("bias_{}.exr", c.name()));
+            let diff: Vec<Vec3> = mean
+                .iter()
+                .zip(&ref_crop.mean)
+                .map(|(m, r)| *m - *r)
+                .collect();
+            write_bias_exr(
+                &path,
+                &diff,
+                &scene.camera(crop_frame, w, s.h),
+                &c,
+                r,
+                opts.seed,
+                opts.bias_seeds,
+            )?;
+            errln!(
+                "{:>16} bias over {} seeds ({:.1} s): bias {:.5} of relMSE {:.5}",
+                c.name(),
+                opts.bias_seeds,
+                start.elapsed().as_secs_f64(),
+                b.bias_relmse,
+                b.relmse
+            );
+            bias_images.push((c, run_label(r), mean));
+            bias.push(Bias {
+                method: c,
+                window: r.window,
+                spp: r.spp,
+                seeds: opts.bias_seeds,
+                frame: crop_frame,
+                bias_relmse: b.bias_relmse,
+                relmse: b.relmse,
+                relmse_of_mean: b.relmse_of_mean,
+                image: path.display().to_string(),
+            });
+        }
+        if bias_images.is_empty() {
+            return Ok(bias);
+        }
+        // One scale for every tile: the 99th percentile of |mean - reference| in the crops.
+        let diffs: Vec<Vec<f32>> = bias_images
+            .iter()
+            .map(|(_, _, m)| crop_diff(m, &ref_crop.mean, w, crop))
+            .collect();
+        let scale = percentile_abs(diffs.iter().flatten().copied(), 0.99).max(1e-6);
+        let mut tiles = vec![strip.reference_tile.clone()];
+        for ((c, what, _), d) in bias_images.iter().zip(&diffs) {
+            tiles.push((
+                format!("{c} mean - ref\n{what}, {} seeds", opts.bias_seeds),
+                diverging_png(d, crop[2], crop[3], scale)?,
+                crop[2],
+                crop[3],
+            ));
+        }
+        charts.write(
+            image_strip(
+                &format!(
+                    "{}: frame {crop_frame}, mean over {} seeds minus the reference (luminance; \
+                     red +, blue -, full colour at {scale:.3})",
+                    scene.name, opts.bias_seeds
+                ),
+                &tiles,
+                strip.zoom,
+            ),
+            "bias",
+        );
+        Ok(bias)
+    }
+}
+
+/// `compare.csv`: one line per run.
+fn csv(runs: &[Run]) -> String {
+    let mut csv = String::from(
+        "method,window,spp,seconds,rmse,relmse,flicker,mean_effective_spp,denoise_seconds\n",
+    );
+    for r in runs {
+        let _ = writeln!(
+            csv,
+            "{},{},{},{:.6},{:.8},{:.8},{},{:.3},{:.6}",
+            r.method.name(),
+            r.window,
+            r.spp,
+            r.seconds,
+            r.rmse,
+            r.relmse,
+            if r.flicker.is_nan() {
+                String::new()
+            } else {
+                format!("{:.8}", r.flicker)
+            },
+            r.mean_effective_spp,
+            r.denoise_seconds
+        );
+    }
+    csv
 }
 
 /// The independent tracer as `compare` runs it, plain and denoised: the baselines of its
