@@ -74,6 +74,7 @@ use std::sync::Arc;
 use toml::Spanned;
 
 mod camera_file;
+mod coplanar;
 mod cutout;
 mod files;
 pub(crate) use files::{locate_named_file, missing_file_message};
@@ -796,6 +797,12 @@ impl Scene {
         warnings.extend(shadow_note);
         warnings.extend(object_notes);
         warnings.extend(cache_note);
+        warnings.extend(coplanar::warnings(
+            &obj_label,
+            &mesh,
+            &prototypes,
+            &instances,
+        ));
         for (object, n) in turned_in.into_iter().filter(|&(_, n)| n > 0) {
             warnings.push(format!(
                 "{object}: {n} emitting triangle(s) wound against their vertex normals \
