@@ -724,6 +724,41 @@ fn a_chunk_never_replaces_another_renders_partial() {
 }
 
 #[test]
+fn a_chunk_of_other_frames_never_replaces_a_finished_chunk_of_the_same_out() {
+    // Two job arrays over different ranges of one shot given one --out: the second's chunk
+    // replaced the first's finished one (a chunk file's name says only which chunk it is),
+    // exit 0, and the merge wrote the second range alone.
+    let dir = tempfile::tempdir().unwrap();
+    let out = format!("{}/f_####.exr", dir.path().display());
+    let chunk = |frames: &str, more: &[&str]| -> Vec<String> {
+        let args = [
+            "render", "cornell", "--frames", frames, "--res", "16x12", "--spp", "1", "--chunk",
+            "1/1", "--out", &out,
+        ];
+        args.iter().chain(more).map(|a| a.to_string()).collect()
+    };
+    run(&chunk("0-1", &[]));
+    let partial = dir.path().join("f.chunk-1-of-1.partial");
+    let before = std::fs::read(&partial).unwrap();
+    for more in [&[][..], &["--resume"], &["--seed", "3"]] {
+        let o = reframe().args(chunk("2-3", more)).output().unwrap();
+        common::assert_refused(
+            &o,
+            "holds chunk 1/1 of frames 0-1 of 'cornell', finished, and this render is of frames 2-3",
+        );
+        common::assert_refused(&o, "give it another --out, or delete that file");
+        assert!(std::fs::read(&partial).unwrap() == before);
+    }
+    // Deleted, the chunk renders; the same frames at other settings replace it (an array
+    // resubmitted after a change), and the merge writes them.
+    std::fs::remove_file(&partial).unwrap();
+    run(&chunk("2-3", &[]));
+    run(&chunk("2-3", &["--seed", "3"]));
+    run(&["merge", "--chunks", "1", "--out", &out]);
+    assert!(dir.path().join("f_0003.exr").exists() && !dir.path().join("f_0000.exr").exists());
+}
+
+#[test]
 fn a_merge_never_writes_over_an_interrupted_renders_frames() {
     // A merge into frames an interrupted render's checkpoint counts finished wrote over them
     // (exit 0), and the render's resume was then refused.
