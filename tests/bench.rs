@@ -581,6 +581,12 @@ fn compare_says_which_run_a_missing_speedup_lacks() {
             .find(|l| l.starts_with("same-spp speed-up"))
             .unwrap_or_else(|| panic!("{text}"))
             .to_string();
+        // Runs of a few milliseconds: their speed-ups are said to mean little.
+        assert!(
+            text.contains("note: a timed run took 0.0")
+                && text.contains("too short for the speed-ups and the equal-time figures"),
+            "{text}"
+        );
         line
     };
     let line = run("mis-exact");

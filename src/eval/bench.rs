@@ -274,7 +274,7 @@ impl BenchReport {
 }
 
 /// A timed run shorter than this is said to be (`BenchReport::table`).
-const SHORT_RUN_SECONDS: f64 = 0.05;
+pub(super) const SHORT_RUN_SECONDS: f64 = 0.05;
 
 /// The cost model's terms, nanoseconds of one core per item.
 #[derive(Clone, Copy, Debug, Serialize)]

@@ -1,6 +1,6 @@
 //! `reframe compare`: every method at a ladder of budgets against a cached high-sample reference
 //! (`reference`), error against time and flicker (`errors`), and the charts (`chart`).
-use super::bench::{measure_costs, predicted_speedup, Costs};
+use super::bench::{measure_costs, predicted_speedup, Costs, SHORT_RUN_SECONDS};
 use super::chart::{bar_chart, image_strip, write_svg_png, LineChart, Series, COLOURS};
 use super::errors::{
     bias_estimate, errors, loglog_fit, time_for, FrameError, FLICKER_FORMULA, RELMSE_FORMULA,
@@ -1432,6 +1432,21 @@ pub fn summary(r: &CompareReport) -> String {
         .collect();
     if !p.is_empty() {
         let _ = write!(s, "same-spp speed-up, eq. 16 / measured: {}", p.join(", "));
+    }
+    // Runs this short are mostly the fixed costs of a render (threads, films): the speed-ups
+    // read those, and moved from 0.10x to 0.08x between two runs of 8x6 frames.
+    let shortest = r
+        .runs
+        .iter()
+        .map(|run| run.seconds)
+        .fold(f64::INFINITY, f64::min);
+    if shortest < SHORT_RUN_SECONDS {
+        let _ = write!(
+            s,
+            "\nnote: a timed run took {shortest:.3} s, under {SHORT_RUN_SECONDS} s: too short for \
+             the speed-ups and the equal-time figures to mean much; give a larger --res or \
+             --budgets"
+        );
     }
     s
 }
