@@ -389,6 +389,71 @@ fn compare_writes_results_and_charts_and_reuses_the_cached_reference() {
     }
 }
 
+#[test]
+fn a_reference_entry_linked_to_another_is_never_written_through() {
+    // A cache shared by links: one entry's folder a link to another's. The entry was found
+    // damaged (another key's reference) and rendered again through the link, over the other
+    // entry, which was then found damaged in turn.
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("cache");
+    let reference = |spp: &str| {
+        common::reframe(&[
+            "reference",
+            "cornell",
+            "--frames",
+            "0-1",
+            "--res",
+            "8x6",
+            "--reference-spp",
+            spp,
+            "--cache",
+            cache.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap()
+    };
+    let entry = |spp: &str| {
+        std::fs::read_dir(&cache)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .find(|p| {
+                p.file_name()
+                    .unwrap()
+                    .to_str()
+                    .unwrap()
+                    .contains(&format!("_{spp}spp_"))
+            })
+            .unwrap()
+    };
+    assert!(reference("16").status.success());
+    assert!(reference("8").status.success());
+    let (e16, e8) = (entry("16"), entry("8"));
+    let info16 = std::fs::read(e16.join("reference.json")).unwrap();
+    std::fs::remove_dir_all(&e8).unwrap();
+    std::os::unix::fs::symlink(&e16, &e8).unwrap();
+    let o = reference("8");
+    common::assert_refused(&o, "is a symbolic link (to ");
+    common::assert_refused(
+        &o,
+        "an entry is written in a folder of its own, never through a link",
+    );
+    assert_eq!(std::fs::read(e16.join("reference.json")).unwrap(), info16);
+    let o = reference("16");
+    assert!(String::from_utf8_lossy(&o.stdout).contains("(cached)"));
+    // Linked to a copy of its own entry, it is read.
+    let copy = dir.path().join("copy");
+    assert!(reference("8").status.code() == Some(1));
+    std::fs::remove_file(&e8).unwrap();
+    assert!(reference("8").status.success());
+    std::fs::rename(&e8, &copy).unwrap();
+    std::os::unix::fs::symlink(&copy, &e8).unwrap();
+    let o = reference("8");
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("(cached)"),
+        "{o:?}"
+    );
+}
+
 /// An image from its file's bytes (through a temporary file).
 fn read_image_bytes(bytes: &[u8]) -> reframe::image::Image {
     let d = tempfile::tempdir().unwrap();

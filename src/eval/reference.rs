@@ -272,12 +272,31 @@ pub fn reference(
     };
     // Where the entry is to be written again, each of its files must be one a rename can
     // replace: a folder, a link, a FIFO or a device in a frame's place was found only after
-    // the whole reference had been rendered again.
-    let replaceable = range
-        .clone()
-        .map(frame_path)
-        .chain([info_path.clone()])
-        .try_for_each(|p| crate::util::fs::check_replaceable(&p));
+    // the whole reference had been rendered again. Nor is an entry written through a link to
+    // another folder: two entries linked to one folder (a cache shared by links) rendered over
+    // each other in turn, each finding the other's reference in its place.
+    let linked = || -> Result<()> {
+        if dir
+            .symlink_metadata()
+            .is_ok_and(|m| m.file_type().is_symlink())
+        {
+            let to =
+                std::fs::read_link(&dir).map_or_else(|_| "?".into(), |t| t.display().to_string());
+            bail!(
+                "{} is a symbolic link (to {to}), and an entry is written in a folder of its own, \
+                 never through a link: remove the link (the reference is then made there)",
+                dir.display()
+            );
+        }
+        Ok(())
+    };
+    let replaceable = linked().and_then(|()| {
+        range
+            .clone()
+            .map(frame_path)
+            .chain([info_path.clone()])
+            .try_for_each(|p| crate::util::fs::check_replaceable(&p))
+    });
     if let Some(text) = text {
         let info = serde_json::from_str::<ReferenceInfo>(&text)
             .with_context(|| format!("{}: not a reference description", info_path.display()));
