@@ -315,9 +315,11 @@ fn run(cli: Cli) -> Result<()> {
             print_warnings(&scene);
             // The frames and the resolution the render took (checked as it started).
             let (frames, size) = opts.check(&scene)?;
-            if let Some(w) = scene.unseen_frames(frames, size) {
+            if let Some(w) = scene.unseen_frames(frames.clone(), size) {
                 errln!("warning: {}", message(&w));
             }
+            // Black frames that the camera's check above explains are not said again.
+            let unseen = scene.missed_frames(frames, size);
             if let Ok(out) = reframe::image::OutputPattern::parse(&opts.out) {
                 for w in opts.flag_warnings(&out, size) {
                     errln!("warning: {}", message(&w));
@@ -345,6 +347,11 @@ fn run(cli: Cli) -> Result<()> {
                     stats.nonfinite_pixels
                 );
             }
+            let black: Vec<u32> = (stats.black_frames.iter())
+                .filter(|f| scene.environment.is_some() || unseen.binary_search(f).is_err())
+                .copied()
+                .collect();
+            say_black(&black, stats.frames);
             if stats.nonfinite_samples > 0 {
                 errln!(
                     "warning: {} samples came out NaN or infinite and were left out",
@@ -409,6 +416,7 @@ fn run(cli: Cli) -> Result<()> {
                 r.frame_bytes as f64 / 1e6,
                 r.seconds
             );
+            say_black(&r.black_frames, r.frames.len() as u32);
             if r.nonfinite_pixels > 0 {
                 errln!("warning: {} pixels are NaN or infinite", r.nonfinite_pixels);
             }
@@ -522,6 +530,31 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// Warn of frames written black in every pixel (`frames` of `total`): no light reached the
+/// camera anywhere in them, which no scene one means to render looks like (a camera so far
+/// from the scene that its pixels pass beside it, a field of view so wide that none looks
+/// into it, lights that face away), and the camera's own check, which tests the scene's box
+/// against the view, does not find.
+fn say_black(frames: &[u32], total: u32) {
+    if frames.is_empty() {
+        return;
+    }
+    let which = if frames.len() as u32 == total {
+        format!("every frame ({})", reframe::util::text::ranges(frames, 4))
+    } else {
+        format!(
+            "{} of the {total} frames ({})",
+            frames.len(),
+            reframe::util::text::ranges(frames, 4)
+        )
+    };
+    errln!(
+        "warning: {which} came out black in every pixel: no light reached the camera there (its \
+         pixels may all pass beside the scene, as from far away or with a field of view near \
+         180 degrees, or see only unlit surfaces)"
+    );
 }
 
 /// Where more than one frame was clamped to half float's largest, how many: the warning when the

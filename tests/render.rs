@@ -412,9 +412,12 @@ fn render_writes_frames_metadata_and_stats() {
         "rays",
         "peak_rss_bytes",
         "nonfinite_pixels",
+        "black_frames",
     ] {
         assert!(json.get(key).is_some(), "stats lack '{key}'");
     }
+    // A lit frame is not black.
+    assert_eq!(json["black_frames"], serde_json::json!([]));
     for kind in ["primary", "path", "shadow"] {
         assert!(json["rays"][kind].as_u64().unwrap() > 0, "no {kind} rays");
     }

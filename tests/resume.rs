@@ -759,6 +759,53 @@ fn a_chunk_of_other_frames_never_replaces_a_finished_chunk_of_the_same_out() {
 }
 
 #[test]
+fn a_merge_says_which_frames_came_out_black() {
+    // A camera 9e17 units from the scene, looking at it: every pixel's ray passes beside it,
+    // and its frames are black; the chunks write no frames, so the merge says it.
+    let dir = tempfile::tempdir().unwrap();
+    let base = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/corpus/base");
+    for f in ["s.obj", "s.mtl"] {
+        std::fs::copy(base.join(f), dir.path().join(f)).unwrap();
+    }
+    let toml = std::fs::read_to_string(base.join("s.toml"))
+        .unwrap()
+        .replace("position = [0.0, 1.0, 3.0]", "position = [0.0, 1.0, 9e17]")
+        .replace("look_at = [0.0, 0.0, 0.0]", "look_at = [0.0, 1.0, 0.0]");
+    assert!(toml.contains("9e17"));
+    let scene = dir.path().join("s.toml");
+    std::fs::write(&scene, toml).unwrap();
+    let out = format!("{}/f_####.exr", dir.path().display());
+    for k in ["1/2", "2/2"] {
+        let o = reframe()
+            .args([
+                "render",
+                scene.to_str().unwrap(),
+                "--chunk",
+                k,
+                "--out",
+                &out,
+            ])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            o.status.success() && !err.contains("came out black"),
+            "{err}"
+        );
+    }
+    let o = reframe()
+        .args(["merge", "--chunks", "2", "--out", &out])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("warning: every frame (0-1) came out black in every pixel"),
+        "{err}"
+    );
+}
+
+#[test]
 fn a_merge_never_writes_over_an_interrupted_renders_frames() {
     // A merge into frames an interrupted render's checkpoint counts finished wrote over them
     // (exit 0), and the render's resume was then refused.

@@ -187,6 +187,9 @@ pub fn run_groups(
                 let d = develop(&a, sample_folds);
                 drop(a);
                 run.counters.nonfinite_pixels += d.nonfinite;
+                if d.is_black() {
+                    run.counters.black_frames.push(d.view.frame);
+                }
                 sink.put(d)?;
             }
             written += 1;

@@ -226,6 +226,9 @@ pub fn run_independent(
         if run.ckpt.chunked() {
             run.ckpt.retire(&Record::Pixels(d))?;
         } else {
+            if d.is_black() {
+                run.counters.black_frames.push(frame);
+            }
             sink.put(d)?;
         }
         run.next = frame + 1;

@@ -41,6 +41,8 @@ pub struct MergeReport {
     pub frame_bytes: u64,
     /// Pixels written with a NaN or infinite channel.
     pub nonfinite_pixels: u64,
+    /// Frames written black in every pixel, in order.
+    pub black_frames: Vec<u32>,
     /// What the chunks' settings asked for that these frames do not hold, in words (as
     /// `RenderOptions::flag_warnings` says it for a render).
     pub warnings: Vec<String>,
@@ -329,10 +331,14 @@ pub fn merge(
     // Every check has passed: the output folder stays.
     created.keep();
     let mut nonfinite_pixels = 0;
+    let mut black_frames = Vec::new();
     let mut write_frames = |out: &mut dyn Sink| -> Result<()> {
         for (frame, list) in &shares {
             let d = combine(*frame, list)?;
             nonfinite_pixels += d.nonfinite;
+            if d.is_black() {
+                black_frames.push(*frame);
+            }
             out.put(d)?;
         }
         Ok(())
@@ -365,6 +371,7 @@ pub fn merge(
         partial_bytes,
         frame_bytes,
         nonfinite_pixels,
+        black_frames,
     })
 }
 

@@ -33,6 +33,9 @@ pub struct RenderStats {
     /// Pixels written with a NaN or infinite channel (for a chunk: its finished pixels; `merge`
     /// reports the rest).
     pub nonfinite_pixels: u64,
+    /// Frames written black in every pixel, in order (a chunk writes no frames: `merge`
+    /// reports them).
+    pub black_frames: Vec<u32>,
     /// Reuse contributions that came out NaN/Inf and were dropped (should be 0).
     pub nonfinite_samples: u64,
     /// Native plus reused samples that landed, per pixel, averaged over frames.
@@ -89,6 +92,11 @@ impl RenderStats {
             peak_rss_bytes: crate::util::mem::peak_rss_bytes(),
             startup_rss_bytes,
             nonfinite_pixels: counters.nonfinite_pixels,
+            black_frames: {
+                let mut b = counters.black_frames.clone();
+                b.sort_unstable();
+                b
+            },
             nonfinite_samples: counters.nonfinite_samples,
             mean_effective_spp: if reuses {
                 counters.mean_effective_spp(plan.frame_count())

@@ -440,6 +440,14 @@ impl Developed {
         Vec3::new(self.data[k], self.data[k + 1], self.data[k + 2])
     }
 
+    /// Whether every pixel's RGB is zero (no light reached the camera in the whole frame).
+    pub fn is_black(&self) -> bool {
+        let nc = self.channels.len().max(1);
+        self.data
+            .chunks_exact(nc)
+            .all(|px| px[..nc.min(3)].iter().all(|&v| v == 0.0))
+    }
+
     /// The RGB pixels, row by row.
     pub fn pixels(&self) -> Vec<Vec3> {
         (0..self.view.pixels()).map(|i| self.rgb(i)).collect()

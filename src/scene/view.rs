@@ -36,30 +36,23 @@ fn misses(cam: &Camera, lo: Vec3, hi: Vec3) -> bool {
     outside.contains(&true)
 }
 
-/// `frames` as ranges, `0-3, 7, 9-12`, at most `shown` of them and a count of the rest.
-fn ranges(frames: &[u32], shown: usize) -> String {
-    let mut runs: Vec<(u32, u32)> = Vec::new();
-    for &f in frames {
-        match runs.last_mut() {
-            Some((_, b)) if *b + 1 == f => *b = f,
-            _ => runs.push((f, f)),
-        }
-    }
-    let mut parts: Vec<String> = runs
-        .iter()
-        .take(shown)
-        .map(|&(a, b)| match a == b {
-            true => a.to_string(),
-            false => format!("{a}-{b}"),
-        })
-        .collect();
-    if runs.len() > shown {
-        parts.push(format!("and {} more run(s)", runs.len() - shown));
-    }
-    parts.join(", ")
-}
-
 impl Scene {
+    /// The frames of `frames` whose camera (at `width` x `height`) surely misses the box around
+    /// the scene's geometry (`misses`); none where it has none.
+    pub fn missed_frames(
+        &self,
+        frames: RangeInclusive<u32>,
+        (width, height): (u32, u32),
+    ) -> Vec<u32> {
+        let (lo, hi) = world_bounds(&self.positions, &self.prototypes, &self.instances);
+        if lo.x > hi.x {
+            return Vec::new();
+        }
+        frames
+            .filter(|&f| misses(&self.camera(f, width, height), lo, hi))
+            .collect()
+    }
+
     /// A warning where the cameras of `frames` (at `width` x `height`) see none of the scene's
     /// geometry: any such frame when the scene has no environment (it would be black), every
     /// frame when it has one (a shot that turns to the sky for a while is fine; one that never
@@ -74,20 +67,21 @@ impl Scene {
             return None;
         }
         let total = frames.clone().count();
-        let missed: Vec<u32> = frames
-            .filter(|&f| misses(&self.camera(f, width, height), lo, hi))
-            .collect();
+        let missed = self.missed_frames(frames, (width, height));
         let environment = self.environment.is_some();
         if missed.is_empty() || (environment && missed.len() < total) {
             return None;
         }
         let (wlo, whi) = (lo.as_dvec3() + self.origin, hi.as_dvec3() + self.origin);
         let which = if missed.len() == total {
-            format!("every frame of the render ({})", ranges(&missed, 4))
+            format!(
+                "every frame of the render ({})",
+                crate::util::text::ranges(&missed, 4)
+            )
         } else {
             format!(
                 "frame(s) {} ({} of {total})",
-                ranges(&missed, 4),
+                crate::util::text::ranges(&missed, 4),
                 missed.len()
             )
         };
@@ -160,11 +154,14 @@ mod tests {
 
     #[test]
     fn frames_are_said_as_runs() {
-        assert_eq!(ranges(&[0, 1, 2, 3, 7, 9, 10], 4), "0-3, 7, 9-10");
         assert_eq!(
-            ranges(&[1, 3, 5, 7, 9, 11], 4),
+            crate::util::text::ranges(&[0, 1, 2, 3, 7, 9, 10], 4),
+            "0-3, 7, 9-10"
+        );
+        assert_eq!(
+            crate::util::text::ranges(&[1, 3, 5, 7, 9, 11], 4),
             "1, 3, 5, 7, and 2 more run(s)"
         );
-        assert_eq!(ranges(&[4], 4), "4");
+        assert_eq!(crate::util::text::ranges(&[4], 4), "4");
     }
 }

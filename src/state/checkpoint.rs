@@ -32,6 +32,9 @@ pub struct Counters {
     pub counts: RayCounts,
     pub nonfinite_samples: u64,
     pub nonfinite_pixels: u64,
+    /// Frames written black in every pixel (absent in older files: none).
+    #[serde(default)]
+    pub black_frames: Vec<u32>,
     /// Reuse figures of every frame retired so far (for a chunk, its share of each frame).
     pub per_frame: Vec<FrameReuse>,
     /// Seconds of rendering before this process started.

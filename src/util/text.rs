@@ -194,6 +194,29 @@ pub fn folded(name: &str) -> String {
     name.nfc().collect::<String>().to_lowercase()
 }
 
+/// `frames` as ranges, `0-3, 7, 9-12`, at most `shown` of them and a count of the rest.
+pub fn ranges(frames: &[u32], shown: usize) -> String {
+    let mut runs: Vec<(u32, u32)> = Vec::new();
+    for &f in frames {
+        match runs.last_mut() {
+            Some((_, b)) if *b + 1 == f => *b = f,
+            _ => runs.push((f, f)),
+        }
+    }
+    let mut parts: Vec<String> = runs
+        .iter()
+        .take(shown)
+        .map(|&(a, b)| match a == b {
+            true => a.to_string(),
+            false => format!("{a}-{b}"),
+        })
+        .collect();
+    if runs.len() > shown {
+        parts.push(format!("and {} more run(s)", runs.len() - shown));
+    }
+    parts.join(", ")
+}
+
 #[cfg(test)]
 mod tests {
     use super::{bare_values, message, plain_types, printable, screen_safe};
