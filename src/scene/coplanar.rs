@@ -31,6 +31,9 @@ const MAX_VISITS: u64 = 50_000_000;
 /// Cells of the emitters' grid at most.
 const MAX_CELLS: usize = 1 << 18;
 
+/// Emitting triangles looked into at most (`warnings`).
+const MAX_EMITTERS: usize = 1 << 18;
+
 /// A triangle in world space with its plane: unit normal `n` (its largest component positive)
 /// and `d = n . p` for the points `p` of the plane.
 #[derive(Clone, Copy)]
@@ -138,24 +141,40 @@ pub fn warnings(
 ) -> Vec<String> {
     let emits = |m: u32| mesh.materials[m as usize].is_emissive();
     let corners = |t: &[u32; 3]| t.map(|i| mesh.positions[i as usize]);
-    let emitters: Vec<Planar> = mesh
-        .triangles
-        .iter()
-        .zip(&mesh.tri_material)
-        .filter(|&(_, &m)| emits(m))
-        .filter_map(|(t, &m)| Planar::new(corners(t), m))
-        .collect();
+    // A lamp laid into a ceiling is a few triangles; a scene of more emitting ones than
+    // `MAX_EMITTERS` (an emitting model placed hundreds of times) is not looked into, and
+    // neither is one whose tables would not fit in the memory left (the load's own refusal of
+    // such a scene must stay one line, not an allocation that aborts).
+    let n = mesh.tri_material.iter().filter(|&&m| emits(m)).count();
+    let mut emitters: Vec<Planar> = Vec::new();
+    let mut tested: Vec<u32> = Vec::new();
+    if n == 0
+        || n > MAX_EMITTERS
+        || emitters.try_reserve_exact(n).is_err()
+        || tested.try_reserve_exact(n).is_err()
+    {
+        return Vec::new();
+    }
+    emitters.extend(
+        mesh.triangles
+            .iter()
+            .zip(&mesh.tri_material)
+            .filter(|&(_, &m)| emits(m))
+            .filter_map(|(t, &m)| Planar::new(corners(t), m)),
+    );
     if emitters.is_empty() {
         return Vec::new();
     }
     let tol = emitters.iter().map(|t| t.tol).fold(0.0, f32::max);
-    let grid = Grid::new(&emitters, tol);
+    let Some(grid) = Grid::new(&emitters, tol) else {
+        return Vec::new();
+    };
     // Per (emitter's material, other's material): the emitters found overlapping.
     let mut found: BTreeMap<(u32, u32), Vec<u32>> = BTreeMap::new();
     let mut visits = 0u64;
     // The last other triangle each emitter was tested against (one that spans several of its
     // cells is tested once).
-    let mut tested = vec![u32::MAX; emitters.len()];
+    tested.resize(emitters.len(), u32::MAX);
     let mut others = 0u32;
     let mut check = |o: Planar| -> bool {
         let Some(cells) = grid.cells(&o.p, tol) else {
@@ -191,8 +210,34 @@ pub fn warnings(
                 }
             }
         }
+        // A placement whose box misses the emitters' is not looked into (a forest of placed
+        // trees around one lamp).
+        let bounds = |ps: &mut dyn Iterator<Item = Vec3>| {
+            ps.fold(
+                (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+                |(lo, hi), p| (lo.min(p), hi.max(p)),
+            )
+        };
+        let proto_bounds: Vec<(Vec3, Vec3)> = prototypes
+            .iter()
+            .map(|p| bounds(&mut p.positions.iter().copied()))
+            .collect();
         for inst in instances {
             let proto = &prototypes[inst.proto as usize];
+            let (lo, hi) = proto_bounds[inst.proto as usize];
+            let corners = (0..8).map(|k| {
+                let pick = |bit: usize, a: f32, b: f32| if k & bit == 0 { a } else { b };
+                let c = Vec3::new(
+                    pick(1, lo.x, hi.x),
+                    pick(2, lo.y, hi.y),
+                    pick(4, lo.z, hi.z),
+                );
+                inst.to_world.transform_point3(c)
+            });
+            let (wlo, whi) = bounds(&mut corners.into_iter());
+            if !grid.meets(wlo - tol, whi + tol) {
+                continue;
+            }
             for (t, &m) in proto.triangles.iter().zip(&proto.tri_material) {
                 let p = t.map(|i| inst.to_world.transform_point3(proto.positions[i as usize]));
                 if let Some(o) = Planar::new(p, m) {
@@ -241,7 +286,8 @@ struct Grid {
 impl Grid {
     /// Cells about the size of an emitting triangle (fewer where they would pass
     /// `MAX_CELLS`), over the emitters' box grown by `tol`.
-    fn new(emitters: &[Planar], tol: f32) -> Grid {
+    /// `None` where its cells would not fit in the memory left.
+    fn new(emitters: &[Planar], tol: f32) -> Option<Grid> {
         let bounds = |p: &[Vec3; 3]| (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
         let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
         let mut sizes = 0.0f64;
@@ -262,12 +308,15 @@ impl Grid {
             }
             cell *= 1.25;
         };
+        let mut cells = Vec::new();
+        cells.try_reserve_exact(dims.iter().product()).ok()?;
+        cells.resize(dims.iter().product(), Vec::new());
         let mut grid = Grid {
             lo,
             hi,
             inv_cell: 1.0 / cell,
             dims,
-            cells: vec![Vec::new(); dims.iter().product()],
+            cells,
         };
         for (e, t) in emitters.iter().enumerate() {
             let (a, b) = bounds(&t.p);
@@ -277,12 +326,17 @@ impl Grid {
                 }
             }
         }
-        grid
+        Some(grid)
+    }
+
+    /// Whether a box from `a` to `b` meets the grid's box.
+    fn meets(&self, a: Vec3, b: Vec3) -> bool {
+        !(a.cmpgt(self.hi).any() || b.cmplt(self.lo).any())
     }
 
     /// The cells a box from `a` to `b` covers, or `None` where it misses the grid's box.
     fn range(&self, a: Vec3, b: Vec3) -> Option<impl Iterator<Item = usize>> {
-        if a.cmpgt(self.hi).any() || b.cmplt(self.lo).any() {
+        if !self.meets(a, b) {
             return None;
         }
         let at = |p: Vec3| {
