@@ -1294,7 +1294,7 @@ fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
             };
         }
         // A key missing from the top level is reported against the whole top-level table.
-        if span.start == 0 && !quoted.starts_with('[') && msg.starts_with("missing field") {
+        if span.start == 0 && !quoted.starts_with('[') && msg.starts_with("missing key") {
             anyhow!("{label}: {msg} at the top level")
         } else if quoted.is_empty() {
             anyhow!("{label}: line {line}: {msg}")

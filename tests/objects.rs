@@ -533,7 +533,7 @@ fn object_tables_are_checked() {
         (
             "",
             "[[object]]\nobj = \"floor.obj\"\nshear = 1.0",
-            "unknown field `shear`".to_string(),
+            "unknown key 'shear'".to_string(),
         ),
     ] {
         let text = format!("{top}{rest}{tables}\n");

@@ -1285,15 +1285,15 @@ mod tests {
                 json(&[entry(0, ID)]).replacen('\n', "\n/* camera */ ", 1),
                 "c.json: line 2: expected value (a comment: JSON has none; remove it)",
             ),
-            (json(&[entry(0, ID).replace("fov", "fvo")]), "c.json: line 2 (entry 1): unknown field `fvo`"),
+            (json(&[entry(0, ID).replace("fov", "fvo")]), "c.json: line 2 (entry 1): unknown key 'fvo'"),
             // A file on one line (Python's `json.dump`) says the column too.
             (
                 format!("{{\"frames\": [{}, {}, , {}]}}", entry(0, ID), entry(1, ID), entry(2, ID)),
                 "c.json: line 1, column ",
             ),
             // Lines ended by a bare CR are lines (serde counted LFs alone: line 1).
-            (json(&[entry(0, ID), entry(1, ID).replace("fov", "fvo")]).replace('\n', "\r"), "c.json: line 3 (entry 2): unknown field `fvo`"),
-            (json(&[entry(0, ID), entry(1, ID).replace("fov", "fvo")]).replace('\n', "\r\n"), "c.json: line 3 (entry 2): unknown field `fvo`"),
+            (json(&[entry(0, ID), entry(1, ID).replace("fov", "fvo")]).replace('\n', "\r"), "c.json: line 3 (entry 2): unknown key 'fvo'"),
+            (json(&[entry(0, ID), entry(1, ID).replace("fov", "fvo")]).replace('\n', "\r\n"), "c.json: line 3 (entry 2): unknown key 'fvo'"),
             (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 0.5")]), "c.json: line 2 (entry 1): frame '0.5' is not a frame number (a whole number from 0 to 4294967295)"),
             (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 1e-400")]), "c.json: line 2 (entry 1): frame '1e-400' is not a frame number"),
             (json(&[entry(0, ID).replace("\"frame\": 0", "\"frame\": 0.99999999999999999")]), "c.json: line 2 (entry 1): frame '0.99999999999999999' is not a frame number"),

@@ -131,7 +131,14 @@ impl ObjectFile {
         }
         let a = DMat3::from_mat4(m);
         for axis in [a.x_axis, a.y_axis, a.z_axis] {
-            let l = axis.length();
+            // Scaled to its largest entry first: the squares of 1e-300 underflow, and its
+            // length was said as 0e0, not as the value written.
+            let big = axis.abs().max_element();
+            let l = if big > 0.0 {
+                big * (axis / big).length()
+            } else {
+                0.0
+            };
             if !(1e-6..=1e6).contains(&l) {
                 bail!(
                     "{at}: the transform scales an axis by {l:e} (at most 1e6 and at least 1e-6)"
@@ -340,6 +347,7 @@ mod tests {
             ),
             ("translate = [nan, 0, 0]", "must be finite"),
             ("scale = 1e7", "scales an axis by 1e7"),
+            ("scale = [1, 1, 1e-300]", "scales an axis by 1e-300"),
             ("translate = [1e19, 0, 0]", "over 1e18"),
             (
                 "rotate = [1e300, 0, 0]",

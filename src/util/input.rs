@@ -140,6 +140,13 @@ pub fn open_input(path: &Path, what: &str, max_bytes: u64) -> Result<File> {
 pub fn open_input_or_missing(path: &Path, what: &str, max_bytes: u64) -> Result<File, InputError> {
     let p = path.display();
     let refuse = |why: String| InputError::Refused(format!("{what} '{p}': {why}"));
+    // No file's name holds one (the system's calls end a name there): said so, not as Rust's
+    // "file name contained an unexpected NUL byte".
+    if path.as_os_str().as_encoded_bytes().contains(&0) {
+        return Err(refuse(
+            "a file name cannot hold a NUL character (\\u{0} here)".into(),
+        ));
+    }
     let io = |e: std::io::Error| match e.kind() {
         ErrorKind::NotFound => InputError::NotFound(match path.symlink_metadata() {
             Ok(_) => format!("{what} '{p}': a symbolic link to nothing"),

@@ -122,7 +122,33 @@ pub fn plain_types(msg: &str, record: &str) -> String {
         .replace("expected a sequence", "expected an array")
         // serde_json's word for a key given twice (TOML's is "key").
         .replace("duplicate field `", "duplicate key `");
-    bare_values(&out)
+    let out = dotted_key(&bare_values(&out));
+    // A key is a key in both formats (serde says field), a value of a list of names a value
+    // (serde says variant); names are quoted as the rest of reframe's messages quote them.
+    out.replace("unknown field `", "unknown key `")
+        .replace("missing field `", "missing key `")
+        .replace("unknown variant `", "unknown value `")
+        .replace(
+            "trailing characters",
+            "more text after the end of the JSON value",
+        )
+        .replace('`', "'")
+}
+
+/// toml's message for a dotted key where a value is expected (`frames.x = 3`: `frames` becomes
+/// a table, whose key serde then fails to read as the value: `invalid type: string "x",
+/// expected a borrowed string`) in the file's words.
+fn dotted_key(msg: &str) -> String {
+    let inner = msg
+        .strip_prefix("invalid type: string \"")
+        .and_then(|m| m.strip_suffix("\", expected a borrowed string"));
+    match inner {
+        Some(key) => format!(
+            "a dotted key (ending in '.{key}') makes a table of what takes a value here: write \
+             the key without '.{key}', as 'key = value'"
+        ),
+        None => msg.to_string(),
+    }
 }
 
 /// serde's names of a value's Rust kind dropped where it quotes the value: `invalid type:
@@ -255,6 +281,7 @@ mod tests {
     #[test]
     fn serde_messages_name_no_rust_types() {
         #[derive(serde::Deserialize, Debug)]
+        #[serde(deny_unknown_fields)]
         #[allow(dead_code)]
         struct Entry {
             frame: u32,
@@ -299,7 +326,30 @@ mod tests {
         let m = said(serde_json::from_str(
             r#"{"frame": 0, "fov": 1, "frame": 2}"#,
         ));
-        assert!(m.starts_with("duplicate key `frame`"), "{m}");
+        assert!(m.starts_with("duplicate key 'frame'"), "{m}");
+        // serde's other words for keys and values, and its backticks.
+        let m = said(serde_json::from_str(r#"{"frame": 0, "fps": 1}"#));
+        assert!(
+            m.starts_with("unknown key 'fps', expected 'frame' or 'fov'"),
+            "{m}"
+        );
+        let m = said(serde_json::from_str(r#"{"frame": 0}"#));
+        assert!(m.starts_with("missing key 'fov'"), "{m}");
+        let m = said(serde_json::from_str(r#"{"frame": 0, "fov": 1} x"#));
+        assert!(
+            m.starts_with("more text after the end of the JSON value"),
+            "{m}"
+        );
+        // A TOML dotted key where the scene's reader expects a value (toml's words for it; a
+        // corpus case renders one).
+        let m = plain_types(
+            "invalid type: string \"deg\", expected a borrowed string",
+            "a table",
+        );
+        assert!(
+            m.starts_with("a dotted key (ending in '.deg') makes a table of what takes a value"),
+            "{m}"
+        );
         assert_eq!(
             bare_values(r#"invalid type: string "a", expected a number"#),
             r#"invalid type: string "a", expected a number"#
