@@ -806,6 +806,51 @@ fn a_merge_says_which_frames_came_out_black() {
 }
 
 #[test]
+fn a_checkpoint_that_cannot_be_written_is_named_with_what_a_resume_does() {
+    // Under a file-size limit the checkpoint's write failed, naming its temporary file alone
+    // and saying neither what was kept nor what --resume would do.
+    let dir = tempfile::tempdir().unwrap();
+    let out = format!("{}/f_####.exr", dir.path().display());
+    let args = [
+        "render",
+        "cornell",
+        "--method",
+        "mis-cv",
+        "--window",
+        "3",
+        "--res",
+        "64x48",
+        "--spp",
+        "8",
+        "--frames",
+        "0-23",
+        "--out",
+        &out,
+        "--checkpoint-every",
+        "0",
+    ];
+    let quoted: Vec<String> = args.iter().map(|a| format!("'{a}'")).collect();
+    let cmd = format!(
+        "ulimit -f 120 && exec '{}' {}",
+        env!("CARGO_BIN_EXE_reframe"),
+        quoted.join(" ")
+    );
+    let o = Command::new("sh").args(["-c", &cmd]).output().unwrap();
+    let state = dir.path().join("f.checkpoint/state");
+    common::assert_refused(
+        &o,
+        &format!(
+            "checkpoint not written (no checkpoint of this render is on disk: --resume would \
+             start from its beginning): writing {}: File too large",
+            state.display()
+        ),
+    );
+    // As said: without the limit, --resume starts over and finishes.
+    run(&with(&args, &["--resume"]));
+    assert!(dir.path().join("f_0023.exr").exists() && !state.exists());
+}
+
+#[test]
 fn a_merge_never_writes_over_an_interrupted_renders_frames() {
     // A merge into frames an interrupted render's checkpoint counts finished wrote over them
     // (exit 0), and the render's resume was then refused.

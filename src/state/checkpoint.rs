@@ -524,7 +524,17 @@ impl Checkpointer {
             t.log_records = recs.clone();
             t.log_crcs = crcs.clone();
         }
-        write_state(&dir.join("state"), &mut t, active)?;
+        let state = dir.join("state");
+        if let Err(e) = write_state(&state, &mut t, active) {
+            // What is on disk and what a resume does (a disk full or a file-size limit named
+            // the temporary file alone, and said neither).
+            let kept = if state.is_file() {
+                "the checkpoint before it is kept: --resume continues from there"
+            } else {
+                "no checkpoint of this render is on disk: --resume would start from its beginning"
+            };
+            return Err(e.context(format!("checkpoint not written ({kept})")));
+        }
         crate::util::fs::set_checkpoint_in_place(true);
         self.log_counted = true;
         self.spent += t0.elapsed();

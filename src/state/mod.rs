@@ -907,7 +907,7 @@ pub fn write_state<'a>(
     })();
     if let Err(e) = result {
         let _ = std::fs::remove_file(&tmp);
-        return Err(e.context(format!("writing {}", tmp.display())));
+        return Err(e.context(format!("writing {}", path.display())));
     }
     std::fs::rename(&tmp, path)
         .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
