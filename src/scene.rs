@@ -1223,6 +1223,51 @@ fn refuse_scene_as_obj(obj: &Path, scene: &Path, at: &str) -> Result<()> {
     Ok(())
 }
 
+/// Every required key missing from the table a "missing key" error is about (serde names the
+/// first alone, so a new scene file was refused once per key it lacked): the top level
+/// (`span_start` 0) or the `[[keyframe]]` table whose header starts at `span_start`, and then
+/// the top level's too. `None` where there is no more to say than serde's message.
+fn missing_keys(text: &str, span_start: usize) -> Option<String> {
+    let doc: toml::Table = text.parse().ok()?;
+    let lacks = |table: &toml::Table, required: &[&str]| -> Vec<String> {
+        required
+            .iter()
+            .filter(|k| !table.contains_key(**k))
+            .map(|k| format!("'{k}'"))
+            .collect()
+    };
+    let list = |keys: &[String]| match keys {
+        [one] => one.clone(),
+        [rest @ .., last] => format!("{} and {last}", rest.join(", ")),
+        [] => String::new(),
+    };
+    let top = lacks(&doc, &["frames", "resolution"]);
+    if span_start == 0 {
+        return (top.len() > 1).then(|| format!("missing keys {}", list(&top)));
+    }
+    // The keyframe tables in order; which one is the header's at `span_start`.
+    let header =
+        |l: &str| l.split('#').next().unwrap_or("").replace([' ', '\t'], "") == "[[keyframe]]";
+    let k = text
+        .get(..span_start)?
+        .lines()
+        .filter(|l| header(l))
+        .count();
+    let table = doc.get("keyframe")?.as_array()?.get(k)?.as_table()?;
+    let own = lacks(table, &["frame", "position", "look_at", "up", "fov"]);
+    let what = if own.len() > 1 { "keys" } else { "key" };
+    match (own.is_empty(), top.is_empty()) {
+        (true, _) => None,
+        (false, true) if own.len() == 1 => None,
+        (false, true) => Some(format!("missing keys {}", list(&own))),
+        (false, false) => Some(format!(
+            "missing {what} {} (and at the top level {})",
+            list(&own),
+            list(&top)
+        )),
+    }
+}
+
 /// The scene TOML, with errors on one line that name the line and quote it.
 fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
     if text.trim().is_empty() {
@@ -1292,6 +1337,12 @@ fn parse_scene_file(label: &str, text: &str) -> Result<SceneFile> {
             } else {
                 "not TOML here (the file may be cut short)".into()
             };
+        }
+        // Every key the table lacks, not the first alone.
+        if msg.starts_with("missing key") {
+            if let Some(all) = missing_keys(text, span.start) {
+                msg = all;
+            }
         }
         // A key missing from the top level is reported against the whole top-level table.
         if span.start == 0 && !quoted.starts_with('[') && msg.starts_with("missing key") {
