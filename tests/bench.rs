@@ -417,11 +417,9 @@ fn a_reference_entry_linked_to_another_is_never_written_through() {
             .unwrap()
             .map(|e| e.unwrap().path())
             .find(|p| {
-                p.file_name()
-                    .unwrap()
-                    .to_str()
-                    .unwrap()
-                    .contains(&format!("_{spp}spp_"))
+                let name = p.file_name().unwrap().to_str().unwrap();
+                // The entry's folder, not its lock (`.ENTRY.lock`) beside it.
+                !name.starts_with('.') && name.contains(&format!("_{spp}spp_"))
             })
             .unwrap()
     };
@@ -646,12 +644,6 @@ fn compare_says_which_run_a_missing_speedup_lacks() {
             .find(|l| l.starts_with("same-spp speed-up"))
             .unwrap_or_else(|| panic!("{text}"))
             .to_string();
-        // Runs of a few milliseconds: their speed-ups are said to mean little.
-        assert!(
-            text.contains("note: a timed run took 0.0")
-                && text.contains("too short for the speed-ups and the equal-time figures"),
-            "{text}"
-        );
         line
     };
     let line = run("mis-exact");

@@ -239,12 +239,6 @@ pub fn progress_bar(enabled: bool, len: u64, what: &str) -> ProgressBar {
     pb
 }
 
-/// Refuse a render whose `--checkpoint` is the folder `d`, which holds no checkpoint, where the
-/// default folder of this `--out` holds the checkpoint of an interrupted render to this very
-/// `--out` (the state names it: outputs of one stem, `f_####.png` and `f_####.exr`, share the
-/// default folder): the render would overwrite its frames, counted finished, so that it could
-/// no longer be resumed, or (with `--resume`) start again from the beginning without a word.
-/// `--resume` with that folder continues it; deleting it starts over.
 /// Refuse a chunk whose partial file is already there, complete, from a render of other frames
 /// or of another scene: a chunk file's name says only which chunk it is, so two job arrays over
 /// different ranges of one shot given one `--out` replaced each other's finished chunks,
@@ -281,6 +275,12 @@ fn check_chunk_file(path: &Path, c: Chunk, key: &RunKey) -> Result<()> {
     )
 }
 
+/// Refuse a render whose `--checkpoint` is the folder `d`, which holds no checkpoint, where the
+/// default folder of this `--out` holds the checkpoint of an interrupted render to this very
+/// `--out` (the state names it: outputs of one stem, `f_####.png` and `f_####.exr`, share the
+/// default folder): the render would overwrite its frames, counted finished, so that it could
+/// no longer be resumed, or (with `--resume`) start again from the beginning without a word.
+/// `--resume` with that folder continues it; deleting it starts over.
 fn check_no_checkpoint_elsewhere(d: &Path, opts: &RenderOptions) -> Result<()> {
     let default = default_checkpoint_dir(&opts.out, opts.chunk);
     let same = d == default

@@ -1433,22 +1433,27 @@ pub fn summary(r: &CompareReport) -> String {
     if !p.is_empty() {
         let _ = write!(s, "same-spp speed-up, eq. 16 / measured: {}", p.join(", "));
     }
-    // Runs this short are mostly the fixed costs of a render (threads, films): the speed-ups
-    // read those, and moved from 0.10x to 0.08x between two runs of 8x6 frames.
-    let shortest = r
-        .runs
-        .iter()
-        .map(|run| run.seconds)
-        .fold(f64::INFINITY, f64::min);
-    if shortest < SHORT_RUN_SECONDS {
-        let _ = write!(
-            s,
-            "\nnote: a timed run took {shortest:.3} s, under {SHORT_RUN_SECONDS} s: too short for \
-             the speed-ups and the equal-time figures to mean much; give a larger --res or \
-             --budgets"
-        );
+    if let Some(note) = short_run_note(&r.runs) {
+        let _ = write!(s, "\n{note}");
     }
     s
+}
+
+/// A note where a run took under `SHORT_RUN_SECONDS` (its whole time, not the share charged
+/// to the measured frames): such runs are mostly the fixed costs of a render (threads, films),
+/// which the speed-ups then read (two runs of 8x6 frames gave 0.10x and 0.08x).
+fn short_run_note(runs: &[Run]) -> Option<String> {
+    let shortest = runs
+        .iter()
+        .map(|run| run.run_seconds)
+        .fold(f64::INFINITY, f64::min);
+    (shortest < SHORT_RUN_SECONDS).then(|| {
+        format!(
+            "note: a timed run took {shortest:.3} s, under {SHORT_RUN_SECONDS} s: too short for \
+             the speed-ups and the equal-time figures to mean much; give a larger --res, \
+             --budgets or --reuse-budgets"
+        )
+    })
 }
 
 /// The geometric mean of positive `v` (not empty).
@@ -1673,6 +1678,23 @@ mod tests {
             middle_relmse: None,
             per_frame: Vec::new(),
         }
+    }
+
+    #[test]
+    fn runs_too_short_to_time_are_said_by_their_whole_time() {
+        let ind = Candidate::plain(Method::Independent);
+        let mut runs = vec![run(ind, 1, 0.2, 0.1), run(ind, 1, 0.4, 0.05)];
+        assert_eq!(short_run_note(&runs), None);
+        // A steady-state run charged 0.01 s of its 0.3 s is timed well enough.
+        runs[0].seconds = 0.01;
+        runs[0].run_seconds = 0.3;
+        assert_eq!(short_run_note(&runs), None);
+        runs[1].run_seconds = 0.004;
+        let note = short_run_note(&runs).unwrap();
+        assert!(
+            note.starts_with("note: a timed run took 0.004 s, under 0.05 s"),
+            "{note}"
+        );
     }
 
     #[test]

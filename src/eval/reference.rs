@@ -299,6 +299,9 @@ pub fn reference(
     });
     if let Some(text) = text {
         let info = serde_json::from_str::<ReferenceInfo>(&text)
+            .map_err(|e| {
+                anyhow::anyhow!(crate::util::text::plain_types(&e.to_string(), "an object"))
+            })
             .with_context(|| format!("{}: not a reference description", info_path.display()));
         let cached = info.and_then(|info| {
             read_cached(&info, &want, &range, frame_path).map(|frames| (info, frames))

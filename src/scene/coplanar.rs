@@ -24,9 +24,13 @@ use std::collections::BTreeMap;
 /// steps of it), or times its size where that is larger, lie on that plane.
 pub const PLANE_TOLERANCE: f32 = 1e-5;
 
-/// Cells and pairs of triangles visited at most: past it the check stops, with what it found
-/// so far (it takes about a second on this many).
+/// Cells, pairs of triangles and placed triangles visited at most: past it the check stops,
+/// with what it found so far (a few seconds at most).
 const MAX_VISITS: u64 = 50_000_000;
+
+/// Entries of the emitters' grid at most (an emitter is in every cell its box covers): past it
+/// the check is not made.
+const MAX_ENTRIES: usize = 1 << 22;
 
 /// Cells of the emitters' grid at most.
 const MAX_CELLS: usize = 1 << 18;
@@ -100,8 +104,9 @@ fn flatten(n: Vec3, p: &[Vec3; 3]) -> [Vec2; 3] {
 
 /// Whether two triangles of one plane overlap by more than a sliver: no edge of either
 /// separates them, by the separating-axis test, with an overlap of more than `rel` times the
-/// larger triangle's size required along every edge's normal (so that triangles sharing an
-/// edge or a corner do not overlap).
+/// smaller triangle's size required along every edge's normal (so that triangles sharing an
+/// edge or a corner do not overlap; the larger's would pass over a small lamp on a large
+/// floor).
 fn overlap_2d(a: &[Vec2; 3], b: &[Vec2; 3], rel: f32) -> bool {
     let size = |t: &[Vec2; 3]| {
         (t[1] - t[0])
@@ -109,7 +114,7 @@ fn overlap_2d(a: &[Vec2; 3], b: &[Vec2; 3], rel: f32) -> bool {
             .max((t[2] - t[1]).length())
             .max((t[0] - t[2]).length())
     };
-    let eps = rel * size(a).max(size(b));
+    let eps = rel * size(a).min(size(b));
     for t in [a, b] {
         for k in 0..3 {
             let e = t[(k + 1) % 3] - t[k];
@@ -177,19 +182,21 @@ pub fn warnings(
     tested.resize(emitters.len(), u32::MAX);
     let mut others = 0u32;
     let mut check = |o: Planar| -> bool {
+        // Every triangle looked at counts, every cell and every entry of a cell.
+        visits += 1;
         let Some(cells) = grid.cells(&o.p, tol) else {
-            return true;
+            return visits < MAX_VISITS;
         };
         others += 1;
         for cell in cells {
             visits += 1;
             for &e in &grid.cells[cell] {
+                visits += 1;
                 if std::mem::replace(&mut tested[e as usize], others) == others {
                     continue;
                 }
-                visits += 1;
                 let t = &emitters[e as usize];
-                if t.n.dot(o.n) < 1.0 - 1e-6 || !o.holds(t, t.tol) {
+                if t.n.dot(o.n).abs() < 1.0 - 1e-6 || !o.holds(t, t.tol) {
                     continue;
                 }
                 if overlap_2d(&flatten(t.n, &t.p), &flatten(t.n, &o.p), 1e-4) {
@@ -318,10 +325,16 @@ impl Grid {
             dims,
             cells,
         };
+        let mut entries = 0;
         for (e, t) in emitters.iter().enumerate() {
             let (a, b) = bounds(&t.p);
             if let Some(cells) = grid.range(a - tol, b + tol) {
                 for c in cells {
+                    entries += 1;
+                    if entries > MAX_ENTRIES {
+                        return None;
+                    }
+                    grid.cells[c].try_reserve(1).ok()?;
                     grid.cells[c].push(e as u32);
                 }
             }
@@ -469,5 +482,17 @@ mod tests {
         assert!(warnings("s.toml", &mesh, &protos, &[at(0.0)]).is_empty());
         let w = warnings("s.toml", &mesh, &protos, &[at(0.0), at(1.0)]);
         assert_eq!(w.len(), 1, "{w:?}");
+    }
+
+    #[test]
+    fn a_small_lamp_on_a_large_ceiling_is_found() {
+        // A 0.4 m lamp in the plane of a 2 km ceiling: the overlap was asked to exceed 1e-4 of
+        // the larger triangle's size, 0.28 m, more than the lamp's halves on either side of the
+        // ceiling's diagonal overlap each of its triangles by.
+        let mut big = room(2.0);
+        for p in &mut big.positions[..4] {
+            *p = Vec3::new(p.x * 1000.0, p.y, p.z * 1000.0);
+        }
+        assert_eq!(warnings("s.obj", &big, &[], &[]).len(), 1);
     }
 }

@@ -517,9 +517,10 @@ impl Checkpointer {
         t.next_unit = next_unit;
         t.progress = progress.clone();
         t.frame_digests = frame_digests.to_vec();
-        if let Some((f, _, len, recs, crcs)) = &mut self.log {
+        if let Some((f, lp, len, recs, crcs)) = &mut self.log {
             // The log's records must be on disk before a checkpoint counts them.
-            f.sync_data()?;
+            f.sync_data()
+                .with_context(|| format!("writing {}", lp.display()))?;
             t.log_len = *len;
             t.log_records = recs.clone();
             t.log_crcs = crcs.clone();
@@ -576,8 +577,11 @@ impl Checkpointer {
             t.record_crcs = crcs;
             let mut w = BufWriter::new(f);
             write_trailer(&mut w, &t).with_context(|| format!("writing {}", lp.display()))?;
-            let f = w.into_inner().map_err(|e| e.into_error())?;
-            f.sync_all()?;
+            let f = w
+                .into_inner()
+                .map_err(|e| e.into_error())
+                .and_then(|f| f.sync_all().map(|()| f))
+                .with_context(|| format!("writing {}", lp.display()))?;
             // The log is renamed by its name: whatever sits there now must be the file this run
             // wrote (another program's file renamed over it made the partial file that file,
             // and the chunk reported success).

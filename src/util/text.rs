@@ -144,8 +144,8 @@ fn dotted_key(msg: &str) -> String {
         .and_then(|m| m.strip_suffix("\", expected a borrowed string"));
     match inner {
         Some(key) => format!(
-            "a dotted key (ending in '.{key}') makes a table of what takes a value here: write \
-             the key without '.{key}', as 'key = value'"
+            "a dotted key (from '.{key}' on) makes a table of what takes a value here: write it \
+             as 'key = value', without the dots"
         ),
         None => msg.to_string(),
     }
@@ -347,7 +347,7 @@ mod tests {
             "a table",
         );
         assert!(
-            m.starts_with("a dotted key (ending in '.deg') makes a table of what takes a value"),
+            m.starts_with("a dotted key (from '.deg' on) makes a table of what takes a value"),
             "{m}"
         );
         assert_eq!(
