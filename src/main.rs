@@ -315,11 +315,11 @@ fn run(cli: Cli) -> Result<()> {
             print_warnings(&scene);
             // The frames and the resolution the render took (checked as it started).
             let (frames, size) = opts.check(&scene)?;
-            if let Some(w) = scene.unseen_frames(frames.clone(), size) {
+            // Black frames that the camera's check explains are not said again.
+            let unseen = scene.missed_frames(frames.clone(), size);
+            if let Some(w) = scene.unseen_frames(&unseen, frames.count()) {
                 errln!("warning: {}", message(&w));
             }
-            // Black frames that the camera's check above explains are not said again.
-            let unseen = scene.missed_frames(frames, size);
             if let Ok(out) = reframe::image::OutputPattern::parse(&opts.out) {
                 for w in opts.flag_warnings(&out, size) {
                     errln!("warning: {}", message(&w));

@@ -239,42 +239,6 @@ pub fn progress_bar(enabled: bool, len: u64, what: &str) -> ProgressBar {
     pb
 }
 
-/// Refuse a chunk whose partial file is already there, complete, from a render of other frames
-/// or of another scene: a chunk file's name says only which chunk it is, so two job arrays over
-/// different ranges of one shot given one `--out` replaced each other's finished chunks,
-/// unsaid. A partial of the same frames is replaced, whatever its other settings (a job run
-/// again, or an array resubmitted after a change of samples or seed, whose old chunks the
-/// merge could not use), and a file that is not a complete partial is no finished work.
-fn check_chunk_file(path: &Path, c: Chunk, key: &RunKey) -> Result<()> {
-    if !crate::state::is_state_file(path) {
-        return Ok(());
-    }
-    let Ok(theirs) = crate::state::StateFile::open(path) else {
-        return Ok(());
-    };
-    let t = &theirs.trailer.key;
-    let (ours, other) = (
-        (key.first_frame, key.last_frame, &key.scene),
-        (t.first_frame, t.last_frame, &t.scene),
-    );
-    if theirs.trailer.kind != crate::state::Kind::Partial || ours == other {
-        return Ok(());
-    }
-    let name = crate::util::text::printable;
-    bail!(
-        "{}: holds chunk {c} of frames {}-{} of '{}', finished, and this render is of frames {}-{} \
-         of '{}': a chunk file's name says only which chunk it is, so this render would replace \
-         that work; give it another --out, or delete that file to render the chunk again",
-        path.display(),
-        t.first_frame,
-        t.last_frame,
-        name(&t.scene),
-        key.first_frame,
-        key.last_frame,
-        name(&key.scene)
-    )
-}
-
 /// Refuse a render whose `--checkpoint` is the folder `d`, which holds no checkpoint, where the
 /// default folder of this `--out` holds the checkpoint of an interrupted render to this very
 /// `--out` (the state names it: outputs of one stem, `f_####.png` and `f_####.exr`, share the
@@ -551,15 +515,8 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Result<RenderStats> {
     if opts.chunk.is_none() {
         check_no_interrupted_render(&opts.out, &plan.frames, opts.checkpoint.as_deref())?;
     }
-    let key = if opts.checkpoint.is_some() || opts.chunk.is_some() {
-        Some(run_key(scene, opts, &plan)?)
-    } else {
-        None
-    };
-    if let (Some(c), Some(key)) = (opts.chunk, &key) {
-        check_chunk_file(&partial_path(&opts.out, c), c, key)?;
-    }
-    let (ckpt, resumed) = if let Some(key) = key {
+    let (ckpt, resumed) = if opts.checkpoint.is_some() || opts.chunk.is_some() {
+        let key = run_key(scene, opts, &plan)?;
         let mut template = Trailer::new(
             key,
             opts.chunk,

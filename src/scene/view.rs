@@ -53,21 +53,12 @@ impl Scene {
             .collect()
     }
 
-    /// A warning where the cameras of `frames` (at `width` x `height`) see none of the scene's
-    /// geometry: any such frame when the scene has no environment (it would be black), every
-    /// frame when it has one (a shot that turns to the sky for a while is fine; one that never
-    /// sees the scene is most likely a camera in the wrong axes or units).
-    pub fn unseen_frames(
-        &self,
-        frames: RangeInclusive<u32>,
-        (width, height): (u32, u32),
-    ) -> Option<String> {
+    /// A warning where the cameras of `missed` (`missed_frames`, of a render of `total` frames)
+    /// see none of the scene's geometry: any such frame when the scene has no environment (it
+    /// would be black), every frame when it has one (a shot that turns to the sky for a while is
+    /// fine; one that never sees the scene is most likely a camera in the wrong axes or units).
+    pub fn unseen_frames(&self, missed: &[u32], total: usize) -> Option<String> {
         let (lo, hi) = world_bounds(&self.positions, &self.prototypes, &self.instances);
-        if lo.x > hi.x {
-            return None;
-        }
-        let total = frames.clone().count();
-        let missed = self.missed_frames(frames, (width, height));
         let environment = self.environment.is_some();
         if missed.is_empty() || (environment && missed.len() < total) {
             return None;
@@ -76,12 +67,12 @@ impl Scene {
         let which = if missed.len() == total {
             format!(
                 "every frame of the render ({})",
-                crate::util::text::ranges(&missed, 4)
+                crate::util::text::ranges(missed, 4)
             )
         } else {
             format!(
                 "frame(s) {} ({} of {total})",
-                crate::util::text::ranges(&missed, 4),
+                crate::util::text::ranges(missed, 4),
                 missed.len()
             )
         };

@@ -640,7 +640,8 @@ fn same_file(f: &File, path: &Path) -> bool {
 /// A chunk's partial file left by a render of another `--out` is refused, with or without
 /// `--resume`: outputs of one stem share partial names (`f_####.exr` and `f_####.png`), and a
 /// chunk of one replaced the other's finished result without a word (its merge then wrote the
-/// other sequence's frames, or was refused). A partial of this `--out` is this sequence's: an
+/// other sequence's frames, or was refused). One of this `--out` but of other frames or another
+/// scene is refused too (below). One of this `--out` and these frames is this render's: an
 /// earlier run's, of other settings (a scene fixed, a new build) is rendered again, as a
 /// resubmitted Slurm array expects. Anything that is not a reframe partial file is left to the
 /// checks that follow.
@@ -648,15 +649,40 @@ fn check_partial_is_ours(partial: &Path, template: &Trailer) -> Result<()> {
     let Ok(theirs) = StateFile::open(partial).map(|f| f.trailer) else {
         return Ok(());
     };
-    if theirs.kind != Kind::Partial || theirs.out == template.out {
+    if theirs.kind != Kind::Partial {
         return Ok(());
     }
+    if theirs.out != template.out {
+        bail!(
+            "{} is the partial file of another render, of --out {}, {}: remove it to render this \
+             chunk, or give this render an --out of another name",
+            partial.display(),
+            theirs.out,
+            crate::state::key::shared_names(&theirs.out, &template.out)
+        );
+    }
+    // Of this --out, but of other frames or another scene: a chunk file's name says only which
+    // chunk it is, so two job arrays over different ranges of one shot given one --out replaced
+    // each other's finished chunks, unsaid. A partial of the same frames is replaced, whatever
+    // its other settings (a job run again, or an array resubmitted after a change of samples or
+    // seed, whose old chunks the merge could not use).
+    let (t, k) = (&theirs.key, &template.key);
+    if (t.first_frame, t.last_frame, &t.scene) == (k.first_frame, k.last_frame, &k.scene) {
+        return Ok(());
+    }
+    let name = crate::util::text::printable;
     bail!(
-        "{} is the partial file of another render, of --out {}, {}: remove it to render this \
-         chunk, or give this render an --out of another name",
+        "{}: holds chunk {} of frames {}-{} of '{}', finished, and this render is of frames {}-{} \
+         of '{}': a chunk file's name says only which chunk it is, so this render would replace \
+         that work; give it another --out, or delete that file to render the chunk again",
         partial.display(),
-        theirs.out,
-        crate::state::key::shared_names(&theirs.out, &template.out)
+        template.chunk.map_or_else(String::new, |c| c.to_string()),
+        t.first_frame,
+        t.last_frame,
+        name(&t.scene),
+        k.first_frame,
+        k.last_frame,
+        name(&k.scene)
     )
 }
 
